@@ -1,0 +1,673 @@
+"""Scenes as data: arena, robots with poses, obstacles with poses.
+
+A :class:`Scene` is a frozen, validated value. It round-trips through plain dicts / JSON
+(:meth:`Scene.to_dict`, :meth:`Scene.from_dict`); unknown keys and invalid values (negative sizes,
+overlapping objects, an object outside the arena) raise ``ValueError`` naming the culprit.
+
+Frames and units: world frame, metres, angles in radians counter-clockwise from the world x axis.
+The arena is the axis-aligned rectangle ``[-width/2, width/2] x [-height/2, height/2]``.
+
+Built-in scenes: :func:`paper_scenario` (the paper's Scenario I and II at any distance) and
+:func:`random_arena` (seeded random clutter).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import numpy as np
+import pymunk
+
+from kin_envs.core._validate import check_finite, check_positive, dataclass_from_dict
+from kin_envs.core.lidar import HitKind, LidarSpec
+
+__all__ = [
+    "Arena",
+    "RobotSpec",
+    "Robot",
+    "Cylinder",
+    "Box",
+    "Prism",
+    "Polygon",
+    "Wall",
+    "Obstacle",
+    "OBSTACLE_TYPES",
+    "Scene",
+    "RandomArenaConfig",
+    "paper_scenario",
+    "random_arena",
+]
+
+
+@dataclass(frozen=True)
+class RobotSpec:
+    """The paper's robot (section 3): a differential-drive cylinder with a lidar on top.
+
+    Attributes:
+        body_radius: collision radius of the body, m (paper: 9 cm). Lidar beams pass above it.
+        housing_radius: radius of the lidar housing at the body's centre, m (RPLIDAR A1: 3.5 cm).
+            This 7 cm-wide circle is the only part of a robot another robot's lidar sees.
+        wheel_base: distance between the two driven wheels, m.
+        wheel_radius: driven wheel radius, m.
+        max_wheel_speed: wheel speed limit, rad/s. With the defaults the top linear speed is
+            ``wheel_radius * max_wheel_speed = 0.33 m/s`` and the top turn rate
+            ``2 * v_max / wheel_base = 4.125 rad/s``.
+        mass: body mass, kg.
+        max_drive_force: traction force limit of the drive, N (what the wheels can push with).
+        max_drive_torque: yaw torque limit of the drive, N·m.
+    """
+
+    body_radius: float = 0.09
+    housing_radius: float = 0.035
+    wheel_base: float = 0.16
+    wheel_radius: float = 0.033
+    max_wheel_speed: float = 10.0
+    mass: float = 1.0
+    max_drive_force: float = 20.0
+    max_drive_torque: float = 2.0
+
+    def __post_init__(self) -> None:
+        check_positive("RobotSpec", **dataclasses.asdict(self))
+        if self.housing_radius > self.body_radius:
+            raise ValueError(
+                f"RobotSpec: housing_radius={self.housing_radius} m must be <= body_radius="
+                f"{self.body_radius} m"
+            )
+
+    @property
+    def max_speed(self) -> float:
+        """Top linear speed, m/s."""
+        return self.wheel_radius * self.max_wheel_speed
+
+    @property
+    def max_turn_rate(self) -> float:
+        """Top yaw rate (wheels in opposite directions), rad/s."""
+        return 2.0 * self.max_speed / self.wheel_base
+
+
+@dataclass(frozen=True)
+class Arena:
+    """Axis-aligned rectangle centred on the origin, m. ``walls`` adds the boundary wall."""
+
+    width: float = 10.0
+    height: float = 10.0
+    walls: bool = True
+
+    def __post_init__(self) -> None:
+        check_positive("Arena", width=self.width, height=self.height)
+
+    @property
+    def half_extents(self) -> tuple[float, float]:
+        return self.width / 2.0, self.height / 2.0
+
+    def boundary_polygon(self) -> np.ndarray:
+        """Inner face of the boundary wall, CCW ``(4, 2)``."""
+        hx, hy = self.half_extents
+        return np.array([[-hx, -hy], [hx, -hy], [hx, hy], [-hx, hy]])
+
+
+@dataclass(frozen=True)
+class Robot:
+    """A robot's pose: centre ``(x, y)``, m, and heading ``theta``, rad CCW from +x."""
+
+    x: float
+    y: float
+    theta: float = 0.0
+
+    def __post_init__(self) -> None:
+        check_finite("Robot", x=self.x, y=self.y, theta=self.theta)
+
+
+def _rot(theta: float) -> np.ndarray:
+    c, s = math.cos(theta), math.sin(theta)
+    return np.array([[c, -s], [s, c]])
+
+
+@dataclass(frozen=True)
+class _Obstacle:
+    """Base of obstacle kinds. ``movable`` obstacles are dynamic bodies of ``mass`` kg that robots
+    can push (with floor friction); others are static."""
+
+    kind: ClassVar[str] = ""
+    hit_kind: ClassVar[HitKind] = HitKind.NONE
+
+    def footprint(self) -> tuple[str, np.ndarray]:
+        """``("circle", [cx, cy, r])`` or ``("polygon", vertices (k, 2) CCW)`` in the world frame."""
+        raise NotImplementedError
+
+    @property
+    def center(self) -> tuple[float, float]:
+        return (self.x, self.y)  # type: ignore[attr-defined]
+
+    def to_dict(self) -> dict[str, Any]:
+        d = {"kind": self.kind, **dataclasses.asdict(self)}
+        if "vertices" in d:
+            d["vertices"] = [list(v) for v in d["vertices"]]
+        return d
+
+    def _check_common(self) -> None:
+        check_finite(self.kind, x=self.x, y=self.y, theta=getattr(self, "theta", 0.0))  # type: ignore[attr-defined]
+        check_positive(self.kind, mass=self.mass)  # type: ignore[attr-defined]
+
+
+@dataclass(frozen=True)
+class Cylinder(_Obstacle):
+    """Upright cylinder of ``radius`` m centred at ``(x, y)``."""
+
+    kind: ClassVar[str] = "cylinder"
+    hit_kind: ClassVar[HitKind] = HitKind.CYLINDER
+    x: float = 0.0
+    y: float = 0.0
+    radius: float = 0.05
+    movable: bool = False
+    mass: float = 1.0
+
+    def __post_init__(self) -> None:
+        self._check_common()
+        check_positive("cylinder", radius=self.radius)
+
+    def footprint(self):
+        return "circle", np.array([self.x, self.y, self.radius])
+
+
+@dataclass(frozen=True)
+class Box(_Obstacle):
+    """Cuboid: ``width`` along its local x, ``depth`` along local y, m; rotated by ``theta``."""
+
+    kind: ClassVar[str] = "box"
+    hit_kind: ClassVar[HitKind] = HitKind.BOX
+    x: float = 0.0
+    y: float = 0.0
+    width: float = 0.07
+    depth: float = 0.07
+    theta: float = 0.0
+    movable: bool = False
+    mass: float = 1.0
+
+    def __post_init__(self) -> None:
+        self._check_common()
+        check_positive("box", width=self.width, depth=self.depth)
+
+    def footprint(self):
+        w, d = self.width / 2, self.depth / 2
+        local = np.array([[-w, -d], [w, -d], [w, d], [-w, d]])
+        return "polygon", local @ _rot(self.theta).T + [self.x, self.y]
+
+
+@dataclass(frozen=True)
+class Prism(_Obstacle):
+    """Regular prism with ``sides`` (3 = triangular, 5 = pentagonal, 6 = hexagonal …).
+
+    ``width`` is the diameter of its circumscribed circle, m: a 7 cm-wide prism has its vertices on
+    the lidar housing's 3.5 cm circle. One vertex points along ``theta``.
+    """
+
+    kind: ClassVar[str] = "prism"
+    hit_kind: ClassVar[HitKind] = HitKind.PRISM
+    x: float = 0.0
+    y: float = 0.0
+    sides: int = 6
+    width: float = 0.07
+    theta: float = 0.0
+    movable: bool = False
+    mass: float = 1.0
+
+    def __post_init__(self) -> None:
+        self._check_common()
+        if not isinstance(self.sides, int | np.integer) or self.sides < 3:
+            raise ValueError(f"prism: sides must be an integer >= 3, got {self.sides!r}")
+        check_positive("prism", width=self.width)
+
+    def footprint(self):
+        a = self.theta + 2 * np.pi * np.arange(self.sides) / self.sides
+        r = self.width / 2
+        return "polygon", np.stack([self.x + r * np.cos(a), self.y + r * np.sin(a)], axis=1)
+
+
+@dataclass(frozen=True)
+class Polygon(_Obstacle):
+    """Any convex polygon: ``vertices`` in its local frame (m), placed at ``(x, y)``, rotated by
+    ``theta``. Vertices may be given in either winding; they are stored as given."""
+
+    kind: ClassVar[str] = "polygon"
+    hit_kind: ClassVar[HitKind] = HitKind.POLYGON
+    x: float = 0.0
+    y: float = 0.0
+    vertices: tuple[tuple[float, float], ...] = ((0.05, 0.0), (-0.05, 0.05), (-0.05, -0.05))
+    theta: float = 0.0
+    movable: bool = False
+    mass: float = 1.0
+
+    def __post_init__(self) -> None:
+        self._check_common()
+        v = np.asarray(self.vertices, dtype=float)
+        if v.ndim != 2 or v.shape[1] != 2 or len(v) < 3 or not np.all(np.isfinite(v)):
+            raise ValueError(
+                f"polygon: vertices must be >= 3 finite (x, y) pairs, got {self.vertices!r}"
+            )
+        object.__setattr__(self, "vertices", tuple((float(a), float(b)) for a, b in v))
+        e = np.roll(v, -1, axis=0) - v
+        cross = e[:, 0] * np.roll(e[:, 1], -1) - e[:, 1] * np.roll(e[:, 0], -1)
+        if not (np.all(cross > 1e-12) or np.all(cross < -1e-12)):
+            raise ValueError(f"polygon: vertices must form a strictly convex polygon, got {self.vertices!r}")
+
+    def footprint(self):
+        v = np.asarray(self.vertices) @ _rot(self.theta).T + [self.x, self.y]
+        if _signed_area(v) < 0:
+            v = v[::-1]
+        return "polygon", v
+
+
+@dataclass(frozen=True)
+class Wall(_Obstacle):
+    """Interior wall from ``(x1, y1)`` to ``(x2, y2)`` (centre line), ``thickness`` m thick."""
+
+    kind: ClassVar[str] = "wall"
+    hit_kind: ClassVar[HitKind] = HitKind.WALL
+    x1: float = 0.0
+    y1: float = 0.0
+    x2: float = 1.0
+    y2: float = 0.0
+    thickness: float = 0.05
+    movable: bool = False
+    mass: float = 5.0
+
+    def __post_init__(self) -> None:
+        check_finite("wall", x1=self.x1, y1=self.y1, x2=self.x2, y2=self.y2)
+        check_positive("wall", thickness=self.thickness, mass=self.mass)
+        if math.hypot(self.x2 - self.x1, self.y2 - self.y1) <= 0:
+            raise ValueError(f"wall: endpoints must differ, got ({self.x1}, {self.y1}) twice")
+
+    @property
+    def center(self) -> tuple[float, float]:
+        return ((self.x1 + self.x2) / 2, (self.y1 + self.y2) / 2)
+
+    def footprint(self):
+        p, q = np.array([self.x1, self.y1]), np.array([self.x2, self.y2])
+        t = (q - p) / np.linalg.norm(q - p)
+        nrm = np.array([-t[1], t[0]]) * self.thickness / 2
+        return "polygon", np.array([p - nrm, q - nrm, q + nrm, p + nrm])
+
+
+Obstacle = Cylinder | Box | Prism | Polygon | Wall
+OBSTACLE_TYPES: dict[str, type] = {c.kind: c for c in (Cylinder, Box, Prism, Polygon, Wall)}
+
+
+def _signed_area(v: np.ndarray) -> float:
+    x, y = v[:, 0], v[:, 1]
+    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
+
+
+def obstacle_from_dict(d: Any, where: str = "obstacle") -> Obstacle:
+    if not isinstance(d, dict) or "kind" not in d:
+        raise ValueError(f"{where}: expected a dict with a 'kind' key, got {d!r}")
+    kind = d["kind"]
+    if kind not in OBSTACLE_TYPES:
+        raise ValueError(f"{where}: unknown obstacle kind {kind!r}; expected one of {sorted(OBSTACLE_TYPES)}")
+    rest = {k: v for k, v in d.items() if k != "kind"}
+    if "vertices" in rest:
+        rest["vertices"] = tuple(tuple(v) for v in rest["vertices"])
+    return dataclass_from_dict(OBSTACLE_TYPES[kind], rest, f"{where} ({kind})")
+
+
+# --- overlap checks: pymunk's own collision queries on temporary shapes --------------------------
+
+_OVERLAP_TOL = 1e-9
+
+
+def _pm_shape(kind: str, geom: np.ndarray, body: pymunk.Body, inflate: float = 0.0) -> pymunk.Shape:
+    if kind == "circle":
+        return pymunk.Circle(body, float(geom[2]) + inflate, (float(geom[0]), float(geom[1])))
+    return pymunk.Poly(body, [tuple(map(float, p)) for p in geom], radius=inflate)
+
+
+class _OverlapIndex:
+    """Incrementally add footprints and ask whether a new one overlaps any placed one."""
+
+    def __init__(self) -> None:
+        self.space = pymunk.Space()
+        self.labels: dict[pymunk.Shape, str] = {}
+
+    def hits(self, kind: str, geom: np.ndarray, inflate: float = 0.0, ignore=lambda label: False):
+        probe = _pm_shape(kind, geom, self.space.static_body, inflate)
+        out = []
+        for info in self.space.shape_query(probe):
+            label = self.labels[info.shape]
+            if ignore(label):
+                continue
+            pts = info.contact_point_set.points
+            if pts and min(p.distance for p in pts) < -_OVERLAP_TOL:
+                out.append(label)
+        return out
+
+    def add(self, kind: str, geom: np.ndarray, label: str) -> None:
+        shape = _pm_shape(kind, geom, self.space.static_body)
+        self.space.add(shape)
+        self.labels[shape] = label
+
+
+def _inside_arena(kind: str, geom: np.ndarray, arena: Arena) -> bool:
+    hx, hy = arena.half_extents
+    if kind == "circle":
+        x, y, r = geom
+        return -hx <= x - r and x + r <= hx and -hy <= y - r and y + r <= hy
+    return bool(np.all(np.abs(geom[:, 0]) <= hx) and np.all(np.abs(geom[:, 1]) <= hy))
+
+
+@dataclass(frozen=True)
+class Scene:
+    """Everything a :class:`~kin_envs.core.world.World` is built from.
+
+    Attributes:
+        robots: robot poses; robot ``i`` is index ``i`` in scans and ground truth.
+        obstacles: obstacles; obstacle ``j`` is index ``j`` in ground truth.
+        arena: the arena rectangle (and whether it has a boundary wall).
+        robot: physical spec shared by all robots.
+        lidar: lidar spec shared by all robots.
+        name: free text.
+
+    Validation (``ValueError``): every robot body and obstacle lies inside the arena, no two
+    objects overlap (touching is fine; interior walls may cross each other to form corners).
+    """
+
+    robots: tuple[Robot, ...] = ()
+    obstacles: tuple[Obstacle, ...] = ()
+    arena: Arena = field(default_factory=Arena)
+    robot: RobotSpec = field(default_factory=RobotSpec)
+    lidar: LidarSpec = field(default_factory=LidarSpec)
+    name: str = ""
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "robots", tuple(self.robots))
+        object.__setattr__(self, "obstacles", tuple(self.obstacles))
+        for i, r in enumerate(self.robots):
+            if not isinstance(r, Robot):
+                raise ValueError(f"scene.robots[{i}]: expected a Robot, got {type(r).__name__}")
+        for j, o in enumerate(self.obstacles):
+            if not isinstance(o, tuple(OBSTACLE_TYPES.values())):
+                raise ValueError(f"scene.obstacles[{j}]: expected an obstacle, got {type(o).__name__}")
+        self._check_layout()
+
+    def robot_footprint(self, i: int) -> np.ndarray:
+        r = self.robots[i]
+        return np.array([r.x, r.y, self.robot.body_radius])
+
+    def _check_layout(self) -> None:
+        index = _OverlapIndex()
+        for i in range(len(self.robots)):
+            geom = self.robot_footprint(i)
+            label = f"robots[{i}] at ({geom[0]:.3f}, {geom[1]:.3f})"
+            if not _inside_arena("circle", geom, self.arena):
+                raise ValueError(f"scene: {label} (body radius {geom[2]} m) is outside the arena {self.arena}")
+            clash = index.hits("circle", geom)
+            if clash:
+                raise ValueError(f"scene: {label} overlaps {clash[0]}")
+            index.add("circle", geom, label)
+        for j, o in enumerate(self.obstacles):
+            kind, geom = o.footprint()
+            cx, cy = o.center
+            label = f"obstacles[{j}] ({o.kind} at ({cx:.3f}, {cy:.3f}))"
+            if not _inside_arena(kind, geom, self.arena):
+                raise ValueError(f"scene: {label} is outside the arena {self.arena}")
+            is_wall = isinstance(o, Wall)
+            clash = index.hits(kind, geom, ignore=lambda lab, w=is_wall: w and "(wall" in lab)
+            if clash:
+                raise ValueError(f"scene: {label} overlaps {clash[0]}")
+            index.add(kind, geom, label)
+
+    # -- data round trip -------------------------------------------------------------------------
+    def to_dict(self) -> dict[str, Any]:
+        """Plain, JSON-serialisable dict (``Scene.from_dict(s.to_dict()) == s``)."""
+        return {
+            "name": self.name,
+            "arena": dataclasses.asdict(self.arena),
+            "robot": dataclasses.asdict(self.robot),
+            "lidar": dataclasses.asdict(self.lidar),
+            "robots": [dataclasses.asdict(r) for r in self.robots],
+            "obstacles": [o.to_dict() for o in self.obstacles],
+        }
+
+    @classmethod
+    def from_dict(cls, d: Any) -> Scene:
+        """Inverse of :meth:`to_dict`; unknown keys anywhere raise ``ValueError``."""
+        if not isinstance(d, dict):
+            raise ValueError(f"scene: expected a dict, got {type(d).__name__}")
+        known = {"name", "arena", "robot", "lidar", "robots", "obstacles"}
+        unknown = sorted(set(d) - known)
+        if unknown:
+            raise ValueError(f"scene: unknown key(s) {unknown}; expected a subset of {sorted(known)}")
+        robots = d.get("robots", [])
+        obstacles = d.get("obstacles", [])
+        if not isinstance(robots, Sequence) or not isinstance(obstacles, Sequence):
+            raise ValueError("scene: 'robots' and 'obstacles' must be lists")
+        return cls(
+            name=str(d.get("name", "")),
+            arena=dataclass_from_dict(Arena, d.get("arena", {}), "scene.arena"),
+            robot=dataclass_from_dict(RobotSpec, d.get("robot", {}), "scene.robot"),
+            lidar=dataclass_from_dict(LidarSpec, d.get("lidar", {}), "scene.lidar"),
+            robots=tuple(
+                dataclass_from_dict(Robot, r, f"scene.robots[{i}]") for i, r in enumerate(robots)
+            ),
+            obstacles=tuple(
+                obstacle_from_dict(o, f"scene.obstacles[{j}]") for j, o in enumerate(obstacles)
+            ),
+        )
+
+    def to_json(self, **kw) -> str:
+        return json.dumps(self.to_dict(), **kw)
+
+    @classmethod
+    def from_json(cls, text: str) -> Scene:
+        return cls.from_dict(json.loads(text))
+
+    def replace(self, **changes) -> Scene:
+        """A copy with some fields changed (validated again)."""
+        return dataclasses.replace(self, **changes)
+
+
+# --- the paper's scenarios ----------------------------------------------------------------------
+
+#: Scenario I (paper figure 10), right to left as seen by the observer; None = the kin robot.
+SCENARIO_I_LAYOUT: tuple[dict | None, ...] = (
+    {"kind": "cylinder", "radius": 0.03},
+    {"kind": "cylinder", "radius": 0.05},
+    None,
+    {"kind": "cylinder", "radius": 0.09},
+    {"kind": "cylinder", "radius": 0.11},
+)
+
+#: Scenario II (paper figure 11): every distractor is 7 cm wide (the lidar housing's diameter);
+#: the same-radius cylinder stands just left of the kin (the paper's false positive, "No: 3").
+SCENARIO_II_LAYOUT: tuple[dict | None, ...] = (
+    {"kind": "prism", "sides": 6, "width": 0.07, "theta": 0.0},
+    {"kind": "prism", "sides": 3, "width": 0.07, "theta": 0.0},
+    {"kind": "box", "width": 0.07, "depth": 0.07, "theta": 0.0},
+    None,
+    {"kind": "cylinder", "radius": 0.035},
+    {"kind": "prism", "sides": 5, "width": 0.07, "theta": 0.0},
+    {"kind": "prism", "sides": 6, "width": 0.07, "theta": math.pi / 6},
+)
+
+PAPER_DISTANCES: tuple[float, ...] = (0.5, 0.8, 1.2)
+_DEFAULT_SPACING_DEG = {1: 30.0, 2: 20.0}
+
+
+def paper_scenario(
+    number: int, distance: float = 0.5, spacing_deg: float | None = None, lidar: LidarSpec | None = None
+) -> Scene:
+    """The paper's Scenario I (``number=1``) or II (``number=2``) at ``distance`` m.
+
+    Robot 0 is the observer at the origin facing +x; robot 1 is the kin, straight ahead at
+    ``distance``. The distractors stand on the same arc (same distance from the observer),
+    ``spacing_deg`` apart (default 30° for I, 20° for II), right to left as in the paper's figures:
+
+    * I: cylinders of radius 3, 5 cm | kin | 9, 11 cm (figure 10);
+    * II: hexagonal, triangular prism, cuboid | kin | cylinder r = 3.5 cm, pentagonal, hexagonal
+      prism (rotated 30°), all 7 cm wide (figure 11).
+
+    The arena has no boundary wall (Gazebo's empty world): beams that miss read max range.
+    Too small a distance or spacing for the objects to fit raises ``ValueError``.
+    """
+    if number not in (1, 2):
+        raise ValueError(f"paper_scenario: number must be 1 or 2, got {number!r}")
+    check_positive("paper_scenario", distance=float(distance))
+    layout = SCENARIO_I_LAYOUT if number == 1 else SCENARIO_II_LAYOUT
+    spacing = math.radians(_DEFAULT_SPACING_DEG[number] if spacing_deg is None else spacing_deg)
+    mid = len(layout) // 2
+    robots = [Robot(0.0, 0.0, 0.0)]
+    obstacles = []
+    for k, item in enumerate(layout):
+        bearing = (k - mid) * spacing  # CCW positive: k < mid is on the observer's right
+        x, y = distance * math.cos(bearing), distance * math.sin(bearing)
+        if item is None:
+            robots.append(Robot(x, y, math.pi))  # the kin faces the observer
+        else:
+            obstacles.append(obstacle_from_dict({**item, "x": x, "y": y}))
+    size = max(3.0, 2 * distance + 1.0)
+    return Scene(
+        robots=tuple(robots),
+        obstacles=tuple(obstacles),
+        arena=Arena(size, size, walls=False),
+        lidar=lidar or LidarSpec(),
+        name=f"paper_scenario_{'I' * number}_{distance:g}m",
+    )
+
+
+# --- seeded random arenas -----------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class RandomArenaConfig:
+    """Mix of obstacles for :func:`random_arena`. Probabilities are relative weights.
+
+    Attributes:
+        kind_weights: relative frequency of ``cylinder, box, prism, wall``.
+        kin_width_prob: probability that a cylinder / box / prism is exactly the kin's width
+            (cylinder radius = housing radius; box 7 x 7 cm; prism circumscribed diameter 7 cm).
+        cylinder_radius: (min, max) radius of other cylinders, m.
+        box_size: (min, max) side of other boxes, m.
+        prism_width: (min, max) width of other prisms, m.
+        prism_sides: side counts drawn uniformly.
+        wall_length: (min, max) interior wall length, m.
+        wall_thickness: interior wall thickness, m.
+        clearance: minimum gap between any two objects (and to the arena edge), m.
+        max_attempts: placement tries per object before giving up.
+    """
+
+    kind_weights: tuple[float, float, float, float] = (0.35, 0.2, 0.35, 0.1)
+    kin_width_prob: float = 0.4
+    cylinder_radius: tuple[float, float] = (0.02, 0.15)
+    box_size: tuple[float, float] = (0.05, 0.4)
+    prism_width: tuple[float, float] = (0.05, 0.3)
+    prism_sides: tuple[int, ...] = (3, 4, 5, 6)
+    wall_length: tuple[float, float] = (0.5, 2.0)
+    wall_thickness: float = 0.05
+    clearance: float = 0.05
+    max_attempts: int = 500
+
+    def __post_init__(self) -> None:
+        w = np.asarray(self.kind_weights, dtype=float)
+        if w.shape != (4,) or np.any(w < 0) or w.sum() <= 0:
+            raise ValueError(f"RandomArenaConfig.kind_weights must be 4 non-negative weights, got {self.kind_weights!r}")
+        for name in ("cylinder_radius", "box_size", "prism_width", "wall_length"):
+            lo, hi = getattr(self, name)
+            if not (0 < lo <= hi):
+                raise ValueError(f"RandomArenaConfig.{name} must be 0 < min <= max, got {(lo, hi)!r}")
+        if not (0 <= self.kin_width_prob <= 1):
+            raise ValueError(f"RandomArenaConfig.kin_width_prob must be in [0, 1], got {self.kin_width_prob!r}")
+        if not self.prism_sides or min(self.prism_sides) < 3:
+            raise ValueError(f"RandomArenaConfig.prism_sides must be integers >= 3, got {self.prism_sides!r}")
+        check_positive("RandomArenaConfig", wall_thickness=self.wall_thickness)
+        if self.clearance < 0 or self.max_attempts < 1:
+            raise ValueError("RandomArenaConfig: clearance must be >= 0 and max_attempts >= 1")
+
+
+def _random_obstacle(rng: np.random.Generator, cfg: RandomArenaConfig, spec: RobotSpec, x, y) -> Obstacle:
+    kind = rng.choice(4, p=np.asarray(cfg.kind_weights) / sum(cfg.kind_weights))
+    theta = float(rng.uniform(-math.pi, math.pi))
+    kin = rng.random() < cfg.kin_width_prob
+    kin_w = 2 * spec.housing_radius
+    if kind == 0:
+        r = spec.housing_radius if kin else float(rng.uniform(*cfg.cylinder_radius))
+        return Cylinder(x=x, y=y, radius=r)
+    if kind == 1:
+        w, d = (kin_w, kin_w) if kin else rng.uniform(*cfg.box_size, size=2)
+        return Box(x=x, y=y, width=float(w), depth=float(d), theta=theta)
+    if kind == 2:
+        w = kin_w if kin else float(rng.uniform(*cfg.prism_width))
+        return Prism(x=x, y=y, sides=int(rng.choice(cfg.prism_sides)), width=w, theta=theta)
+    length = float(rng.uniform(*cfg.wall_length))
+    dx, dy = 0.5 * length * math.cos(theta), 0.5 * length * math.sin(theta)
+    return Wall(x1=x - dx, y1=y - dy, x2=x + dx, y2=y + dy, thickness=cfg.wall_thickness)
+
+
+def random_arena(
+    n_robots: int = 8,
+    n_obstacles: int = 20,
+    seed: int | np.random.Generator | None = 0,
+    size: float | tuple[float, float] = 10.0,
+    config: RandomArenaConfig | None = None,
+    robot: RobotSpec | None = None,
+    lidar: LidarSpec | None = None,
+) -> Scene:
+    """A seeded random arena: ``n_robots`` robots and ``n_obstacles`` mixed obstacles.
+
+    Obstacles mix cylinders, boxes, regular prisms (3–6 sides) and interior walls of random sizes,
+    a fraction of them exactly the kin's width (see :class:`RandomArenaConfig`). Robots get uniform
+    random headings. Placement is rejection sampling with pymunk overlap queries, so nothing
+    overlaps and everything keeps ``config.clearance`` from everything else and from the boundary.
+    The same ``seed`` always gives the same scene. Raises ``ValueError`` when the objects cannot fit.
+    """
+    cfg = config or RandomArenaConfig()
+    spec = robot or RobotSpec()
+    if not isinstance(n_robots, int | np.integer) or n_robots < 0:
+        raise ValueError(f"random_arena: n_robots must be an integer >= 0, got {n_robots!r}")
+    if not isinstance(n_obstacles, int | np.integer) or n_obstacles < 0:
+        raise ValueError(f"random_arena: n_obstacles must be an integer >= 0, got {n_obstacles!r}")
+    rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+    w, h = (size, size) if np.isscalar(size) else size
+    arena = Arena(float(w), float(h), walls=True)
+    hx, hy = arena.half_extents
+    index = _OverlapIndex()
+    c = cfg.clearance
+    inner = Arena(w - 2 * c, h - 2 * c) if min(w, h) > 2 * c else arena
+
+    def place(make, what: str):
+        for _ in range(cfg.max_attempts):
+            x, y = float(rng.uniform(-hx, hx)), float(rng.uniform(-hy, hy))
+            obj = make(x, y)
+            kind, geom = obj.footprint() if not isinstance(obj, Robot) else (
+                "circle", np.array([x, y, spec.body_radius]))
+            if not _inside_arena(kind, geom, inner):
+                continue
+            if index.hits(kind, geom, inflate=c):
+                continue
+            index.add(kind, geom, what)
+            return obj
+        raise ValueError(
+            f"random_arena: could not place {what} after {cfg.max_attempts} attempts: "
+            f"{n_robots} robots and {n_obstacles} obstacles do not fit in a {w} x {h} m arena "
+            f"with {c} m clearance; use a larger size or fewer objects"
+        )
+
+    obstacles = [
+        place(lambda x, y: _random_obstacle(rng, cfg, spec, x, y), f"obstacle {j}")
+        for j in range(n_obstacles)
+    ]
+    robots = [
+        place(lambda x, y: Robot(x, y, float(rng.uniform(-math.pi, math.pi))), f"robot {i}")
+        for i in range(n_robots)
+    ]
+    return Scene(
+        robots=tuple(robots),
+        obstacles=tuple(obstacles),
+        arena=arena,
+        robot=spec,
+        lidar=lidar or LidarSpec(),
+        name=f"random_arena(n_robots={n_robots}, n_obstacles={n_obstacles})",
+    )

@@ -1,0 +1,452 @@
+"""The pymunk world: differential-drive robots with lidars among obstacles.
+
+Frames and units: world frame, metres, seconds, radians; headings CCW from the world x axis.
+Robot ``i`` of the scene is index ``i`` everywhere (poses, commands, scans, ground truth).
+
+Physics: a top-down pymunk space without gravity at a fixed timestep (``WorldConfig.physics_dt``);
+one :meth:`World.step` advances ``control_dt`` seconds. Each robot is a dynamic body whose
+collision shape is its 9 cm body circle, driven through a kinematic *control body* and two
+constraints with bounded force (a pivot joint for traction, a gear joint for yaw): the drive can
+only push with ``RobotSpec.max_drive_force``, so a robot driving into a wall is stopped by the
+contact solver instead of being pushed through (overriding a body's velocity every step is known
+to tunnel through static shapes). The lidar housing is a sensor shape that collides with nothing;
+only lidar queries see it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import pymunk
+
+from kin_envs.core._validate import check_positive
+from kin_envs.core.lidar import HitKind, cast_rays, polygon_edges
+from kin_envs.core.scenes import Robot, Scene
+
+__all__ = ["WorldConfig", "World", "Scan", "Contact", "LIDAR_QUERY_FILTER"]
+
+# Shape-filter categories. Lidar queries use category _QUERY and see housings, obstacles, walls
+# but never robot bodies (beams pass above them).
+_BODY, _HOUSING, _OBSTACLE, _WALL, _QUERY = 1, 2, 4, 8, 16
+#: pymunk ShapeFilter that selects what a lidar sees (for oracle queries against ``world.space``).
+LIDAR_QUERY_FILTER = pymunk.ShapeFilter(categories=_QUERY, mask=_HOUSING | _OBSTACLE | _WALL)
+_BOUNDARY_THICKNESS = 1.0  # m; thick so nothing can be pushed through it
+
+
+class Contact:
+    """Bit flags of ``World.contacts``: what each robot touches at the end of the last step."""
+
+    ROBOT = 1
+    OBSTACLE = 2
+    WALL = 4  # the arena boundary or an interior wall
+
+
+@dataclass(frozen=True)
+class WorldConfig:
+    """Simulation settings (not part of the scene).
+
+    Attributes:
+        control_dt: seconds advanced by one :meth:`World.step` (commands are held constant).
+        physics_dt: pymunk timestep, s. Supported: ``0 < physics_dt <= 0.05``; ``control_dt`` is
+            rounded to a whole number of physics steps.
+        floor_friction: Coulomb friction coefficient between movable obstacles and the floor.
+        iterations: pymunk solver iterations.
+    """
+
+    control_dt: float = 0.1
+    physics_dt: float = 0.02
+    floor_friction: float = 0.5
+    iterations: int = 10
+
+    def __post_init__(self) -> None:
+        check_positive("WorldConfig", control_dt=self.control_dt, physics_dt=self.physics_dt)
+        if self.physics_dt > 0.05:
+            raise ValueError(f"WorldConfig.physics_dt must be <= 0.05 s, got {self.physics_dt!r}")
+        if self.physics_dt > self.control_dt:
+            raise ValueError(
+                f"WorldConfig.physics_dt={self.physics_dt} s must be <= control_dt={self.control_dt} s"
+            )
+        if self.floor_friction < 0 or self.iterations < 1:
+            raise ValueError("WorldConfig: floor_friction must be >= 0 and iterations >= 1")
+
+    @property
+    def substeps(self) -> int:
+        return max(1, round(self.control_dt / self.physics_dt))
+
+
+@dataclass(frozen=True)
+class Scan:
+    """All requested robots' lidar scans at one instant.
+
+    Attributes:
+        ranges: ``(n, n_beams)`` float32, m: what the lidar reports (noise and dropouts applied;
+            ``range_max`` for no return, for returns beyond ``range_max`` and for surfaces closer
+            than ``range_min``).
+        angles: ``(n_beams,)`` float64 beam directions in the robot frame, rad, CCW positive,
+            0 = heading (beam ``i`` is ``i`` steps clockwise); the same array as ``LidarSpec.angles``.
+        hit_kind: ``(n, n_beams)`` int8 :class:`~kin_envs.core.lidar.HitKind` of what each beam hit
+            (``NONE`` when nothing within ``range_max``). Physical truth: a dropped or too-close
+            reading still names the object.
+        hit_index: ``(n, n_beams)`` int32 robot index (``ROBOT``) or obstacle index (obstacle kinds),
+            -1 for the boundary or nothing.
+        true_ranges: ``(n, n_beams)`` float32 exact noise-free distance to the hit, ``inf`` if none.
+        robots: ``(n,)`` which robots these rows belong to.
+        poses: ``(n, 3)`` their ``x, y, theta`` when scanned.
+    """
+
+    ranges: np.ndarray
+    angles: np.ndarray
+    hit_kind: np.ndarray
+    hit_index: np.ndarray
+    true_ranges: np.ndarray
+    robots: np.ndarray
+    poses: np.ndarray
+    range_max: float = field(default=12.0)
+
+    def visible_robots(self, row: int) -> dict[int, int]:
+        """Robots whose housing row ``row``'s valid beams hit: ``{robot index: number of beams}``."""
+        m = (self.hit_kind[row] == HitKind.ROBOT) & (self.ranges[row] < self.range_max)
+        idx, counts = np.unique(self.hit_index[row][m], return_counts=True)
+        return dict(zip(idx.tolist(), counts.tolist(), strict=True))
+
+    def points(self, row: int) -> np.ndarray:
+        """Returns of row ``row`` (ranges below max) as ``(k, 2)`` x-forward / y-left points, m."""
+        r = self.ranges[row].astype(np.float64)
+        m = r < self.range_max
+        return np.stack([r[m] * np.cos(self.angles[m]), r[m] * np.sin(self.angles[m])], axis=1)
+
+
+class World:
+    """A pymunk world built from a :class:`~kin_envs.core.scenes.Scene`.
+
+    Args:
+        scene: what to build.
+        seed: seed (or ``numpy.random.Generator``) of the world's only RNG, used for lidar noise and
+            dropouts. Environments pass their own ``np_random`` here.
+        config: simulation settings.
+
+    Example::
+
+        world = World(scenes.paper_scenario(1, distance=0.5), seed=0)
+        scan = world.scan()              # all robots
+        world.step([[0.2, 0.0]] * world.n_robots)   # (v m/s, omega rad/s) per robot
+    """
+
+    def __init__(
+        self,
+        scene: Scene,
+        seed: int | np.random.Generator | None = None,
+        config: WorldConfig | None = None,
+    ) -> None:
+        if not isinstance(scene, Scene):
+            raise ValueError(f"World: expected a Scene, got {type(scene).__name__}")
+        self.scene = scene
+        self.config = config or WorldConfig()
+        self.rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+        self.time = 0.0
+        self.n_robots = len(scene.robots)
+        self.n_obstacles = len(scene.obstacles)
+        self._build_space()
+        self._build_lidar_geometry()
+        self._commands = np.zeros((self.n_robots, 2))
+        self.contacts = np.zeros(self.n_robots, dtype=np.int8)
+
+    # -- construction -----------------------------------------------------------------------------
+    def _build_space(self) -> None:
+        cfg, spec = self.config, self.scene.robot
+        space = pymunk.Space()
+        space.iterations = cfg.iterations
+        space.gravity = (0.0, 0.0)
+        self.space = space
+        self.robot_bodies: list[pymunk.Body] = []
+        self._controls: list[pymunk.Body] = []
+        self._body_owner: dict[int, tuple[int, int]] = {}  # body id -> (Contact flag, index)
+        moment = pymunk.moment_for_circle(spec.mass, 0.0, spec.body_radius)
+        for i, r in enumerate(self.scene.robots):
+            body = pymunk.Body(spec.mass, moment)
+            body.position = (r.x, r.y)
+            body.angle = r.theta
+            shape = pymunk.Circle(body, spec.body_radius)
+            shape.filter = pymunk.ShapeFilter(group=i + 1, categories=_BODY, mask=_BODY | _OBSTACLE | _WALL)
+            shape.friction = 0.3
+            housing = pymunk.Circle(body, spec.housing_radius)
+            housing.sensor = True
+            housing.filter = pymunk.ShapeFilter(group=i + 1, categories=_HOUSING, mask=_QUERY)
+            control = pymunk.Body(body_type=pymunk.Body.KINEMATIC)
+            control.position = body.position
+            control.angle = body.angle
+            pivot = pymunk.PivotJoint(control, body, (0, 0), (0, 0))
+            pivot.max_bias = 0.0  # correct velocity only: never drag the body back to the control
+            pivot.max_force = spec.max_drive_force
+            gear = pymunk.GearJoint(control, body, 0.0, 1.0)
+            gear.max_bias = 0.0
+            gear.max_force = spec.max_drive_torque
+            space.add(body, shape, housing, control, pivot, gear)
+            self.robot_bodies.append(body)
+            self._controls.append(control)
+            self._body_owner[body.id] = (Contact.ROBOT, i)
+        self.obstacle_bodies: list[pymunk.Body] = []
+        for j, o in enumerate(self.scene.obstacles):
+            kind, geom = o.footprint()
+            cx, cy = o.center
+            if o.movable:
+                if kind == "circle":
+                    moment = pymunk.moment_for_circle(o.mass, 0, geom[2])
+                else:
+                    moment = pymunk.moment_for_poly(o.mass, [tuple(p - (cx, cy)) for p in geom])
+                body = pymunk.Body(o.mass, moment)
+                body.position = (cx, cy)
+                # floor friction: bounded-force joints to the static body (top-down Coulomb model)
+                f = cfg.floor_friction * o.mass * 9.81
+                for joint in (
+                    pymunk.PivotJoint(space.static_body, body, (0, 0), (0, 0)),
+                    pymunk.GearJoint(space.static_body, body, 0.0, 1.0),
+                ):
+                    joint.max_bias = 0.0
+                    joint.max_force = f if isinstance(joint, pymunk.PivotJoint) else f * 0.05
+                    space.add(joint)
+                space.add(body)
+            else:
+                body = pymunk.Body(body_type=pymunk.Body.STATIC)
+                body.position = (cx, cy)
+                space.add(body)
+            local = geom.copy()
+            if kind == "circle":
+                shape = pymunk.Circle(body, float(geom[2]))
+            else:
+                local = geom - (cx, cy)
+                shape = pymunk.Poly(body, [tuple(map(float, p)) for p in local], radius=0.0)
+            is_wall = o.kind == "wall"
+            cat = _WALL if is_wall else _OBSTACLE
+            shape.filter = pymunk.ShapeFilter(categories=cat, mask=_BODY | _OBSTACLE | _WALL | _QUERY)
+            shape.friction = 0.5
+            space.add(shape)
+            self.obstacle_bodies.append(body)
+            self._body_owner[body.id] = (Contact.WALL if is_wall else Contact.OBSTACLE, j)
+        if self.scene.arena.walls:
+            hx, hy = self.scene.arena.half_extents
+            t = _BOUNDARY_THICKNESS
+            for bx, by, w, h in (
+                (-hx - t, -hy - t, 2 * hx + 2 * t, t),  # bottom
+                (-hx - t, hy, 2 * hx + 2 * t, t),  # top
+                (-hx - t, -hy, t, 2 * hy),  # left
+                (hx, -hy, t, 2 * hy),  # right
+            ):
+                verts = [(bx, by), (bx + w, by), (bx + w, by + h), (bx, by + h)]
+                shape = pymunk.Poly(space.static_body, verts, radius=0.0)
+                shape.filter = pymunk.ShapeFilter(categories=_WALL, mask=_BODY | _OBSTACLE | _QUERY)
+                shape.friction = 0.5
+                space.add(shape)
+        self._body_owner[space.static_body.id] = (Contact.WALL, -1)
+
+    def _build_lidar_geometry(self) -> None:
+        """Primitive arrays for the raycaster and the owner of each primitive.
+
+        Circles: the robots' housings first (index = robot index), then cylinder obstacles.
+        Segments: obstacle edges, then the arena boundary's inner faces.
+        """
+        kinds, index = [HitKind.ROBOT] * self.n_robots, list(range(self.n_robots))
+        circles, seg_list, seg_kinds, seg_index = [], [], [], []
+        self._movable: list[tuple[int, str, np.ndarray, int, int]] = []  # (obstacle, kind, local, first, count)
+        for j, o in enumerate(self.scene.obstacles):
+            kind, geom = o.footprint()
+            if kind == "circle":
+                if o.movable:
+                    self._movable.append((j, kind, np.zeros(2), len(circles), 1))
+                circles.append(geom)
+                kinds.append(o.hit_kind)
+                index.append(j)
+            else:
+                if o.movable:
+                    cx, cy = o.center
+                    self._movable.append((j, kind, geom - (cx, cy), len(seg_list), len(geom)))
+                for e in polygon_edges(geom):
+                    seg_list.append(e)
+                    seg_kinds.append(o.hit_kind)
+                    seg_index.append(j)
+        if self.scene.arena.walls:
+            # clockwise: the boundary is seen from inside
+            for e in polygon_edges(self.scene.arena.boundary_polygon()[::-1]):
+                seg_list.append(e)
+                seg_kinds.append(HitKind.BOUNDARY)
+                seg_index.append(-1)
+        self._circles = np.zeros((self.n_robots + len(circles), 3))
+        self._circles[: self.n_robots, 2] = self.scene.robot.housing_radius
+        if circles:
+            self._circles[self.n_robots :] = np.asarray(circles)
+        self._segments = np.asarray(seg_list, dtype=np.float64).reshape(-1, 4)
+        # owner lookup by primitive id (+1 so that -1 = "no hit" maps to slot 0)
+        self._prim_kind = np.array([HitKind.NONE, *kinds, *seg_kinds], dtype=np.int8)
+        self._prim_index = np.array([-1, *index, *seg_index], dtype=np.int32)
+
+    def _update_lidar_geometry(self) -> None:
+        poses = self.poses
+        self._circles[: self.n_robots, :2] = poses[:, :2]
+        for j, kind, local, first, count in self._movable:
+            body = self.obstacle_bodies[j]
+            p = np.array(body.position)
+            if kind == "circle":
+                self._circles[self.n_robots + first, :2] = p
+            else:
+                c, s = math.cos(body.angle), math.sin(body.angle)
+                v = local @ np.array([[c, s], [-s, c]]) + p
+                self._segments[first : first + count] = polygon_edges(v)
+
+    # -- state ------------------------------------------------------------------------------------
+    @property
+    def poses(self) -> np.ndarray:
+        """``(n_robots, 3)`` ``x, y, theta`` (theta wrapped to (-pi, pi]), m and rad."""
+        out = np.empty((self.n_robots, 3))
+        for i, b in enumerate(self.robot_bodies):
+            out[i, 0], out[i, 1] = b.position
+            out[i, 2] = b.angle
+        out[:, 2] = np.arctan2(np.sin(out[:, 2]), np.cos(out[:, 2]))
+        return out
+
+    @property
+    def velocities(self) -> np.ndarray:
+        """``(n_robots, 3)`` ``vx, vy`` (world frame, m/s) and ``omega`` (rad/s)."""
+        out = np.empty((self.n_robots, 3))
+        for i, b in enumerate(self.robot_bodies):
+            out[i, 0], out[i, 1] = b.velocity
+            out[i, 2] = b.angular_velocity
+        return out
+
+    @property
+    def obstacle_poses(self) -> np.ndarray:
+        """``(n_obstacles, 3)`` centre ``x, y`` and rotation since the start (rad) of each obstacle."""
+        out = np.empty((self.n_obstacles, 3))
+        for j, b in enumerate(self.obstacle_bodies):
+            out[j, 0], out[j, 1] = b.position
+            out[j, 2] = b.angle
+        return out
+
+    def current_scene(self) -> Scene:
+        """The scene with robots at their current poses (movable obstacles keep their start)."""
+        robots = tuple(Robot(float(x), float(y), float(t)) for x, y, t in self.poses)
+        return self.scene.replace(robots=robots)
+
+    def to_dict(self) -> dict:
+        """:meth:`current_scene` as a plain dict (``Scene.from_dict`` rebuilds it)."""
+        return self.current_scene().to_dict()
+
+    # -- control ----------------------------------------------------------------------------------
+    def wheel_speeds_to_unicycle(self, wheels: np.ndarray) -> np.ndarray:
+        """``(n, 2)`` left/right wheel speeds (rad/s) → ``(n, 2)`` ``v`` (m/s), ``omega`` (rad/s)."""
+        spec = self.scene.robot
+        w = np.asarray(wheels, dtype=np.float64)
+        v = spec.wheel_radius * (w[:, 0] + w[:, 1]) / 2
+        omega = spec.wheel_radius * (w[:, 1] - w[:, 0]) / spec.wheel_base
+        return np.stack([v, omega], axis=1)
+
+    def unicycle_to_wheel_speeds(self, commands: np.ndarray) -> np.ndarray:
+        """``(n, 2)`` ``v``, ``omega`` → ``(n, 2)`` left/right wheel speeds, rad/s."""
+        spec = self.scene.robot
+        c = np.asarray(commands, dtype=np.float64)
+        half = c[:, 1] * spec.wheel_base / 2
+        return np.stack([c[:, 0] - half, c[:, 0] + half], axis=1) / spec.wheel_radius
+
+    def _check_commands(self, commands, what: str) -> np.ndarray:
+        c = np.asarray(commands, dtype=np.float64)
+        if c.shape != (self.n_robots, 2):
+            raise ValueError(f"World.step: {what} must have shape ({self.n_robots}, 2), got {c.shape}")
+        if not np.all(np.isfinite(c)):
+            bad = np.argwhere(~np.isfinite(c))[0]
+            raise ValueError(f"World.step: {what}[{bad[0]}, {bad[1]}] is {c[tuple(bad)]}; expected finite numbers")
+        return c
+
+    def step(self, commands=None, wheel_speeds=None) -> None:
+        """Advance ``config.control_dt`` seconds with commands held constant.
+
+        Give exactly one of:
+            commands: ``(n_robots, 2)`` linear speed ``v`` (m/s, forward positive) and yaw rate
+                ``omega`` (rad/s, CCW positive) per robot;
+            wheel_speeds: ``(n_robots, 2)`` left and right wheel speeds, rad/s.
+
+        Wheel speeds beyond ``RobotSpec.max_wheel_speed`` are scaled down together (keeping the
+        turning radius). Non-finite values or a wrong shape raise ``ValueError``.
+        """
+        if (commands is None) == (wheel_speeds is None):
+            raise ValueError("World.step: give exactly one of commands=(v, omega) or wheel_speeds=")
+        if commands is not None:
+            wheels = self.unicycle_to_wheel_speeds(self._check_commands(commands, "commands"))
+        else:
+            wheels = self._check_commands(wheel_speeds, "wheel_speeds")
+        limit = self.scene.robot.max_wheel_speed
+        peak = np.max(np.abs(wheels), axis=1, keepdims=True) if self.n_robots else np.zeros((0, 1))
+        wheels = wheels * np.minimum(1.0, limit / np.maximum(peak, 1e-12))
+        self._commands = self.wheel_speeds_to_unicycle(wheels)
+        dt = self.config.physics_dt
+        vs, omegas = self._commands[:, 0].tolist(), self._commands[:, 1].tolist()
+        for _ in range(self.config.substeps):
+            for body, control, v, w in zip(self.robot_bodies, self._controls, vs, omegas, strict=True):
+                a = body.angle
+                control.velocity = (v * math.cos(a), v * math.sin(a))
+                control.angular_velocity = w
+            self.space.step(dt)
+        self.time += self.config.substeps * dt
+        self._update_contacts()
+
+    @property
+    def commands(self) -> np.ndarray:
+        """The ``(v, omega)`` commands applied in the last step, after limiting."""
+        return self._commands.copy()
+
+    def _update_contacts(self) -> None:
+        contacts = np.zeros(self.n_robots, dtype=np.int8)
+        owner, bodies = self._body_owner, self.robot_bodies
+
+        def visit(arb: pymunk.Arbiter, i: int) -> None:
+            a, b = arb.bodies
+            other = b if a is bodies[i] else a
+            contacts[i] |= owner.get(other.id, (Contact.WALL, -1))[0]
+
+        for i, body in enumerate(bodies):
+            body.each_arbiter(visit, i)
+        self.contacts = contacts
+
+    # -- sensing ----------------------------------------------------------------------------------
+    def scan(self, robots=None, noise: bool = True) -> Scan:
+        """Cast every beam of the given robots' lidars (default: all) in one vectorised call.
+
+        Args:
+            robots: robot indices to scan (default all).
+            noise: apply the lidar spec's range noise and dropouts, drawn from the world's RNG.
+        """
+        spec = self.scene.lidar
+        idx = np.arange(self.n_robots) if robots is None else np.asarray(robots, dtype=np.int64).reshape(-1)
+        if idx.size and (idx.min() < 0 or idx.max() >= self.n_robots):
+            raise ValueError(f"World.scan: robot indices must be in [0, {self.n_robots}), got {idx.tolist()}")
+        self._update_lidar_geometry()
+        poses = self.poses[idx]
+        dist, prim = cast_rays(
+            poses[:, :2], poses[:, 2], self._circles, self._segments, spec.n_beams, spec.range_max,
+            skip_circle=idx,
+        )
+        hit = prim + 1
+        hit_kind = self._prim_kind[hit]
+        hit_index = self._prim_index[hit]
+        beyond = dist > spec.range_max
+        hit_kind[beyond] = HitKind.NONE
+        hit_index[beyond] = -1
+        dist[beyond] = np.inf
+        ranges = dist.copy()
+        if noise and spec.noise_sigma > 0:
+            finite = np.isfinite(ranges)
+            ranges[finite] += self.rng.normal(0.0, 1.0, int(finite.sum())) * spec.noise_sigma * ranges[finite]
+        invalid = ~np.isfinite(ranges) | (ranges < spec.range_min) | (ranges > spec.range_max)
+        if noise and spec.dropout_prob > 0:
+            invalid |= self.rng.random(ranges.shape) < spec.dropout_prob
+        ranges[invalid] = spec.range_max
+        return Scan(
+            ranges=ranges.astype(np.float32),
+            angles=spec.angles,
+            hit_kind=hit_kind,
+            hit_index=hit_index,
+            true_ranges=dist.astype(np.float32),
+            robots=idx,
+            poses=poses,
+            range_max=spec.range_max,
+        )
