@@ -159,6 +159,8 @@ class World:
         space = pymunk.Space()
         space.iterations = cfg.iterations
         space.gravity = (0.0, 0.0)
+        # pymunk defaults assume pixels (slop 0.1 = 10 cm here): allow only 1 mm of overlap
+        space.collision_slop = 0.001
         self.space = space
         self.robot_bodies: list[pymunk.Body] = []
         self._controls: list[pymunk.Body] = []
