@@ -10,5 +10,13 @@ from kin_envs.core.world import Contact, Scan, World, WorldConfig
 
 __version__ = "0.1.0"
 __all__ = [
-    "Contact", "HitKind", "LidarSpec", "RobotSpec", "Scan", "Scene", "World", "WorldConfig", "scenes",
+    "Contact",
+    "HitKind",
+    "LidarSpec",
+    "RobotSpec",
+    "Scan",
+    "Scene",
+    "World",
+    "WorldConfig",
+    "scenes",
 ]

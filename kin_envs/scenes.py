@@ -5,6 +5,6 @@ from kin_envs.core.scenes import (  # noqa: F401
     PAPER_DISTANCES,
     SCENARIO_I_LAYOUT,
     SCENARIO_II_LAYOUT,
+    __all__,  # noqa: F401
     obstacle_from_dict,
 )
-from kin_envs.core.scenes import __all__  # noqa: F401

@@ -6,6 +6,15 @@ from kin_envs.core.scenes import RobotSpec, Scene
 from kin_envs.core.world import Contact, Scan, World, WorldConfig
 
 __all__ = [
-    "Contact", "HitKind", "LidarSpec", "RobotSpec", "Scan", "Scene", "World", "WorldConfig",
-    "cast_rays", "scan_shapes", "scenes",
+    "Contact",
+    "HitKind",
+    "LidarSpec",
+    "RobotSpec",
+    "Scan",
+    "Scene",
+    "World",
+    "WorldConfig",
+    "cast_rays",
+    "scan_shapes",
+    "scenes",
 ]

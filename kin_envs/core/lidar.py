@@ -111,7 +111,27 @@ def polygon_edges(vertices: np.ndarray) -> np.ndarray:
     return np.concatenate([v, np.roll(v, -1, axis=0)], axis=1)
 
 
-_EPS = 1e-9  # rad: widens beam intervals so a beam exactly through a vertex or tangent is tested
+# rad: widens each primitive's beam interval. It covers the error of _fast_atan2 (< 1e-5 rad),
+# so a beam through a vertex or tangent is always tested; the exact intersection test decides.
+_EPS = 1e-4
+
+
+@numba.njit(cache=True, inline="always")
+def _fast_atan2(y, x):
+    """atan2 to within 1e-5 rad (minimax polynomial): only used to pick candidate beams."""
+    ax = abs(x)
+    ay = abs(y)
+    if ax == 0.0 and ay == 0.0:
+        return 0.0
+    swap = ay > ax
+    z = ax / ay if swap else ay / ax
+    z2 = z * z
+    a = z * (0.9998660 + z2 * (-0.3302995 + z2 * (0.1801410 + z2 * (-0.0851330 + z2 * 0.0208351))))
+    if swap:
+        a = 0.5 * math.pi - a
+    if x < 0.0:
+        a = math.pi - a
+    return -a if y < 0.0 else a
 
 
 def _ccw(v: np.ndarray) -> np.ndarray:
@@ -120,11 +140,10 @@ def _ccw(v: np.ndarray) -> np.ndarray:
 
 
 @numba.njit(cache=True, nogil=True)
-def _cast_kernel(
-    ox, oy, heading, n_beams, range_max, circles, circle_skip, segments, out_dist, out_prim
-):
+def _cast_kernel(ox, oy, heading, n_beams, range_max, circles, circle_skip, segments, out_dist, out_prim):
     """Cast ``n_beams`` beams from each origin. Writes the nearest hit distance and primitive id.
 
+    Beams with no hit within ``range_max`` get distance ``range_max`` and primitive -1.
     Primitive ids: circles are ``0..C-1``, segments ``C..C+S-1``; -1 = no hit.
     ``circle_skip[n]`` is the circle index of robot n's own housing (never hit by its own beams).
     Beam ``i`` of robot ``n`` has world direction ``heading[n] - i*res``.
@@ -142,6 +161,10 @@ def _cast_kernel(
     n_c = circles.shape[0]
     n_s = segments.shape[0]
     rmax2 = range_max * range_max
+    # per-robot work happens in two small buffers that stay in L1 cache; each robot's row of the
+    # (large, often cold) outputs is then written once, sequentially
+    best_d = np.empty(n_beams)
+    best_p = np.empty(n_beams, dtype=np.int32)
     for n in range(n_rob):
         x0 = ox[n]
         y0 = oy[n]
@@ -149,8 +172,8 @@ def _cast_kernel(
         ch = math.cos(h)
         sh = math.sin(h)
         for i in range(n_beams):
-            out_dist[n, i] = np.inf
-            out_prim[n, i] = -1
+            best_d[i] = range_max  # hits beyond range_max are never recorded
+            best_p[i] = -1
         for c in range(n_c):
             if c == circle_skip[n]:
                 continue
@@ -162,8 +185,9 @@ def _cast_kernel(
             if d - r > range_max or d <= r:
                 # out of range, or the origin is inside the circle (not a physical state)
                 continue
-            half = math.asin(r / d) + _EPS
-            phi = math.atan2(dy, dx) - h  # bearing of the centre relative to the heading
+            # half-angle subtended: asin(r/d) = atan(r / sqrt(d^2 - r^2))
+            half = _fast_atan2(r, math.sqrt(d2 - r * r)) + _EPS
+            phi = _fast_atan2(dy, dx) - h  # bearing of the centre relative to the heading
             # beam i points at -i*res: beams within [phi-half, phi+half] have i in
             # [-(phi+half)/res, -(phi-half)/res]
             k0 = int(math.ceil(-(phi + half) / res))
@@ -179,9 +203,9 @@ def _cast_kernel(
                 if disc < 0.0 or b <= 0.0:
                     continue
                 t = b - math.sqrt(disc)
-                if t > 0.0 and t < out_dist[n, i]:
-                    out_dist[n, i] = t
-                    out_prim[n, i] = c
+                if t > 0.0 and t < best_d[i]:
+                    best_d[i] = t
+                    best_p[i] = c
         for s in range(n_s):
             ax = segments[s, 0] - x0
             ay = segments[s, 1] - y0
@@ -199,8 +223,8 @@ def _cast_kernel(
             py = ay + u * ey
             if px * px + py * py > rmax2:
                 continue
-            th_a = math.atan2(ay, ax) - h
-            span = math.atan2(ax * by - ay * bx, ax * bx + ay * by)  # signed angle A -> B
+            th_a = _fast_atan2(ay, ax) - h
+            span = _fast_atan2(ax * by - ay * bx, ax * bx + ay * by)  # signed angle A -> B
             lo = th_a + min(0.0, span) - _EPS
             hi = th_a + max(0.0, span) + _EPS
             k0 = int(math.ceil(-hi / res))
@@ -215,9 +239,12 @@ def _cast_kernel(
                 # origin + t u = A + s e  ->  t = cross(A, e)/cross(u, e), s = cross(A, u)/cross(u, e)
                 t = (ax * ey - ay * ex) / den
                 sp = (ax * uy - ay * ux) / den
-                if t > 0.0 and 0.0 <= sp <= 1.0 and t < out_dist[n, i]:
-                    out_dist[n, i] = t
-                    out_prim[n, i] = n_c + s
+                if t > 0.0 and 0.0 <= sp <= 1.0 and t < best_d[i]:
+                    best_d[i] = t
+                    best_p[i] = n_c + s
+        for i in range(n_beams):
+            out_dist[n, i] = best_d[i]
+            out_prim[n, i] = best_p[i]
 
 
 def cast_rays(
@@ -228,6 +255,7 @@ def cast_rays(
     n_beams: int,
     range_max: float,
     skip_circle: np.ndarray | None = None,
+    out: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Exact distances to the nearest primitive for every beam of every origin.
 
@@ -237,12 +265,15 @@ def cast_rays(
         circles: ``(C, 3)`` ``cx, cy, r``.
         segments: ``(S, 4)`` ``x1, y1, x2, y2``.
         n_beams: beams per revolution; beam ``i`` at ``heading - 2*pi*i/n_beams``.
-        range_max: primitives beyond this are culled (hits beyond it may still be reported).
+        range_max: hits beyond this are not reported.
         skip_circle: ``(N,)`` circle index each origin's beams ignore (its own housing), -1 for none.
+        out: optional preallocated ``(dist, prim)`` buffers (float64, int32) of shape
+            ``(N, n_beams)``, reused across calls to avoid page-faulting fresh memory each scan.
 
     Returns:
-        ``dist (N, n_beams)`` float64 (``inf`` for no hit) and ``prim (N, n_beams)`` int64 primitive
-        ids (circles ``0..C-1``, then segments ``C..``; -1 for none).
+        ``dist (N, n_beams)`` float64 (``inf`` for no hit within ``range_max``) and
+        ``prim (N, n_beams)`` int32 primitive ids (circles ``0..C-1``, then segments ``C..``;
+        -1 for none).
     """
     origins = np.ascontiguousarray(origins, dtype=np.float64).reshape(-1, 2)
     n = origins.shape[0]
@@ -252,8 +283,18 @@ def cast_rays(
     if skip_circle is None:
         skip_circle = np.full(n, -1, dtype=np.int64)
     skip_circle = np.ascontiguousarray(skip_circle, dtype=np.int64).reshape(n)
-    dist = np.empty((n, n_beams), dtype=np.float64)
-    prim = np.empty((n, n_beams), dtype=np.int64)
+    if out is None:
+        dist = np.empty((n, n_beams), dtype=np.float64)
+        prim = np.empty((n, n_beams), dtype=np.int32)
+    else:
+        dist, prim = out
+        if (
+            dist.shape != (n, n_beams)
+            or dist.dtype != np.float64
+            or prim.shape != dist.shape
+            or (prim.dtype != np.int32)
+        ):
+            raise ValueError(f"cast_rays: out buffers must be float64 and int32 of shape {(n, n_beams)}")
     _cast_kernel(
         origins[:, 0].copy(),
         origins[:, 1].copy(),
@@ -266,6 +307,7 @@ def cast_rays(
         dist,
         prim,
     )
+    dist[prim < 0] = np.inf
     return dist, prim
 
 
@@ -295,5 +337,5 @@ def scan_shapes(
     s = np.concatenate(segs) if segs else np.zeros((0, 4))
     dist, _ = cast_rays(np.asarray([origin]), np.asarray([heading]), c, s, spec.n_beams, spec.range_max)
     d = dist[0]
-    d[(d < spec.range_min) | (d > spec.range_max)] = spec.range_max
+    d[(d < spec.range_min) | ~np.isfinite(d)] = spec.range_max
     return d

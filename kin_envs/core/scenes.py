@@ -247,9 +247,7 @@ class Polygon(_Obstacle):
         self._check_common()
         v = np.asarray(self.vertices, dtype=float)
         if v.ndim != 2 or v.shape[1] != 2 or len(v) < 3 or not np.all(np.isfinite(v)):
-            raise ValueError(
-                f"polygon: vertices must be >= 3 finite (x, y) pairs, got {self.vertices!r}"
-            )
+            raise ValueError(f"polygon: vertices must be >= 3 finite (x, y) pairs, got {self.vertices!r}")
         object.__setattr__(self, "vertices", tuple((float(a), float(b)) for a, b in v))
         e = np.roll(v, -1, axis=0) - v
         cross = e[:, 0] * np.roll(e[:, 1], -1) - e[:, 1] * np.roll(e[:, 0], -1)
@@ -403,7 +401,9 @@ class Scene:
             geom = self.robot_footprint(i)
             label = f"robots[{i}] at ({geom[0]:.3f}, {geom[1]:.3f})"
             if not _inside_arena("circle", geom, self.arena):
-                raise ValueError(f"scene: {label} (body radius {geom[2]} m) is outside the arena {self.arena}")
+                raise ValueError(
+                    f"scene: {label} (body radius {geom[2]} m) is outside the arena {self.arena}"
+                )
             clash = index.hits("circle", geom)
             if clash:
                 raise ValueError(f"scene: {label} overlaps {clash[0]}")
@@ -450,12 +450,8 @@ class Scene:
             arena=dataclass_from_dict(Arena, d.get("arena", {}), "scene.arena"),
             robot=dataclass_from_dict(RobotSpec, d.get("robot", {}), "scene.robot"),
             lidar=dataclass_from_dict(LidarSpec, d.get("lidar", {}), "scene.lidar"),
-            robots=tuple(
-                dataclass_from_dict(Robot, r, f"scene.robots[{i}]") for i, r in enumerate(robots)
-            ),
-            obstacles=tuple(
-                obstacle_from_dict(o, f"scene.obstacles[{j}]") for j, o in enumerate(obstacles)
-            ),
+            robots=tuple(dataclass_from_dict(Robot, r, f"scene.robots[{i}]") for i, r in enumerate(robots)),
+            obstacles=tuple(obstacle_from_dict(o, f"scene.obstacles[{j}]") for j, o in enumerate(obstacles)),
         )
 
     def to_json(self, **kw) -> str:
@@ -573,13 +569,17 @@ class RandomArenaConfig:
     def __post_init__(self) -> None:
         w = np.asarray(self.kind_weights, dtype=float)
         if w.shape != (4,) or np.any(w < 0) or w.sum() <= 0:
-            raise ValueError(f"RandomArenaConfig.kind_weights must be 4 non-negative weights, got {self.kind_weights!r}")
+            raise ValueError(
+                f"RandomArenaConfig.kind_weights must be 4 non-negative weights, got {self.kind_weights!r}"
+            )
         for name in ("cylinder_radius", "box_size", "prism_width", "wall_length"):
             lo, hi = getattr(self, name)
             if not (0 < lo <= hi):
                 raise ValueError(f"RandomArenaConfig.{name} must be 0 < min <= max, got {(lo, hi)!r}")
         if not (0 <= self.kin_width_prob <= 1):
-            raise ValueError(f"RandomArenaConfig.kin_width_prob must be in [0, 1], got {self.kin_width_prob!r}")
+            raise ValueError(
+                f"RandomArenaConfig.kin_width_prob must be in [0, 1], got {self.kin_width_prob!r}"
+            )
         if not self.prism_sides or min(self.prism_sides) < 3:
             raise ValueError(f"RandomArenaConfig.prism_sides must be integers >= 3, got {self.prism_sides!r}")
         check_positive("RandomArenaConfig", wall_thickness=self.wall_thickness)
@@ -641,8 +641,11 @@ def random_arena(
         for _ in range(cfg.max_attempts):
             x, y = float(rng.uniform(-hx, hx)), float(rng.uniform(-hy, hy))
             obj = make(x, y)
-            kind, geom = obj.footprint() if not isinstance(obj, Robot) else (
-                "circle", np.array([x, y, spec.body_radius]))
+            kind, geom = (
+                obj.footprint()
+                if not isinstance(obj, Robot)
+                else ("circle", np.array([x, y, spec.body_radius]))
+            )
             if not _inside_arena(kind, geom, inner):
                 continue
             if index.hits(kind, geom, inflate=c):

@@ -1,0 +1,171 @@
+"""Scenes as data: built-in geometry, round trips, random generation, validation errors."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from kin_envs import World, scenes
+from kin_envs.scenes import Arena, Box, Cylinder, Polygon, Prism, Robot, Scene, Wall
+
+
+@pytest.mark.parametrize("distance", scenes.PAPER_DISTANCES)
+@pytest.mark.parametrize("number", [1, 2])
+def test_paper_scenarios_geometry(number, distance):
+    scene = scenes.paper_scenario(number, distance=distance)
+    observer, kin = scene.robots
+    assert (observer.x, observer.y, observer.theta) == (0.0, 0.0, 0.0)
+    assert kin.x == pytest.approx(distance) and kin.y == pytest.approx(0.0, abs=1e-12)
+    # every object on the same arc, spread symmetrically, kin in the middle
+    bearings = sorted(math.atan2(o.y, o.x) for o in scene.obstacles)
+    for o in scene.obstacles:
+        assert math.hypot(o.x, o.y) == pytest.approx(distance)
+    assert sum(b < 0 for b in bearings) == sum(b > 0 for b in bearings)
+    if number == 1:
+        radii = [o.radius for o in sorted(scene.obstacles, key=lambda o: math.atan2(o.y, o.x))]
+        assert radii == [0.03, 0.05, 0.09, 0.11]  # right to left, as in figure 10
+    else:
+        # every distractor is 7 cm wide: vertices on the 3.5 cm circle, or a 7 x 7 cm cuboid
+        kinds = sorted(o.kind for o in scene.obstacles)
+        assert kinds == ["box", "cylinder", "prism", "prism", "prism", "prism"]
+        for o in scene.obstacles:
+            if o.kind == "cylinder":
+                assert o.radius == scene.robot.housing_radius
+            elif o.kind == "box":
+                assert (o.width, o.depth) == (0.07, 0.07)
+            else:
+                v = o.footprint()[1] - (o.x, o.y)
+                np.testing.assert_allclose(np.hypot(v[:, 0], v[:, 1]), 0.035)
+        assert sorted(o.sides for o in scene.obstacles if o.kind == "prism") == [3, 5, 6, 6]
+        # the same-radius cylinder stands just left of the kin
+        left = min((o for o in scene.obstacles if o.y > 0), key=lambda o: o.y)
+        assert left.kind == "cylinder"
+
+
+def test_paper_scenario_seen_by_observer():
+    """Every object of Scenario II is hit by the observer's lidar at 1.2 m."""
+    world = World(scenes.paper_scenario(2, distance=1.2))
+    scan = world.scan()
+    hit = set(scan.hit_index[0][scan.hit_kind[0] >= scenes.Cylinder.hit_kind].tolist())
+    assert hit == set(range(6))
+    assert scan.visible_robots(0).keys() == {1}
+
+
+def test_paper_scenario_errors():
+    with pytest.raises(ValueError, match="number must be 1 or 2"):
+        scenes.paper_scenario(3)
+    with pytest.raises(ValueError, match="overlaps"):
+        scenes.paper_scenario(1, distance=0.2)
+    with pytest.raises(ValueError, match="distance"):
+        scenes.paper_scenario(1, distance=-1)
+
+
+def _all_kinds_scene():
+    return Scene(
+        robots=(Robot(0, 0, 0.3), Robot(1, 1, -1.0)),
+        obstacles=(
+            Cylinder(-1, 0, 0.1),
+            Box(0, 1.2, 0.2, 0.1, theta=0.4, movable=True, mass=2.0),
+            Prism(1, -1, sides=5, width=0.07, theta=0.2),
+            Polygon(-1, -1, vertices=((0, 0), (0.2, 0), (0.1, 0.15))),
+            Wall(-1.8, 1.5, -0.5, 1.5, thickness=0.05),
+        ),
+        arena=Arena(4, 4),
+        name="all kinds",
+    )
+
+
+def test_round_trip_dict_and_json():
+    scene = _all_kinds_scene()
+    d = scene.to_dict()
+    assert Scene.from_dict(d) == scene
+    assert Scene.from_json(scene.to_json()) == scene
+    assert json.loads(json.dumps(d)) == d  # plain data only
+    r = scenes.random_arena(5, 12, seed=2, size=5.0)
+    assert Scene.from_dict(json.loads(json.dumps(r.to_dict()))) == r
+
+
+@pytest.mark.parametrize(
+    "mutate, match",
+    [
+        (lambda d: d.update(colour="red"), r"unknown key\(s\) \['colour'\]"),
+        (lambda d: d["arena"].update(depth=3), r"scene.arena: unknown key\(s\) \['depth'\]"),
+        (lambda d: d["robots"][0].update(z=1), r"scene.robots\[0\]: unknown key"),
+        (lambda d: d["obstacles"][0].update(height=1), r"scene.obstacles\[0\] \(cylinder\): unknown key"),
+        (lambda d: d["obstacles"][0].update(kind="sphere"), "unknown obstacle kind 'sphere'"),
+        (lambda d: d["obstacles"][0].update(radius=-0.1), "radius must be > 0"),
+        (lambda d: d["obstacles"][2].update(sides=2), "sides must be an integer >= 3"),
+        (lambda d: d["robots"][0].update(x=5.0), r"robots\[0\].*outside the arena"),
+        (lambda d: d["robots"][1].update(x=0.1, y=0.1), r"robots\[1\].*overlaps robots\[0\]"),
+        (lambda d: d["obstacles"][0].update(x=-0.1), r"obstacles\[0\].*overlaps robots\[0\]"),
+        (lambda d: d["obstacles"][3].update(vertices=[[0, 0], [1, 0], [0.5, 0.1], [0.5, 1]]), "convex"),
+        (lambda d: d["lidar"].update(range_max=-1), "range_max"),
+        (lambda d: d["robot"].update(body_radius=0.01), "housing_radius"),
+        (lambda d: d["robots"][0].update(theta=float("nan")), "theta must be a finite number"),
+    ],
+)
+def test_invalid_scenes_raise_clear_errors(mutate, match):
+    d = json.loads(_all_kinds_scene().to_json())
+    mutate(d)
+    with pytest.raises(ValueError, match=match):
+        Scene.from_dict(d)
+
+
+def test_random_arena_is_seeded_and_valid():
+    a = scenes.random_arena(8, 20, seed=4)
+    assert a == scenes.random_arena(8, 20, seed=4)
+    assert a != scenes.random_arena(8, 20, seed=5)
+    assert len(a.robots) == 8 and len(a.obstacles) == 20
+    Scene.from_dict(a.to_dict())  # validates: inside the arena, no overlaps
+
+
+def test_random_arena_mixes_kinds_including_kin_width():
+    scene = scenes.random_arena(4, 200, seed=0, size=20.0)
+    kinds = {o.kind for o in scene.obstacles}
+    assert kinds == {"cylinder", "box", "prism", "wall"}
+    kin_wide = [
+        o
+        for o in scene.obstacles
+        if (o.kind == "cylinder" and o.radius == 0.035)
+        or (o.kind == "prism" and o.width == 0.07)
+        or (o.kind == "box" and (o.width, o.depth) == (0.07, 0.07))
+    ]
+    assert len(kin_wide) > 20
+    assert {o.sides for o in scene.obstacles if o.kind == "prism" and o.width == 0.07} == {3, 4, 5, 6}
+    other_radii = [o.radius for o in scene.obstacles if o.kind == "cylinder" and o.radius != 0.035]
+    assert min(other_radii) < 0.05 and max(other_radii) > 0.1
+
+
+def test_random_arena_keeps_clearance():
+    cfg = scenes.RandomArenaConfig(clearance=0.1)
+    scene = scenes.random_arena(10, 30, seed=9, size=6.0, config=cfg)
+    # every robot keeps 0.1 m from every obstacle and the boundary
+    hx = scene.arena.width / 2
+    for r in scene.robots:
+        assert abs(r.x) <= hx - 0.09 - 0.1 + 1e-9 and abs(r.y) <= hx - 0.09 - 0.1 + 1e-9
+        for o in scene.obstacles:
+            kind, geom = o.footprint()
+            if kind == "circle":
+                assert math.hypot(r.x - geom[0], r.y - geom[1]) >= 0.09 + geom[2] + 0.1 - 1e-9
+
+
+def test_random_arena_too_crowded():
+    with pytest.raises(ValueError, match="do not fit in a 1.0 x 1.0 m arena"):
+        scenes.random_arena(30, 10, seed=0, size=1.0)
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [({"n_robots": -1}, "n_robots"), ({"n_obstacles": 2.5}, "n_obstacles")],
+)
+def test_random_arena_bad_counts(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        scenes.random_arena(**kwargs)
+
+
+def test_random_arena_config_validation():
+    with pytest.raises(ValueError, match="kind_weights"):
+        scenes.RandomArenaConfig(kind_weights=(1, 0, 0))
+    with pytest.raises(ValueError, match="cylinder_radius"):
+        scenes.RandomArenaConfig(cylinder_radius=(0.2, 0.1))
