@@ -39,8 +39,10 @@ __all__ = [
     "OBSTACLE_TYPES",
     "Scene",
     "RandomArenaConfig",
+    "DetectionSceneConfig",
     "paper_scenario",
     "random_arena",
+    "detection_scene",
 ]
 
 
@@ -606,6 +608,51 @@ def _random_obstacle(rng: np.random.Generator, cfg: RandomArenaConfig, spec: Rob
     return Wall(x1=x - dx, y1=y - dy, x2=x + dx, y2=y + dy, thickness=cfg.wall_thickness)
 
 
+class _Placer:
+    """Rejection sampling of non-overlapping objects with pymunk overlap queries."""
+
+    def __init__(self, arena: Arena, clearance: float, max_attempts: int, spec: RobotSpec, who: str):
+        w, h = arena.width, arena.height
+        c = clearance
+        self.inner = Arena(w - 2 * c, h - 2 * c) if min(w, h) > 2 * c else arena
+        self.arena, self.clearance, self.max_attempts = arena, clearance, max_attempts
+        self.spec, self.who = spec, who
+        self.index = _OverlapIndex()
+
+    def fits(self, obj) -> bool:
+        parts = obj if isinstance(obj, tuple) else (obj,)
+        shapes = []
+        for part in parts:
+            if isinstance(part, Robot):
+                shapes.append(("circle", np.array([part.x, part.y, self.spec.body_radius])))
+            else:
+                shapes.append(part.footprint())
+        for kind, geom in shapes:
+            if not _inside_arena(kind, geom, self.inner) or self.index.hits(
+                kind, geom, inflate=self.clearance
+            ):
+                return False
+        return True
+
+    def place(self, make, sample_xy, what: str):
+        """``make(x, y)`` an object (or a tuple of parts placed together) at sampled points until it fits."""
+        for _ in range(self.max_attempts):
+            obj = make(*sample_xy())
+            if not self.fits(obj):
+                continue
+            for k, part in enumerate(obj if isinstance(obj, tuple) else (obj,)):
+                if isinstance(part, Robot):
+                    self.index.add("circle", np.array([part.x, part.y, self.spec.body_radius]), f"{what}.{k}")
+                else:
+                    self.index.add(*part.footprint(), f"{what}.{k}")
+            return obj
+        raise ValueError(
+            f"{self.who}: could not place {what} after {self.max_attempts} attempts: the objects do not fit "
+            f"in a {self.arena.width} x {self.arena.height} m arena with {self.clearance} m clearance; "
+            "use a larger size or fewer objects"
+        )
+
+
 def random_arena(
     n_robots: int = 8,
     n_obstacles: int = 20,
@@ -633,37 +680,19 @@ def random_arena(
     w, h = (size, size) if np.isscalar(size) else size
     arena = Arena(float(w), float(h), walls=True)
     hx, hy = arena.half_extents
-    index = _OverlapIndex()
-    c = cfg.clearance
-    inner = Arena(w - 2 * c, h - 2 * c) if min(w, h) > 2 * c else arena
+    placer = _Placer(arena, cfg.clearance, cfg.max_attempts, spec, "random_arena")
 
-    def place(make, what: str):
-        for _ in range(cfg.max_attempts):
-            x, y = float(rng.uniform(-hx, hx)), float(rng.uniform(-hy, hy))
-            obj = make(x, y)
-            kind, geom = (
-                obj.footprint()
-                if not isinstance(obj, Robot)
-                else ("circle", np.array([x, y, spec.body_radius]))
-            )
-            if not _inside_arena(kind, geom, inner):
-                continue
-            if index.hits(kind, geom, inflate=c):
-                continue
-            index.add(kind, geom, what)
-            return obj
-        raise ValueError(
-            f"random_arena: could not place {what} after {cfg.max_attempts} attempts: "
-            f"{n_robots} robots and {n_obstacles} obstacles do not fit in a {w} x {h} m arena "
-            f"with {c} m clearance; use a larger size or fewer objects"
-        )
+    def uniform_xy():
+        return float(rng.uniform(-hx, hx)), float(rng.uniform(-hy, hy))
 
     obstacles = [
-        place(lambda x, y: _random_obstacle(rng, cfg, spec, x, y), f"obstacle {j}")
+        placer.place(lambda x, y: _random_obstacle(rng, cfg, spec, x, y), uniform_xy, f"obstacle {j}")
         for j in range(n_obstacles)
     ]
     robots = [
-        place(lambda x, y: Robot(x, y, float(rng.uniform(-math.pi, math.pi))), f"robot {i}")
+        placer.place(
+            lambda x, y: Robot(x, y, float(rng.uniform(-math.pi, math.pi))), uniform_xy, f"robot {i}"
+        )
         for i in range(n_robots)
     ]
     return Scene(
@@ -673,4 +702,161 @@ def random_arena(
         robot=spec,
         lidar=lidar or LidarSpec(),
         name=f"random_arena(n_robots={n_robots}, n_obstacles={n_obstacles})",
+    )
+
+
+# --- scenes for kin-detection evaluation and training data --------------------------------------
+
+
+@dataclass(frozen=True)
+class DetectionSceneConfig:
+    """Layout of :func:`detection_scene`: an observer, kin robots and hard distractors around it.
+
+    Attributes:
+        n_kin: kin robots around the observer.
+        n_distractors: obstacles around the observer.
+        distance: (min, max) distance from the observer to object centres, m (uniform).
+        distractor_weights: relative frequency of ``kin_width_prism`` (3–6 sides, circumscribed
+            diameter = the housing's, any orientation), ``kin_width_box`` (7 x 7 cm cuboid),
+            ``same_radius_cylinder`` (radius = housing radius: indistinguishable in one scan),
+            ``other_cylinder`` (radius drawn from ``cylinder_radius``), ``wall`` and ``corner``
+            (two walls meeting at a right angle).
+        cylinder_radius: (min, max) radius of other cylinders, m; values within 5 mm of the housing
+            radius are redrawn so "other" stays distinguishable.
+        wall_length: (min, max) wall length, m.
+        clearance: minimum gap between objects, m.
+        arena_margin: the arena is a square of side ``2 * distance[1] + 2 * arena_margin``.
+        max_attempts: placement tries per object.
+    """
+
+    n_kin: int = 3
+    n_distractors: int = 12
+    distance: tuple[float, float] = (0.3, 3.0)
+    distractor_weights: tuple[float, float, float, float, float, float] = (0.35, 0.1, 0.1, 0.25, 0.1, 0.1)
+    cylinder_radius: tuple[float, float] = (0.02, 0.12)
+    wall_length: tuple[float, float] = (0.4, 1.5)
+    clearance: float = 0.03
+    arena_margin: float = 0.5
+    max_attempts: int = 300
+
+    DISTRACTOR_KINDS: ClassVar[tuple[str, ...]] = (
+        "kin_width_prism",
+        "kin_width_box",
+        "same_radius_cylinder",
+        "other_cylinder",
+        "wall",
+        "corner",
+    )
+
+    def __post_init__(self) -> None:
+        if self.n_kin < 0 or self.n_distractors < 0:
+            raise ValueError(
+                "DetectionSceneConfig: n_kin and n_distractors must be >= 0, "
+                f"got {self.n_kin}, {self.n_distractors}"
+            )
+        lo, hi = self.distance
+        if not (0 < lo <= hi):
+            raise ValueError(f"DetectionSceneConfig.distance must be 0 < min <= max, got {self.distance!r}")
+        w = np.asarray(self.distractor_weights, dtype=float)
+        if w.shape != (6,) or np.any(w < 0) or w.sum() <= 0:
+            raise ValueError(
+                "DetectionSceneConfig.distractor_weights must be 6 non-negative weights for "
+                f"{self.DISTRACTOR_KINDS}, got {self.distractor_weights!r}"
+            )
+        for name in ("cylinder_radius", "wall_length"):
+            a, b = getattr(self, name)
+            if not (0 < a <= b):
+                raise ValueError(f"DetectionSceneConfig.{name} must be 0 < min <= max, got {(a, b)!r}")
+        if self.clearance < 0 or self.arena_margin < 0 or self.max_attempts < 1:
+            raise ValueError(
+                "DetectionSceneConfig: clearance, arena_margin >= 0 and max_attempts >= 1 required"
+            )
+
+    @classmethod
+    def from_dict(cls, d: dict) -> DetectionSceneConfig:
+        d = {k: tuple(v) if isinstance(v, list) else v for k, v in d.items()}
+        return dataclass_from_dict(cls, d, "DetectionSceneConfig")
+
+
+def _detection_distractor(rng, cfg: DetectionSceneConfig, spec: RobotSpec, x: float, y: float):
+    w = np.asarray(cfg.distractor_weights, dtype=float)
+    kind = cfg.DISTRACTOR_KINDS[rng.choice(6, p=w / w.sum())]
+    theta = float(rng.uniform(-math.pi, math.pi))
+    kin_w = 2 * spec.housing_radius
+    if kind == "kin_width_prism":
+        return Prism(x=x, y=y, sides=int(rng.integers(3, 7)), width=kin_w, theta=theta)
+    if kind == "kin_width_box":
+        return Box(x=x, y=y, width=kin_w, depth=kin_w, theta=theta)
+    if kind == "same_radius_cylinder":
+        return Cylinder(x=x, y=y, radius=spec.housing_radius)
+    if kind == "other_cylinder":
+        while True:
+            r = float(rng.uniform(*cfg.cylinder_radius))
+            if abs(r - spec.housing_radius) > 0.005:
+                return Cylinder(x=x, y=y, radius=r)
+    length = float(rng.uniform(*cfg.wall_length))
+    t = 0.05
+    c, s = math.cos(theta), math.sin(theta)
+    if kind == "wall":
+        return Wall(
+            x1=x - 0.5 * length * c,
+            y1=y - 0.5 * length * s,
+            x2=x + 0.5 * length * c,
+            y2=y + 0.5 * length * s,
+            thickness=t,
+        )
+    # corner: two walls from (x, y), at right angles, meeting flush
+    other = float(rng.uniform(*cfg.wall_length))
+    return (
+        Wall(x1=x - 0.5 * t * c, y1=y - 0.5 * t * s, x2=x + length * c, y2=y + length * s, thickness=t),
+        Wall(x1=x + 0.5 * t * s, y1=y - 0.5 * t * c, x2=x - other * s, y2=y + other * c, thickness=t),
+    )
+
+
+def detection_scene(
+    seed: int | np.random.Generator | None = 0,
+    config: DetectionSceneConfig | None = None,
+    lidar: LidarSpec | None = None,
+    robot: RobotSpec | None = None,
+) -> Scene:
+    """An observer (robot 0, at the origin, random heading) among kin robots and hard distractors.
+
+    Kin robots (robots ``1..n_kin``) and distractors are placed at distances drawn uniformly from
+    ``config.distance`` and uniform bearings, without overlaps. Distractors are the ones the paper's
+    detector must reject: kin-width prisms and cuboids, cylinders of other radii, walls and corners,
+    plus same-radius cylinders (which no single scan can tell from a kin). Objects nearer the
+    observer naturally occlude farther ones, kin included. Used by the detector evaluation sweep and
+    the learned classifier's training data; seeded, so the same seed gives the same scene.
+    """
+    cfg = config or DetectionSceneConfig()
+    spec = robot or RobotSpec()
+    rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+    side = 2 * cfg.distance[1] + 2 * cfg.arena_margin
+    arena = Arena(side, side, walls=True)
+    placer = _Placer(arena, cfg.clearance, cfg.max_attempts, spec, "detection_scene")
+    observer = Robot(0.0, 0.0, float(rng.uniform(-math.pi, math.pi)))
+    placer.place(lambda x, y: observer, lambda: (0.0, 0.0), "observer")
+
+    def polar_xy():
+        d = float(rng.uniform(*cfg.distance))
+        b = float(rng.uniform(-math.pi, math.pi))
+        return d * math.cos(b), d * math.sin(b)
+
+    robots = [observer] + [
+        placer.place(lambda x, y: Robot(x, y, float(rng.uniform(-math.pi, math.pi))), polar_xy, f"kin {i}")
+        for i in range(cfg.n_kin)
+    ]
+    obstacles: list = []
+    for j in range(cfg.n_distractors):
+        obj = placer.place(
+            lambda x, y: _detection_distractor(rng, cfg, spec, x, y), polar_xy, f"distractor {j}"
+        )
+        obstacles.extend(obj if isinstance(obj, tuple) else (obj,))
+    return Scene(
+        robots=tuple(robots),
+        obstacles=tuple(obstacles),
+        arena=arena,
+        robot=spec,
+        lidar=lidar or LidarSpec(),
+        name=f"detection_scene(n_kin={cfg.n_kin}, n_distractors={cfg.n_distractors})",
     )

@@ -169,3 +169,37 @@ def test_random_arena_config_validation():
         scenes.RandomArenaConfig(kind_weights=(1, 0, 0))
     with pytest.raises(ValueError, match="cylinder_radius"):
         scenes.RandomArenaConfig(cylinder_radius=(0.2, 0.1))
+
+
+def test_detection_scene_layout():
+    cfg = scenes.DetectionSceneConfig(n_kin=3, n_distractors=15, distance=(0.3, 3.0))
+    a = scenes.detection_scene(3, cfg)
+    assert a == scenes.detection_scene(3, cfg)
+    assert a.robots[0].x == 0.0 and a.robots[0].y == 0.0
+    assert len(a.robots) == 4
+    for r in a.robots[1:]:
+        assert 0.3 - 1e-9 <= math.hypot(r.x, r.y) <= 3.0 + 1e-9
+    Scene.from_dict(a.to_dict())  # valid: no overlaps, inside the arena
+    # over many seeds every distractor kind shows up, corners as two walls meeting
+    kinds = set()
+    for seed in range(30):
+        for o in scenes.detection_scene(seed, cfg).obstacles:
+            if o.kind == "prism":
+                kinds.add(("prism", o.sides, o.width))
+            elif o.kind == "cylinder":
+                kinds.add("same_radius_cylinder" if o.radius == 0.035 else "other_cylinder")
+            else:
+                kinds.add(o.kind)
+    assert {("prism", n, 0.07) for n in (3, 4, 5, 6)} <= kinds
+    assert {"same_radius_cylinder", "other_cylinder", "box", "wall"} <= kinds
+
+
+def test_detection_scene_config_errors():
+    with pytest.raises(ValueError, match="distance"):
+        scenes.DetectionSceneConfig(distance=(2.0, 1.0))
+    with pytest.raises(ValueError, match="distractor_weights"):
+        scenes.DetectionSceneConfig(distractor_weights=(1, 1))
+    with pytest.raises(ValueError, match=r"unknown key\(s\) \['n_robots'\]"):
+        scenes.DetectionSceneConfig.from_dict({"n_robots": 3})
+    with pytest.raises(ValueError, match="could not place"):
+        scenes.detection_scene(0, scenes.DetectionSceneConfig(n_kin=40, distance=(0.3, 0.4)))
