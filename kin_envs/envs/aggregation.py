@@ -1,0 +1,346 @@
+"""``aggregation_v0``: a PettingZoo swarm in which robots gather into clusters using lidar only."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+from gymnasium import spaces
+from pettingzoo import ParallelEnv
+from pettingzoo.utils.conversions import parallel_to_aec, parallel_to_aec_wrapper
+
+from kin_envs.core import scenes
+from kin_envs.core.world import Scan, World, WorldConfig
+from kin_envs.envs.common import (
+    ActionAdapter,
+    CommonConfig,
+    ObservationBuilder,
+    ObservationLayout,
+    check_float,
+    check_int,
+    config_from_kwargs,
+    kin_truth,
+    resolve_detector,
+    run_detector,
+)
+
+__all__ = ["AggregationConfig", "AggregationEnv", "env", "parallel_env", "raw_env"]
+
+
+@dataclass(frozen=True, kw_only=True)
+class AggregationConfig(CommonConfig):
+    """Arguments of ``aggregation_v0`` (see :class:`AggregationEnv`)."""
+
+    env_id: ClassVar[str] = "aggregation_v0"
+
+    n_robots: int = 16
+    arena_size: float | None = None
+    area_per_robot: float = 1.0
+    n_obstacles: int | None = None
+    max_cycles: int = 500
+    kin_radius: float = 0.6
+    max_kin_counted: int = 6
+    kin_reward: float = 0.1
+    collision_penalty: float = 0.5
+    render_agent: int | None = 0
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        w = self.env_id
+        check_int(w, "n_robots", self.n_robots, 2, 256)
+        check_float(w, "area_per_robot", self.area_per_robot, 0.2, 100.0)
+        if self.arena_size is None:
+            object.__setattr__(
+                self, "arena_size", round(max(3.0, math.sqrt(self.n_robots * self.area_per_robot)), 3)
+            )
+        check_float(w, "arena_size", self.arena_size, 1.0, 200.0)
+        if self.n_obstacles is None:
+            object.__setattr__(self, "n_obstacles", self.n_robots // 8)
+        check_int(w, "n_obstacles", self.n_obstacles, 0, 1000)
+        check_int(w, "max_cycles", self.max_cycles, 1, 1_000_000)
+        check_float(w, "kin_radius", self.kin_radius, 0.18, 100.0, lo_open=True)
+        check_int(w, "max_kin_counted", self.max_kin_counted, 1, 255)
+        check_float(w, "kin_reward", self.kin_reward, 0.0, 1e6)
+        check_float(w, "collision_penalty", self.collision_penalty, 0.0, 1e6)
+        if self.render_agent is not None:
+            check_int(w, "render_agent", self.render_agent, 0, self.n_robots - 1)
+
+
+class AggregationEnv(ParallelEnv):
+    """Swarm aggregation: every robot learns to gather with its kin using only its lidar.
+
+    ## Description
+
+    ``n_robots`` identical robots (the paper's design: 9 cm body, 7 cm RPLIDAR housing) and
+    ``n_obstacles`` distractors (:func:`kin_envs.scenes.random_arena`'s mix: cylinders, boxes,
+    prisms, walls, some exactly kin-width) in a square arena. Each robot ``robot_i`` is an agent
+    with the same observation and action spaces (a fixed, homogeneous agent set, as SuperSuit's
+    shared-policy wrappers need). Agents never terminate; all are truncated together after
+    ``max_cycles`` steps, after which ``agents`` is empty.
+
+    ## Action Space
+
+    Per agent, as ``KinSeek-v0``: ``Box(-1, 1, (2,), float32)`` normalised (left, right) wheel
+    speeds (clipped to [-1, 1]), or ``Discrete(5)`` (stop, forward, turn left, turn right, back)
+    with ``action_type="discrete"``. ``step`` needs an action for every live agent; a missing or
+    unknown agent, NaN/inf or a wrong shape raises ``ValueError`` naming the agent.
+
+    ## Observation Space
+
+    Per agent, as ``KinSeek-v0``: the agent's scan as ``range / 12 m``, the optional detector
+    channel (``obs_detections``: ``"topk"`` or ``"mask"``), ``frame_stack`` frames, float32.
+
+    ``state()`` is the global ``(n_robots, 3)`` float32 array of poses ``x, y`` (m, arena
+    centred on the origin) and ``theta`` (rad, CCW from +x); ``state_space`` bounds it.
+
+    ## Rewards
+
+    Per agent, terms in ``info[agent]["reward_terms"]`` summing to its reward:
+
+    * ``kin``: ``kin_reward * min(k, max_kin_counted)``, ``k`` = other robots whose centres are
+      within ``kin_radius`` (privileged ground truth, used only for the reward);
+    * ``collision``: ``-collision_penalty`` if the robot ends the step touching anything (another
+      robot, an obstacle or a wall), so clusters should be close but not touching.
+
+    ## Starting State
+
+    A fresh random layout each reset, seeded from the env's RNG: nothing overlaps, 5 cm clearance,
+    uniform headings.
+
+    ## Episode End
+
+    No terminations; every agent is truncated after ``max_cycles`` steps.
+
+    ## Info
+
+    Per agent: ``kin_truth`` (robots its lidar sees: arrays ``index, range, bearing, x, y,
+    n_beams``, nearest first), ``reward_terms``, ``n_kin`` (robots within ``kin_radius``) and,
+    unless ``detector=None``, ``kin_detections`` (arrays ``range, bearing, x, y, score,
+    first_beam, last_beam, n_beams, kin_index``; ``kin_index`` -1 = false detection). All agents'
+    scans go through the detector's ``detect_batch`` at once. The geometric detector costs far
+    more than the simulation at large swarms (about 1 ms per scan): pass ``detector=None`` for
+    fast training.
+
+    ## Arguments
+
+    ``aggregation_v0.parallel_env(**kwargs)`` / ``aggregation_v0.env(**kwargs)`` (AEC):
+
+    * ``n_robots`` (16, 2–256); ``arena_size`` (None: ``max(3, sqrt(n_robots * area_per_robot))``
+      m), ``area_per_robot`` (1.0 m²); ``n_obstacles`` (None: ``n_robots // 8``);
+    * ``max_cycles`` (500); ``kin_radius`` (0.6 m); ``max_kin_counted`` (6); ``kin_reward``
+      (0.1); ``collision_penalty`` (0.5);
+    * common: ``noise_sigma``, ``dropout_prob``, ``detector`` (``"geometric"``), ``obs_detections``,
+      ``obs_top_k``, ``frame_stack``, ``action_type``, ``control_dt``;
+    * rendering: ``render_mode`` (None, ``"rgb_array"``, ``"human"``), ``render_size`` (512 px),
+      ``render_beams`` (True) and ``render_agent`` (0: whose beams and detections are drawn).
+
+    Unknown names raise :class:`~kin_envs.envs.common.UnknownArgumentError`.
+
+    ## Version History
+
+    * v0: initial version.
+    """
+
+    metadata: ClassVar[dict[str, Any]] = {
+        "render_modes": ["human", "rgb_array"],
+        "name": "aggregation_v0",
+        "is_parallelizable": True,
+        "render_fps": 10,
+    }
+
+    def __init__(self, render_mode: str | None = None, **kwargs: Any) -> None:
+        self.config = cfg = config_from_kwargs(AggregationConfig, kwargs)
+        where = cfg.env_id
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(
+                f"{where}: render_mode must be None or one of {self.metadata['render_modes']}, "
+                f"got {render_mode!r}"
+            )
+        self.render_mode = render_mode
+        if render_mode is not None:
+            from kin_envs.envs.rendering import import_pygame
+
+            import_pygame()
+        self.detector = resolve_detector(cfg.detector, where)
+        self._lidar = cfg.lidar_spec()
+        self._world_config = WorldConfig(control_dt=cfg.control_dt)
+        self.layout = ObservationLayout(
+            n_beams=self._lidar.n_beams, range_max=self._lidar.range_max, angles=self._lidar.angles,
+            frame_stack=cfg.frame_stack, detections=cfg.obs_detections, top_k=cfg.obs_top_k,
+        )
+        self._obs = ObservationBuilder(self.layout)
+        self._actions = ActionAdapter(cfg.action_type, where)
+        self.possible_agents = [f"robot_{i}" for i in range(cfg.n_robots)]
+        self.agents: list[str] = []
+        self._index = {a: i for i, a in enumerate(self.possible_agents)}
+        # one cached space object per agent (seeding an agent's space must stick)
+        self.observation_spaces = {a: self._obs.make_space() for a in self.possible_agents}
+        self.action_spaces = {a: self._actions.make_space() for a in self.possible_agents}
+        h = cfg.arena_size / 2
+        lo = np.tile(np.array([-h, -h, -np.pi], np.float32), (cfg.n_robots, 1))
+        self.state_space = spaces.Box(low=lo, high=-lo, dtype=np.float32)
+        self.world: World | None = None
+        self._np_random: np.random.Generator | None = None
+        self._renderer = None
+        self._last_scan: Scan | None = None
+        self._last_detections: list | None = None
+        self._cycles = 0
+
+    def observation_space(self, agent: str) -> spaces.Space:
+        return self.observation_spaces[agent]
+
+    def action_space(self, agent: str) -> spaces.Space:
+        return self.action_spaces[agent]
+
+    @property
+    def np_random(self) -> np.random.Generator:
+        """The env's only RNG (scene layout and lidar noise); seeded by ``reset(seed=...)``."""
+        if self._np_random is None:
+            self._np_random = np.random.default_rng()
+        return self._np_random
+
+    # -- API ----------------------------------------------------------------------------------
+    def reset(self, seed: int | None = None, options: dict | None = None):
+        """New random layout; ``options`` is accepted and ignored."""
+        if seed is not None or self._np_random is None:
+            self._np_random = np.random.default_rng(seed)
+        cfg = self.config
+        scene = scenes.random_arena(
+            cfg.n_robots, cfg.n_obstacles, seed=self._np_random, size=cfg.arena_size,
+            lidar=self._lidar,
+        )
+        self.world = World(scene, seed=self._np_random, config=self._world_config)
+        self.agents = self.possible_agents[:]
+        self._cycles = 0
+        frame, infos = self._sense()
+        obs = self._obs.reset(frame)
+        _, n_kin = self._kin_counts()
+        zero = {"kin": 0.0, "collision": 0.0}
+        for i, a in enumerate(self.agents):
+            infos[a]["reward_terms"] = dict(zero)
+            infos[a]["n_kin"] = int(n_kin[i])
+        if self.render_mode == "human":
+            self.render()
+        return {a: obs[i] for i, a in enumerate(self.agents)}, infos
+
+    def step(self, actions: dict):
+        if self.world is None:
+            raise RuntimeError("aggregation_v0: call reset() before step()")
+        if not self.agents:
+            raise RuntimeError("aggregation_v0: all agents are done; call reset() before step()")
+        if not isinstance(actions, dict):
+            raise ValueError(f"aggregation_v0: actions must be a dict agent -> action, got "
+                             f"{type(actions).__name__}")
+        if len(actions) != len(self.agents) or actions.keys() != self._index.keys():
+            missing = [a for a in self.agents if a not in actions]
+            unknown = [a for a in actions if a not in self._index]
+            if missing or unknown:
+                raise ValueError(
+                    f"aggregation_v0: actions must have one entry per agent; missing {missing[:5]}"
+                    f"{'...' if len(missing) > 5 else ''}, unknown {unknown[:5]}"
+                )
+        wheels = self._actions.many([actions[a] for a in self.agents], self.agents)
+        self.world.step(wheel_speeds=wheels * self.world.scene.robot.max_wheel_speed)
+        self._cycles += 1
+        frame, infos = self._sense()
+        obs = self._obs.push(frame)
+        cfg = self.config
+        counted, n_kin = self._kin_counts()
+        kin_terms = (cfg.kin_reward * counted).tolist()
+        hit = (self.world.contacts != 0).tolist()
+        pen = -cfg.collision_penalty
+        truncate = self._cycles >= cfg.max_cycles
+        observations, rewards, terminations, truncations = {}, {}, {}, {}
+        for i, a in enumerate(self.agents):
+            terms = {"kin": kin_terms[i], "collision": pen if hit[i] else 0.0}
+            infos[a]["reward_terms"] = terms
+            infos[a]["n_kin"] = int(n_kin[i])
+            observations[a] = obs[i]
+            rewards[a] = terms["kin"] + terms["collision"]
+            terminations[a] = False
+            truncations[a] = truncate
+        if truncate:
+            self.agents = []
+        if self.render_mode == "human":
+            self.render()
+        return observations, rewards, terminations, truncations, infos
+
+    def _kin_counts(self) -> tuple[np.ndarray, np.ndarray]:
+        """Robots within ``kin_radius`` of each robot: (capped count, raw count)."""
+        p = self.world.poses[:, :2]
+        d2 = ((p[:, None, :] - p[None, :, :]) ** 2).sum(-1)
+        n = (d2 <= self.config.kin_radius**2).sum(1) - 1  # minus itself
+        return np.minimum(n, self.config.max_kin_counted), n
+
+    def _sense(self) -> tuple[np.ndarray, dict[str, dict]]:
+        scan = self.world.scan()
+        self._last_scan = scan
+        poses = scan.poses
+        truth = kin_truth(scan, poses)
+        dets = None
+        if self.detector is not None:
+            dets = run_detector(self.detector, scan.ranges, scan.angles, scan.robots, poses)
+        self._last_detections = dets
+        infos = {}
+        for i, a in enumerate(self.possible_agents):
+            info = {"kin_truth": truth[i]}
+            if dets is not None:
+                info["kin_detections"] = dets[i]
+            infos[a] = info
+        return self._obs.frame(scan.ranges, dets), infos
+
+    def state(self) -> np.ndarray:
+        if self.world is None:
+            raise RuntimeError("aggregation_v0: call reset() before state()")
+        return self.world.poses.astype(np.float32)
+
+    def render(self):
+        if self.render_mode is None:
+            import gymnasium
+
+            gymnasium.logger.warn(
+                "aggregation_v0: render() called without a render_mode; pass "
+                "render_mode='rgb_array' or 'human'"
+            )
+            return None
+        if self.world is None:
+            raise RuntimeError("aggregation_v0: call reset() before render()")
+        from kin_envs.envs.rendering import Renderer
+
+        if self._renderer is None:
+            self._renderer = Renderer(self.world.scene, self.render_mode, self.config.render_size,
+                                      self.metadata["render_fps"], title="aggregation_v0")
+        elif self._renderer.scene is not self.world.scene:
+            self._renderer.set_scene(self.world.scene)
+        beams, dets = [], []
+        k, scan = self.config.render_agent, self._last_scan
+        if self.config.render_beams and k is not None and scan is not None:
+            beams.append((scan.poses[k], scan.ranges[k], scan.angles, scan.range_max))
+            if self._last_detections is not None:
+                dets.append((scan.poses[k], self._last_detections[k]))
+        roles = ["agent"] * self.world.n_robots
+        if k is not None:
+            roles[k] = "learner"  # highlight the robot whose view is drawn
+        return self._renderer.render(self.world, roles, beams, dets)
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+
+def parallel_env(**kwargs: Any) -> AggregationEnv:
+    """The native parallel env (``kwargs``: see :class:`AggregationEnv`, section Arguments)."""
+    return AggregationEnv(**kwargs)
+
+
+def raw_env(**kwargs: Any) -> parallel_to_aec_wrapper:
+    """The AEC version without PettingZoo's order-enforcing wrapper."""
+    return parallel_to_aec_wrapper(AggregationEnv(**kwargs))
+
+
+def env(**kwargs: Any):
+    """The AEC version (``pettingzoo.utils.parallel_to_aec`` of :func:`parallel_env`)."""
+    return parallel_to_aec(AggregationEnv(**kwargs))

@@ -1,0 +1,191 @@
+"""Base class of the single-agent Gymnasium tasks: robot 0 learns, other robots are scripted.
+
+A subclass supplies a config dataclass (a :class:`~kin_envs.envs.common.CommonConfig`), a scene
+generator, the other robots' wheel commands, and the task's reward / termination. This class
+owns everything else: the one RNG, the world, the observation, the info channel and rendering.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import gymnasium as gym
+import numpy as np
+
+from kin_envs.core.scenes import Scene
+from kin_envs.core.world import Scan, World, WorldConfig
+from kin_envs.envs.common import (
+    ActionAdapter,
+    CommonConfig,
+    ObservationBuilder,
+    ObservationLayout,
+    config_from_kwargs,
+    kin_truth,
+    resolve_detector,
+    run_detector,
+)
+
+__all__ = ["SingleRobotEnv"]
+
+#: Pose indices in ``world.poses``: the learning robot is always robot 0.
+LEARNER = 0
+
+
+class SingleRobotEnv(gym.Env):
+    """Common machinery; see :class:`~kin_envs.envs.kin_seek.KinSeekEnv` for the specification."""
+
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["human", "rgb_array"], "render_fps": 10}
+    config_class: ClassVar[type[CommonConfig]] = CommonConfig
+    #: per-robot role names for rendering
+    roles: ClassVar[tuple[str, ...]] = ("learner", "kin")
+
+    def __init__(self, render_mode: str | None = None, **kwargs: Any) -> None:
+        self.config = config_from_kwargs(self.config_class, kwargs)
+        where = self.config.env_id
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(
+                f"{where}: render_mode must be None or one of {self.metadata['render_modes']}, "
+                f"got {render_mode!r}"
+            )
+        self.render_mode = render_mode
+        if render_mode is not None:
+            from kin_envs.envs.rendering import import_pygame
+
+            import_pygame()  # fail now with the install hint, not at the first frame
+        self.detector = resolve_detector(self.config.detector, where)
+        self._lidar = self.config.lidar_spec()
+        self._world_config = WorldConfig(control_dt=self.config.control_dt)
+        self.layout = ObservationLayout(
+            n_beams=self._lidar.n_beams,
+            range_max=self._lidar.range_max,
+            angles=self._lidar.angles,
+            frame_stack=self.config.frame_stack,
+            detections=self.config.obs_detections,
+            top_k=self.config.obs_top_k,
+        )
+        self._obs = ObservationBuilder(self.layout)
+        self._actions = ActionAdapter(self.config.action_type, where)
+        self.observation_space = self._obs.make_space()
+        self.action_space = self._actions.make_space()
+        self.world: World | None = None
+        self._renderer = None
+        self._last_scan: Scan | None = None
+        self._last_detections: dict | None = None
+        self._steps = 0
+
+    # -- hooks for subclasses -----------------------------------------------------------------
+    def _make_scene(self, rng: np.random.Generator) -> Scene:
+        raise NotImplementedError
+
+    def _scan_robots(self) -> list[int] | None:
+        """Robots to scan each step (row 0 must be the learner); ``None`` = all."""
+        return [LEARNER]
+
+    def _after_reset(self, scan: Scan) -> None:
+        """Task state at the start of an episode."""
+
+    def _other_wheels(self, scan: Scan) -> np.ndarray:
+        """Normalised wheel speeds ``(n_robots - 1, 2)`` of the scripted robots."""
+        return np.zeros((self.world.n_robots - 1, 2))
+
+    def _task(self, scan: Scan) -> tuple[dict[str, float], bool, dict[str, Any]]:
+        """Reward terms, ``terminated`` and extra info after a step."""
+        raise NotImplementedError
+
+    def _zero_terms(self) -> dict[str, float]:
+        raise NotImplementedError
+
+    # -- Gymnasium API ------------------------------------------------------------------------
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        """Start an episode; ``options`` is accepted and ignored."""
+        super().reset(seed=seed)
+        scene = self._make_scene(self.np_random)
+        self.world = World(scene, seed=self.np_random, config=self._world_config)
+        self._steps = 0
+        scan = self.world.scan(self._scan_robots())
+        self._after_reset(scan)
+        frame, info = self._sense(scan)
+        obs = self._obs.reset(frame)[0]
+        info.update(self._task_info_at_reset())
+        info["reward_terms"] = self._zero_terms()
+        if self.render_mode == "human":
+            self.render()
+        return obs, info
+
+    def _task_info_at_reset(self) -> dict[str, Any]:
+        return {}
+
+    def step(self, action):
+        if self.world is None:
+            raise RuntimeError(f"{self.config.env_id}: call reset() before step()")
+        learner = self._actions.one(action)
+        wheels = np.vstack([learner[None, :], self._other_wheels(self._last_scan)])
+        self.world.step(wheel_speeds=wheels * self.world.scene.robot.max_wheel_speed)
+        self._steps += 1
+        scan = self.world.scan(self._scan_robots())
+        frame, info = self._sense(scan)
+        obs = self._obs.push(frame)[0]
+        terms, terminated, extra = self._task(scan)
+        reward = float(sum(terms.values()))
+        info.update(extra)
+        info["reward_terms"] = terms
+        truncated = bool(self._steps >= self.config.max_steps and not terminated)
+        if self.render_mode == "human":
+            self.render()
+        return obs, reward, bool(terminated), truncated, info
+
+    def _sense(self, scan: Scan) -> tuple[np.ndarray, dict[str, Any]]:
+        """Frame of the learner's observation and the info channel."""
+        self._last_scan = scan
+        poses = self.world.poses
+        info: dict[str, Any] = {"kin_truth": kin_truth(_rows(scan, 1), poses)[0]}
+        dets = None
+        if self.detector is not None:
+            dets = run_detector(self.detector, scan.ranges[:1], scan.angles, scan.robots[:1], poses)
+            info["kin_detections"] = dets[0]
+        self._last_detections = dets[0] if dets is not None else None
+        return self._obs.frame(scan.ranges[:1], dets), info
+
+    def render(self):
+        if self.render_mode is None:
+            gym.logger.warn(
+                f"{self.config.env_id}: render() called without a render_mode; pass "
+                "render_mode='rgb_array' or 'human' to the constructor"
+            )
+            return None
+        if self.world is None:
+            raise RuntimeError(f"{self.config.env_id}: call reset() before render()")
+        from kin_envs.envs.rendering import Renderer
+
+        if self._renderer is None or (
+            self._renderer.scene.arena != self.world.scene.arena
+        ):
+            if self._renderer is not None:
+                self._renderer.close()
+            self._renderer = Renderer(self.world.scene, self.render_mode, self.config.render_size,
+                                      self.metadata["render_fps"], title=self.config.env_id)
+        elif self._renderer.scene is not self.world.scene:
+            self._renderer.set_scene(self.world.scene)
+        beams, dets = [], []
+        scan = self._last_scan
+        if self.config.render_beams and scan is not None:
+            beams.append((scan.poses[0], scan.ranges[0], scan.angles, scan.range_max))
+            if self._last_detections is not None:
+                dets.append((scan.poses[0], self._last_detections))
+        return self._renderer.render(self.world, self.roles, beams, dets)
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+
+def _rows(scan: Scan, k: int) -> Scan:
+    """The first ``k`` rows of a scan (the learner's)."""
+    if scan.ranges.shape[0] == k:
+        return scan
+    return Scan(
+        ranges=scan.ranges[:k], angles=scan.angles, hit_kind=scan.hit_kind[:k],
+        hit_index=scan.hit_index[:k], true_ranges=scan.true_ranges[:k], robots=scan.robots[:k],
+        poses=scan.poses[:k], range_max=scan.range_max,
+    )

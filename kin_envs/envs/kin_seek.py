@@ -1,0 +1,223 @@
+"""``kin_envs/KinSeek-v0``: find a static kin robot among look-alike distractors with the lidar."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+
+from kin_envs.core import scenes
+from kin_envs.core.scenes import Cylinder, RandomArenaConfig, Scene
+from kin_envs.core.world import Scan
+from kin_envs.envs.base import SingleRobotEnv
+from kin_envs.envs.common import CommonConfig, check_bool, check_float, check_int
+
+__all__ = ["KinSeekConfig", "KinSeekEnv", "DISTRACTORS"]
+
+#: Distractor mix: cylinders, boxes, regular prisms, interior walls; half of the cylinders, boxes
+#: and prisms are exactly the kin's 7 cm width. Other cylinders are >= 5 cm in radius.
+DISTRACTORS = RandomArenaConfig(
+    kind_weights=(0.35, 0.15, 0.35, 0.15),
+    kin_width_prob=0.5,
+    cylinder_radius=(0.05, 0.15),
+    box_size=(0.05, 0.3),
+    prism_width=(0.05, 0.25),
+    wall_length=(0.4, 1.2),
+)
+#: Radii that replace kin-width cylinders unless ``kin_like_cylinders=True`` (shrinking keeps the
+#: scene valid: a smaller circle cannot overlap anything the larger one did not).
+_SMALL_CYLINDER_RADIUS = (0.015, 0.025)
+_MAX_LAYOUT_TRIES = 200
+
+
+@dataclass(frozen=True, kw_only=True)
+class KinSeekConfig(CommonConfig):
+    """Arguments of ``KinSeek-v0`` (see :class:`KinSeekEnv`)."""
+
+    env_id: ClassVar[str] = "KinSeek-v0"
+
+    arena_size: float = 4.0
+    n_distractors: int = 6
+    max_steps: int = 300
+    success_distance: float = 0.3
+    min_start_distance: float = 1.0
+    kin_like_cylinders: bool = False
+    progress_weight: float = 10.0
+    success_bonus: float = 10.0
+    collision_penalty: float = 0.1
+    time_penalty: float = 0.01
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        w = self.env_id
+        check_float(w, "arena_size", self.arena_size, 2.0, 30.0)
+        check_int(w, "n_distractors", self.n_distractors, 0, 200)
+        check_int(w, "max_steps", self.max_steps, 1, 1_000_000)
+        check_float(w, "success_distance", self.success_distance, 0.18, 2.0, lo_open=True)
+        check_float(w, "min_start_distance", self.min_start_distance, self.success_distance,
+                    self.arena_size * 0.9, lo_open=True)
+        check_bool(w, "kin_like_cylinders", self.kin_like_cylinders)
+        for name in ("progress_weight", "success_bonus", "collision_penalty", "time_penalty"):
+            check_float(w, name, getattr(self, name), 0.0, 1e6)
+
+
+class KinSeekEnv(SingleRobotEnv):
+    """Find the kin robot using only the lidar, and get within ``success_distance`` of it.
+
+    ## Description
+
+    A square arena holds two robots of the paper's design (9 cm body, 7 cm lidar housing on top,
+    RPLIDAR A1: 360 beams, 1°, 12 m) and ``n_distractors`` obstacles: cylinders (some thinner, some
+    thicker than the kin's 7 cm housing, see ``kin_like_cylinders``), boxes and regular prisms
+    (half of them exactly 7 cm wide, the paper's Scenario II look-alikes) and short interior walls.
+    Robot 0 learns; robot 1, the *kin*, stands still. A lidar sees only the other robot's housing,
+    so at 1° resolution the kin covers 3 or more beams only within about 1.3 m.
+
+    ## Action Space
+
+    ``action_type="continuous"`` (default): ``Box(-1, 1, (2,), float32)``, the left and right
+    wheel speeds as fractions of ``max_wheel_speed`` (10 rad/s: 0.33 m/s forward, 4.1 rad/s
+    turning). Values outside [-1, 1] are clipped; NaN/inf or a shape other than ``(2,)`` raise
+    ``ValueError``.
+
+    ``action_type="discrete"``: ``Discrete(5)``: 0 stop, 1 forward (full speed), 2 turn left and
+    3 turn right (in place, half wheel speed), 4 back (half speed).
+
+    ## Observation Space
+
+    ``Box(0, 1, (frame_stack * frame_dim,), float32)`` (sin/cos slots of ``"topk"`` go down to
+    -1). Each frame is the learner's scan as ``range / 12 m`` (1.0 = no return; beam ``i`` points
+    ``i`` degrees clockwise from the heading), followed by the detector channel if
+    ``obs_detections`` is set:
+
+    * ``"topk"`` (or ``True``): ``obs_top_k`` slots, nearest detection first, each
+      ``[present, range / 12, sin(bearing), cos(bearing)]``, empty slots zero;
+    * ``"mask"``: 360 values, 1 on beams of a detected kin's segment.
+
+    Frames are stacked oldest first; at reset every slot holds the first frame.
+    ``env.unwrapped.layout`` (:class:`~kin_envs.envs.common.ObservationLayout`) describes this and
+    ``layout.newest_scan(obs)`` recovers the ranges in metres.
+
+    ## Rewards
+
+    ``info["reward_terms"]`` holds the terms; the reward is their sum:
+
+    * ``progress``: ``progress_weight * (d_prev - d)``, ``d`` the true centre distance to the kin.
+      This shaping uses privileged state (the policy never sees ``d``); it is potential-based, so
+      it does not change which policies are optimal.
+    * ``success``: ``+success_bonus`` on the step that reaches the kin.
+    * ``collision``: ``-collision_penalty`` on every step that ends touching an obstacle, wall or
+      the kin.
+    * ``time``: ``-time_penalty`` every step.
+
+    ## Starting State
+
+    A fresh random layout each episode (:func:`kin_envs.scenes.random_arena` with
+    :data:`DISTRACTORS`, seeded from ``np_random``): nothing overlaps, everything keeps 5 cm
+    clearance, headings are uniform, and the kin's centre is at least ``min_start_distance`` from
+    the learner's. The kin may start hidden behind an obstacle or out of detection range.
+
+    ## Episode End
+
+    * Termination: the centre distance to the kin is ``<= success_distance`` (default 0.3 m;
+      bodies touch at 0.18 m). The episode ends there, which is how the robot "stops" at the kin;
+      ``info["is_success"]`` is True.
+    * Truncation: ``max_steps`` steps (the time limit is internal; the registered spec has no
+      ``TimeLimit`` wrapper).
+
+    ## Info
+
+    Always ``kin_truth`` (the kin the learner's lidar sees this step: a dict of equal-length
+    arrays ``index, range, bearing, x, y, n_beams``, nearest first, empty when it is not seen),
+    ``reward_terms``, ``is_success``, ``kin_distance`` (true centre distance, m) and ``collision``.
+    With a detector also ``kin_detections``: arrays ``range, bearing, x, y, score, first_beam,
+    last_beam, n_beams, kin_index`` (``kin_index`` = matched robot, -1 for a false detection),
+    nearest first. With ``detector=None`` the key is absent. Bearings are rad CCW in the robot's
+    frame, x forward, y left.
+
+    ## Arguments
+
+    ``gymnasium.make("kin_envs/KinSeek-v0", **kwargs)``; unknown names raise
+    :class:`~kin_envs.envs.common.UnknownArgumentError` (a ``TypeError`` and ``ValueError``):
+
+    * ``arena_size`` (4.0): arena side, m; ``n_distractors`` (6);
+      ``max_steps`` (300, 0.1 s each); ``success_distance`` (0.3 m);
+      ``min_start_distance`` (1.0 m); ``kin_like_cylinders`` (False: cylinders of exactly the
+      kin's radius are replaced by thinner ones; True keeps them, the paper's unresolvable case);
+    * reward weights ``progress_weight`` (10), ``success_bonus`` (10), ``collision_penalty``
+      (0.1), ``time_penalty`` (0.01);
+    * sensing: ``noise_sigma`` (0, relative range noise), ``dropout_prob`` (0);
+    * ``detector``: ``"geometric"`` (default, the paper's detector), ``"learned"``, ``None`` or a
+      detector object; ``obs_detections`` (None), ``obs_top_k`` (3), ``frame_stack`` (1);
+    * ``action_type`` (``"continuous"``/``"discrete"``), ``control_dt`` (0.1 s);
+    * ``render_mode`` (None, ``"rgb_array"``, ``"human"``), ``render_size`` (512 px),
+      ``render_beams`` (True: the learner's beams and detections, green = real kin, red = false).
+
+    ## Version History
+
+    * v0: initial version.
+    """
+
+    config_class: ClassVar[type] = KinSeekConfig
+    roles: ClassVar[tuple[str, ...]] = ("learner", "kin")
+
+    def _make_scene(self, rng: np.random.Generator) -> Scene:
+        cfg = self.config
+        for _ in range(_MAX_LAYOUT_TRIES):
+            scene = scenes.random_arena(
+                2, cfg.n_distractors, seed=rng, size=cfg.arena_size, config=DISTRACTORS,
+                lidar=self._lidar,
+            )
+            a, b = scene.robots
+            if math.hypot(a.x - b.x, a.y - b.y) >= cfg.min_start_distance:
+                break
+        else:
+            raise ValueError(
+                f"{cfg.env_id}: no layout with the kin >= min_start_distance="
+                f"{cfg.min_start_distance} m away in {_MAX_LAYOUT_TRIES} tries; lower "
+                "min_start_distance or enlarge arena_size"
+            )
+        if not cfg.kin_like_cylinders:
+            scene = thin_kin_like_cylinders(scene, rng)
+        return scene
+
+    def _kin_distance(self) -> float:
+        p = self.world.poses
+        return float(math.hypot(p[1, 0] - p[0, 0], p[1, 1] - p[0, 1]))
+
+    def _after_reset(self, scan: Scan) -> None:
+        self._prev_distance = self._kin_distance()
+
+    def _task_info_at_reset(self) -> dict[str, Any]:
+        return {"is_success": False, "kin_distance": self._prev_distance, "collision": False}
+
+    def _zero_terms(self) -> dict[str, float]:
+        return {"progress": 0.0, "success": 0.0, "collision": 0.0, "time": 0.0}
+
+    def _task(self, scan: Scan):
+        cfg = self.config
+        d = self._kin_distance()
+        success = d <= cfg.success_distance
+        collision = bool(self.world.contacts[0])
+        terms = {
+            "progress": cfg.progress_weight * (self._prev_distance - d),
+            "success": cfg.success_bonus if success else 0.0,
+            "collision": -cfg.collision_penalty if collision else 0.0,
+            "time": -cfg.time_penalty,
+        }
+        self._prev_distance = d
+        return terms, success, {"is_success": success, "kin_distance": d, "collision": collision}
+
+
+def thin_kin_like_cylinders(scene: Scene, rng: np.random.Generator) -> Scene:
+    """Replace cylinders of exactly the kin's housing radius with thinner ones (1.5–2.5 cm)."""
+    r_kin = scene.robot.housing_radius
+    obstacles = list(scene.obstacles)
+    changed = False
+    for j, o in enumerate(obstacles):
+        if isinstance(o, Cylinder) and math.isclose(o.radius, r_kin):
+            obstacles[j] = Cylinder(x=o.x, y=o.y, radius=float(rng.uniform(*_SMALL_CYLINDER_RADIUS)))
+            changed = True
+    return scene.replace(obstacles=tuple(obstacles)) if changed else scene
