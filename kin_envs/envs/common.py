@@ -80,7 +80,7 @@ class UnknownArgumentError(TypeError, ValueError):
 def check_int(where: str, name: str, v: Any, lo: int, hi: int | None = None) -> int:
     ok = isinstance(v, int | np.integer) and not isinstance(v, bool | np.bool_)
     if not ok or v < lo or (hi is not None and v > hi):
-        rng = f"[{lo}, {hi}]" if hi is not None else f">= {lo}"
+        rng = f"in [{lo}, {hi}]" if hi is not None else f">= {lo}"
         raise ValueError(f"{where}: {name} must be an integer {rng}, got {v!r}")
     return int(v)
 
