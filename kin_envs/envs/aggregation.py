@@ -269,9 +269,10 @@ class AggregationEnv(ParallelEnv):
 
     def _kin_counts(self) -> tuple[np.ndarray, np.ndarray]:
         """Robots within ``kin_radius`` of each robot: (capped count, raw count)."""
-        p = self.world.poses[:, :2]
-        d2 = ((p[:, None, :] - p[None, :, :]) ** 2).sum(-1)
-        n = (d2 <= self.config.kin_radius**2).sum(1) - 1  # minus itself
+        p = self._last_scan.poses  # the current poses (World.poses loops over bodies in Python)
+        dx = p[:, None, 0] - p[None, :, 0]
+        dy = p[:, None, 1] - p[None, :, 1]
+        n = np.count_nonzero(dx * dx + dy * dy <= self.config.kin_radius**2, axis=1) - 1
         return np.minimum(n, self.config.max_kin_counted), n
 
     def _sense(self) -> tuple[np.ndarray, dict[str, dict]]:

@@ -271,18 +271,15 @@ def run_detector(
     # nearest first within each row: sort by (row, range)
     order = np.lexsort((tab[:, 0], owner_a))
     tab, owner_a, kin_index = tab[order], owner_a[order], kin_index[order]
-    bounds = np.searchsorted(owner_a, np.arange(len(results) + 1))
-    out = []
-    for b in range(len(results)):
-        lo, hi = bounds[b], bounds[b + 1]
-        t = tab[lo:hi]
-        out.append({
-            "range": t[:, 0].copy(), "bearing": t[:, 1].copy(), "x": t[:, 2].copy(),
-            "y": t[:, 3].copy(), "score": t[:, 4].copy(),
-            "first_beam": t[:, 5].astype(np.int64), "last_beam": t[:, 6].astype(np.int64),
-            "n_beams": t[:, 7].astype(np.int64), "kin_index": kin_index[lo:hi].astype(np.int64),
-        })
-    return out
+    cols = {name: tab[:, k].copy() for k, name in enumerate(DETECTION_FIELDS[:5])}
+    for k, name in enumerate(DETECTION_FIELDS[5:8], start=5):
+        cols[name] = tab[:, k].astype(np.int64)
+    cols["kin_index"] = kin_index.astype(np.int64)
+    bounds = np.searchsorted(owner_a, np.arange(len(results) + 1)).tolist()
+    return [
+        {name: col[lo:hi] for name, col in cols.items()}
+        for lo, hi in zip(bounds[:-1], bounds[1:], strict=True)
+    ]
 
 
 # --- ground truth -------------------------------------------------------------------------------
@@ -298,31 +295,29 @@ def kin_truth(scan, poses: np.ndarray) -> list[dict[str, np.ndarray]]:
     its lidar housing (>= 1).
     """
     n_rows, n_robots = scan.ranges.shape[0], poses.shape[0]
-    seen = (scan.hit_kind == HitKind.ROBOT) & (scan.ranges < scan.range_max)
-    row_of = np.broadcast_to(np.arange(n_rows)[:, None], seen.shape)
-    flat = row_of[seen] * n_robots + scan.hit_index[seen]
-    counts = np.bincount(flat, minlength=n_rows * n_robots).reshape(n_rows, n_robots)
-    rows, idx = np.nonzero(counts)  # row-major: grouped by row
-    obs = scan.poses[rows]
-    dx, dy = poses[idx, 0] - obs[:, 0], poses[idx, 1] - obs[:, 1]
-    c, s = np.cos(obs[:, 2]), np.sin(obs[:, 2])
-    x, y = c * dx + s * dy, -s * dx + c * dy
-    rng = np.hypot(dx, dy)
-    bearing = np.arctan2(y, x)
-    n_beams = counts[rows, idx]
-    order = np.lexsort((rng, rows))
-    rows, idx, rng, bearing, x, y, n_beams = (
-        a[order] for a in (rows, idx, rng, bearing, x, y, n_beams)
+    seen = (scan.hit_kind == HitKind.ROBOT.value) & (scan.ranges < scan.range_max)
+    base = (np.arange(n_rows) * n_robots)[:, None]
+    counts = np.bincount((scan.hit_index + base)[seen], minlength=n_rows * n_robots)
+    pairs = np.flatnonzero(counts)  # (observer row, seen robot) pairs, grouped by row
+    rows, idx = np.divmod(pairs, n_robots)
+    n_beams = counts[pairs]
+    op = scan.poses
+    dx, dy = poses[idx, 0] - op[rows, 0], poses[idx, 1] - op[rows, 1]
+    c, s = np.cos(op[:, 2])[rows], np.sin(op[:, 2])[rows]
+    rng = np.sqrt(dx * dx + dy * dy)
+    # nearest first within each row; one argsort of a composite key beats lexsort here
+    order = np.argsort(rows * (2.0 * scan.range_max + 1.0) + rng, kind="stable")
+    rows, idx, n_beams, rng, dx, dy, c, s = (
+        a[order] for a in (rows, idx, n_beams, rng, dx, dy, c, s)
     )
-    bounds = np.searchsorted(rows, np.arange(n_rows + 1))
-    out = []
-    for b in range(n_rows):
-        sl = slice(bounds[b], bounds[b + 1])
-        out.append({
-            "index": idx[sl].astype(np.int64), "range": rng[sl], "bearing": bearing[sl],
-            "x": x[sl], "y": y[sl], "n_beams": n_beams[sl].astype(np.int64),
-        })
-    return out
+    x, y = c * dx + s * dy, c * dy - s * dx
+    bearing = np.arctan2(y, x)
+    bounds = np.searchsorted(rows, np.arange(n_rows + 1)).tolist()
+    return [
+        {"index": idx[lo:hi], "range": rng[lo:hi], "bearing": bearing[lo:hi], "x": x[lo:hi],
+         "y": y[lo:hi], "n_beams": n_beams[lo:hi]}
+        for lo, hi in zip(bounds[:-1], bounds[1:], strict=True)
+    ]
 
 
 # --- observations -------------------------------------------------------------------------------
