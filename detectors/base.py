@@ -67,8 +67,7 @@ def validate_scan(ranges, angles) -> tuple[np.ndarray, np.ndarray]:
         raise ValueError(f"angles must be a 1-D array (n_beams,), got shape {a.shape}")
     if r.shape != a.shape:
         raise ValueError(
-            f"ranges and angles must have the same length, got {r.shape[0]} ranges "
-            f"and {a.shape[0]} angles"
+            f"ranges and angles must have the same length, got {r.shape[0]} ranges and {a.shape[0]} angles"
         )
     if r.shape[0] < 3:
         raise ValueError(f"a scan needs at least 3 beams, got {r.shape[0]}")
@@ -78,9 +77,7 @@ def validate_scan(ranges, angles) -> tuple[np.ndarray, np.ndarray]:
     neg = r < 0.0  # NaN compares False, so NaN passes here on purpose
     if neg.any():
         i = int(np.flatnonzero(neg)[0])
-        raise ValueError(
-            f"ranges must be >= 0 metres (non-finite means no return), got ranges[{i}] = {r[i]}"
-        )
+        raise ValueError(f"ranges must be >= 0 metres (non-finite means no return), got ranges[{i}] = {r[i]}")
     _check_sweep(a)
     return r, a
 
