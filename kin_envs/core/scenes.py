@@ -481,17 +481,20 @@ SCENARIO_I_LAYOUT: tuple[dict | None, ...] = (
 
 #: Scenario II (paper figure 11): every distractor is 7 cm wide (the lidar housing's diameter);
 #: the same-radius cylinder stands just left of the kin (the paper's false positive, "No: 3").
+#: Orientations are not part of the layout: :func:`paper_scenario` turns every prism and the cuboid
+#: so that a flat face squarely faces the observer.
 SCENARIO_II_LAYOUT: tuple[dict | None, ...] = (
-    {"kind": "prism", "sides": 6, "width": 0.07, "theta": 0.0},
-    {"kind": "prism", "sides": 3, "width": 0.07, "theta": 0.0},
-    {"kind": "box", "width": 0.07, "depth": 0.07, "theta": 0.0},
+    {"kind": "prism", "sides": 6, "width": 0.07},
+    {"kind": "prism", "sides": 3, "width": 0.07},
+    {"kind": "box", "width": 0.07, "depth": 0.07},
     None,
     {"kind": "cylinder", "radius": 0.035},
-    {"kind": "prism", "sides": 5, "width": 0.07, "theta": 0.0},
-    {"kind": "prism", "sides": 6, "width": 0.07, "theta": math.pi / 6},
+    {"kind": "prism", "sides": 5, "width": 0.07},
+    {"kind": "prism", "sides": 6, "width": 0.07},
 )
 
 PAPER_DISTANCES: tuple[float, ...] = (0.5, 0.8, 1.2)
+#: Nominal angle between neighbouring objects on the arc, degrees, per scenario.
 _DEFAULT_SPACING_DEG = {1: 30.0, 2: 20.0}
 
 
@@ -501,12 +504,30 @@ def paper_scenario(
     """The paper's Scenario I (``number=1``) or II (``number=2``) at ``distance`` m.
 
     Robot 0 is the observer at the origin facing +x; robot 1 is the kin, straight ahead at
-    ``distance``. The distractors stand on the same arc (same distance from the observer),
-    ``spacing_deg`` apart (default 30° for I, 20° for II), right to left as in the paper's figures:
+    ``distance`` (so centred on beam 0). The distractors stand on the same arc (same distance from
+    the observer), nominally ``spacing_deg`` apart (default 30° for I, 20° for II), right to left as
+    in the paper's figures:
 
     * I: cylinders of radius 3, 5 cm | kin | 9, 11 cm (figure 10);
     * II: hexagonal, triangular prism, cuboid | kin | cylinder r = 3.5 cm, pentagonal, hexagonal
-      prism (rotated 30°), all 7 cm wide (figure 11).
+      prism, all 7 cm wide (figure 11).
+
+    The paper gives no exact bearings or orientations, and at 1° resolution the outcome for the
+    3 cm cylinder and for the 7 cm prisms depends on where an object falls between the beams. One
+    rule places everything, for both scenarios and every distance:
+
+    * every distractor is **centred between two beams**: its nominal bearing is moved away from
+      the kin to the midpoint of the two beams around it (30° -> 30.5° at 1° resolution), so the
+      beams fall symmetrically on it; the kin is on beam 0 (its outcome does not depend on the
+      alignment);
+    * every prism and the cuboid is turned so that **a flat face squarely faces the observer**
+      (the widest silhouette: a 7 cm hexagon or cuboid then shows its full 7 cm, like the kin).
+
+    Of the two symmetric alignments (on a beam, between two) this is the one under which the
+    geometric detector reproduces figures 10 and 11 (0.5 m) exactly; centred on a beam, the 3 cm
+    cylinder passes both filters at 0.5 and 1.2 m. At 0.8 and 1.2 m a few outcomes differ from the
+    paper's claims under any single alignment: ``scripts/reproduce_paper.py`` prints the outcomes
+    and how often each one comes out as in the paper over random sub-beam offsets and orientations.
 
     The arena has no boundary wall (Gazebo's empty world): beams that miss read max range.
     Too small a distance or spacing for the objects to fit raises ``ValueError``.
@@ -516,22 +537,32 @@ def paper_scenario(
     check_positive("paper_scenario", distance=float(distance))
     layout = SCENARIO_I_LAYOUT if number == 1 else SCENARIO_II_LAYOUT
     spacing = math.radians(_DEFAULT_SPACING_DEG[number] if spacing_deg is None else spacing_deg)
+    lidar = lidar or LidarSpec()
+    res = lidar.resolution
     mid = len(layout) // 2
     robots = [Robot(0.0, 0.0, 0.0)]
     obstacles = []
     for k, item in enumerate(layout):
-        bearing = (k - mid) * spacing  # CCW positive: k < mid is on the observer's right
-        x, y = distance * math.cos(bearing), distance * math.sin(bearing)
         if item is None:
-            robots.append(Robot(x, y, math.pi))  # the kin faces the observer
-        else:
-            obstacles.append(obstacle_from_dict({**item, "x": x, "y": y}))
+            robots.append(Robot(float(distance), 0.0, math.pi))  # the kin faces the observer
+            continue
+        nominal = (k - mid) * spacing  # CCW positive: k < mid is on the observer's right
+        # midway between the two beams around the nominal bearing, mirrored about the kin; the
+        # 1e-9 keeps exact multiples of the resolution (30°) from rounding down through float error
+        bearing = math.copysign((math.floor(abs(nominal) / res + 1e-9) + 0.5) * res, nominal)
+        x, y = distance * math.cos(bearing), distance * math.sin(bearing)
+        pose = {"x": x, "y": y}
+        if item["kind"] == "prism":  # a vertex points along theta: turn half a side further
+            pose["theta"] = bearing + math.pi + math.pi / item["sides"]
+        elif item["kind"] == "box":
+            pose["theta"] = bearing
+        obstacles.append(obstacle_from_dict({**item, **pose}))
     size = max(3.0, 2 * distance + 1.0)
     return Scene(
         robots=tuple(robots),
         obstacles=tuple(obstacles),
         arena=Arena(size, size, walls=False),
-        lidar=lidar or LidarSpec(),
+        lidar=lidar,
         name=f"paper_scenario_{'I' * number}_{distance:g}m",
     )
 

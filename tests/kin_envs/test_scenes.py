@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from kin_envs import World, scenes
+from kin_envs.core.lidar import LidarSpec
 from kin_envs.scenes import Arena, Box, Cylinder, Polygon, Prism, Robot, Scene, Wall
 
 
@@ -22,25 +23,50 @@ def test_paper_scenarios_geometry(number, distance):
     for o in scene.obstacles:
         assert math.hypot(o.x, o.y) == pytest.approx(distance)
     assert sum(b < 0 for b in bearings) == sum(b > 0 for b in bearings)
+    # layout rule: each distractor centred between the two beams around its nominal bearing
+    # (spacing 30 deg for I, 20 deg for II), moved away from the kin: +-30.5, +-60.5 deg ...
+    spacing = 30.0 if number == 1 else 20.0
+    half = len(bearings) // 2
+    nominal = [spacing * k for k in range(-half, 0)] + [spacing * k for k in range(1, half + 1)]
+    want = [n + math.copysign(0.5, n) for n in nominal]
+    np.testing.assert_allclose(np.degrees(bearings), want, atol=1e-9)
     if number == 1:
         radii = [o.radius for o in sorted(scene.obstacles, key=lambda o: math.atan2(o.y, o.x))]
         assert radii == [0.03, 0.05, 0.09, 0.11]  # right to left, as in figure 10
     else:
         # every distractor is 7 cm wide: vertices on the 3.5 cm circle, or a 7 x 7 cm cuboid
-        kinds = sorted(o.kind for o in scene.obstacles)
-        assert kinds == ["box", "cylinder", "prism", "prism", "prism", "prism"]
+        kinds = [o.kind for o in sorted(scene.obstacles, key=lambda o: math.atan2(o.y, o.x))]
+        assert kinds == ["prism", "prism", "box", "cylinder", "prism", "prism"]  # right to left
         for o in scene.obstacles:
             if o.kind == "cylinder":
                 assert o.radius == scene.robot.housing_radius
-            elif o.kind == "box":
+                continue
+            v = o.footprint()[1] - (o.x, o.y)
+            if o.kind == "box":
                 assert (o.width, o.depth) == (0.07, 0.07)
             else:
-                v = o.footprint()[1] - (o.x, o.y)
                 np.testing.assert_allclose(np.hypot(v[:, 0], v[:, 1]), 0.035)
-        assert sorted(o.sides for o in scene.obstacles if o.kind == "prism") == [3, 5, 6, 6]
+            # a flat face squarely towards the observer: the two nearest vertices are equally far
+            # and their edge's midpoint lies on the line of sight
+            near = np.argsort(np.hypot(v[:, 0] + o.x, v[:, 1] + o.y))[:2]
+            p, q = v[near] + (o.x, o.y)
+            assert np.hypot(*p) == pytest.approx(np.hypot(*q), abs=1e-12)
+            m = (p + q) / 2
+            assert m[0] * o.y - m[1] * o.x == pytest.approx(0.0, abs=1e-12)
+        sides = [o.sides for o in sorted(scene.obstacles, key=lambda o: math.atan2(o.y, o.x))
+                 if o.kind == "prism"]
+        assert sides == [6, 3, 5, 6]  # right to left, as in figure 11
         # the same-radius cylinder stands just left of the kin
         left = min((o for o in scene.obstacles if o.y > 0), key=lambda o: o.y)
         assert left.kind == "cylinder"
+
+
+def test_paper_scenario_between_beams_for_any_resolution():
+    lidar = LidarSpec(n_beams=720)  # 0.5 deg: 20 deg -> 20.25 deg
+    scene = scenes.paper_scenario(2, distance=0.8, lidar=lidar)
+    deg = sorted(math.degrees(math.atan2(o.y, o.x)) for o in scene.obstacles)
+    np.testing.assert_allclose(deg, [-60.25, -40.25, -20.25, 20.25, 40.25, 60.25], atol=1e-9)
+    assert scene.lidar is lidar
 
 
 def test_paper_scenario_seen_by_observer():
