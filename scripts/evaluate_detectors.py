@@ -1,0 +1,454 @@
+"""Seeded evaluation sweep of lidar kin detectors (precision, recall, F1, centre error, speed).
+
+Scenes: ``kin_envs.scenes.detection_scene`` (an observer among kin robots and hard distractors:
+kin-width prisms and cuboids, same-radius and other cylinders, walls and corners) with kin and
+distractors at 0.3-3 m. Scene ``i`` is drawn by ``numpy.random.default_rng(first_seed + i)``,
+which then also draws the lidar noise of each noise level in turn; the default first seed,
+1_000_000, keeps evaluation scenes disjoint from the training data (``scripts/make_dataset.py``
+starts at seed 0). Every scene is scanned from the observer (robot 0) once per noise level
+(relative range sigma: 0, 0.5, 1, 2 %).
+
+Detectors (``--detectors``): ``geometric`` (the paper's, :class:`detectors.GeometricKinDetector`),
+``learned`` (:class:`detectors.learned.LearnedKinDetector`, the shipped checkpoint) or any
+``module:Class`` path constructed without arguments. All are scored by
+:func:`detectors.evaluation.evaluate` (Hungarian matching within ``--gate`` m) and also run on the
+paper's two scenarios at 0.5, 0.8 and 1.2 m.
+
+Writes to ``--out``: ``results.md`` (tables), ``results.json``, ``f1_vs_distance.png``,
+``centre_error_vs_distance.png`` and ``run.json`` (command, configuration, seeds, timings).
+
+Example::
+
+    python scripts/evaluate_detectors.py --detectors geometric learned --scenes 2000
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import importlib
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from detectors.base import KinDetector
+from detectors.evaluation import DEFAULT_GATE, Evaluation, Metrics, evaluate
+from kin_envs import World, scenes
+from kin_envs.core.lidar import LidarSpec
+from kin_envs.core.scenes import DetectionSceneConfig
+
+FIRST_SEED = 1_000_000
+DEFAULT_SCENES = 1000
+NOISE_LEVELS = (0.0, 0.005, 0.01, 0.02)
+#: valid beams on the kin: 1, 2, 3, 4, 5-6, 7-9, 10+ (a kin at 0.3 m gets about 13 at 1°)
+BEAM_EDGES = (1, 2, 3, 4, 5, 7, 10, 361)
+
+
+# --------------------------------------------------------------------------- detectors
+
+
+def resolve_detector(name: str) -> KinDetector:
+    """``"geometric"``, ``"learned"`` or ``"module:Class"`` -> a detector instance.
+
+    Raises ``ValueError`` for an unknown name, a class that cannot be imported or built, or an
+    object without ``detect_batch``.
+    """
+    if name == "geometric":
+        from detectors import GeometricKinDetector
+
+        return GeometricKinDetector(reports=False)  # reports are not scored; they cost time
+    if name == "learned":
+        try:
+            from detectors.learned import LearnedKinDetector
+        except ImportError as e:  # torch missing, or the module not there yet
+            raise ValueError(
+                f"detector 'learned' is unavailable: cannot import detectors.learned ({e})"
+            ) from e
+        try:
+            return LearnedKinDetector(reports=False)
+        except (OSError, ValueError) as e:  # no or bad checkpoint
+            raise ValueError(f"detector 'learned' is unavailable: {e}") from e
+    if ":" in name:
+        module, _, cls_name = name.partition(":")
+        try:
+            cls = getattr(importlib.import_module(module), cls_name)
+        except (ImportError, AttributeError) as e:
+            raise ValueError(f"detector {name!r}: cannot import {cls_name} from {module} ({e})") from e
+        try:
+            det = cls()
+        except Exception as e:  # whatever the constructor raises, say which detector failed
+            raise ValueError(f"detector {name!r}: {cls_name}() failed ({type(e).__name__}: {e})") from e
+        if not callable(getattr(det, "detect_batch", None)):
+            raise ValueError(f"detector {name!r}: {cls_name} has no detect_batch(ranges, angles)")
+        return det
+    raise ValueError(f"unknown detector {name!r}; expected 'geometric', 'learned' or a 'module:Class' path")
+
+
+# --------------------------------------------------------------------------- data
+
+
+def sweep_pairs(n_scenes: int, first_seed: int, noise_levels, config: DetectionSceneConfig, progress=True):
+    """``(scan, scene)`` pairs: every scene at every noise level, scanned from robot 0."""
+    pairs = []
+    for i in tqdm(range(n_scenes), desc="scenes", unit="scene", disable=not progress):
+        rng = np.random.default_rng(first_seed + i)
+        scene = scenes.detection_scene(rng, config)
+        for nz in noise_levels:
+            s = scene.replace(lidar=LidarSpec(noise_sigma=float(nz)))
+            pairs.append((World(s, seed=rng).scan(robots=[0]), s))
+    return pairs
+
+
+def paper_pairs(distances=scenes.PAPER_DISTANCES):
+    """The paper's scenarios, noise-free, scanned from the observer: ``(pairs, labels)``."""
+    pairs, labels = [], []
+    for k in (1, 2):
+        for d in distances:
+            scene = scenes.paper_scenario(k, distance=d)
+            pairs.append((World(scene).scan(robots=[0]), scene))
+            labels.append(("I" * k, d))
+    return pairs, labels
+
+
+# --------------------------------------------------------------------------- tables
+
+
+def _f(x: float, digits: int = 3) -> str:
+    return "–" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.{digits}f}"
+
+
+def _cm(x: float) -> str:
+    return "–" if math.isnan(x) else f"{100 * x:.2f}"
+
+
+def _pct(x: float) -> str:
+    return f"{100 * x:g} %"
+
+
+def _bin_label(lo: float, hi: float, integer: bool = False) -> str:
+    if not integer:
+        return f"{lo:.1f}–{hi:.1f} m"
+    lo, hi = int(lo), int(hi)
+    if hi >= 361:
+        return f"{lo}+"
+    return f"{lo}" if hi - lo == 1 else f"{lo}–{hi - 1}"
+
+
+def _metric_cells(m: Metrics) -> str:
+    return (
+        f"{m.n_kin} | {_f(m.precision)} | {_f(m.recall)} | {_f(m.f1)} | {_cm(m.error_mean)} | "
+        f"{_cm(m.error_median)} | {_cm(m.error_p95)}"
+    )
+
+
+_METRIC_HEAD = "kin | precision | recall | F1 | err mean (cm) | err median (cm) | err p95 (cm)"
+
+
+def markdown(evals: dict[str, Evaluation], dist_edges, noise_levels, paper: list[dict], info: dict) -> str:
+    names = list(evals)
+    lines = [
+        "# Kin detector evaluation",
+        "",
+        f"{info['scenes']} random detection scenes (`kin_envs.scenes.detection_scene`, seeds "
+        f"{info['first_seed']}–{info['first_seed'] + info['scenes'] - 1}, disjoint from the training seeds "
+        f"starting at 0), each scanned from the observer at noise levels "
+        f"{', '.join(_pct(n) for n in noise_levels)}: {info['scans']} scans. Kin and distractors at "
+        f"{info['config']['distance'][0]:g}–{info['config']['distance'][1]:g} m. "
+        f"Matching gate {info['gate']:g} m"
+        + (
+            "; detections on same-radius cylinders are left out of the false positives."
+            if info["separate"]
+            else "."
+        )
+        + " A kin with no valid beam on it is not counted.",
+        "",
+        "## Per noise level",
+        "",
+        "| detector | noise | kin | TP | FP | FN | precision | recall | F1 | on same-radius cyl. "
+        "| precision excl. those | F1 excl. those | err mean (cm) | err median (cm) | err p95 (cm) |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for name, ev in evals.items():
+        for nz in noise_levels:
+            sub = ev.select(noise=nz)
+            m, mx = sub.metrics(False), sub.metrics(True)
+            lines.append(
+                f"| {name} | {_pct(nz)} | {m.n_kin} | {m.tp} | {m.fp} | {m.fn} | {_f(m.precision)} | "
+                f"{_f(m.recall)} | {_f(m.f1)} | {m.same_radius} | {_f(mx.precision)} | {_f(mx.f1)} | "
+                f"{_cm(m.error_mean)} | {_cm(m.error_median)} | {_cm(m.error_p95)} |"
+            )
+    lines += ["", "## Per distance bin and noise level", ""]
+    for name, ev in evals.items():
+        lines += [f"**{name}**", "", f"| noise | distance | {_METRIC_HEAD} |", "|---:|---|" + "---:|" * 7]
+        for nz in noise_levels:
+            for lo, hi, m in ev.select(noise=nz).by_distance(dist_edges):
+                lines.append(f"| {_pct(nz)} | {_bin_label(lo, hi)} | {_metric_cells(m)} |")
+        lines.append("")
+    lines += ["## Per number of valid beams on the kin (all noise levels)", ""]
+    lines += [f"| detector | beams | {_METRIC_HEAD} |", "|---|---|" + "---:|" * 7]
+    for name, ev in evals.items():
+        for lo, hi, m in ev.by_beams(BEAM_EDGES):
+            lines.append(f"| {name} | {_bin_label(lo, hi, True)} | {_metric_cells(m)} |")
+    lines += ["", "## False positives per distractor kind", ""]
+    cols = [(name, nz) for name in names for nz in noise_levels]
+    fps = {(name, nz): evals[name].select(noise=nz).false_positives() for name, nz in cols}
+    kinds = sorted(
+        {k for c in fps.values() for k in c}, key=lambda k: (-sum(c.get(k, 0) for c in fps.values()), k)
+    )
+    lines.append("| source | " + " | ".join(f"{n} @ {_pct(nz)}" for n, nz in cols) + " |")
+    lines.append("|---|" + "---:|" * len(cols))
+    for k in kinds:
+        lines.append(f"| {k} | " + " | ".join(str(fps[c].get(k, 0)) for c in cols) + " |")
+    lines.append("| **total** | " + " | ".join(str(sum(fps[c].values())) for c in cols) + " |")
+    lines += ["", "## Speed (time inside `detect_batch`, this machine)", ""]
+    lines += ["| detector | scans | seconds | scans/s |", "|---|---:|---:|---:|"]
+    for name, ev in evals.items():
+        lines.append(f"| {name} | {ev.n_scans} | {ev.seconds:.2f} | {ev.scans_per_second:.0f} |")
+    lines += ["", "## Paper scenarios (noise-free)", ""]
+    lines += ["| detector | scenario | distance | kin detected | false positives |", "|---|---|---:|---|---|"]
+    for row in paper:
+        fp = ", ".join(f"{v} × {k}" for k, v in row["false_positives"].items()) or "none"
+        lines.append(
+            f"| {row['detector']} | {row['scenario']} | {row['distance']:g} m | "
+            f"{'yes' if row['kin_detected'] else '**no**'} | {fp} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+# --------------------------------------------------------------------------- plots
+
+
+def plot(evals: dict[str, Evaluation], dist_edges, noise_levels, out: Path) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    centres = 0.5 * (np.asarray(dist_edges[:-1]) + np.asarray(dist_edges[1:]))
+    paths = []
+    for what, fname in (("f1", "f1_vs_distance.png"), ("error", "centre_error_vs_distance.png")):
+        fig, axes = plt.subplots(
+            1, len(noise_levels), figsize=(3.2 * len(noise_levels), 3.2), sharey=True, squeeze=False
+        )
+        for ax, nz in zip(axes[0], noise_levels, strict=True):
+            for k, (name, ev) in enumerate(evals.items()):
+                bins = ev.select(noise=nz).by_distance(dist_edges)
+                colour = f"C{k}"
+                if what == "f1":
+                    ax.plot(centres, [m.f1 for *_, m in bins], "o-", color=colour, label=name)
+                else:
+                    ax.plot(
+                        centres,
+                        [100 * m.error_median for *_, m in bins],
+                        "o-",
+                        color=colour,
+                        label=f"{name} median",
+                    )
+                    ax.plot(
+                        centres,
+                        [100 * m.error_p95 for *_, m in bins],
+                        "s--",
+                        color=colour,
+                        alpha=0.6,
+                        label=f"{name} 95th pct",
+                    )
+            ax.set_title(f"noise {_pct(nz)}", fontsize=9)
+            ax.set_xlabel("kin distance (m)")
+            ax.grid(alpha=0.3)
+        axes[0, 0].set_ylabel("F1" if what == "f1" else "centre error (cm)")
+        if what == "f1":
+            axes[0, 0].set_ylim(0, 1.02)
+        else:
+            axes[0, 0].set_yscale("log")
+        axes[0, -1].legend(fontsize=7)
+        fig.tight_layout()
+        fig.savefig(out / fname, dpi=110)
+        plt.close(fig)
+        paths.append(out / fname)
+    return paths
+
+
+# --------------------------------------------------------------------------- main
+
+
+def _load_config(text: str | None) -> DetectionSceneConfig:
+    if text is None:
+        return DetectionSceneConfig()
+    p = Path(text)
+    try:
+        d = json.loads(p.read_text() if p.is_file() else text)
+    except json.JSONDecodeError as e:
+        raise ValueError(f"--scene-config must be a JSON object or a JSON file, got {text!r} ({e})") from e
+    if not isinstance(d, dict):
+        raise ValueError(f"--scene-config must be a JSON object, got {d!r}")
+    return DetectionSceneConfig.from_dict(d)
+
+
+def main(argv: list[str] | None = None) -> dict:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument(
+        "--detectors",
+        nargs="+",
+        default=["geometric"],
+        help="geometric, learned or module:Class (default: geometric)",
+    )
+    ap.add_argument("--scenes", type=int, default=DEFAULT_SCENES, help="random scenes in the sweep")
+    ap.add_argument(
+        "--first-seed",
+        type=int,
+        default=FIRST_SEED,
+        help="seed of scene 0 (scene i: first_seed + i); keep clear of training seeds",
+    )
+    ap.add_argument(
+        "--noise",
+        type=float,
+        nargs="+",
+        default=list(NOISE_LEVELS),
+        help="relative range noise levels (0.01 = 1 %% of the distance)",
+    )
+    ap.add_argument("--gate", type=float, default=DEFAULT_GATE, help="matching gate, m")
+    ap.add_argument(
+        "--separate-same-radius",
+        action="store_true",
+        help="leave detections on same-radius cylinders out of the false positives",
+    )
+    ap.add_argument(
+        "--scene-config", default=None, help="DetectionSceneConfig overrides: JSON object or file"
+    )
+    ap.add_argument("--torch-threads", type=int, default=1, help="torch threads for learned detectors")
+    ap.add_argument("--out", type=Path, default=Path("outputs/evaluation"), help="output directory")
+    ap.add_argument("--no-progress", action="store_true", help="no progress bars")
+    args = ap.parse_args(argv)
+    if not (math.isfinite(args.gate) and args.gate > 0):
+        raise ValueError(f"--gate must be a finite distance > 0 m, got {args.gate!r}")
+    if args.scenes < 1 or args.first_seed < 0 or args.torch_threads < 1:
+        raise ValueError(
+            "--scenes and --torch-threads must be >= 1 and --first-seed >= 0, got "
+            f"{args.scenes}, {args.torch_threads}, {args.first_seed}"
+        )
+    if any(not (math.isfinite(n) and n >= 0) for n in args.noise):
+        raise ValueError(f"--noise levels must be >= 0 (relative, 0.01 = 1 %), got {args.noise}")
+    noise_levels = sorted(set(args.noise))
+    config = _load_config(args.scene_config)
+    detectors = {name: resolve_detector(name) for name in args.detectors}  # fail before the sweep
+    if "torch" in sys.modules:
+        sys.modules["torch"].set_num_threads(args.torch_threads)
+    out: Path = args.out
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    pairs = sweep_pairs(args.scenes, args.first_seed, noise_levels, config, progress=not args.no_progress)
+    t_data = time.perf_counter() - t0
+    ppairs, plabels = paper_pairs()
+    evals: dict[str, Evaluation] = {}
+    paper_rows = []
+    for name, det in tqdm(detectors.items(), desc="detectors", unit="detector", disable=args.no_progress):
+        evals[name] = evaluate(
+            det, pairs, gate=args.gate, same_radius_separate=args.separate_same_radius, name=name
+        )
+        pev = evaluate(det, ppairs, gate=args.gate, same_radius_separate=args.separate_same_radius, name=name)
+        for i, (sc, d) in enumerate(plabels):
+            sub = pev.select(scans=[i])
+            m = sub.metrics()
+            paper_rows.append(
+                {
+                    "detector": name,
+                    "scenario": sc,
+                    "distance": d,
+                    "kin_detected": m.tp == m.n_kin,
+                    "false_positives": sub.false_positives(),
+                    "metrics": m.as_dict(),
+                }
+            )
+    lo, hi = config.distance
+    dist_edges = np.round(np.linspace(lo, hi, 10), 6).tolist()
+    info = {
+        "scenes": args.scenes,
+        "first_seed": args.first_seed,
+        "scans": len(pairs),
+        "gate": args.gate,
+        "separate": args.separate_same_radius,
+        "config": dataclasses.asdict(config),
+    }
+    md = markdown(evals, dist_edges, noise_levels, paper_rows, info)
+    (out / "results.md").write_text(md)
+    figures = [str(p) for p in plot(evals, dist_edges, noise_levels, out)]
+    results = {
+        "detectors": {
+            name: {
+                "overall": ev.metrics().as_dict(),
+                "scans": ev.n_scans,
+                "seconds": ev.seconds,
+                "scans_per_second": ev.scans_per_second,
+                "per_noise": {str(nz): ev.select(noise=nz).metrics().as_dict() for nz in noise_levels},
+                "per_noise_excluding_same_radius": {
+                    str(nz): ev.select(noise=nz).metrics(True).as_dict() for nz in noise_levels
+                },
+                "per_distance": {
+                    str(nz): [
+                        {"lo": a, "hi": b, **m.as_dict()}
+                        for a, b, m in ev.select(noise=nz).by_distance(dist_edges)
+                    ]
+                    for nz in noise_levels
+                },
+                "per_beams": [{"lo": a, "hi": b, **m.as_dict()} for a, b, m in ev.by_beams(BEAM_EDGES)],
+                "false_positives": {str(nz): ev.select(noise=nz).false_positives() for nz in noise_levels},
+            }
+            for name, ev in evals.items()
+        },
+        "paper_scenarios": paper_rows,
+        "distance_edges": dist_edges,
+        "beam_edges": list(BEAM_EDGES),
+        "figures": figures,
+    }
+    run = {
+        "command": " ".join(
+            [sys.executable, *(sys.argv if argv is None else ["scripts/evaluate_detectors.py", *argv])]
+        ),
+        "args": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()},
+        "detectors": {name: f"{type(d).__module__}.{type(d).__qualname__}" for name, d in detectors.items()},
+        "scene_config": dataclasses.asdict(config),
+        "noise_levels": noise_levels,
+        "seeds": {
+            "first": args.first_seed,
+            "count": args.scenes,
+            "rule": "scene i: numpy.random.default_rng(first + i) draws detection_scene(rng, scene_config), "
+            "then the lidar noise of each noise level in ascending order",
+            "training_seeds": "scripts/make_dataset.py starts at seed 0; keep 'first' above the seeds "
+            "used for training",
+        },
+        "seconds": {"data": t_data, "total": time.perf_counter() - t0},
+    }
+    (out / "results.json").write_text(json.dumps(_plain(results), indent=2, allow_nan=False))
+    (out / "run.json").write_text(json.dumps(_plain(run), indent=2, allow_nan=False))
+    if not args.no_progress:
+        print(md)
+        print(
+            f"wrote {out}/results.md, results.json, run.json and {len(figures)} figures "
+            f"in {run['seconds']['total']:.1f} s"
+        )
+    return {"evaluations": evals, "results": results, "run": run, "markdown": md}
+
+
+def _plain(o):
+    """JSON-ready copy: numpy scalars to Python, NaN (undefined metric) to null."""
+    if isinstance(o, dict):
+        return {str(k): _plain(v) for k, v in o.items()}
+    if isinstance(o, list | tuple):
+        return [_plain(v) for v in o]
+    if isinstance(o, np.generic):
+        o = o.item()
+    if isinstance(o, float) and not math.isfinite(o):
+        return None
+    return o
+
+
+if __name__ == "__main__":
+    try:
+        main()
+    except ValueError as e:  # bad input: a message, not a traceback
+        sys.exit(f"evaluate_detectors: error: {e}")
