@@ -1,0 +1,459 @@
+"""Labelled lidar segments for the learned kin classifier (numpy only, no torch).
+
+A scene is scanned from several of its robots; every scan is pre-processed and segmented by the
+geometric detector's own stages (:func:`detectors.features.segment_batch`) and each segment gets its
+feature vector (:func:`detectors.features.segment_features`) and a label from the world's ground
+truth (``Scan.hit_kind`` / ``Scan.hit_index`` of its beams).
+
+**Labelling rule.** A segment's *object* is the one most of its beams hit (plurality; ties go to
+the lower HitKind code, i.e. a robot). The segment is **kin** when strictly more than half of its
+beams hit one robot's lidar housing. A segment where a robot is the plurality but not the majority
+(a kin merged with the wall behind it, say) is a negative of category ``kin_minority``: no
+positioning of such a segment is a kin centre, and the geometric detector rejects it too.
+
+**Same-radius cylinders.** A cylinder whose radius is within :data:`SAME_RADIUS_TOL` of the housing
+radius is geometrically identical to a kin in a single 2D scan (both are 3.5 cm circles). Its
+segments are labelled non-kin, category ``same_radius_cylinder``, and flagged ``same_radius``;
+training leaves them out (identical inputs with opposite labels would only pull every kin's
+probability towards the class ratio) and evaluation reports them on their own.
+
+Per segment: features, label, the kin's true centre (observer frame: x forward, y left), the object
+and its details (HitKind, index, category, cylinder radius, prism sides, width), distance, number of
+beams, noise level, scene seed and observer. Per scan, the *objects* table lists everything the scan
+sees (robots and obstacles with at least one valid beam), which kin-level evaluation matches
+detections against.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from kin_envs import HitKind, LidarSpec, World, scenes
+from kin_envs.scenes import Box, Cylinder, DetectionSceneConfig, Prism, RandomArenaConfig, Scene
+
+from .features import (
+    FEATURE_VERSION,
+    FeatureConfig,
+    feature_names,
+    segment_batch,
+    segment_features,
+)
+
+__all__ = [
+    "CATEGORIES",
+    "DATASET_FORMAT",
+    "SAME_RADIUS_TOL",
+    "DatasetConfig",
+    "category_code",
+    "make_scene",
+    "label_scan",
+    "scene_records",
+    "concat_records",
+    "load_dataset",
+]
+
+#: Segment / object categories (``category`` codes are indices into this tuple).
+CATEGORIES: tuple[str, ...] = (
+    "kin",  # a robot's lidar housing
+    "same_radius_cylinder",  # cylinder of the housing's radius: indistinguishable in one scan
+    "kin_width_prism",  # regular prism, circumscribed diameter = the housing's
+    "kin_width_box",  # 7 x 7 cm cuboid
+    "cylinder",  # any other cylinder
+    "prism",  # any other prism
+    "box",  # any other cuboid
+    "polygon",
+    "wall",  # one interior wall
+    "corner",  # two or more interior walls in one segment
+    "boundary",  # the arena's boundary wall
+    "kin_minority",  # a robot is the plurality of the beams but not the majority
+)
+_CAT = {name: k for k, name in enumerate(CATEGORIES)}
+DATASET_FORMAT = "kin-envs/segment-dataset"
+DATASET_FORMAT_VERSION = 1
+#: m: cylinders whose radius is this close to the housing radius count as "same radius".
+SAME_RADIUS_TOL = 0.002
+_WIDTH_TOL = 1e-4  # m: "exactly the kin's width" for prisms and boxes
+
+
+def category_code(name: str) -> int:
+    """Index of ``name`` in :data:`CATEGORIES` (``ValueError`` for an unknown name)."""
+    if name not in _CAT:
+        raise ValueError(f"unknown category {name!r}; expected one of {CATEGORIES}")
+    return _CAT[name]
+
+
+def _pair(name: str, v, cast=float, lo=0.0):
+    if not (isinstance(v, tuple | list) and len(v) == 2):
+        raise ValueError(f"DatasetConfig.{name} must be a (min, max) pair, got {v!r}")
+    a, b = cast(v[0]), cast(v[1])
+    if not (lo <= a <= b) or not (math.isfinite(a) and math.isfinite(b)):
+        raise ValueError(f"DatasetConfig.{name} must satisfy {lo} <= min <= max, got {v!r}")
+    return (a, b)
+
+
+@dataclass(frozen=True)
+class DatasetConfig:
+    """The random scene mix of the training data (all ranges inclusive, drawn per scene).
+
+    Attributes:
+        detection_prob: probability of a :func:`kin_envs.scenes.detection_scene` (an observer among
+            kin and hard distractors: kin-width prisms and cuboids, cylinders of radius 2-12 cm
+            including the housing's, walls and corners); otherwise a
+            :func:`kin_envs.scenes.random_arena` (many robots, boxes and prisms of all sizes).
+        n_kin: kin robots around the observer in a detection scene.
+        n_distractors: distractors in a detection scene.
+        distance: object distances from the observer in a detection scene, m.
+        cylinder_radius: radius range of "other" cylinders in a detection scene, m.
+        arena_robots, arena_obstacles: counts in a random arena.
+        arena_size: side of a random arena, m.
+        noise: relative range noise ``LidarSpec.noise_sigma`` (uniform in the range) ...
+        zero_noise_prob: ... or exactly 0 with this probability (the paper's noise-free lidar).
+        open_prob: probability that a detection scene has no boundary wall (the paper's empty Gazebo
+            world: only the objects return beams).
+        max_observers: robots scanned per scene (robot 0, the detection scene's observer, always).
+    """
+
+    detection_prob: float = 0.8
+    n_kin: tuple[int, int] = (1, 6)
+    n_distractors: tuple[int, int] = (4, 18)
+    distance: tuple[float, float] = (0.2, 4.0)
+    cylinder_radius: tuple[float, float] = (0.02, 0.12)
+    arena_robots: tuple[int, int] = (4, 24)
+    arena_obstacles: tuple[int, int] = (8, 40)
+    arena_size: tuple[float, float] = (4.0, 10.0)
+    noise: tuple[float, float] = (0.0, 0.02)
+    zero_noise_prob: float = 0.2
+    open_prob: float = 0.15
+    max_observers: int = 6
+
+    def __post_init__(self) -> None:
+        for name in ("detection_prob", "zero_noise_prob", "open_prob"):
+            v = getattr(self, name)
+            if not (isinstance(v, int | float) and 0.0 <= v <= 1.0):
+                raise ValueError(f"DatasetConfig.{name} must be a probability in [0, 1], got {v!r}")
+        for name in ("n_kin", "n_distractors", "arena_robots", "arena_obstacles"):
+            object.__setattr__(self, name, _pair(name, getattr(self, name), int, 0))
+        for name in ("distance", "cylinder_radius", "arena_size", "noise"):
+            object.__setattr__(self, name, _pair(name, getattr(self, name), float, 0.0))
+        if self.distance[0] <= 0 or self.cylinder_radius[0] <= 0 or self.arena_size[0] <= 0:
+            raise ValueError("DatasetConfig: distance, cylinder_radius and arena_size must be > 0 m")
+        if self.noise[1] > 0.5:
+            raise ValueError(f"DatasetConfig.noise must be <= 0.5 (relative), got {self.noise!r}")
+        if self.arena_robots[0] < 1:
+            raise ValueError(f"DatasetConfig.arena_robots must be >= 1, got {self.arena_robots!r}")
+        if isinstance(self.max_observers, bool) or not isinstance(self.max_observers, int):
+            raise ValueError(f"DatasetConfig.max_observers must be an int, got {self.max_observers!r}")
+        if self.max_observers < 1:
+            raise ValueError(f"DatasetConfig.max_observers must be >= 1, got {self.max_observers}")
+
+    def to_dict(self) -> dict:
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(self).items()}
+
+    @classmethod
+    def from_dict(cls, d) -> DatasetConfig:
+        if not isinstance(d, dict):
+            raise ValueError(f"DatasetConfig: expected a dict, got {type(d).__name__}")
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(d) - names)
+        if unknown:
+            raise ValueError(f"DatasetConfig: unknown key(s) {unknown}; expected a subset of {sorted(names)}")
+        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
+
+
+def make_scene(seed: int, config: DatasetConfig | None = None, noise: float | None = None):
+    """The scene of ``seed``: ``(scene, rng, info)``.
+
+    One generator, ``numpy.random.default_rng(seed)``, draws the scene type, its parameters, the
+    scene itself, the observers, and is then handed to the :class:`~kin_envs.World` for the lidar
+    noise. ``noise`` overrides the drawn noise level (evaluation sweeps at fixed noise).
+    ``info``: ``family`` (0 detection scene, 1 random arena), ``open`` (no boundary wall), ``noise``,
+    ``observers``.
+    """
+    c = config or DatasetConfig()
+    rng = np.random.default_rng(seed)
+    detection = bool(rng.random() < c.detection_prob)
+    sigma = 0.0 if rng.random() < c.zero_noise_prob else float(rng.uniform(*c.noise))
+    open_world = bool(rng.random() < c.open_prob) and detection
+    if noise is not None:
+        sigma = float(noise)
+    lidar = LidarSpec(noise_sigma=sigma)
+    if detection:
+        cfg = DetectionSceneConfig(
+            n_kin=int(rng.integers(c.n_kin[0], c.n_kin[1] + 1)),
+            n_distractors=int(rng.integers(c.n_distractors[0], c.n_distractors[1] + 1)),
+            distance=c.distance,
+            cylinder_radius=c.cylinder_radius,
+        )
+        scene = scenes.detection_scene(rng, cfg, lidar=lidar)
+        if open_world:
+            scene = scene.replace(arena=dataclasses.replace(scene.arena, walls=False))
+    else:
+        scene = scenes.random_arena(
+            int(rng.integers(c.arena_robots[0], c.arena_robots[1] + 1)),
+            int(rng.integers(c.arena_obstacles[0], c.arena_obstacles[1] + 1)),
+            seed=rng,
+            size=float(rng.uniform(*c.arena_size)),
+            config=RandomArenaConfig(),
+            lidar=lidar,
+        )
+    n = len(scene.robots)
+    if n <= c.max_observers:
+        observers = np.arange(n)
+    elif detection:  # the designed observer first
+        observers = np.concatenate(([0], 1 + rng.choice(n - 1, c.max_observers - 1, replace=False)))
+    else:
+        observers = np.sort(rng.choice(n, c.max_observers, replace=False))
+    info = {"family": 0 if detection else 1, "open": open_world, "noise": sigma, "observers": observers}
+    return scene, rng, info
+
+
+# --- ground truth ---------------------------------------------------------------------------------
+
+
+def _obstacle_table(scene: Scene) -> dict[str, np.ndarray]:
+    """Per obstacle: category code, centre, cylinder radius, prism sides, width (m).
+
+    One extra last entry (index ``len(obstacles)``) is a placeholder that non-obstacles index.
+    """
+    r = scene.robot.housing_radius
+    n = len(scene.obstacles) + 1
+    cat = np.full(n, _CAT["boundary"], np.int8)
+    cx, cy = np.zeros(n), np.zeros(n)
+    radius, width = np.full(n, np.nan), np.full(n, np.nan)
+    sides = np.zeros(n, np.int8)
+    for j, o in enumerate(scene.obstacles):
+        cx[j], cy[j] = o.center
+        if isinstance(o, Cylinder):
+            radius[j], width[j] = o.radius, 2 * o.radius
+            same = abs(o.radius - r) <= SAME_RADIUS_TOL
+            cat[j] = _CAT["same_radius_cylinder" if same else "cylinder"]
+        elif isinstance(o, Prism):
+            sides[j], width[j] = o.sides, o.width
+            cat[j] = _CAT["kin_width_prism" if abs(o.width - 2 * r) <= _WIDTH_TOL else "prism"]
+        elif isinstance(o, Box):
+            sides[j], width[j] = 4, max(o.width, o.depth)
+            kin_w = abs(o.width - 2 * r) <= _WIDTH_TOL and abs(o.depth - 2 * r) <= _WIDTH_TOL
+            cat[j] = _CAT["kin_width_box" if kin_w else "box"]
+        elif o.kind == "wall":
+            cat[j] = _CAT["wall"]
+        else:
+            cat[j] = _CAT["polygon"]
+    return {"category": cat, "cx": cx, "cy": cy, "radius": radius, "sides": sides, "width": width}
+
+
+def _to_observer(poses_obs: np.ndarray, wx: np.ndarray, wy: np.ndarray):
+    """World points → observer frames (x forward, y left); ``poses_obs`` per point ``(k, 3)``."""
+    dx, dy = wx - poses_obs[:, 0], wy - poses_obs[:, 1]
+    c, s = np.cos(poses_obs[:, 2]), np.sin(poses_obs[:, 2])
+    return c * dx + s * dy, -s * dx + c * dy
+
+
+def label_scan(scan, scene: Scene, batch, poses: np.ndarray) -> tuple[dict, dict]:
+    """Labels of every segment of ``batch`` (the segmentation of ``scan.ranges``), and the objects
+    each scan row sees.
+
+    Args:
+        scan: the :class:`~kin_envs.Scan` (ground truth ``hit_kind``, ``hit_index``).
+        scene: its scene (obstacle details).
+        batch: :func:`detectors.features.segment_batch` of ``scan.ranges``.
+        poses: ``(n_robots, 3)`` all robots' poses when scanned.
+
+    Returns:
+        ``(segments, objects)``, dicts of equal-length arrays. ``segments`` (one entry per segment of
+        ``batch``): ``label`` (1 kin), ``same_radius``, ``category``, ``hit_kind``, ``obj_index``,
+        ``centre`` ``(S, 2)`` (kin centre in the observer frame, NaN otherwise), ``distance`` (m, to
+        the object's centre; min range for walls and the boundary), ``obj_radius``, ``obj_sides``,
+        ``obj_width``, ``dominant_fraction``, ``n_beams``, ``range_min``, ``row``.
+        ``objects`` (one entry per object a row sees with >= 1 valid beam): ``row``, ``hit_kind``,
+        ``obj_index``, ``category``, ``n_beams``, ``x``, ``y`` (centre, observer frame; NaN for walls
+        and the boundary), ``distance``.
+    """
+    n_rows, n_beams = scan.ranges.shape
+    obst = _obstacle_table(scene)
+    n_obj = max(len(scene.robots), len(scene.obstacles)) + 1
+    n_seg = batch.n_segments
+    cnt = batch.count
+    seg = np.repeat(np.arange(n_seg), cnt)
+    offsets = np.zeros(n_seg, np.int64)
+    np.cumsum(cnt[:-1], out=offsets[1:])
+    k = np.arange(seg.shape[0]) - offsets[seg]
+    beam = (batch.first[seg] + k) % n_beams
+    row = batch.scan[seg]
+    kind = scan.hit_kind[row, beam].astype(np.int64)
+    idx = scan.hit_index[row, beam].astype(np.int64)
+    key = kind * n_obj + (idx + 1)  # hit_index -1 (boundary) -> 0
+    n_keys = (int(HitKind.WALL) + 1) * n_obj
+    # per segment, the plurality object (lowest key on ties, so a robot wins a tie)
+    pair, counts = np.unique(seg * n_keys + key, return_counts=True)
+    pseg, pkey = pair // n_keys, pair % n_keys
+    order = np.lexsort((pkey, -counts, pseg))
+    first_of = np.ones(order.shape[0], bool)
+    first_of[1:] = pseg[order][1:] != pseg[order][:-1]
+    best = order[first_of]  # one per segment, in segment order
+    dom_key, dom_count = pkey[best], counts[best]
+    dom_kind, dom_idx = dom_key // n_obj, dom_key % n_obj - 1
+    frac = dom_count / cnt
+    is_robot = dom_kind == HitKind.ROBOT
+    label = is_robot & (2 * dom_count > cnt)
+    # corner: a wall segment whose beams hit more than one wall obstacle
+    n_walls = np.bincount(pseg, weights=(pkey // n_obj == HitKind.WALL), minlength=n_seg)
+
+    seg_row = batch.scan
+    obs_pose = scan.poses[seg_row]
+    category = np.full(n_seg, _CAT["boundary"], np.int8)
+    is_obst = (dom_kind >= HitKind.CYLINDER) & (dom_idx >= 0)
+    category[is_obst] = obst["category"][dom_idx[is_obst]]
+    category[(dom_kind == HitKind.WALL) & (n_walls > 1)] = _CAT["corner"]
+    category[is_robot] = np.where(label[is_robot], _CAT["kin"], _CAT["kin_minority"])
+
+    wx, wy = np.full(n_seg, np.nan), np.full(n_seg, np.nan)
+    wx[is_robot], wy[is_robot] = poses[dom_idx[is_robot], 0], poses[dom_idx[is_robot], 1]
+    take = np.where(is_obst, dom_idx, len(scene.obstacles))
+    centred = is_obst & (obst["category"][take] != _CAT["wall"])
+    wx[centred], wy[centred] = obst["cx"][take[centred]], obst["cy"][take[centred]]
+    ox, oy = _to_observer(obs_pose, wx, wy)
+    range_min = np.minimum.reduceat(batch.ranges[row, beam], offsets)
+    distance = np.where(np.isfinite(ox), np.hypot(ox, oy), range_min)
+    centre = np.full((n_seg, 2), np.nan)
+    centre[label] = np.stack([ox[label], oy[label]], axis=1)
+
+    def obst_attr(name, fill):
+        return np.where(is_obst, obst[name][take], fill)
+
+    housing = scene.robot.housing_radius
+    segments = {
+        "label": label.astype(np.int8),
+        "same_radius": category == _CAT["same_radius_cylinder"],
+        "category": category,
+        "hit_kind": dom_kind.astype(np.int8),
+        "obj_index": dom_idx.astype(np.int32),
+        "centre": centre.astype(np.float32),
+        "distance": distance.astype(np.float32),
+        "obj_radius": np.where(is_robot, housing, obst_attr("radius", np.nan)).astype(np.float32),
+        "obj_sides": obst_attr("sides", 0).astype(np.int8),
+        "obj_width": np.where(is_robot, 2 * housing, obst_attr("width", np.nan)).astype(np.float32),
+        "dominant_fraction": frac.astype(np.float32),
+        "n_beams": cnt.astype(np.int16),
+        "range_min": range_min.astype(np.float32),
+        "row": seg_row.astype(np.int16),
+    }
+
+    # objects each row sees (valid beams only, as Scan.visible_robots)
+    valid = scan.ranges < scan.range_max
+    rows2 = np.broadcast_to(np.arange(n_rows)[:, None], valid.shape)[valid]
+    okey = scan.hit_kind[valid].astype(np.int64) * n_obj + scan.hit_index[valid] + 1
+    opair, ocount = np.unique(rows2 * n_keys + okey, return_counts=True)
+    orow, okey = opair // n_keys, opair % n_keys
+    okind, oidx = okey // n_obj, okey % n_obj - 1
+    o_robot = okind == HitKind.ROBOT
+    o_obst = (okind >= HitKind.CYLINDER) & (oidx >= 0)
+    ocat = np.full(orow.shape[0], _CAT["boundary"], np.int8)
+    ocat[o_obst] = obst["category"][oidx[o_obst]]
+    ocat[o_robot] = _CAT["kin"]
+    owx, owy = np.full(orow.shape[0], np.nan), np.full(orow.shape[0], np.nan)
+    owx[o_robot], owy[o_robot] = poses[oidx[o_robot], 0], poses[oidx[o_robot], 1]
+    oc = o_obst & (ocat != _CAT["wall"])
+    owx[oc], owy[oc] = obst["cx"][oidx[oc]], obst["cy"][oidx[oc]]
+    ox2, oy2 = _to_observer(scan.poses[orow], owx, owy)
+    objects = {
+        "row": orow.astype(np.int16),
+        "hit_kind": okind.astype(np.int8),
+        "obj_index": oidx.astype(np.int32),
+        "category": ocat,
+        "n_beams": ocount.astype(np.int16),
+        "x": ox2.astype(np.float32),
+        "y": oy2.astype(np.float32),
+        "distance": np.hypot(ox2, oy2).astype(np.float32),
+    }
+    return segments, objects
+
+
+def scene_records(
+    seed: int,
+    config: DatasetConfig | None = None,
+    feature_config: FeatureConfig | None = None,
+    noise: float | None = None,
+    observers=None,
+):
+    """Scan, segment, featurise and label one scene.
+
+    Returns ``(segments, objects, info)``: the :func:`label_scan` dicts plus ``x`` (features),
+    ``frames`` (local frames), ``fit_centre`` (the features' circle-fit centre) and the columns
+    ``observer``, ``noise``, ``seed``, ``family`` (0 detection scene, 1 random arena, 2 detection
+    scene without boundary wall); ``info`` as :func:`make_scene` plus ``scan``, ``scene`` and
+    ``batch``. ``observers`` overrides the scanned robots.
+    """
+    fc = feature_config or FeatureConfig()
+    scene, rng, info = make_scene(seed, config, noise)
+    if observers is not None:
+        info["observers"] = np.asarray(observers, dtype=np.int64)
+    world = World(scene, seed=rng)
+    scan = world.scan(robots=info["observers"])
+    batch = segment_batch(scan.ranges, scan.angles, fc)
+    feats = segment_features(batch, fc)
+    segs, objs = label_scan(scan, scene, batch, world.poses)
+    segs["x"] = feats.x
+    segs["frames"] = feats.frames.astype(np.float32)
+    segs["fit_centre"] = feats.fit_centre.astype(np.float32)
+    for table in (segs, objs):
+        m = table["row"].shape[0]
+        table["observer"] = scan.robots[table["row"]].astype(np.int16)
+        table["noise"] = np.full(m, info["noise"], np.float32)
+        table["seed"] = np.full(m, seed, np.int64)
+        table["family"] = np.full(m, 2 if info["open"] else info["family"], np.int8)
+    info.update(scan=scan, scene=scene, batch=batch)
+    return segs, objs, info
+
+
+def concat_records(parts: list[dict]) -> dict:
+    """Concatenate a list of record dicts column by column."""
+    if not parts:
+        return {}
+    return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+
+
+# --- loading ------------------------------------------------------------------------------------
+
+
+def load_dataset(path, feature_config: FeatureConfig | None = None) -> tuple[dict, dict, dict]:
+    """Read a dataset directory written by ``scripts/make_dataset.py``.
+
+    Returns ``(segments, objects, manifest)`` with every shard concatenated. Raises
+    ``FileNotFoundError`` for a missing directory / manifest / shard and ``ValueError`` for a
+    manifest of another format, another ``FEATURE_VERSION`` or (if given) another feature config.
+    """
+    root = Path(path)
+    mpath = root / "manifest.json"
+    if not mpath.is_file():
+        raise FileNotFoundError(f"{mpath}: no dataset manifest (write one with scripts/make_dataset.py)")
+    try:
+        manifest = json.loads(mpath.read_text())
+    except (OSError, json.JSONDecodeError) as e:
+        raise ValueError(f"{mpath}: not a readable JSON manifest ({e})") from e
+    if not isinstance(manifest, dict) or manifest.get("format") != DATASET_FORMAT:
+        raise ValueError(f"{mpath}: not a {DATASET_FORMAT!r} manifest")
+    if manifest.get("feature_version") != FEATURE_VERSION:
+        raise ValueError(
+            f"{mpath}: dataset has feature version {manifest.get('feature_version')!r}, this code computes "
+            f"version {FEATURE_VERSION}; regenerate it with scripts/make_dataset.py"
+        )
+    fc = FeatureConfig.from_dict(manifest["feature_config"])
+    if feature_config is not None and fc != feature_config:
+        raise ValueError(f"{mpath}: dataset feature config {fc} differs from the requested {feature_config}")
+    if manifest.get("feature_names") != feature_names(fc):
+        raise ValueError(f"{mpath}: feature names differ from feature version {FEATURE_VERSION}'s")
+    segs, objs = [], []
+    for shard in manifest["shards"]:
+        f = root / shard["file"]
+        if not f.is_file():
+            raise FileNotFoundError(f"{f}: dataset shard listed in {mpath} is missing")
+        with np.load(f) as z:
+            segs.append({k[4:]: z[k] for k in z.files if k.startswith("seg_")})
+            objs.append({k[4:]: z[k] for k in z.files if k.startswith("obj_")})
+    return concat_records(segs), concat_records(objs), manifest

@@ -1,0 +1,632 @@
+"""Learned lidar kin detector: the paper's segmentation, a small torch network as the classifier.
+
+Pipeline (same interface and output types as :class:`detectors.GeometricKinDetector`):
+
+1. pre-processing and segmentation: the geometric detector's own :func:`detectors.geometric.preprocess`
+   and :func:`detectors.geometric.segment` (paper 4.1-4.2), so both detectors see the same segments;
+2. one feature vector per segment (:mod:`detectors.features`, ``FEATURE_VERSION``);
+3. **classification** (replaces the paper's diameter and shape filters, 4.3): an MLP gives
+   ``p(kin)`` for every segment of every scan of a batch in one forward pass;
+4. **positioning** (4.4): the same network regresses the kin's centre in the segment's local frame
+   (``positioning="regression"``), or the geometric detector's circle fit is used
+   (``positioning="fit"``: :func:`detectors.geometric.fit_circles` from the eq. 7 start, then
+   :func:`detectors.geometric.position_kin`). The checkpoint names the better one on held-out data.
+
+This is the only module of ``detectors`` that imports torch.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+from .base import Detection, DetectionResult, KinDetector, SegmentReport, validate_scan, wrap_angle
+from .features import (
+    FEATURE_VERSION,
+    FeatureConfig,
+    SegmentBatch,
+    SegmentFeatures,
+    feature_names,
+    local_to_observer,
+    segment_batch,
+    segment_features,
+)
+from .geometric import fit_circles, is_circular_sweep, position_kin
+
+__all__ = [
+    "CHECKPOINT_FORMAT",
+    "DEFAULT_CHECKPOINT",
+    "LearnedKinDetector",
+    "ModelConfig",
+    "SegmentNet",
+    "TrainConfig",
+    "load_checkpoint",
+    "save_checkpoint",
+    "train_segment_net",
+]
+
+CHECKPOINT_FORMAT = "kin-envs/learned-kin-detector"
+CHECKPOINT_FORMAT_VERSION = 1
+#: The shipped model (trained by ``scripts/train_classifier.py``; see ``learned_default.json``).
+DEFAULT_CHECKPOINT = Path(__file__).resolve().parent / "checkpoints" / "learned_default.pt"
+POSITIONING = ("regression", "fit")
+_CHUNK = 4096  # segments per forward chunk
+
+
+# --------------------------------------------------------------------------- model
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """Shape of :class:`SegmentNet`: ``n_features`` inputs, ReLU hidden layers of ``hidden`` units."""
+
+    n_features: int
+    hidden: tuple[int, ...] = (64, 64)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "hidden", tuple(self.hidden))
+        if isinstance(self.n_features, bool) or not isinstance(self.n_features, int) or self.n_features < 1:
+            raise ValueError(f"ModelConfig.n_features must be an integer >= 1, got {self.n_features!r}")
+        if not self.hidden or not all(
+            isinstance(h, int) and not isinstance(h, bool) and h >= 1 for h in self.hidden
+        ):
+            raise ValueError(f"ModelConfig.hidden must be one or more integers >= 1, got {self.hidden!r}")
+
+    def to_dict(self) -> dict:
+        return {"n_features": self.n_features, "hidden": list(self.hidden)}
+
+    @classmethod
+    def from_dict(cls, d) -> ModelConfig:
+        if not isinstance(d, dict):
+            raise ValueError(f"ModelConfig: expected a dict, got {type(d).__name__}")
+        unknown = sorted(set(d) - {"n_features", "hidden"})
+        if unknown:
+            raise ValueError(f"ModelConfig: unknown key(s) {unknown}; expected n_features, hidden")
+        return cls(**d)
+
+
+class SegmentNet(nn.Module):
+    """MLP on standardised segment features → ``(logit of p(kin), u, v)``.
+
+    ``u, v`` is the kin centre in the segment's local frame (:mod:`detectors.features`), in units
+    of the training targets' spread (``target_mean + target_std * output``). Normalisation stats
+    are buffers set from the checkpoint, not learned.
+    """
+
+    def __init__(self, config: ModelConfig) -> None:
+        super().__init__()
+        self.config = config
+        layers: list[nn.Module] = []
+        d = config.n_features
+        for h in config.hidden:
+            layers += [nn.Linear(d, h), nn.ReLU()]
+            d = h
+        self.body = nn.Sequential(*layers)
+        self.head = nn.Linear(d, 3)
+        self.register_buffer("x_mean", torch.zeros(config.n_features), persistent=False)
+        self.register_buffer("x_std", torch.ones(config.n_features), persistent=False)
+        self.register_buffer("t_mean", torch.zeros(2), persistent=False)
+        self.register_buffer("t_std", torch.ones(2), persistent=False)
+
+    def set_normalisation(self, x_mean, x_std, t_mean, t_std) -> None:
+        for name, v, n in (
+            ("x_mean", x_mean, self.config.n_features),
+            ("x_std", x_std, self.config.n_features),
+            ("t_mean", t_mean, 2),
+            ("t_std", t_std, 2),
+        ):
+            t = torch.as_tensor(np.asarray(v, dtype=np.float32))
+            if t.shape != (n,) or not torch.isfinite(t).all() or (name.endswith("std") and (t <= 0).any()):
+                raise ValueError(
+                    f"SegmentNet: {name} must be {n} finite values (std > 0), got shape {tuple(t.shape)}"
+                )
+            getattr(self, name).copy_(t)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.head(self.body((x - self.x_mean) / self.x_std))
+
+    def normalisation(self) -> dict[str, list[float]]:
+        return {k: getattr(self, k).tolist() for k in ("x_mean", "x_std", "t_mean", "t_std")}
+
+
+# --------------------------------------------------------------------------- checkpoints
+
+
+def _plain(obj):
+    """``obj`` with numpy scalars / arrays turned into Python numbers and lists (the checkpoint is
+    loaded with ``weights_only=True``, which admits only plain types and tensors)."""
+    return json.loads(json.dumps(obj, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
+
+
+def save_checkpoint(
+    path,
+    model: SegmentNet,
+    feature_config: FeatureConfig,
+    *,
+    positioning: str = "regression",
+    angular_resolution: float = 2 * math.pi / 360,
+    info: dict | None = None,
+) -> Path:
+    """Write ``model`` with everything needed to use it (see :func:`load_checkpoint`)."""
+    if positioning not in POSITIONING:
+        raise ValueError(f"positioning must be one of {POSITIONING}, got {positioning!r}")
+    names = feature_names(feature_config)
+    if model.config.n_features != len(names):
+        raise ValueError(
+            f"save_checkpoint: model takes {model.config.n_features} features, the feature config gives "
+            f"{len(names)}"
+        )
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    torch.save(
+        {
+            "format": CHECKPOINT_FORMAT,
+            "format_version": CHECKPOINT_FORMAT_VERSION,
+            "feature_version": FEATURE_VERSION,
+            "feature_config": feature_config.to_dict(),
+            "feature_names": names,
+            "model_config": model.config.to_dict(),
+            "state_dict": {k: v.detach().cpu().clone() for k, v in model.state_dict().items()},
+            "normalisation": model.normalisation(),
+            "positioning": positioning,
+            "angular_resolution": float(angular_resolution),
+            "info": _plain(info or {}),
+        },
+        path,
+    )
+    return path
+
+
+def load_checkpoint(path=None, device="cpu") -> tuple[SegmentNet, dict]:
+    """Load a checkpoint written by :func:`save_checkpoint` → ``(model in eval mode, checkpoint dict)``.
+
+    Raises ``FileNotFoundError`` if there is no file at ``path`` and ``ValueError`` naming the path
+    if it is not a torch checkpoint, not a learned-detector checkpoint, of another
+    ``FEATURE_VERSION``, or if the weights do not fit the stated input size.
+    """
+    path = Path(DEFAULT_CHECKPOINT if path is None else path)
+    expected = (
+        f"expected a learned kin detector checkpoint written by scripts/train_classifier.py "
+        f"(format {CHECKPOINT_FORMAT!r}, feature version {FEATURE_VERSION})"
+    )
+    if not path.is_file():
+        raise FileNotFoundError(f"learned detector checkpoint {path} does not exist; {expected}")
+    try:
+        ck = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as e:  # torch raises many types for a file that is not a checkpoint
+        raise ValueError(
+            f"{path}: not a readable torch checkpoint ({type(e).__name__}: {e}); {expected}"
+        ) from e
+    if not isinstance(ck, dict) or ck.get("format") != CHECKPOINT_FORMAT:
+        raise ValueError(f"{path}: not a learned kin detector checkpoint; {expected}")
+    if ck.get("format_version") != CHECKPOINT_FORMAT_VERSION:
+        raise ValueError(
+            f"{path}: checkpoint format version {ck.get('format_version')!r} is not "
+            f"{CHECKPOINT_FORMAT_VERSION}; {expected}"
+        )
+    if ck.get("feature_version") != FEATURE_VERSION:
+        raise ValueError(
+            f"{path}: checkpoint was trained on feature version {ck.get('feature_version')!r}, but this code "
+            f"computes feature version {FEATURE_VERSION}; retrain it with scripts/train_classifier.py"
+        )
+    try:
+        fc = FeatureConfig.from_dict(ck["feature_config"])
+        mc = ModelConfig.from_dict(ck["model_config"])
+        names = feature_names(fc)
+        if ck.get("feature_names") != names:
+            raise ValueError(f"feature names {ck.get('feature_names')!r} differ from {names!r}")
+        if mc.n_features != len(names):
+            raise ValueError(
+                f"the model takes {mc.n_features} input features but feature version {FEATURE_VERSION} with "
+                f"{fc} gives {len(names)}"
+            )
+        model = SegmentNet(mc)
+        model.load_state_dict(ck["state_dict"])
+        nrm = ck["normalisation"]
+        model.set_normalisation(nrm["x_mean"], nrm["x_std"], nrm["t_mean"], nrm["t_std"])
+        if ck.get("positioning") not in POSITIONING:
+            raise ValueError(f"positioning {ck.get('positioning')!r} is not one of {POSITIONING}")
+        res = float(ck["angular_resolution"])
+    except (KeyError, TypeError, ValueError, RuntimeError) as e:
+        raise ValueError(f"{path}: inconsistent checkpoint ({type(e).__name__}: {e}); {expected}") from e
+    ck["feature_config"] = fc
+    ck["model_config"] = mc
+    ck["angular_resolution"] = res
+    ck["path"] = str(path)
+    return model.to(device).eval(), ck
+
+
+# --------------------------------------------------------------------------- detector
+
+
+class LearnedKinDetector(KinDetector):
+    """Kin detector with a learned segment classifier (see the module docstring).
+
+    Args:
+        checkpoint: path of a checkpoint (default: the shipped ``learned_default.pt``).
+        threshold: a segment is a kin if ``p(kin) >= threshold``.
+        device: torch device for the forward pass (``"cpu"``).
+        positioning: ``"regression"`` or ``"fit"``; default: the checkpoint's choice.
+        reports: build one :class:`SegmentReport` per segment (pass False when only detections
+            are needed, e.g. in environments; ``reports`` is then empty).
+
+    ``Detection.score`` is ``p(kin)`` (higher = more kin-like). Each :class:`SegmentReport` has
+    stage ``"accepted"`` or ``"learned"`` (rejected by the classifier) and ``metrics["p_kin"]``.
+    The forward pass uses torch's current thread setting; on a busy machine call
+    ``torch.set_num_threads(1)`` (the network is tiny; more threads only add contention).
+    """
+
+    def __init__(
+        self,
+        checkpoint=None,
+        threshold: float = 0.5,
+        device="cpu",
+        *,
+        positioning: str | None = None,
+        reports: bool = True,
+    ) -> None:
+        if (
+            isinstance(threshold, bool)
+            or not isinstance(threshold, int | float)
+            or not 0.0 <= threshold <= 1.0
+        ):
+            raise ValueError(
+                f"LearnedKinDetector: threshold must be a probability in [0, 1], got {threshold!r}"
+            )
+        try:
+            self.device = torch.device(device)
+        except (RuntimeError, TypeError) as e:
+            raise ValueError(f"LearnedKinDetector: invalid torch device {device!r} ({e})") from e
+        self.model, self.checkpoint = load_checkpoint(checkpoint, self.device)
+        self.feature_config: FeatureConfig = self.checkpoint["feature_config"]
+        self.threshold = float(threshold)
+        pos = self.checkpoint["positioning"] if positioning is None else positioning
+        if pos not in POSITIONING:
+            raise ValueError(f"LearnedKinDetector: positioning must be one of {POSITIONING}, got {pos!r}")
+        self.positioning = pos
+        self.reports = bool(reports)
+        self._angles_key: np.ndarray | None = None
+        self._circular = True
+
+    # -- input checks ---------------------------------------------------------------------------
+    def _check(self, ranges, angles) -> tuple[np.ndarray, np.ndarray]:
+        rb = np.asarray(ranges, dtype=np.float64)
+        a = np.asarray(angles, dtype=np.float64)
+        if rb.ndim != 2:
+            raise ValueError(f"batched ranges must be 2-D (B, n_beams), got shape {rb.shape}")
+        if a.ndim != 1 or a.shape[0] != rb.shape[1]:
+            raise ValueError(
+                f"angles must be 1-D with n_beams = {rb.shape[1]} entries to match ranges {rb.shape}, "
+                f"got shape {a.shape}"
+            )
+        key = self._angles_key
+        if key is None or key.shape != a.shape or not np.array_equal(key, a):
+            # the beam layout is validated once and remembered (costly for small scans)
+            validate_scan(np.zeros(a.shape), a)
+            step = float(np.abs(wrap_angle(np.diff(a))).mean())
+            res = self.checkpoint["angular_resolution"]
+            if abs(step - res) > 0.25 * res:
+                raise ValueError(
+                    f"LearnedKinDetector: the scan's beams are {math.degrees(step):.3f} deg apart, but the "
+                    f"checkpoint {self.checkpoint['path']} was trained on {math.degrees(res):.3f} deg beams; "
+                    "train one for this lidar (scripts/make_dataset.py, scripts/train_classifier.py)"
+                )
+            self._circular = is_circular_sweep(a)
+            self._angles_key = a.copy()
+        bad = rb < 0.0  # NaN / +inf mean "no return" and are fine
+        if bad.any():
+            b = int(np.flatnonzero(bad.any(axis=1))[0])
+            try:
+                validate_scan(rb[b], a)
+            except ValueError as e:
+                raise ValueError(f"ranges[{b}]: {e}") from None
+        return rb, a
+
+    # -- stages ---------------------------------------------------------------------------------
+    def predict_segments(
+        self, ranges, angles
+    ) -> tuple[SegmentBatch, SegmentFeatures, np.ndarray, np.ndarray]:
+        """Stages 1-4 for ``B`` scans without building results.
+
+        Returns ``(batch, features, p_kin (S,), centres (S, 2))``: the segments of all scans, their
+        features, the kin probability of each segment and the kin centre each would have (observer
+        frame ``x, y``, m; with this detector's ``positioning``; regression for every segment,
+        circle fit only where ``p_kin >= threshold``, NaN elsewhere).
+        """
+        rb, a = self._check(ranges, angles)
+        batch = segment_batch(rb, a, self.feature_config, circular=self._circular)
+        feats = segment_features(batch, self.feature_config)
+        if batch.n_segments == 0:
+            return batch, feats, np.zeros(0), np.zeros((0, 2))
+        with torch.inference_mode():
+            x = torch.from_numpy(feats.x).to(self.device)
+            # one batched pass over every segment, in row chunks that keep the activations in cache
+            # (2x faster than a single 26k-row matmul chain on one core)
+            out = torch.cat([self.model(c) for c in x.split(_CHUNK)]).cpu().numpy().astype(np.float64)
+        p = 1.0 / (1.0 + np.exp(-out[:, 0]))
+        if self.positioning == "regression":
+            nrm = self.checkpoint["normalisation"]
+            uv = np.asarray(nrm["t_mean"]) + np.asarray(nrm["t_std"]) * out[:, 1:3]
+            centres = local_to_observer(feats.frames, uv)
+        else:
+            centres = self._fit_centres(batch, feats, p >= self.threshold)
+        return batch, feats, p, centres
+
+    def _fit_centres(self, batch: SegmentBatch, feats: SegmentFeatures, which: np.ndarray) -> np.ndarray:
+        """Geometric stage 4 for the segments ``which``: LM circle fit from eq. 7, else NaN.
+
+        One-beam segments have no fit; their centre is eq. 7's (``min(d_i) + r`` along the beam).
+        """
+        r = self.feature_config.r
+        n = batch.angles.shape[0]
+        centres = np.full((batch.n_segments, 2), np.nan)
+        idx = np.flatnonzero(which)
+        if idx.size == 0:
+            return centres
+        cnt = batch.count[idx]
+        beams = np.concatenate([(batch.first[i] + np.arange(c)) % n for i, c in zip(idx, cnt, strict=True)])
+        rows = np.repeat(batch.scan[idx], cnt)
+        mb = feats.min_beam[idx]
+        d_min = batch.ranges[batch.scan[idx], mb]
+        rc, tc, _, _, _ = fit_circles(
+            batch.ranges[rows, beams], batch.angles[beams], cnt, r, d_min + r, batch.angles[mb]
+        )
+        one = cnt < 2
+        rc[one], tc[one] = d_min[one] + r, batch.angles[mb[one]]
+        for k, i in enumerate(idx.tolist()):
+            pos = position_kin(float(rc[k]), float(tc[k]))
+            centres[i] = pos.x, pos.y
+        return centres
+
+    def detect(self, ranges, angles) -> DetectionResult:
+        """Detect kins in one scan: ``ranges`` (n,) m, ``angles`` (n,) rad."""
+        r = np.asarray(ranges, dtype=np.float64)
+        if r.ndim != 1:
+            raise ValueError(f"ranges must be a 1-D array (n_beams,), got shape {r.shape}")
+        a = np.asarray(angles, dtype=np.float64)
+        if a.ndim != 1 or a.shape != r.shape:
+            validate_scan(r, a)  # raises with the full message
+        return self.detect_batch(r[None, :], a)[0]
+
+    def detect_batch(self, ranges, angles) -> list[DetectionResult]:
+        """Detect kins in ``B`` scans (``ranges`` (B, n) m, shared ``angles`` (n,) rad): the segments of
+        all scans go through the network in one forward pass."""
+        batch, _, p, centres = self.predict_segments(ranges, angles)
+        n_scans = batch.ranges.shape[0]
+        thr = self.threshold
+        acc = p >= thr
+        out = []
+        bounds = np.searchsorted(batch.scan, np.arange(n_scans + 1)).tolist()
+        acc_idx = np.flatnonzero(acc)
+        xs, ys = centres[acc_idx, 0], centres[acc_idx, 1]
+        rng = np.hypot(xs, ys)
+        brg = wrap_angle(np.arctan2(ys, xs))
+        n_b = batch.angles.shape[0]
+        dets_all = [
+            Detection(
+                float(rr), float(bb), float(x), float(y), float(pp), int(f), int((f + c - 1) % n_b), int(c)
+            )
+            for rr, bb, x, y, pp, f, c in zip(
+                rng.tolist(),
+                brg.tolist(),
+                xs.tolist(),
+                ys.tolist(),
+                p[acc_idx].tolist(),
+                batch.first[acc_idx].tolist(),
+                batch.count[acc_idx].tolist(),
+                strict=True,
+            )
+        ]
+        det_scan = batch.scan[acc_idx]
+        det_bounds = np.searchsorted(det_scan, np.arange(n_scans + 1)).tolist()
+        pl = p.tolist()
+        accl = acc.tolist()
+        for b in range(n_scans):
+            dets = dets_all[det_bounds[b] : det_bounds[b + 1]]
+            reports: list[SegmentReport] = []
+            if self.reports:
+                lo = bounds[b]
+                for k, s in enumerate(batch.segments[b]):
+                    pk = pl[lo + k]
+                    if accl[lo + k]:
+                        reports.append(
+                            SegmentReport(s, "accepted", f"p(kin)={pk:.3f} >= {thr:g}", {"p_kin": pk})
+                        )
+                    else:
+                        reports.append(
+                            SegmentReport(s, "learned", f"p(kin)={pk:.3f} < {thr:g}", {"p_kin": pk})
+                        )
+            out.append(DetectionResult(dets, reports))
+        return out
+
+
+# --------------------------------------------------------------------------- training
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Training of :class:`SegmentNet` (Adam, BCE + smooth-L1 centre loss on kin segments).
+
+    Attributes:
+        hidden: hidden layer widths.
+        epochs: maximum epochs.
+        batch_size: segments per step.
+        lr: Adam learning rate (cosine-decayed to 5 % over ``epochs``).
+        weight_decay: AdamW weight decay.
+        reg_weight: weight of the centre-regression loss.
+        patience: stop after this many epochs without a better validation loss.
+        max_seconds: stop after this much training time (0 = no limit).
+    """
+
+    hidden: tuple[int, ...] = (64, 64)
+    epochs: int = 40
+    batch_size: int = 1024
+    lr: float = 3e-3
+    weight_decay: float = 1e-4
+    reg_weight: float = 1.0
+    patience: int = 5
+    max_seconds: float = 0.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "hidden", tuple(self.hidden))
+        for name in ("epochs", "batch_size", "patience"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                raise ValueError(f"TrainConfig.{name} must be an integer >= 1, got {v!r}")
+        for name in ("lr", "weight_decay", "reg_weight", "max_seconds"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v) or v < 0:
+                raise ValueError(f"TrainConfig.{name} must be a finite number >= 0, got {v!r}")
+        if self.lr <= 0:
+            raise ValueError(f"TrainConfig.lr must be > 0, got {self.lr!r}")
+        ModelConfig(1, self.hidden)  # validates hidden
+
+    def to_dict(self) -> dict:
+        d = dataclasses.asdict(self)
+        d["hidden"] = list(self.hidden)
+        return d
+
+    @classmethod
+    def from_dict(cls, d) -> TrainConfig:
+        if not isinstance(d, dict):
+            raise ValueError(f"TrainConfig: expected a dict, got {type(d).__name__}")
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(d) - names)
+        if unknown:
+            raise ValueError(f"TrainConfig: unknown key(s) {unknown}; expected a subset of {sorted(names)}")
+        return cls(**d)
+
+
+def _losses(model: SegmentNet, x, y, t, tm, reg_weight: float):
+    out = model(x)
+    bce = nn.functional.binary_cross_entropy_with_logits(out[:, 0], y)
+    if tm.any():
+        tn = (t[tm] - model.t_mean) / model.t_std
+        reg = nn.functional.smooth_l1_loss(out[tm, 1:3], tn)
+    else:
+        reg = out.new_zeros(())
+    return bce, reg, out
+
+
+def train_segment_net(
+    train: dict[str, np.ndarray],
+    val: dict[str, np.ndarray],
+    config: TrainConfig | None = None,
+    seed: int = 0,
+    log=None,
+    progress: bool = True,
+) -> tuple[SegmentNet, list[dict]]:
+    """Train a :class:`SegmentNet`.
+
+    Args:
+        train, val: ``x`` (N, F) float32 features, ``y`` (N,) 0/1 labels, ``target`` (N, 2) kin
+            centre in the local frame (NaN for non-kin; those rows get no centre loss).
+        config: hyper-parameters.
+        seed: seeds torch (initialisation, shuffling).
+        log: called with each epoch's record (dict) as it completes.
+        progress: tqdm progress bars.
+
+    Returns the model with the weights of the best validation epoch (eval mode) and the per-epoch
+    records: ``epoch, train_loss, train_bce, train_reg, val_loss, val_bce, val_reg, val_accuracy,
+    val_f1, seconds``.
+    """
+    from tqdm import tqdm
+
+    cfg = config or TrainConfig()
+    torch.manual_seed(seed)
+    gen = torch.Generator().manual_seed(seed)
+
+    def tensors(d, name):
+        x = np.asarray(d["x"], dtype=np.float32)
+        y = np.asarray(d["y"], dtype=np.float32).reshape(-1)
+        t = np.asarray(d["target"], dtype=np.float32).reshape(-1, 2)
+        if x.ndim != 2 or x.shape[0] != y.shape[0] or t.shape[0] != y.shape[0] or x.shape[0] == 0:
+            raise ValueError(
+                f"train_segment_net: {name} needs x (N, F), y (N,), target (N, 2) with N >= 1, got "
+                f"{x.shape}, {y.shape}, {t.shape}"
+            )
+        if not np.isfinite(x).all():
+            raise ValueError(f"train_segment_net: {name} features contain non-finite values")
+        tm = np.isfinite(t).all(axis=1) & (y > 0.5)
+        return (
+            torch.from_numpy(x),
+            torch.from_numpy(y),
+            torch.from_numpy(np.nan_to_num(t)),
+            torch.from_numpy(tm),
+        )
+
+    xt, yt, tt, mt = tensors(train, "train")
+    xv, yv, tv, mv = tensors(val, "val")
+    if xv.shape[1] != xt.shape[1]:
+        raise ValueError(f"train_segment_net: train has {xt.shape[1]} features, val {xv.shape[1]}")
+    model = SegmentNet(ModelConfig(int(xt.shape[1]), cfg.hidden))
+    x_mean, x_std = xt.mean(0), xt.std(0)
+    x_std = torch.where(x_std > 1e-6, x_std, torch.ones_like(x_std))  # constant features pass through
+    if mt.any():
+        t_mean, t_std = tt[mt].mean(0), tt[mt].std(0).clamp_min(1e-3)
+    else:
+        t_mean, t_std = torch.zeros(2), torch.ones(2)
+    model.set_normalisation(x_mean, x_std, t_mean, t_std)
+    opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    steps_per_epoch = math.ceil(xt.shape[0] / cfg.batch_size)
+    sched = torch.optim.lr_scheduler.OneCycleLR(
+        opt, max_lr=cfg.lr, total_steps=cfg.epochs * steps_per_epoch, pct_start=0.1, final_div_factor=20
+    )
+    best, best_state, bad_epochs, history = math.inf, None, 0, []
+    t0 = time.perf_counter()
+    epochs = tqdm(range(1, cfg.epochs + 1), desc="epochs", disable=not progress)
+    for epoch in epochs:
+        model.train()
+        perm = torch.randperm(xt.shape[0], generator=gen)
+        sums = np.zeros(3)
+        for k in tqdm(range(steps_per_epoch), desc=f"epoch {epoch}", leave=False, disable=not progress):
+            i = perm[k * cfg.batch_size : (k + 1) * cfg.batch_size]
+            bce, reg, _ = _losses(model, xt[i], yt[i], tt[i], mt[i], cfg.reg_weight)
+            loss = bce + cfg.reg_weight * reg
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            opt.step()
+            sched.step()
+            sums += (float(loss), float(bce), float(reg))
+        model.eval()
+        with torch.inference_mode():
+            vb, vr, out = _losses(model, xv, yv, tv, mv, cfg.reg_weight)
+            pred = out[:, 0] > 0
+            tp = float((pred & (yv > 0.5)).sum())
+            fp = float((pred & (yv < 0.5)).sum())
+            fn = float((~pred & (yv > 0.5)).sum())
+        vloss = float(vb) + cfg.reg_weight * float(vr)
+        rec = {
+            "epoch": epoch,
+            "train_loss": sums[0] / steps_per_epoch,
+            "train_bce": sums[1] / steps_per_epoch,
+            "train_reg": sums[2] / steps_per_epoch,
+            "val_loss": vloss,
+            "val_bce": float(vb),
+            "val_reg": float(vr),
+            "val_accuracy": float((pred == (yv > 0.5)).float().mean()),
+            "val_f1": 2 * tp / max(2 * tp + fp + fn, 1.0),
+            "seconds": time.perf_counter() - t0,
+        }
+        history.append(rec)
+        if log is not None:
+            log(rec)
+        epochs.set_postfix(val_loss=f"{vloss:.4f}", val_f1=f"{rec['val_f1']:.4f}")
+        if vloss < best - 1e-5:
+            best, bad_epochs = vloss, 0
+            best_state = {k: v.detach().clone() for k, v in model.state_dict().items()}
+        else:
+            bad_epochs += 1
+        if bad_epochs >= cfg.patience or (cfg.max_seconds and rec["seconds"] > cfg.max_seconds):
+            break
+    if best_state is not None:
+        model.load_state_dict(best_state)
+    return model.eval(), history

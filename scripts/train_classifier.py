@@ -1,0 +1,578 @@
+"""Train the learned kin detector's segment classifier and evaluate it against the geometric detector.
+
+Steps (all seeded by ``--seed``):
+
+1. load a dataset written by ``scripts/make_dataset.py`` (its feature version must be this code's);
+2. split it **by scene** into training and validation scenes; same-radius cylinders are left out of
+   training (one scan cannot tell them from a kin: identical inputs with opposite labels);
+3. train ``detectors.learned.SegmentNet`` (classification + centre regression) with early stopping on
+   the validation loss; one CSV row per epoch (``train_log.csv``);
+4. validation metrics from the dataset: segment level and kin level (``validation.json``);
+5. held-out sweep (``--eval-scenes`` > 0): new detection scenes with seeds from ``--eval-first-seed``
+   (disjoint from training), every noise level of ``--eval-noise``, scanned from every robot; the
+   learned detector (both positioning options) and the geometric detector run on the same scans;
+   kin-level precision / recall / F1 per distance bin x noise level, same-radius cylinders apart,
+   false positives per distractor kind, centre errors, throughput (``eval.json``, ``eval.md``);
+6. the checkpoint (``--checkpoint``; positioning: the better option on the sweep, or ``--positioning``)
+   and ``<checkpoint>.json`` next to it (command, configs, data, training and evaluation summary).
+
+Example (the shipped model)::
+
+    python scripts/make_dataset.py --out outputs/segments --scenes 3000
+    python scripts/train_classifier.py --data outputs/segments --out outputs/train \\
+        --checkpoint detectors/checkpoints/learned_default.pt --eval-scenes 300
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from detectors.dataset import CATEGORIES, DatasetConfig, label_scan, load_dataset, make_scene
+from detectors.features import observer_to_local
+from detectors.geometric import GeometricKinDetector
+from detectors.learned import (
+    LearnedKinDetector,
+    TrainConfig,
+    load_checkpoint,
+    save_checkpoint,
+    train_segment_net,
+)
+from kin_envs import World, scenes
+
+GATE = 0.1  # m: a detection matches a kin whose centre is this close
+DISTANCE_BINS = (0.2, 0.3, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0)
+EVAL_NOISE = (0.0, 0.005, 0.01, 0.02)
+#: the sweep's scenes: kin.scenes.detection_scene with its default layout (3 kin, 12 distractors, 0.3-3 m)
+EVAL_CONFIG = DatasetConfig(
+    detection_prob=1.0, open_prob=0.0, n_kin=(3, 3), n_distractors=(12, 12), distance=(0.3, 3.0)
+)
+_KIN, _SAME = CATEGORIES.index("kin"), CATEGORIES.index("same_radius_cylinder")
+
+
+def parse_json_arg(text: str | None, what: str) -> dict:
+    """A JSON object given inline or as a file path."""
+    if not text:
+        return {}
+    p = Path(text)
+    src = p.read_text() if p.is_file() else text
+    try:
+        d = json.loads(src)
+    except json.JSONDecodeError as e:
+        raise SystemExit(f"{what}: expected a JSON object or a JSON file path, got {text!r} ({e})") from e
+    if not isinstance(d, dict):
+        raise SystemExit(f"{what}: expected a JSON object, got {type(d).__name__}")
+    return d
+
+
+def prf(tp: float, fp: float, fn: float) -> dict:
+    p = tp / (tp + fp) if tp + fp else float("nan")
+    r = tp / (tp + fn) if tp + fn else float("nan")
+    f1 = 2 * tp / (2 * tp + fp + fn) if tp + fp + fn else float("nan")
+    return {"tp": int(tp), "fp": int(fp), "fn": int(fn), "precision": p, "recall": r, "f1": f1}
+
+
+def bin_label(lo: float, hi: float) -> str:
+    return f"{lo:g}-{hi:g}"
+
+
+def bin_index(d: np.ndarray) -> np.ndarray:
+    """Distance bin of each value (-1 outside :data:`DISTANCE_BINS`)."""
+    k = np.searchsorted(DISTANCE_BINS, d, side="right") - 1
+    return np.where((k >= 0) & (k < len(DISTANCE_BINS) - 1), k, -1)
+
+
+# --------------------------------------------------------------------------- data
+
+
+def split_by_scene(seeds: np.ndarray, val_fraction: float, rng: np.random.Generator) -> np.ndarray:
+    """Boolean mask of rows whose scene is a validation scene."""
+    uniq = np.unique(seeds)
+    n_val = max(1, int(round(val_fraction * len(uniq))))
+    if n_val >= len(uniq):
+        raise SystemExit(f"--val-fraction {val_fraction} leaves no training scene out of {len(uniq)}")
+    return np.isin(seeds, rng.choice(uniq, n_val, replace=False))
+
+
+def targets(segs: dict) -> np.ndarray:
+    """Kin centres in each segment's local frame (NaN for non-kin)."""
+    return observer_to_local(segs["frames"].astype(np.float64), segs["centre"].astype(np.float64)).astype(
+        np.float32
+    )
+
+
+def predict(model, x: np.ndarray, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``p(kin)`` and regressed centres (observer frame) of dataset rows."""
+    from detectors.features import local_to_observer
+
+    with torch.inference_mode():
+        out = torch.cat([model(c) for c in torch.from_numpy(x).split(8192)]).numpy().astype(np.float64)
+    nrm = model.normalisation()
+    uv = np.asarray(nrm["t_mean"]) + np.asarray(nrm["t_std"]) * out[:, 1:3]
+    return 1.0 / (1.0 + np.exp(-out[:, 0])), local_to_observer(frames.astype(np.float64), uv)
+
+
+def validation_metrics(segs: dict, objs: dict, p: np.ndarray, xy: np.ndarray, thr: float) -> dict:
+    """Segment-level and kin-level metrics on the validation scenes of the dataset."""
+    acc = p >= thr
+    y = segs["label"] == 1
+    same = segs["same_radius"]
+    out = {"segments": prf((acc & y & ~same).sum(), (acc & ~y & ~same).sum(), (~acc & y).sum())}
+    out["segments"]["accepted_per_category"] = {
+        c: float(acc[segs["category"] == k].mean())
+        for k, c in enumerate(CATEGORIES)
+        if (segs["category"] == k).any()
+    }
+    err = np.hypot(*(xy - segs["centre"]).T)
+    hit = acc & y & (err <= GATE)
+    # kin level: a visible kin is found if one of its (majority) segments is accepted within the gate
+    kin = objs["category"] == _KIN
+    key = lambda s, o, i: (s.astype(np.int64) * 1000 + o) * 10000 + i  # noqa: E731
+    found = np.isin(
+        key(objs["seed"], objs["observer"], objs["obj_index"])[kin],
+        key(segs["seed"], segs["observer"], segs["obj_index"])[hit],
+    )
+    fp = (acc & ~hit & ~same).sum()
+    out["kin"] = prf(found.sum(), fp, (~found).sum())
+    out["centre_error_m"] = {
+        "median": float(np.median(err[hit])) if hit.any() else None,
+        "p90": float(np.percentile(err[hit], 90)) if hit.any() else None,
+    }
+    out["threshold"] = thr
+    return out
+
+
+# --------------------------------------------------------------------------- held-out sweep
+
+
+def match(det_xy: np.ndarray, truth_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Greedy one-to-one matching within :data:`GATE`, nearest pairs first.
+
+    Returns ``(det_to_truth (k,), error (k,))`` with -1 / NaN for unmatched detections.
+    """
+    k, m = det_xy.shape[0], truth_xy.shape[0]
+    d2t, err = np.full(k, -1), np.full(k, np.nan)
+    if k == 0 or m == 0:
+        return d2t, err
+    dist = np.hypot(det_xy[:, None, 0] - truth_xy[None, :, 0], det_xy[:, None, 1] - truth_xy[None, :, 1])
+    used = np.zeros(m, bool)
+    for flat in np.argsort(dist, axis=None):
+        i, j = divmod(int(flat), m)
+        if dist[i, j] > GATE:
+            break
+        if d2t[i] < 0 and not used[j]:
+            d2t[i], err[i], used[j] = j, dist[i, j], True
+    return d2t, err
+
+
+class Tally:
+    """Counts per (detector, noise, distance bin) for the sweep tables."""
+
+    def __init__(self, names):
+        shape = (len(names), len(EVAL_NOISE), len(DISTANCE_BINS) - 1)
+        self.names = list(names)
+        self.c = {
+            k: np.zeros(shape, np.int64)
+            for k in ("tp", "fp", "fn", "tp2", "fp2", "fn2", "same_seen", "same_detected")
+        }
+        self.fp_cat = np.zeros((len(names), len(EVAL_NOISE), len(CATEGORIES)), np.int64)
+        self.errors = {n: [[] for _ in EVAL_NOISE] for n in names}
+
+    def add(self, name: str, ni: int, dets, objs_row: dict, seg_cat: dict) -> None:
+        di = self.names.index(name)
+        det_xy = np.array([(d.x, d.y) for d in dets]).reshape(-1, 2)
+        det_rng = np.array([d.range for d in dets])
+        kin = objs_row["category"] == _KIN
+        same = objs_row["category"] == _SAME
+        truth = np.concatenate(
+            [
+                np.stack([objs_row["x"][kin], objs_row["y"][kin]], 1),
+                np.stack([objs_row["x"][same], objs_row["y"][same]], 1),
+            ]
+        )
+        n_kin = int(kin.sum())
+        kin_dist, kin_beams = objs_row["distance"][kin], objs_row["n_beams"][kin]
+        d2t, err = match(det_xy, truth)
+        c = self.c
+        for j, (dist, nb) in enumerate(zip(kin_dist, kin_beams, strict=True)):
+            b = bin_index(np.array([dist]))[0]
+            if b < 0:
+                continue
+            found = bool((d2t == j).any())
+            c["tp" if found else "fn"][di, ni, b] += 1
+            if nb >= 2:
+                c["tp2" if found else "fn2"][di, ni, b] += 1
+        for j, dist in enumerate(objs_row["distance"][same]):
+            b = bin_index(np.array([dist]))[0]
+            if b >= 0:
+                c["same_seen"][di, ni, b] += 1
+                c["same_detected"][di, ni, b] += int((d2t == n_kin + j).any())
+        fp = d2t < 0
+        for i in np.flatnonzero(fp):
+            b = bin_index(det_rng[i : i + 1])[0]
+            if b >= 0:
+                c["fp"][di, ni, b] += 1
+                c["fp2"][di, ni, b] += 1
+            self.fp_cat[di, ni, seg_cat.get(dets[i].first_beam, CATEGORIES.index("boundary"))] += 1
+        self.errors[name][ni] += err[(d2t >= 0) & (d2t < n_kin)].tolist()
+
+    def table(self, name: str, ge2: bool) -> list[dict]:
+        di = self.names.index(name)
+        s = "2" if ge2 else ""
+        rows = []
+        for ni, nz in enumerate(EVAL_NOISE):
+            for b in range(len(DISTANCE_BINS) - 1):
+                r = prf(self.c["tp" + s][di, ni, b], self.c["fp" + s][di, ni, b], self.c["fn" + s][di, ni, b])
+                rows.append({"noise": nz, "bin": bin_label(DISTANCE_BINS[b], DISTANCE_BINS[b + 1]), **r})
+        return rows
+
+    def pooled(self, name: str, ni: int, lo: float, hi: float, ge2: bool = False) -> dict:
+        di = self.names.index(name)
+        s = "2" if ge2 else ""
+        sel = [
+            b for b in range(len(DISTANCE_BINS) - 1) if DISTANCE_BINS[b] >= lo and DISTANCE_BINS[b + 1] <= hi
+        ]
+        return prf(*(int(self.c[k + s][di, ni, sel].sum()) for k in ("tp", "fp", "fn")))
+
+
+def sweep(detectors: dict, n_scenes: int, first_seed: int, progress: bool) -> Tally:
+    """Run every detector on the same held-out scans (see the module docstring)."""
+    tally = Tally(detectors)
+    jobs = [(ni, nz, first_seed + i) for ni, nz in enumerate(EVAL_NOISE) for i in range(n_scenes)]
+    for ni, nz, seed in tqdm(jobs, desc="held-out sweep", disable=not progress):
+        scene, rng, info = make_scene(seed, EVAL_CONFIG, noise=nz)
+        world = World(scene, seed=rng)
+        scan = world.scan(robots=info["observers"])
+        from detectors.features import segment_batch
+
+        batch = segment_batch(scan.ranges, scan.angles)
+        segs, objs = label_scan(scan, scene, batch, world.poses)
+        for name, det in detectors.items():
+            results = det.detect_batch(scan.ranges, scan.angles)
+            for row, res in enumerate(results):
+                in_row = objs["row"] == row
+                o = {k: v[in_row] for k, v in objs.items()}
+                srow = segs["row"] == row
+                seg_cat = dict(zip(batch.first[srow].tolist(), segs["category"][srow].tolist(), strict=True))
+                tally.add(name, ni, res.detections, o, seg_cat)
+    return tally
+
+
+def throughput(det, n_rep: int = 5) -> float:
+    """Scans/s of ``detect_batch`` on 256 cluttered scans (as ``scripts/benchmark.py``)."""
+    scan = World(scenes.random_arena(64, 50, seed=1), seed=0).scan()
+    ranges = np.tile(scan.ranges.astype(np.float64), (4, 1))
+    det.detect_batch(ranges, scan.angles)
+    best = math.inf
+    for _ in range(n_rep):
+        t0 = time.perf_counter()
+        det.detect_batch(ranges, scan.angles)
+        best = min(best, time.perf_counter() - t0)
+    return ranges.shape[0] / best
+
+
+def fmt(v) -> str:
+    return "-" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v:.3f}"
+
+
+def markdown(ev: dict) -> str:
+    names = ev["detectors"]
+    lines = [
+        "# Held-out sweep",
+        "",
+        f"Scenes per noise level: {ev['scenes_per_noise']} (seeds from "
+        f"{ev['first_seed']}), scanned from every robot; a detection matches a kin within {GATE} m.",
+        "",
+    ]
+    for title, key in (("All visible kin (>= 1 beam)", "table"), ("Kin hit by >= 2 beams", "table_ge2")):
+        lines += [
+            f"## {title}: F1 / precision / recall",
+            "",
+            "| noise | distance m | " + " | ".join(names) + " |",
+            "|---|---|" + "---|" * len(names),
+        ]
+        rows = {n: ev[key][n] for n in names}
+        for k in range(len(rows[names[0]])):
+            r0 = rows[names[0]][k]
+            cells = [
+                f"{fmt(rows[n][k]['f1'])} / {fmt(rows[n][k]['precision'])} / {fmt(rows[n][k]['recall'])}"
+                for n in names
+            ]
+            lines.append(f"| {r0['noise']:g} | {r0['bin']} | " + " | ".join(cells) + " |")
+        lines.append("")
+    lines += [
+        "## Same-radius cylinders (reported apart): fraction detected as kin",
+        "",
+        "| noise | distance m | seen | " + " | ".join(names) + " |",
+        "|---|---|---|" + "---|" * len(names),
+    ]
+    for r in ev["same_radius"]:
+        lines.append(
+            f"| {r['noise']:g} | {r['bin']} | {r['seen']} | " + " | ".join(fmt(r[n]) for n in names) + " |"
+        )
+    lines += [
+        "",
+        "## False positives per distractor kind (all noise levels)",
+        "",
+        "| kind | " + " | ".join(names) + " |",
+        "|---|" + "---|" * len(names),
+    ]
+    for c in CATEGORIES:
+        if any(ev["fp_per_category"][n].get(c, 0) for n in names):
+            lines.append(
+                f"| {c} | " + " | ".join(str(ev["fp_per_category"][n].get(c, 0)) for n in names) + " |"
+            )
+    lines += [
+        "",
+        "## Centre error of matched kin, m (median / p90)",
+        "",
+        "| noise | " + " | ".join(names) + " |",
+        "|---|" + "---|" * len(names),
+    ]
+    for ni, nz in enumerate(EVAL_NOISE):
+        lines.append(
+            f"| {nz:g} | "
+            + " | ".join(
+                f"{fmt(ev['centre_error'][n][ni]['median'])} / {fmt(ev['centre_error'][n][ni]['p90'])}"
+                for n in names
+            )
+            + " |"
+        )
+    lines += ["", "## Targets", "", "```", json.dumps(ev["targets"], indent=2), "```", ""]
+    return "\n".join(lines)
+
+
+def evaluate(ckpt: Path, args, progress: bool) -> dict:
+    dets = {
+        "learned": LearnedKinDetector(ckpt, args.threshold, positioning="regression", reports=False),
+        "learned_fit": LearnedKinDetector(ckpt, args.threshold, positioning="fit", reports=False),
+        "geometric": GeometricKinDetector(reports=False),
+    }
+    t0 = time.perf_counter()
+    tally = sweep(dets, args.eval_scenes, args.eval_first_seed, progress)
+    names = list(dets)
+    ev = {
+        "detectors": names,
+        "scenes_per_noise": args.eval_scenes,
+        "first_seed": args.eval_first_seed,
+        "scene_config": EVAL_CONFIG.to_dict(),
+        "gate_m": GATE,
+        "threshold": args.threshold,
+        "table": {n: tally.table(n, False) for n in names},
+        "table_ge2": {n: tally.table(n, True) for n in names},
+    }
+    ev["same_radius"] = []
+    for ni, nz in enumerate(EVAL_NOISE):
+        for b in range(len(DISTANCE_BINS) - 1):
+            seen = int(tally.c["same_seen"][0, ni, b])
+            row = {"noise": nz, "bin": bin_label(DISTANCE_BINS[b], DISTANCE_BINS[b + 1]), "seen": seen}
+            for di, n in enumerate(names):
+                row[n] = tally.c["same_detected"][di, ni, b] / seen if seen else float("nan")
+            ev["same_radius"].append(row)
+    ev["fp_per_category"] = {
+        n: {c: int(tally.fp_cat[di, :, k].sum()) for k, c in enumerate(CATEGORIES)}
+        for di, n in enumerate(names)
+    }
+    ev["centre_error"] = {
+        n: [
+            {
+                "median": float(np.median(e)) if e else None,
+                "p90": float(np.percentile(e, 90)) if e else None,
+                "mean": float(np.mean(e)) if e else None,
+                "n": len(e),
+            }
+            for e in tally.errors[n]
+        ]
+        for n in names
+    }
+    all_err = {
+        n: np.concatenate([np.asarray(e, float) for e in tally.errors[n]]) for n in ("learned", "learned_fit")
+    }
+    # the better positioning: lower mean centre error over every matched kin of the sweep (same
+    # classification, so the same segments up to gate effects), F1 as tie-break
+    ni1 = EVAL_NOISE.index(0.01)
+    f1 = {n: tally.pooled(n, ni1, 0.3, 2.0)["f1"] for n in names}
+    mean_err = {n: float(all_err[n].mean()) if all_err[n].size else math.inf for n in all_err}
+    ev["positioning"] = {
+        "mean_error_m": {"regression": mean_err["learned"], "fit": mean_err["learned_fit"]},
+        "f1_1pct_0.3_2m": {"regression": f1["learned"], "fit": f1["learned_fit"]},
+        "better": "regression"
+        if (mean_err["learned"], -f1["learned"]) <= (mean_err["learned_fit"], -f1["learned_fit"])
+        else "fit",
+    }
+    failing = []
+    for ni, nz in enumerate(EVAL_NOISE):
+        for b in range(len(DISTANCE_BINS) - 1):
+            if DISTANCE_BINS[b] < 0.3 or DISTANCE_BINS[b + 1] > 3.0:
+                continue
+            lf = ev["table_ge2"]["learned"][ni * (len(DISTANCE_BINS) - 1) + b]["f1"]
+            gf = ev["table_ge2"]["geometric"][ni * (len(DISTANCE_BINS) - 1) + b]["f1"]
+            if not (lf > gf) and not (math.isnan(gf) and not math.isnan(lf)):
+                failing.append(
+                    {
+                        "noise": nz,
+                        "bin": bin_label(DISTANCE_BINS[b], DISTANCE_BINS[b + 1]),
+                        "learned_f1": lf,
+                        "geometric_f1": gf,
+                    }
+                )
+    ev["targets"] = {
+        "learned_f1_1pct_noise_0.3_2m": tally.pooled("learned", ni1, 0.3, 2.0),
+        "geometric_f1_1pct_noise_0.3_2m": tally.pooled("geometric", ni1, 0.3, 2.0),
+        "bins_where_learned_not_above_geometric_ge2_beams": failing,
+        "learned_scans_per_s": throughput(LearnedKinDetector(ckpt, args.threshold)),
+        "learned_scans_per_s_no_reports": throughput(dets["learned"]),
+        "geometric_scans_per_s": throughput(GeometricKinDetector()),
+    }
+    ev["seconds"] = time.perf_counter() - t0
+    return ev
+
+
+# --------------------------------------------------------------------------- main
+
+
+def main(argv=None) -> dict:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--data", required=True, type=Path, help="dataset directory (scripts/make_dataset.py)")
+    ap.add_argument("--out", required=True, type=Path, help="output directory for logs and evaluation")
+    ap.add_argument("--checkpoint", type=Path, default=None, help="checkpoint path (default: OUT/learned.pt)")
+    ap.add_argument("--seed", type=int, default=0, help="seed of the split, initialisation and shuffling")
+    ap.add_argument("--config", default=None, help="TrainConfig overrides: JSON object or file")
+    ap.add_argument("--val-fraction", type=float, default=0.15, help="fraction of scenes for validation")
+    ap.add_argument("--threshold", type=float, default=0.5, help="p(kin) threshold for the metrics")
+    ap.add_argument(
+        "--positioning",
+        choices=("auto", "regression", "fit"),
+        default="auto",
+        help="positioning stored in the checkpoint (auto: the better on the sweep)",
+    )
+    ap.add_argument(
+        "--eval-scenes", type=int, default=0, help="held-out scenes per noise level (0: no sweep)"
+    )
+    ap.add_argument("--eval-first-seed", type=int, default=1_000_000, help="first seed of the held-out sweep")
+    ap.add_argument("--threads", type=int, default=1, help="torch threads (1: best on a busy machine)")
+    ap.add_argument("--no-progress", action="store_true", help="no progress bars")
+    args = ap.parse_args(argv)
+    if not 0 < args.val_fraction < 1:
+        ap.error(f"--val-fraction must be in (0, 1), got {args.val_fraction}")
+    if args.eval_scenes < 0 or args.threads < 1:
+        ap.error("--eval-scenes must be >= 0 and --threads >= 1")
+    try:
+        tcfg = TrainConfig.from_dict(parse_json_arg(args.config, "--config"))
+    except ValueError as e:
+        ap.error(str(e))
+    torch.set_num_threads(args.threads)
+    progress = not args.no_progress
+    command = [sys.executable, *sys.argv] if argv is None else ["train_classifier.py", *map(str, argv)]
+    args.out.mkdir(parents=True, exist_ok=True)
+    ckpt = args.checkpoint or args.out / "learned.pt"
+    t_start = time.perf_counter()
+
+    segs, objs, manifest = load_dataset(args.data)
+    fcfg = _feature_config(manifest)
+    rng = np.random.default_rng(args.seed)
+    is_val = split_by_scene(segs["seed"], args.val_fraction, rng)
+    tgt = targets(segs)
+    keep = ~segs["same_radius"]  # indistinguishable from kin in one scan: not a training negative
+
+    def part(m):
+        return {"x": segs["x"][m], "y": segs["label"][m], "target": tgt[m]}
+
+    log_path = args.out / "train_log.csv"
+    with log_path.open("w", newline="") as f:
+        writer = None
+
+        def log(rec):
+            nonlocal writer
+            if writer is None:
+                writer = csv.DictWriter(f, fieldnames=list(rec))
+                writer.writeheader()
+            writer.writerow(rec)
+            f.flush()
+
+        t0 = time.perf_counter()
+        model, history = train_segment_net(
+            part(keep & ~is_val), part(keep & is_val), tcfg, args.seed, log, progress
+        )
+        train_seconds = time.perf_counter() - t0
+
+    val_seeds = np.unique(segs["seed"][is_val])
+    vs = {k: v[is_val] for k, v in segs.items()}
+    vo = {k: v[np.isin(objs["seed"], val_seeds)] for k, v in objs.items()}
+    p, xy = predict(model, vs["x"], vs["frames"])
+    val = validation_metrics(vs, vo, p, xy, args.threshold)
+    (args.out / "validation.json").write_text(json.dumps(val, indent=2))
+
+    lidar_res = 2 * math.pi / 360  # the dataset's lidar (LidarSpec default, RPLIDAR A1)
+    info = {
+        "command": command,
+        "seed": args.seed,
+        "train_config": tcfg.to_dict(),
+        "data": {
+            "path": str(args.data),
+            "seeds": manifest["seeds"],
+            "counts": manifest["counts"],
+            "dataset_config": manifest["dataset_config"],
+        },
+        "split": {
+            "val_fraction": args.val_fraction,
+            "val_scenes": int(len(val_seeds)),
+            "train_segments": int((keep & ~is_val).sum()),
+            "val_segments": int((keep & is_val).sum()),
+        },
+        "epochs_run": len(history),
+        "train_seconds": round(train_seconds, 1),
+        "validation": val,
+    }
+    positioning = "regression" if args.positioning == "auto" else args.positioning
+    save_checkpoint(ckpt, model, fcfg, positioning=positioning, angular_resolution=lidar_res, info=info)
+    ev = None
+    if args.eval_scenes:
+        ev = evaluate(ckpt, args, progress)
+        (args.out / "eval.json").write_text(json.dumps(ev, indent=2))
+        (args.out / "eval.md").write_text(markdown(ev))
+        if args.positioning == "auto":
+            positioning = ev["positioning"]["better"]
+        info["evaluation"] = {
+            k: ev[k] for k in ("targets", "positioning", "centre_error", "scenes_per_noise", "first_seed")
+        }
+        model, _ = load_checkpoint(ckpt)
+        save_checkpoint(ckpt, model, fcfg, positioning=positioning, angular_resolution=lidar_res, info=info)
+    info["positioning"] = positioning
+    info["total_seconds"] = round(time.perf_counter() - t_start, 1)
+    info["python"], info["torch"] = platform.python_version(), torch.__version__
+    sidecar = {"checkpoint": str(ckpt), "feature_config": fcfg.to_dict(), **info}
+    ckpt.with_suffix(".json").write_text(json.dumps(sidecar, indent=2))
+    (args.out / "config.json").write_text(json.dumps(sidecar, indent=2))
+    print(
+        f"checkpoint {ckpt} ({ckpt.stat().st_size / 1e3:.0f} kB), positioning {positioning}; "
+        f"validation kin F1 {val['kin']['f1']:.3f}; training {train_seconds:.0f} s"
+    )
+    if ev is not None:
+        t = ev["targets"]
+        print(
+            f"held-out 1 % noise, 0.3-2 m: learned F1 {t['learned_f1_1pct_noise_0.3_2m']['f1']:.3f}, "
+            f"geometric {t['geometric_f1_1pct_noise_0.3_2m']['f1']:.3f}; "
+            f"learned {t['learned_scans_per_s']:.0f} scans/s"
+        )
+    return sidecar
+
+
+def _feature_config(manifest: dict):
+    from detectors.features import FeatureConfig
+
+    return FeatureConfig.from_dict(manifest["feature_config"])
+
+
+if __name__ == "__main__":
+    main()
