@@ -425,12 +425,11 @@ def main(argv: list[str] | None = None) -> dict:
     }
     (out / "results.json").write_text(json.dumps(_plain(results), indent=2, allow_nan=False))
     (out / "run.json").write_text(json.dumps(_plain(run), indent=2, allow_nan=False))
-    if not args.no_progress:
-        print(md)
-        print(
-            f"wrote {out}/results.md, results.json, run.json and {len(figures)} figures "
-            f"in {run['seconds']['total']:.1f} s"
-        )
+    print(md)
+    print(
+        f"wrote {out}/results.md, results.json, run.json and {len(figures)} figures "
+        f"in {run['seconds']['total']:.1f} s"
+    )
     return {"evaluations": evals, "results": results, "run": run, "markdown": md}
 
 
