@@ -263,12 +263,14 @@ def noise_study(number: int, distance: float, noise: float, repeats: int, rng, d
     out = []
     for k in keys:
         e = np.asarray(errors[k])
+        x, y = _centre(scene, k)
         out.append(
             {
                 "scenario": SCENARIO_NAMES[number],
                 "distance": distance,
                 "noise": noise,
                 "object": object_label(scene, k),
+                "bearing_deg": math.degrees(math.atan2(y, x)),
                 "paper": paper_stage(number, scene, k),
                 "runs": runs,
                 "outcome_rate": hits[k][0] / runs,
@@ -323,7 +325,7 @@ def sensitivity_markdown(rows: list[dict], distances) -> str:
     ]
     by_obj: dict = {}
     for r in rows:
-        by_obj.setdefault((r["scenario"], round(r["bearing_deg"]), r["object"], r["paper"]), {})[
+        by_obj.setdefault((r["scenario"], round(r["bearing_deg"], 1), r["object"], r["paper"]), {})[
             r["distance"]
         ] = r
     for (sc, bearing, obj, paper), per_d in by_obj.items():
@@ -331,9 +333,15 @@ def sensitivity_markdown(rows: list[dict], distances) -> str:
         for d in distances:
             r = per_d.get(d)
             cells.append("–" if r is None else f"{_pct(r['outcome_rate'])} ({_pct(r['stage_rate'])})")
-        side = "" if bearing == 0 else (" (right)" if bearing < 0 else " (left)")
-        lines.append(f"| {sc} | {obj}{side} at {bearing:+d}° | {paper} | " + " | ".join(cells) + " |")
+        lines.append(
+            f"| {sc} | {_side(obj, bearing)} at {bearing:+.1f}° | {paper} | " + " | ".join(cells) + " |"
+        )
     return "\n".join(lines) + "\n"
+
+
+def _side(name: str, bearing_deg: float) -> str:
+    """``name`` with the side of the observer it stands on (the two hexagons share a name)."""
+    return name if abs(bearing_deg) < 1e-9 else f"{name} ({'right' if bearing_deg < 0 else 'left'})"
 
 
 def noise_markdown(rows: list[dict]) -> str:
@@ -357,7 +365,7 @@ def noise_markdown(rows: list[dict]) -> str:
         cols = []
         for r in sub:
             if r["distance"] == sub[0]["distance"] and r["noise"] == sub[0]["noise"]:
-                cols.append(r["object"])
+                cols.append(_side(r["object"], r["bearing_deg"]))
         out.append("| distance | noise | " + " | ".join(cols) + " | kin error mean | kin error p95 |")
         out.append("|---:|---:|" + "---:|" * (len(cols) + 2))
         groups: dict = {}
