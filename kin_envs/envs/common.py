@@ -196,7 +196,8 @@ class CommonConfig:
 def resolve_detector(spec: Any, where: str = "kin_envs"):
     """The ``detector=`` argument → a detector object or ``None``.
 
-    ``"geometric"`` → ``detectors.GeometricKinDetector()``; ``"learned"`` →
+    ``"geometric"`` → ``detectors.GeometricKinDetector(reports=False)`` (the env only needs the
+    detections, and per-segment reports cost most of the detector's time); ``"learned"`` →
     ``detectors.LearnedKinDetector()`` if that exists (it needs the ``train`` extra). The
     ``detectors`` package is imported here, lazily, so ``import kin_envs`` stays light.
     """
@@ -205,7 +206,7 @@ def resolve_detector(spec: Any, where: str = "kin_envs"):
     if spec == "geometric":
         from detectors import GeometricKinDetector
 
-        return GeometricKinDetector()
+        return GeometricKinDetector(reports=False)
     if spec == "learned":
         try:
             from detectors import LearnedKinDetector
