@@ -154,8 +154,13 @@ class World:
         self._commands = np.zeros((self.n_robots, 2))
         self._scratch: tuple[np.ndarray, np.ndarray] | None = None  # raycaster output buffers
         self._batch_buf = pmbatch.Buffer()
+        self._set_buf = pmbatch.Buffer()
         self._robot_ids = np.array([b.id for b in self.robot_bodies], dtype=np.uintp)
         self._robot_slots: np.ndarray | None = None
+        self._control_slots = self._slots(
+            "_control_slots_", np.array([c.id for c in self._controls], np.uintp)
+        )
+        self._build_contact_lookup()
         self.contacts = np.zeros(self.n_robots, dtype=np.int8)
 
     # -- construction -----------------------------------------------------------------------------
@@ -304,6 +309,8 @@ class World:
 
     # -- state ------------------------------------------------------------------------------------
     _STATE_FIELDS = pmbatch.BodyFields.BODY_ID | pmbatch.BodyFields.POSITION | pmbatch.BodyFields.ANGLE
+    _DRIVE_GET = pmbatch.BodyFields.ANGLE | pmbatch.BodyFields.VELOCITY | pmbatch.BodyFields.ANGULAR_VELOCITY
+    _DRIVE_SET = pmbatch.BodyFields.VELOCITY | pmbatch.BodyFields.ANGULAR_VELOCITY
 
     def _robot_rows(self) -> np.ndarray:
         """``(n_robots, 3)`` raw ``x, y, angle`` of the robot bodies in one batched pymunk call
@@ -311,17 +318,19 @@ class World:
         buf = self._batch_buf
         buf.clear()
         pmbatch.get_space_bodies(self.space, self._STATE_FIELDS, buf)
-        ids = np.frombuffer(buf.int_buf(), dtype=np.uintp)
         rows = np.frombuffer(buf.float_buf(), dtype=np.float64).reshape(-1, 3)
-        slots = self._robot_slots
-        if (
-            slots is None
-            or len(ids) <= slots.max(initial=-1)
-            or not np.array_equal(ids[slots], self._robot_ids)
-        ):
-            where = {int(b): k for k, b in enumerate(ids)}
-            slots = self._robot_slots = np.array([where[int(b)] for b in self._robot_ids], dtype=np.int64)
-        return rows[slots]
+        return rows[self._slots("_robot_slots", self._robot_ids)]
+
+    def _slots(self, name: str, ids: np.ndarray) -> np.ndarray:
+        """Rows of ``ids``' bodies in pymunk's batch order (fixed: bodies are never added or removed)."""
+        slots = getattr(self, name, None)
+        if slots is None:
+            buf = pmbatch.Buffer()
+            pmbatch.get_space_bodies(self.space, pmbatch.BodyFields.BODY_ID, buf)
+            where = {int(b): k for k, b in enumerate(np.frombuffer(buf.int_buf(), dtype=np.uintp))}
+            slots = np.array([where[int(b)] for b in ids], dtype=np.int64)
+            setattr(self, name, slots)
+        return slots
 
     @property
     def poses(self) -> np.ndarray:
@@ -406,12 +415,20 @@ class World:
         wheels = wheels * np.minimum(1.0, limit / np.maximum(peak, 1e-12))
         self._commands = self.wheel_speeds_to_unicycle(wheels)
         dt = self.config.physics_dt
-        vs, omegas = self._commands[:, 0].tolist(), self._commands[:, 1].tolist()
+        v, omega = self._commands[:, 0], self._commands[:, 1]
+        buf, rs, cs = self._batch_buf, self._slots("_robot_slots", self._robot_ids), self._control_slots
         for _ in range(self.config.substeps):
-            for body, control, v, w in zip(self.robot_bodies, self._controls, vs, omegas, strict=True):
-                a = body.angle
-                control.velocity = (v * math.cos(a), v * math.sin(a))
-                control.angular_velocity = w
+            # one batched read and write per substep instead of ~3 pymunk attribute calls per robot
+            buf.clear()
+            pmbatch.get_space_bodies(self.space, self._DRIVE_GET, buf)
+            rows = np.frombuffer(buf.float_buf(), dtype=np.float64).reshape(-1, 4)  # angle, vx, vy, w
+            vel = rows[:, 1:].copy()
+            heading = rows[rs, 0]
+            vel[cs, 0] = v * np.cos(heading)
+            vel[cs, 1] = v * np.sin(heading)
+            vel[cs, 2] = omega
+            self._set_buf.set_float_buf(vel)
+            pmbatch.set_space_bodies(self.space, self._DRIVE_SET, self._set_buf)
             self.space.step(dt)
         self.time += self.config.substeps * dt
         self._update_contacts()
@@ -421,17 +438,33 @@ class World:
         """The ``(v, omega)`` commands applied in the last step, after limiting."""
         return self._commands.copy()
 
+    def _build_contact_lookup(self) -> None:
+        ids = np.array(list(self._body_owner), dtype=np.uintp)
+        order = np.argsort(ids)
+        self._owner_ids = ids[order]
+        owners = [self._body_owner[int(b)] for b in self._owner_ids]
+        self._owner_flag = np.array([f for f, _ in owners], dtype=np.int8)
+        self._owner_robot = np.array([i if f == Contact.ROBOT else -1 for f, i in owners], dtype=np.int64)
+        self._arb_buf = pmbatch.Buffer()
+
     def _update_contacts(self) -> None:
+        """What each robot touches now, from pymunk's arbiters in one batched call."""
+        buf = self._arb_buf
+        buf.clear()
+        pmbatch.get_space_arbiters(
+            self.space, pmbatch.ArbiterFields.BODY_A_ID | pmbatch.ArbiterFields.BODY_B_ID, buf
+        )
+        pairs = np.frombuffer(buf.int_buf(), dtype=np.uintp).reshape(-1, 2)
         contacts = np.zeros(self.n_robots, dtype=np.int8)
-        owner, bodies = self._body_owner, self.robot_bodies
-
-        def visit(arb: pymunk.Arbiter, i: int) -> None:
-            a, b = arb.bodies
-            other = b if a is bodies[i] else a
-            contacts[i] |= owner.get(other.id, (Contact.WALL, -1))[0]
-
-        for i, body in enumerate(bodies):
-            body.each_arbiter(visit, i)
+        if len(pairs):
+            k = np.searchsorted(self._owner_ids, pairs)
+            k = np.minimum(k, len(self._owner_ids) - 1)
+            known = self._owner_ids[k] == pairs
+            flag = np.where(known, self._owner_flag[k], Contact.WALL).astype(np.int8)
+            robot = np.where(known, self._owner_robot[k], -1)
+            for me, other in ((0, 1), (1, 0)):
+                m = robot[:, me] >= 0
+                np.bitwise_or.at(contacts, robot[m, me], flag[m, other])
         self.contacts = contacts
 
     # -- sensing ----------------------------------------------------------------------------------
