@@ -28,7 +28,7 @@ from functools import cached_property
 import numba
 import numpy as np
 
-__all__ = ["HitKind", "LidarSpec", "cast_rays", "scan_shapes", "polygon_edges"]
+__all__ = ["HitKind", "LidarSpec", "cast_rays", "cast_scan", "scan_shapes", "polygon_edges"]
 
 
 class HitKind(IntEnum):
@@ -139,112 +139,185 @@ def _ccw(v: np.ndarray) -> np.ndarray:
     return v if area2 > 0 else v[::-1]
 
 
-@numba.njit(cache=True, nogil=True)
-def _cast_kernel(ox, oy, heading, n_beams, range_max, circles, circle_skip, segments, out_dist, out_prim):
-    """Cast ``n_beams`` beams from each origin. Writes the nearest hit distance and primitive id.
+@numba.njit(cache=True, nogil=True, inline="always")
+def _cast_one(x0, y0, h, skip, range_max, circles, segments, cos_tab, sin_tab, best_d, best_p):
+    """Cast one origin's beams into ``best_d`` / ``best_p`` (nearest distance and primitive id).
 
     Beams with no hit within ``range_max`` get distance ``range_max`` and primitive -1.
-    Primitive ids: circles are ``0..C-1``, segments ``C..C+S-1``; -1 = no hit.
-    ``circle_skip[n]`` is the circle index of robot n's own housing (never hit by its own beams).
-    Beam ``i`` of robot ``n`` has world direction ``heading[n] - i*res``.
+    Primitive ids: circles are ``0..C-1``, segments ``C..C+S-1``. Circle ``skip`` (the robot's own
+    housing) is ignored. Beam ``i`` has world direction ``h - i*res``.
     Segments are one-sided: only a beam arriving from the segment's right-hand side (looking from
     its first to its second point) can hit it, i.e. the outside of a CCW polygon. A convex solid's
     back faces can never be the first hit, so culling them halves the work exactly.
     """
+    n_beams = best_d.shape[0]
+    res = 2.0 * math.pi / n_beams
+    n_c = circles.shape[0]
+    n_s = segments.shape[0]
+    rmax2 = range_max * range_max
+    ch = math.cos(h)
+    sh = math.sin(h)
+    for i in range(n_beams):
+        best_d[i] = range_max  # hits beyond range_max are never recorded
+        best_p[i] = -1
+    for c in range(n_c):
+        if c == skip:
+            continue
+        dx = circles[c, 0] - x0
+        dy = circles[c, 1] - y0
+        r = circles[c, 2]
+        d2 = dx * dx + dy * dy
+        d = math.sqrt(d2)
+        if d - r > range_max or d <= r:
+            # out of range, or the origin is inside the circle (not a physical state)
+            continue
+        # half-angle subtended: asin(r/d) = atan(r / sqrt(d^2 - r^2))
+        half = _fast_atan2(r, math.sqrt(d2 - r * r)) + _EPS
+        phi = _fast_atan2(dy, dx) - h  # bearing of the centre relative to the heading
+        # beam i points at -i*res: beams within [phi-half, phi+half] have i in
+        # [-(phi+half)/res, -(phi-half)/res]
+        k0 = int(math.ceil(-(phi + half) / res))
+        k1 = int(math.floor(-(phi - half) / res))
+        cc = d2 - r * r
+        for k in range(k0, k1 + 1):
+            i = k % n_beams
+            # direction of heading - i*res, by rotation (no trig in the inner loop)
+            ux = ch * cos_tab[i] + sh * sin_tab[i]
+            uy = sh * cos_tab[i] - ch * sin_tab[i]
+            b = dx * ux + dy * uy
+            disc = b * b - cc
+            if disc < 0.0 or b <= 0.0:
+                continue
+            t = b - math.sqrt(disc)
+            if t > 0.0 and t < best_d[i]:
+                best_d[i] = t
+                best_p[i] = c
+    for s in range(n_s):
+        ax = segments[s, 0] - x0
+        ay = segments[s, 1] - y0
+        bx = segments[s, 2] - x0
+        by = segments[s, 3] - y0
+        ex = bx - ax
+        ey = by - ay
+        # back face: the origin is on the left of A->B (or on its line)
+        if ey * ax - ex * ay >= 0.0:
+            continue
+        ee = ex * ex + ey * ey
+        u = -(ax * ex + ay * ey) / ee
+        u = min(1.0, max(0.0, u))
+        px = ax + u * ex
+        py = ay + u * ey
+        if px * px + py * py > rmax2:
+            continue
+        th_a = _fast_atan2(ay, ax) - h
+        span = _fast_atan2(ax * by - ay * bx, ax * bx + ay * by)  # signed angle A -> B
+        lo = th_a + min(0.0, span) - _EPS
+        hi = th_a + max(0.0, span) + _EPS
+        k0 = int(math.ceil(-hi / res))
+        k1 = int(math.floor(-lo / res))
+        for k in range(k0, k1 + 1):
+            i = k % n_beams
+            ux = ch * cos_tab[i] + sh * sin_tab[i]
+            uy = sh * cos_tab[i] - ch * sin_tab[i]
+            den = ux * ey - uy * ex  # cross(u, e)
+            if den == 0.0:
+                continue
+            # origin + t u = A + s e  ->  t = cross(A, e)/cross(u, e), s = cross(A, u)/cross(u, e)
+            t = (ax * ey - ay * ex) / den
+            sp = (ax * uy - ay * ux) / den
+            if t > 0.0 and 0.0 <= sp <= 1.0 and t < best_d[i]:
+                best_d[i] = t
+                best_p[i] = n_c + s
+
+
+@numba.njit(cache=True, nogil=True)
+def _beam_tables(n_beams):
     res = 2.0 * math.pi / n_beams
     cos_tab = np.empty(n_beams)
     sin_tab = np.empty(n_beams)
     for i in range(n_beams):
         cos_tab[i] = math.cos(i * res)
         sin_tab[i] = math.sin(i * res)
-    n_rob = ox.shape[0]
-    n_c = circles.shape[0]
-    n_s = segments.shape[0]
-    rmax2 = range_max * range_max
-    # per-robot work happens in two small buffers that stay in L1 cache; each robot's row of the
-    # (large, often cold) outputs is then written once, sequentially
+    return cos_tab, sin_tab
+
+
+@numba.njit(cache=True, nogil=True)
+def _cast_kernel(ox, oy, heading, n_beams, range_max, circles, circle_skip, segments, out_dist, out_prim):
+    """:func:`_cast_one` for every origin (``out_dist`` = ``inf`` where nothing is hit)."""
+    cos_tab, sin_tab = _beam_tables(n_beams)
     best_d = np.empty(n_beams)
     best_p = np.empty(n_beams, dtype=np.int32)
-    for n in range(n_rob):
-        x0 = ox[n]
-        y0 = oy[n]
-        h = heading[n]
-        ch = math.cos(h)
-        sh = math.sin(h)
+    for n in range(ox.shape[0]):
+        _cast_one(
+            ox[n],
+            oy[n],
+            heading[n],
+            circle_skip[n],
+            range_max,
+            circles,
+            segments,
+            cos_tab,
+            sin_tab,
+            best_d,
+            best_p,
+        )
         for i in range(n_beams):
-            best_d[i] = range_max  # hits beyond range_max are never recorded
-            best_p[i] = -1
-        for c in range(n_c):
-            if c == circle_skip[n]:
-                continue
-            dx = circles[c, 0] - x0
-            dy = circles[c, 1] - y0
-            r = circles[c, 2]
-            d2 = dx * dx + dy * dy
-            d = math.sqrt(d2)
-            if d - r > range_max or d <= r:
-                # out of range, or the origin is inside the circle (not a physical state)
-                continue
-            # half-angle subtended: asin(r/d) = atan(r / sqrt(d^2 - r^2))
-            half = _fast_atan2(r, math.sqrt(d2 - r * r)) + _EPS
-            phi = _fast_atan2(dy, dx) - h  # bearing of the centre relative to the heading
-            # beam i points at -i*res: beams within [phi-half, phi+half] have i in
-            # [-(phi+half)/res, -(phi-half)/res]
-            k0 = int(math.ceil(-(phi + half) / res))
-            k1 = int(math.floor(-(phi - half) / res))
-            cc = d2 - r * r
-            for k in range(k0, k1 + 1):
-                i = k % n_beams
-                # direction of heading - i*res, by rotation (no trig in the inner loop)
-                ux = ch * cos_tab[i] + sh * sin_tab[i]
-                uy = sh * cos_tab[i] - ch * sin_tab[i]
-                b = dx * ux + dy * uy
-                disc = b * b - cc
-                if disc < 0.0 or b <= 0.0:
-                    continue
-                t = b - math.sqrt(disc)
-                if t > 0.0 and t < best_d[i]:
-                    best_d[i] = t
-                    best_p[i] = c
-        for s in range(n_s):
-            ax = segments[s, 0] - x0
-            ay = segments[s, 1] - y0
-            bx = segments[s, 2] - x0
-            by = segments[s, 3] - y0
-            ex = bx - ax
-            ey = by - ay
-            # back face: the origin is on the left of A->B (or on its line)
-            if ey * ax - ex * ay >= 0.0:
-                continue
-            ee = ex * ex + ey * ey
-            u = -(ax * ex + ay * ey) / ee
-            u = min(1.0, max(0.0, u))
-            px = ax + u * ex
-            py = ay + u * ey
-            if px * px + py * py > rmax2:
-                continue
-            th_a = _fast_atan2(ay, ax) - h
-            span = _fast_atan2(ax * by - ay * bx, ax * bx + ay * by)  # signed angle A -> B
-            lo = th_a + min(0.0, span) - _EPS
-            hi = th_a + max(0.0, span) + _EPS
-            k0 = int(math.ceil(-hi / res))
-            k1 = int(math.floor(-lo / res))
-            for k in range(k0, k1 + 1):
-                i = k % n_beams
-                ux = ch * cos_tab[i] + sh * sin_tab[i]
-                uy = sh * cos_tab[i] - ch * sin_tab[i]
-                den = ux * ey - uy * ex  # cross(u, e)
-                if den == 0.0:
-                    continue
-                # origin + t u = A + s e  ->  t = cross(A, e)/cross(u, e), s = cross(A, u)/cross(u, e)
-                t = (ax * ey - ay * ex) / den
-                sp = (ax * uy - ay * ux) / den
-                if t > 0.0 and 0.0 <= sp <= 1.0 and t < best_d[i]:
-                    best_d[i] = t
-                    best_p[i] = n_c + s
-        for i in range(n_beams):
-            out_dist[n, i] = best_d[i]
             out_prim[n, i] = best_p[i]
+            out_dist[n, i] = best_d[i] if best_p[i] >= 0 else np.inf
+
+
+@numba.njit(cache=True, nogil=True)
+def _scan_kernel(
+    ox,
+    oy,
+    heading,
+    n_beams,
+    range_min,
+    range_max,
+    circles,
+    circle_skip,
+    segments,
+    prim_kind,
+    prim_index,
+    out_ranges,
+    out_true,
+    out_kind,
+    out_index,
+):
+    """The world's scan in one pass: noise-free readings and per-beam ground truth.
+
+    Per robot the work happens in small buffers that stay in L1 cache and each output row is written
+    once, sequentially (no intermediate arrays to evict the caches between robots).
+    ``prim_kind`` / ``prim_index`` are owner tables indexed by primitive id + 1 (slot 0 = no hit).
+    """
+    cos_tab, sin_tab = _beam_tables(n_beams)
+    best_d = np.empty(n_beams)
+    best_p = np.empty(n_beams, dtype=np.int32)
+    for n in range(ox.shape[0]):
+        _cast_one(
+            ox[n],
+            oy[n],
+            heading[n],
+            circle_skip[n],
+            range_max,
+            circles,
+            segments,
+            cos_tab,
+            sin_tab,
+            best_d,
+            best_p,
+        )
+        for i in range(n_beams):
+            p = best_p[i] + 1
+            d = best_d[i]
+            out_kind[n, i] = prim_kind[p]
+            out_index[n, i] = prim_index[p]
+            if p == 0:
+                out_true[n, i] = np.inf
+                out_ranges[n, i] = range_max
+            else:
+                out_true[n, i] = d
+                out_ranges[n, i] = d if d >= range_min else range_max
 
 
 def cast_rays(
@@ -307,8 +380,50 @@ def cast_rays(
         dist,
         prim,
     )
-    dist[prim < 0] = np.inf
     return dist, prim
+
+
+def cast_scan(
+    origins: np.ndarray,
+    headings: np.ndarray,
+    circles: np.ndarray,
+    segments: np.ndarray,
+    skip_circle: np.ndarray,
+    prim_kind: np.ndarray,
+    prim_index: np.ndarray,
+    spec: LidarSpec,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Noise-free lidar readings plus per-beam ground truth, fused in one kernel pass.
+
+    ``prim_kind`` / ``prim_index`` give each primitive's owner, indexed by primitive id + 1 (slot 0
+    is "no hit"). Returns ``ranges`` (float32, ``range_max`` for no return or a surface closer than
+    ``range_min``), ``true_ranges`` (float32, ``inf`` for no hit), ``hit_kind`` (int8) and
+    ``hit_index`` (int32), each ``(N, n_beams)``.
+    """
+    origins = np.ascontiguousarray(origins, dtype=np.float64).reshape(-1, 2)
+    n, nb = origins.shape[0], spec.n_beams
+    ranges = np.empty((n, nb), np.float32)
+    true = np.empty((n, nb), np.float32)
+    kind = np.empty((n, nb), np.int8)
+    index = np.empty((n, nb), np.int32)
+    _scan_kernel(
+        origins[:, 0].copy(),
+        origins[:, 1].copy(),
+        np.ascontiguousarray(headings, dtype=np.float64).reshape(n),
+        int(nb),
+        float(spec.range_min),
+        float(spec.range_max),
+        np.ascontiguousarray(circles, dtype=np.float64).reshape(-1, 3),
+        np.ascontiguousarray(skip_circle, dtype=np.int64).reshape(n),
+        np.ascontiguousarray(segments, dtype=np.float64).reshape(-1, 4),
+        np.ascontiguousarray(prim_kind, dtype=np.int8),
+        np.ascontiguousarray(prim_index, dtype=np.int32),
+        ranges,
+        true,
+        kind,
+        index,
+    )
+    return ranges, true, kind, index
 
 
 def scan_shapes(

@@ -23,7 +23,7 @@ import pymunk
 import pymunk.batch as pmbatch
 
 from kin_envs.core._validate import check_positive
-from kin_envs.core.lidar import HitKind, cast_rays, polygon_edges
+from kin_envs.core.lidar import HitKind, cast_scan, polygon_edges
 from kin_envs.core.scenes import Robot, Scene
 
 __all__ = ["WorldConfig", "World", "Scan", "Contact", "LIDAR_QUERY_FILTER"]
@@ -152,7 +152,6 @@ class World:
         self._build_space()
         self._build_lidar_geometry()
         self._commands = np.zeros((self.n_robots, 2))
-        self._scratch: tuple[np.ndarray, np.ndarray] | None = None  # raycaster output buffers
         self._batch_buf = pmbatch.Buffer()
         self._set_buf = pmbatch.Buffer()
         self._robot_ids = np.array([b.id for b in self.robot_bodies], dtype=np.uintp)
@@ -482,32 +481,20 @@ class World:
         all_poses = self.poses
         self._update_lidar_geometry(all_poses)
         poses = all_poses[idx]
-        if self._scratch is None or self._scratch[0].shape[0] != len(idx):
-            self._scratch = (np.empty((len(idx), spec.n_beams)), np.empty((len(idx), spec.n_beams), np.int32))
-        dist, prim = cast_rays(
-            poses[:, :2],
-            poses[:, 2],
-            self._circles,
-            self._segments,
-            spec.n_beams,
-            spec.range_max,
-            skip_circle=idx,
-            out=self._scratch,
-        )
-        hit = prim + 1  # slot 0 of the owner tables is "no hit"
-        hit_kind = self._prim_kind[hit]
-        hit_index = self._prim_index[hit]
-        true_ranges = dist.astype(np.float32)
-        if noise and spec.noise_sigma > 0:
-            hit_mask = prim >= 0
-            dist[hit_mask] += (
-                self.rng.normal(0.0, 1.0, int(hit_mask.sum())) * spec.noise_sigma * dist[hit_mask]
-            )
-        invalid = ~(dist >= spec.range_min) | (dist > spec.range_max)  # also inf / nan
-        if noise and spec.dropout_prob > 0:
-            invalid |= self.rng.random(dist.shape) < spec.dropout_prob
-        dist[invalid] = spec.range_max
-        ranges = dist.astype(np.float32)
+        ranges, true_ranges, hit_kind, hit_index = cast_scan(
+            poses[:, :2], poses[:, 2], self._circles, self._segments, idx, self._prim_kind,
+            self._prim_index, spec,
+        )  # fmt: skip
+        if noise and (spec.noise_sigma > 0 or spec.dropout_prob > 0):
+            hit = np.isfinite(true_ranges)
+            d = true_ranges[hit].astype(np.float64)
+            if spec.noise_sigma > 0:
+                d += self.rng.normal(0.0, 1.0, d.size) * spec.noise_sigma * d
+            invalid = (d < spec.range_min) | (d > spec.range_max)
+            if spec.dropout_prob > 0:
+                invalid |= self.rng.random(d.size) < spec.dropout_prob
+            d[invalid] = spec.range_max
+            ranges[hit] = d
         return Scan(
             ranges=ranges,
             angles=spec.angles,
