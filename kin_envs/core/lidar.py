@@ -179,8 +179,11 @@ def _cast_one(x0, y0, h, skip, range_max, circles, segments, cos_tab, sin_tab, b
         k0 = int(math.ceil(-(phi + half) / res))
         k1 = int(math.floor(-(phi - half) / res))
         cc = d2 - r * r
-        for k in range(k0, k1 + 1):
-            i = k % n_beams
+        i = k0 % n_beams - 1  # one modulo per primitive; the beam index then wraps by hand
+        for _ in range(k1 - k0 + 1):
+            i += 1
+            if i == n_beams:
+                i = 0
             # direction of heading - i*res, by rotation (no trig in the inner loop)
             ux = ch * cos_tab[i] + sh * sin_tab[i]
             uy = sh * cos_tab[i] - ch * sin_tab[i]
@@ -215,8 +218,11 @@ def _cast_one(x0, y0, h, skip, range_max, circles, segments, cos_tab, sin_tab, b
         hi = th_a + max(0.0, span) + _EPS
         k0 = int(math.ceil(-hi / res))
         k1 = int(math.floor(-lo / res))
-        for k in range(k0, k1 + 1):
-            i = k % n_beams
+        i = k0 % n_beams - 1
+        for _ in range(k1 - k0 + 1):
+            i += 1
+            if i == n_beams:
+                i = 0
             ux = ch * cos_tab[i] + sh * sin_tab[i]
             uy = sh * cos_tab[i] - ch * sin_tab[i]
             den = ux * ey - uy * ex  # cross(u, e)
