@@ -1,4 +1,8 @@
-"""Lidar kin detectors: the paper's geometric detector and the shared interface."""
+"""Lidar kin detectors: the paper's geometric detector, the learned one and the shared interface.
+
+``import detectors`` stays light (numpy/scipy): ``LearnedKinDetector`` (torch) is loaded on first
+access, and the evaluation harness lives in :mod:`detectors.evaluation`.
+"""
 
 from .base import (
     Detection,
@@ -29,8 +33,19 @@ from .geometric import (
     shape_error,
 )
 
+
+def __getattr__(name: str):
+    # torch is imported only when the learned detector is asked for
+    if name == "LearnedKinDetector":
+        from .learned import LearnedKinDetector
+
+        return LearnedKinDetector
+    raise AttributeError(f"module 'detectors' has no attribute {name!r}")
+
+
 __all__ = [
     "CircleFit",
+    "LearnedKinDetector",
     "Detection",
     "DetectionResult",
     "DiameterCheck",
