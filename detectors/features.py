@@ -29,7 +29,9 @@ Everything is vectorised over all segments of all scans of a batch.
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
+import operator
 from dataclasses import dataclass
 
 import numba
@@ -64,7 +66,7 @@ _ERR_FLOOR = 1e-4  # m: residuals enter as log(e + 0.1 mm): a noise-free circle 
 _OFF_CLIP = 0.1  # m: fitted-centre offsets
 _RES_CLIP = 0.03  # m: signed residuals of the circle fit in the residual profile
 _NOISE_Q = 0.3  # quantile of |second differences| used by scan_noise ...
-_NOISE_SCALE = 0.385 * math.sqrt(6.0)  # ... and its value for unit noise: 0.3-quantile of |N(0, 6)|
+_NOISE_SCALE = 0.385 * math.sqrt(20.0)  # ... and its value for unit noise: 0.3-quantile of |N(0, 20)|
 _CURV_CLIP = 60.0  # 1/m: curvature of circles below 1.7 cm radius; a kin is 28.6
 _GN_MAX_STEP = 0.05  # m: cap on one Gauss-Newton step (keeps 2-point fits from flying off)
 
@@ -147,6 +149,7 @@ _GEOMETRIC_NAMES = (
     "kasa_ok",  # >= 3 points and not collinear
     "log_line_rms",  # rms distance of the points from their best straight line
     "log_scan_noise",  # the scan's relative range noise, estimated from all its beams; log(x + 1e-4)
+    "log_scan_noise_n",  # log(1 + number of beam quadruples behind that estimate): how far to trust it
 )
 
 
@@ -195,6 +198,11 @@ class SegmentBatch:
         return [s for segs in self.segments for s in segs]
 
 
+_SEG_FIELDS = operator.attrgetter(
+    "first_beam", "last_beam", "prev_beam", "next_beam", "prev_nearer", "next_nearer", "beams"
+)
+
+
 def segment_batch(ranges, angles, config: FeatureConfig | None = None, circular: bool | None = None):
     """Pre-process and segment ``B`` scans with the geometric detector's own stages 1-2.
 
@@ -217,20 +225,26 @@ def segment_batch(ranges, angles, config: FeatureConfig | None = None, circular:
     for b in range(r.shape[0]):
         d[b] = preprocess(r[b], c.d_max, False, circ)
         segs.append(segment(d[b], d_th=c.d_th, d_max=c.d_max, circular=circ))
-    flat = [s for ss in segs for s in ss]
-    scan = np.repeat(np.arange(len(segs)), [len(ss) for ss in segs])
+    scan = np.repeat(np.arange(len(segs), dtype=np.int64), [len(ss) for ss in segs])
+    # one pass over the Segment objects (their attributes are what the batch is built from)
+    cols = list(zip(*map(_SEG_FIELDS, itertools.chain.from_iterable(segs)), strict=True))
+    if not cols:
+        cols = [()] * 7
+    first, last, prev, nxt, p_near, n_near, _ = cols
+    n = a.shape[0]
+    first = np.array(first, dtype=np.int64)
     return SegmentBatch(
         ranges=d,
         angles=a,
         circular=circ,
         segments=segs,
-        scan=scan.astype(np.int64),
-        first=np.array([s.first_beam for s in flat], dtype=np.int64),
-        count=np.array([s.beams.shape[0] for s in flat], dtype=np.int64),
-        prev_beam=np.array([-1 if s.prev_beam is None else s.prev_beam for s in flat], dtype=np.int64),
-        next_beam=np.array([-1 if s.next_beam is None else s.next_beam for s in flat], dtype=np.int64),
-        prev_nearer=np.array([s.prev_nearer for s in flat], dtype=bool),
-        next_nearer=np.array([s.next_nearer for s in flat], dtype=bool),
+        scan=scan,
+        first=first,
+        count=(np.array(last, dtype=np.int64) - first) % n + 1,
+        prev_beam=np.array([-1 if v is None else v for v in prev], dtype=np.int64),
+        next_beam=np.array([-1 if v is None else v for v in nxt], dtype=np.int64),
+        prev_nearer=np.array(p_near, dtype=bool),
+        next_nearer=np.array(n_near, dtype=bool),
     )
 
 
@@ -303,6 +317,7 @@ def _features_kernel(
     n_context,
     gn_iters,
     scan_noise,
+    noise_n,
     x,
     frames,
     fit_centre,
@@ -516,6 +531,7 @@ def _features_kernel(
             1.0 if kasa_ok else 0.0,
             _log_err(line_rms),
             math.log(scan_noise[scan[i]] + 1e-4),
+            math.log1p(float(noise_n[scan[i]])),
         )
         for val in g:
             x[i, col] = val
@@ -531,43 +547,53 @@ def _features_kernel(
 
 
 @numba.njit(cache=True, nogil=True)
-def _scan_noise_kernel(d, d_th, d_max, circular, out):
+def _scan_noise_kernel(d, d_th, d_max, circular, out, count):
     n_rows, n = d.shape
     buf = np.empty(n)
     for b in range(n_rows):
         k = 0
-        for i in range(n):
-            if not circular and (i == 0 or i == n - 1):
+        for i in range(n if circular else n - 3):
+            a0 = d[b, i]
+            a1 = d[b, (i + 1) % n]
+            a2 = d[b, (i + 2) % n]
+            a3 = d[b, (i + 3) % n]
+            if max(a0, a1, a2, a3) >= d_max:
                 continue
-            a = d[b, (i - 1) % n]
-            c = d[b, i]
-            e = d[b, (i + 1) % n]
-            if a < d_max and c < d_max and e < d_max and abs(c - a) <= d_th and abs(e - c) <= d_th:
-                buf[k] = abs(a - 2.0 * c + e) / c
-                k += 1
+            if abs(a1 - a0) > d_th or abs(a2 - a1) > d_th or abs(a3 - a2) > d_th:
+                continue
+            buf[k] = abs(a3 - 3.0 * a2 + 3.0 * a1 - a0) / (0.5 * (a1 + a2))
+            k += 1
         out[b] = np.quantile(buf[:k], _NOISE_Q) / _NOISE_SCALE if k >= 5 else 0.0
+        count[b] = k
 
 
-def scan_noise(batch: SegmentBatch, config: FeatureConfig | None = None) -> np.ndarray:
-    """``(B,)`` relative range noise of each scan (0.01 = 1 % of the distance), estimated from it.
+def scan_noise(batch: SegmentBatch, config: FeatureConfig | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Relative range noise of each scan (0.01 = 1 % of the distance), estimated from the scan itself.
 
-    Second differences ``d_{i-1} - 2 d_i + d_{i+1}`` of three beams on one surface are ~0 for any
-    smooth surface at 1 deg spacing and ``N(0, 6 sigma^2)`` for independent noise of std ``sigma``;
-    their 30th percentile (relative to ``d_i``), which curved edges of small objects barely move, is
-    ``0.385 * sqrt(6) * sigma``. A segment's residuals mean little without it: a noise-free 7 cm
-    prism fits a 3.5 cm circle as badly (~2 mm) as a kin seen with 0.5 % noise at 0.5 m.
-    0 when the scan has fewer than 5 such triples.
+    Third differences ``d_{i+3} - 3 d_{i+2} + 3 d_{i+1} - d_i`` of four consecutive beams on one
+    surface (no break of ``d_th`` between them) are ~0 for walls and for the slowly varying
+    curvature of round objects at 1 deg spacing, and ``N(0, 20 sigma^2)`` for independent noise of
+    std ``sigma``; their 30th percentile (relative to the range), which the grazing edges of small
+    objects barely move, is ``0.385 * sqrt(20) * sigma``. Second differences would not do: a 3.5 cm
+    circle's own curvature reads as ~0.5 % noise in a scan that sees nothing else (the paper's
+    empty world). A segment's residuals mean little without this: a noise-free 7 cm prism fits a
+    circle as badly (~2 mm) as a kin seen with 0.5 % noise at 0.5 m.
+
+    Returns ``(sigma (B,), n (B,))``: the estimate (0 with fewer than 5 quadruples) and the number
+    of quadruples it is based on.
     """
     c = config or FeatureConfig()
     out = np.empty(batch.ranges.shape[0])
+    count = np.empty(batch.ranges.shape[0], dtype=np.int64)
     _scan_noise_kernel(
         np.ascontiguousarray(batch.ranges, dtype=np.float64),
         float(c.d_th),
         float(c.d_max),
         batch.circular,
         out,
+        count,
     )
-    return out
+    return out, count
 
 
 def segment_features(batch: SegmentBatch, config: FeatureConfig | None = None) -> SegmentFeatures:
@@ -605,7 +631,7 @@ def segment_features(batch: SegmentBatch, config: FeatureConfig | None = None) -
         c.n_points,
         c.n_context,
         c.gn_iters,
-        scan_noise(batch, c),
+        *scan_noise(batch, c),
         x,
         frames,
         fit_centre,

@@ -478,7 +478,10 @@ def main(argv=None) -> dict:
     ckpt = args.checkpoint or args.out / "learned.pt"
     t_start = time.perf_counter()
 
-    segs, objs, manifest = load_dataset(args.data)
+    try:
+        segs, objs, manifest = load_dataset(args.data)
+    except (FileNotFoundError, ValueError) as e:
+        raise SystemExit(f"train_classifier.py: {e}") from None
     fcfg = _feature_config(manifest)
     rng = np.random.default_rng(args.seed)
     is_val = split_by_scene(segs["seed"], args.val_fraction, rng)
@@ -523,6 +526,8 @@ def main(argv=None) -> dict:
             "seeds": manifest["seeds"],
             "counts": manifest["counts"],
             "dataset_config": manifest["dataset_config"],
+            "command": manifest.get("command"),
+            "seconds": manifest.get("seconds"),
         },
         "split": {
             "val_fraction": args.val_fraction,

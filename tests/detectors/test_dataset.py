@@ -1,0 +1,139 @@
+"""detectors.dataset: labelling segments from a scan's ground truth, scene mix, loading."""
+
+import json
+
+import numpy as np
+import pytest
+
+from detectors.dataset import (
+    CATEGORIES,
+    DATASET_FORMAT,
+    DatasetConfig,
+    label_scan,
+    load_dataset,
+    make_scene,
+    scene_records,
+)
+from detectors.features import FEATURE_VERSION, FeatureConfig, feature_names, segment_batch
+from kin_envs import HitKind, World
+from kin_envs.scenes import Arena, Box, Cylinder, Prism, Robot, Scene, Wall
+
+CAT = {c: k for k, c in enumerate(CATEGORIES)}
+
+
+def labelled(scene, rows=(0,)):
+    world = World(scene, seed=0)
+    scan = world.scan(robots=list(rows))
+    batch = segment_batch(scan.ranges, scan.angles)
+    segs, objs = label_scan(scan, scene, batch, world.poses)
+    return scan, batch, segs, objs
+
+
+def test_hand_built_scene_labels():
+    # observer at the origin facing +y (so the kin straight ahead is at x=0 in the world)
+    scene = Scene(
+        robots=(Robot(0, 0, np.pi / 2), Robot(0.0, 0.8, 0.3)),
+        obstacles=(
+            Cylinder(x=0.8, y=0.0, radius=0.035),  # same radius as the housing: flagged
+            Prism(x=-0.8, y=0.0, sides=6, width=0.07, theta=0.2),  # kin-width hexagon
+            Cylinder(x=0.0, y=-0.8, radius=0.09),
+            Box(x=0.6, y=0.6, width=0.07, depth=0.07, theta=0.4),
+            Wall(x1=-1.2, y1=-1.0, x2=-1.2, y2=1.0),
+        ),
+        arena=Arena(3, 3, walls=True),
+    )
+    scan, batch, segs, objs = labelled(scene)
+    by_cat = {c: np.flatnonzero(segs["category"] == CAT[c]) for c in CATEGORIES}
+    kin = by_cat["kin"]
+    assert len(kin) == 1 and segs["label"][kin[0]] == 1 and segs["obj_index"][kin[0]] == 1
+    # the kin's centre in the observer frame (x forward, y left): straight ahead at 0.8 m
+    np.testing.assert_allclose(segs["centre"][kin[0]], [0.8, 0.0], atol=1e-6)
+    assert segs["distance"][kin[0]] == pytest.approx(0.8)
+    assert segs["dominant_fraction"][kin[0]] == 1.0
+    same = by_cat["same_radius_cylinder"]
+    assert len(same) == 1 and segs["same_radius"][same[0]] and segs["label"][same[0]] == 0
+    assert segs["obj_radius"][same[0]] == pytest.approx(0.035)
+    prism = by_cat["kin_width_prism"]
+    assert len(prism) == 1 and segs["obj_sides"][prism[0]] == 6 and segs["label"][prism[0]] == 0
+    assert segs["obj_width"][prism[0]] == pytest.approx(0.07)
+    assert len(by_cat["cylinder"]) == 1 and segs["obj_radius"][by_cat["cylinder"][0]] == pytest.approx(0.09)
+    assert len(by_cat["kin_width_box"]) == 1
+    assert len(by_cat["wall"]) >= 1 and len(by_cat["boundary"]) >= 1
+    assert segs["label"].sum() == 1 and not segs["same_radius"][segs["label"] == 1].any()
+    assert np.isnan(segs["centre"][segs["label"] == 0]).all()
+    # the objects table: what the scan sees, kin with its beam count
+    okin = objs["category"] == CAT["kin"]
+    assert okin.sum() == 1 and objs["obj_index"][okin][0] == 1
+    assert objs["n_beams"][okin][0] == scan.visible_robots(0)[1]
+    assert objs["x"][okin][0] == pytest.approx(0.8) and objs["y"][okin][0] == pytest.approx(0.0, abs=1e-6)
+    assert (objs["hit_kind"][objs["category"] == CAT["same_radius_cylinder"]] == HitKind.CYLINDER).all()
+
+
+def test_kin_merged_with_the_wall_behind_is_not_kin():
+    # a kin 3 cm in front of a wall: one segment (steps < d_th), mostly wall beams -> negative
+    scene = Scene(
+        robots=(Robot(0, 0, 0), Robot(1.0, 0.0, 0.0)),
+        obstacles=(Wall(x1=1.09, y1=-0.5, x2=1.09, y2=0.5, thickness=0.05),),
+        arena=Arena(4, 4, walls=False),
+    )
+    scan, batch, segs, objs = labelled(scene)
+    assert batch.n_segments == 1
+    assert segs["label"][0] == 0 and segs["category"][0] == CAT["wall"]
+    assert 0 < scan.visible_robots(0)[1] < batch.count[0] / 2
+    assert (objs["category"] == CAT["kin"]).sum() == 1  # still a visible kin for kin-level metrics
+
+
+def test_scene_records_columns_and_determinism():
+    cfg = DatasetConfig(max_observers=3)
+    a, oa, ia = scene_records(5, cfg)
+    b, ob, _ = scene_records(5, cfg)
+    for k in a:
+        np.testing.assert_array_equal(a[k], b[k])
+    n = a["label"].shape[0]
+    assert a["x"].shape == (n, len(feature_names())) and a["frames"].shape == (n, 4)
+    assert set(np.unique(a["observer"])) <= set(ia["observers"].tolist()) and len(ia["observers"]) <= 3
+    assert (a["seed"] == 5).all() and (a["noise"] == ia["noise"]).all()
+    # a fixed noise level keeps the layout (paired evaluation across noise levels)
+    s1, _, _ = make_scene(9, cfg, noise=0.0)
+    s2, _, i2 = make_scene(9, cfg, noise=0.02)
+    assert s1.robots == s2.robots and s1.obstacles == s2.obstacles and i2["noise"] == 0.02
+
+
+def test_dataset_config_validation():
+    with pytest.raises(ValueError, match="unknown key"):
+        DatasetConfig.from_dict({"n_kin": [1, 2], "colour": 1})
+    with pytest.raises(ValueError, match="noise"):
+        DatasetConfig(noise=(0.02, 0.01))
+    with pytest.raises(ValueError, match="detection_prob"):
+        DatasetConfig(detection_prob=1.5)
+    assert DatasetConfig.from_dict(DatasetConfig().to_dict()) == DatasetConfig()
+
+
+def write_tiny(tmp_path, feature_version=FEATURE_VERSION):
+    segs, objs, _ = scene_records(1)
+    np.savez_compressed(tmp_path / "s.npz", **{f"seg_{k}": v for k, v in segs.items()},
+                        **{f"obj_{k}": v for k, v in objs.items()})  # fmt: skip
+    manifest = {
+        "format": DATASET_FORMAT,
+        "feature_version": feature_version,
+        "feature_config": FeatureConfig().to_dict(),
+        "feature_names": feature_names(),
+        "shards": [{"file": "s.npz"}],
+    }
+    (tmp_path / "manifest.json").write_text(json.dumps(manifest))
+    return segs
+
+
+def test_load_dataset_round_trip_and_errors(tmp_path):
+    segs = write_tiny(tmp_path)
+    s, o, m = load_dataset(tmp_path)
+    np.testing.assert_array_equal(s["x"], segs["x"])
+    with pytest.raises(FileNotFoundError, match="manifest"):
+        load_dataset(tmp_path / "nowhere")
+    write_tiny(tmp_path, feature_version=FEATURE_VERSION + 1)
+    with pytest.raises(ValueError, match="feature version"):
+        load_dataset(tmp_path)
+    write_tiny(tmp_path)
+    (tmp_path / "s.npz").unlink()
+    with pytest.raises(FileNotFoundError, match="s.npz"):
+        load_dataset(tmp_path)

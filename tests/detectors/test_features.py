@@ -1,0 +1,150 @@
+"""detectors.features: the learned classifier's segment representation."""
+
+import math
+
+import numpy as np
+import pytest
+
+from detectors.features import (
+    FEATURE_VERSION,
+    FeatureConfig,
+    feature_names,
+    local_to_observer,
+    observer_to_local,
+    scan_noise,
+    segment_batch,
+    segment_features,
+)
+from detectors.geometric import filter_by_diameter, preprocess, segment
+from kin_envs import LidarSpec, World, scenes
+from kin_envs.scenes import Arena, Prism, Robot, Scene
+
+NAMES = feature_names()
+
+
+def col(x, name):
+    return x[:, NAMES.index(name)]
+
+
+def scan_of(scene, seed=0, rows=None):
+    return World(scene, seed=seed).scan(robots=rows)
+
+
+def test_version_and_names():
+    assert isinstance(FEATURE_VERSION, int) and FEATURE_VERSION >= 1
+    assert len(NAMES) == len(set(NAMES))
+    cfg = FeatureConfig(n_points=5, n_context=1)
+    assert len(feature_names(cfg)) == len(NAMES) - 3 * 3 - 2
+
+
+@pytest.mark.parametrize(
+    "bad", [{"n_points": 1}, {"n_context": -1}, {"r": 0.0}, {"d_th": 20.0}, {"gn_iters": 1.5}, {"color": 1}]
+)
+def test_config_validation(bad):
+    with pytest.raises(ValueError, match=next(iter(bad))):
+        FeatureConfig.from_dict(bad)
+
+
+def test_batch_is_the_geometric_segmentation():
+    scan = scan_of(scenes.detection_scene(3, lidar=LidarSpec(noise_sigma=0.01)))
+    batch = segment_batch(scan.ranges, scan.angles)
+    for b, row in enumerate(scan.ranges):
+        ref = segment(preprocess(row))
+        got = batch.segments[b]
+        assert [(s.first_beam, s.last_beam) for s in got] == [(s.first_beam, s.last_beam) for s in ref]
+        sel = batch.scan == b
+        assert batch.first[sel].tolist() == [s.first_beam for s in ref]
+        assert batch.count[sel].tolist() == [s.n_beams for s in ref]
+        assert batch.prev_nearer[sel].tolist() == [s.prev_nearer for s in ref]
+
+
+def test_diameter_features_match_filter_by_diameter():
+    scan = scan_of(scenes.detection_scene(7, lidar=LidarSpec(noise_sigma=0.005)))
+    batch = segment_batch(scan.ranges, scan.angles)
+    x = segment_features(batch).x
+    segs = batch.flat_segments()
+    assert x.shape == (len(segs), len(NAMES)) and np.isfinite(x).all()
+    for i, s in enumerate(segs):
+        dc = filter_by_diameter(s, batch.ranges[batch.scan[i]], batch.angles)
+        assert col(x, "omega_min")[i] == pytest.approx(min(dc.omega_min, 0.3), abs=1e-5)
+        assert col(x, "omega_max")[i] == pytest.approx(min(dc.omega_max, 0.3), abs=1e-5)
+        assert col(x, "diameter_pass")[i] == dc.passed
+
+
+def test_circle_fit_separates_a_kin_from_a_kin_width_prism():
+    # noise-free: the kin's known-radius fit is exact, a 7 cm hexagon's is off by millimetres
+    scene = Scene(
+        robots=(Robot(0, 0, 0), Robot(0.7, 0.0, 1.0)),
+        obstacles=(Prism(x=0.0, y=0.7, sides=6, width=0.07, theta=0.3),),
+        arena=Arena(3, 3, walls=False),
+    )
+    scan = scan_of(scene, rows=[0])
+    batch = segment_batch(scan.ranges, scan.angles)
+    f = segment_features(batch)
+    assert batch.n_segments == 2
+    bearing = np.arctan2(f.frames[:, 1], f.frames[:, 0])
+    kin, prism = int(np.argmin(np.abs(bearing))), int(np.argmax(bearing))
+    assert math.exp(col(f.x, "log_F_mean")[kin]) - 1e-4 < 1e-6
+    assert math.exp(col(f.x, "log_F_mean")[prism]) - 1e-4 > 5e-4
+    np.testing.assert_allclose(f.fit_centre[kin], [0.7, 0.0], atol=1e-4)
+    assert col(f.x, "kasa_curvature")[kin] == pytest.approx(1 / 0.035, rel=1e-3)
+
+
+def test_features_do_not_depend_on_where_the_robot_looks():
+    # the robot turning by k beams rotates the scan; every segment's vector stays the same
+    scene = scenes.detection_scene(11)
+    scan = scan_of(scene, rows=[0])
+    k = 37
+    rolled = np.roll(scan.ranges, k, axis=1)
+    fa = segment_features(segment_batch(scan.ranges, scan.angles))
+    fb = segment_features(segment_batch(rolled, scan.angles))
+    ba = segment_batch(scan.ranges, scan.angles)
+    bb = segment_batch(rolled, scan.angles)
+    n = scan.angles.shape[0]
+    order_a = np.argsort(ba.first)
+    order_b = np.argsort((bb.first - k) % n)
+    assert ba.n_segments == bb.n_segments
+    np.testing.assert_allclose(fa.x[order_a], fb.x[order_b], atol=2e-4)
+
+
+def test_local_frame_round_trip():
+    rng = np.random.default_rng(0)
+    frames = np.column_stack([rng.normal(size=(5, 2)), rng.uniform(-3, 3, 5), rng.choice([-1.0, 1.0], 5)])
+    xy = rng.normal(size=(5, 2))
+    np.testing.assert_allclose(local_to_observer(frames, observer_to_local(frames, xy)), xy, atol=1e-12)
+    # origin maps to the frame origin, u runs along the bearing phi
+    uv = np.array([[1.0, 0.0]] * 5)
+    out = local_to_observer(frames, uv) - frames[:, :2]
+    np.testing.assert_allclose(
+        np.arctan2(out[:, 1], out[:, 0]), np.arctan2(np.sin(frames[:, 2]), np.cos(frames[:, 2]))
+    )
+
+
+@pytest.mark.parametrize("sigma, lo, hi", [(0.0, 0.0, 0.0005), (0.01, 0.007, 0.013)])
+def test_scan_noise_estimate(sigma, lo, hi):
+    scan = scan_of(scenes.detection_scene(2, lidar=LidarSpec(noise_sigma=sigma)))
+    est, n = scan_noise(segment_batch(scan.ranges, scan.angles))
+    assert np.all((est >= lo) & (est <= hi)), est
+    assert np.all(n > 100)
+
+
+@pytest.mark.parametrize("number", [1, 2])
+def test_scan_noise_of_a_noise_free_empty_world(number):
+    # only small round and polygonal objects return beams: their shape must not read as noise
+    scene = scenes.paper_scenario(number, distance=0.8)
+    scan = scan_of(scene, rows=[0])
+    est, _ = scan_noise(segment_batch(scan.ranges, scan.angles))
+    assert est[0] < 0.001
+
+
+def test_empty_and_partial_scans():
+    spec = LidarSpec()
+    batch = segment_batch(np.full((2, spec.n_beams), np.inf), spec.angles)
+    f = segment_features(batch)
+    assert batch.n_segments == 0 and f.x.shape == (0, len(NAMES))
+    # a 270-degree lidar: not circular, segments stop at the field-of-view edges
+    angles = np.linspace(0.75 * np.pi, -0.75 * np.pi, 271)
+    ranges = np.full(271, 2.0)
+    batch = segment_batch(ranges[None], angles)
+    assert not batch.circular and batch.n_segments == 1
+    assert np.isfinite(segment_features(batch).x).all()

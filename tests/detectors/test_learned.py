@@ -1,0 +1,194 @@
+"""detectors.learned: the learned kin detector, its checkpoints and its training loop."""
+
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import torch
+
+from detectors.base import DetectionResult
+from detectors.features import FEATURE_VERSION, FeatureConfig, feature_names
+from detectors.learned import (
+    DEFAULT_CHECKPOINT,
+    LearnedKinDetector,
+    ModelConfig,
+    SegmentNet,
+    TrainConfig,
+    load_checkpoint,
+    save_checkpoint,
+    train_segment_net,
+)
+from kin_envs import LidarSpec, World, scenes
+
+torch.set_num_threads(1)
+N_FEATURES = len(feature_names())
+
+
+@pytest.fixture(scope="module")
+def shipped():
+    return LearnedKinDetector()
+
+
+def random_model(seed=0, n_features=N_FEATURES):
+    torch.manual_seed(seed)
+    m = SegmentNet(ModelConfig(n_features, (16, 8)))
+    m.set_normalisation(np.zeros(n_features), np.ones(n_features), [0.03, 0.0], [0.01, 0.01])
+    return m.eval()
+
+
+def test_import_detectors_does_not_import_torch():
+    code = (
+        "import sys, detectors, detectors.features, detectors.dataset, kin_envs; "
+        "print('torch' in sys.modules)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
+
+
+def test_tiny_training_learns_a_separable_toy_set():
+    rng = np.random.default_rng(0)
+    n, f = 600, 6
+    y = rng.integers(0, 2, n)
+    x = rng.normal(size=(n, f)).astype(np.float32)
+    x[:, 0] += 4.0 * y  # separable along feature 0
+    target = np.where(y[:, None] == 1, np.stack([x[:, 1], x[:, 2]], 1) * 0.01, np.nan).astype(np.float32)
+    data = {"x": x, "y": y, "target": target}
+    cfg = TrainConfig(hidden=(16,), epochs=15, batch_size=64, lr=1e-2, patience=15)
+    model, hist = train_segment_net(data, data, cfg, seed=0, progress=False)
+    assert hist[-1]["train_loss"] < 0.5 * hist[0]["train_loss"]
+    assert hist[-1]["val_accuracy"] >= 0.98 and hist[-1]["val_f1"] >= 0.98
+    with torch.inference_mode():
+        out = model(torch.from_numpy(x))
+    assert ((out[:, 0] > 0).numpy() == (y == 1)).mean() >= 0.98
+    # same seed, same model
+    model2, _ = train_segment_net(data, data, cfg, seed=0, progress=False)
+    for a, b in zip(model.state_dict().values(), model2.state_dict().values(), strict=True):
+        torch.testing.assert_close(a, b)
+
+
+def test_training_input_errors():
+    x = np.zeros((4, 3), np.float32)
+    ok = {"x": x, "y": np.zeros(4), "target": np.full((4, 2), np.nan)}
+    with pytest.raises(ValueError, match="val"):
+        train_segment_net(ok, {**ok, "y": np.zeros(3)}, TrainConfig(epochs=1), progress=False)
+    with pytest.raises(ValueError, match="non-finite"):
+        train_segment_net({**ok, "x": np.full((4, 3), np.nan, np.float32)}, ok, progress=False)
+    with pytest.raises(ValueError, match="unknown key"):
+        TrainConfig.from_dict({"epochs": 1, "lr_decay": 0.5})
+
+
+def test_checkpoint_round_trip_gives_identical_outputs(tmp_path):
+    path = save_checkpoint(tmp_path / "m.pt", random_model(), FeatureConfig(), info={"note": np.float64(1.5)})
+    model, ck = load_checkpoint(path)
+    x = torch.randn(50, N_FEATURES)
+    with torch.inference_mode():
+        torch.testing.assert_close(model(x), random_model()(x), rtol=0, atol=0)
+    assert ck["feature_version"] == FEATURE_VERSION and ck["info"]["note"] == 1.5
+    scan = World(scenes.detection_scene(4), seed=0).scan()
+    a = LearnedKinDetector(path, threshold=0.0).detect_batch(scan.ranges, scan.angles)
+    b = LearnedKinDetector(path, threshold=0.0).detect_batch(scan.ranges, scan.angles)
+    assert [[(d.x, d.y, d.score) for d in r.detections] for r in a] == [
+        [(d.x, d.y, d.score) for d in r.detections] for r in b
+    ]
+
+
+def rewrite(src, dst, **changes):
+    ck = torch.load(src, weights_only=True)
+    ck.update(changes)
+    torch.save(ck, dst)
+    return dst
+
+
+def test_bad_checkpoints_are_refused_clearly(tmp_path):
+    good = save_checkpoint(tmp_path / "good.pt", random_model(), FeatureConfig())
+    missing = tmp_path / "missing.pt"
+    with pytest.raises(FileNotFoundError, match="missing.pt.*does not exist"):
+        LearnedKinDetector(missing)
+    junk = tmp_path / "junk.pt"
+    junk.write_bytes(np.random.default_rng(0).bytes(2000))
+    with pytest.raises(ValueError, match="junk.pt: not a readable torch checkpoint"):
+        LearnedKinDetector(junk)
+    other = tmp_path / "other.pt"
+    torch.save({"weights": torch.zeros(3)}, other)
+    with pytest.raises(ValueError, match="other.pt: not a learned kin detector checkpoint"):
+        load_checkpoint(other)
+    old = rewrite(good, tmp_path / "old.pt", feature_version=FEATURE_VERSION - 1)
+    with pytest.raises(ValueError, match=f"old.pt.*feature version {FEATURE_VERSION - 1}.*retrain"):
+        load_checkpoint(old)
+    small = random_model(n_features=10)
+    wrong = rewrite(good, tmp_path / "wrong.pt", model_config=small.config.to_dict(),
+                    state_dict=small.state_dict())  # fmt: skip
+    with pytest.raises(ValueError, match=f"wrong.pt.*10 input features.*{N_FEATURES}"):
+        load_checkpoint(wrong)
+    ck = torch.load(good, weights_only=True)
+    ck["state_dict"]["body.0.weight"] = torch.zeros(3, 3)
+    torch.save(ck, tmp_path / "shape.pt")
+    with pytest.raises(ValueError, match="shape.pt: inconsistent checkpoint"):
+        load_checkpoint(tmp_path / "shape.pt")
+
+
+def test_detector_argument_and_input_errors(shipped):
+    with pytest.raises(ValueError, match="threshold"):
+        LearnedKinDetector(threshold=1.5)
+    with pytest.raises(ValueError, match="device"):
+        LearnedKinDetector(device="not-a-device")
+    with pytest.raises(ValueError, match="positioning"):
+        LearnedKinDetector(positioning="magic")
+    spec = LidarSpec()
+    r = np.full(spec.n_beams, 2.0)
+    with pytest.raises(ValueError, match="2-D"):
+        shipped.detect_batch(r, spec.angles)
+    with pytest.raises(ValueError, match="angles"):
+        shipped.detect_batch(r[None], spec.angles[:-1])
+    bad = r.copy()
+    bad[7] = -1.0
+    with pytest.raises(ValueError, match=r"ranges\[1\].*ranges\[7\]"):
+        shipped.detect_batch(np.stack([r, bad]), spec.angles)
+    half = LidarSpec(n_beams=720)
+    with pytest.raises(ValueError, match="0.500 deg apart.*1.000 deg"):
+        shipped.detect(np.full(720, 2.0), half.angles)
+    assert shipped.detect_batch(np.zeros((0, spec.n_beams)), spec.angles) == []
+
+
+def test_reports_detections_and_batch_consistency(shipped):
+    scan = World(scenes.detection_scene(21, lidar=LidarSpec(noise_sigma=0.005)), seed=1).scan()
+    batch = shipped.detect_batch(scan.ranges, scan.angles)
+    single = [shipped.detect(r, scan.angles) for r in scan.ranges]
+    for res, one in zip(batch, single, strict=True):
+        assert isinstance(res, DetectionResult)
+        np.testing.assert_allclose(
+            [(d.x, d.y, d.score) for d in res.detections], [(d.x, d.y, d.score) for d in one.detections],
+            rtol=1e-5, atol=1e-6,
+        )  # fmt: skip
+        acc = [rep for rep in res.reports if rep.accepted]
+        assert len(acc) == len(res.detections)
+        for rep, det in zip(acc, res.detections, strict=True):
+            assert rep.segment.first_beam == det.first_beam and rep.segment.n_beams == det.n_beams
+            assert det.score == rep.metrics["p_kin"] >= 0.5
+            assert det.range == pytest.approx(math.hypot(det.x, det.y))
+        for rep in res.reports:
+            assert rep.stage in ("accepted", "learned") and 0.0 <= rep.metrics["p_kin"] <= 1.0
+    quiet = LearnedKinDetector(reports=False).detect_batch(scan.ranges, scan.angles)
+    assert all(not r.reports for r in quiet)
+    assert [len(r.detections) for r in quiet] == [len(r.detections) for r in batch]
+
+
+@pytest.mark.parametrize("distance", [0.5, 0.8, 1.2])
+@pytest.mark.parametrize("number", [1, 2])
+def test_shipped_model_on_the_paper_scenarios(shipped, number, distance):
+    assert DEFAULT_CHECKPOINT.is_file() and DEFAULT_CHECKPOINT.stat().st_size < 5e6
+    scene = scenes.paper_scenario(number, distance=distance)
+    res = shipped.detect(World(scene, seed=0).scan(robots=[0]).ranges[0], scene.lidar.angles)
+    kin = np.array([distance, 0.0])  # straight ahead
+    err = [math.hypot(d.x - kin[0], d.y - kin[1]) for d in res.detections]
+    assert min(err) < 0.02, err  # the kin, within 2 cm
+    others = [d for d, e in zip(res.detections, err, strict=True) if e >= 0.1]
+    if number == 1:
+        assert not others  # Scenario I: every cylinder (3, 5, 9, 11 cm) rejected
+    else:
+        # Scenario II: only the same-radius cylinder (one scan cannot tell it from a kin) may be taken
+        cyl = next(o for o in scene.obstacles if o.kind == "cylinder")
+        for d in others:
+            assert math.hypot(d.x - cyl.x, d.y - cyl.y) < 0.1, (d, "a prism or cuboid was accepted")

@@ -1,0 +1,80 @@
+"""scripts/make_dataset.py and scripts/train_classifier.py: a tiny end-to-end run in subprocesses."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def run(script, *args, check=True):
+    cmd = [sys.executable, str(ROOT / "scripts" / script), *map(str, args), "--no-progress"]
+    out = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=300)
+    if check and out.returncode != 0:
+        raise AssertionError(f"{script} failed ({out.returncode}):\n{out.stdout}\n{out.stderr}")
+    return out
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    out = tmp_path_factory.mktemp("segments")
+    run("make_dataset.py", "--out", out, "--scenes", 4, "--shard-scenes", 3, "--first-seed", 10)
+    return out
+
+
+def test_make_dataset_writes_shards_and_manifest(dataset):
+    from detectors.dataset import load_dataset
+    from detectors.features import FEATURE_VERSION
+
+    manifest = json.loads((dataset / "manifest.json").read_text())
+    assert manifest["feature_version"] == FEATURE_VERSION
+    assert manifest["seeds"] == {"first": 10, "count": 4}
+    assert [s["n_scenes"] for s in manifest["shards"]] == [3, 1]
+    assert manifest["command"][-1] == "--no-progress" and "--scenes" in manifest["command"]
+    counts = manifest["counts"]
+    assert counts["kin"] > 0 and counts["kin"] + counts["non_kin"] == counts["segments"]
+    segs, objs, _ = load_dataset(dataset)
+    assert segs["label"].shape[0] == counts["segments"] and int(segs["label"].sum()) == counts["kin"]
+    assert set(np.unique(segs["seed"]).tolist()) == {10, 11, 12, 13}
+    assert (objs["n_beams"] >= 1).all()
+
+
+def test_train_classifier_tiny_budget(dataset, tmp_path):
+    ckpt = tmp_path / "tiny.pt"
+    cfg = json.dumps({"epochs": 1, "hidden": [8], "batch_size": 256})
+    run("train_classifier.py", "--data", dataset, "--out", tmp_path / "train", "--checkpoint", ckpt,
+        "--config", cfg, "--eval-scenes", 1, "--val-fraction", 0.25)  # fmt: skip
+    side = json.loads(ckpt.with_suffix(".json").read_text())
+    assert side["epochs_run"] == 1 and side["seed"] == 0 and side["train_config"]["hidden"] == [8]
+    assert side["positioning"] in ("regression", "fit") and "--config" in side["command"]
+    for name in ("train_log.csv", "validation.json", "eval.json", "eval.md", "config.json"):
+        assert (tmp_path / "train" / name).is_file(), name
+    assert (tmp_path / "train" / "train_log.csv").read_text().startswith("epoch,train_loss")
+    ev = json.loads((tmp_path / "train" / "eval.json").read_text())
+    assert ev["first_seed"] == 1_000_000 and set(ev["detectors"]) == {"learned", "learned_fit", "geometric"}
+
+    import torch
+
+    torch.set_num_threads(1)
+    from detectors.learned import LearnedKinDetector
+    from kin_envs import World, scenes
+
+    det = LearnedKinDetector(ckpt)
+    assert det.positioning == side["positioning"]
+    scan = World(scenes.paper_scenario(1), seed=0).scan()
+    assert len(det.detect_batch(scan.ranges, scan.angles)) == 2
+
+
+def test_scripts_reject_bad_configs(dataset, tmp_path):
+    out = run("make_dataset.py", "--out", tmp_path, "--config", '{"n_kin": [1, 2], "colour": 3}', check=False)
+    assert out.returncode == 2 and "unknown key" in out.stderr
+    out = run(
+        "train_classifier.py", "--data", dataset, "--out", tmp_path, "--config", '{"epoch": 1}', check=False
+    )
+    assert out.returncode == 2 and "unknown key" in out.stderr
+    out = run("train_classifier.py", "--data", tmp_path / "none", "--out", tmp_path, check=False)
+    assert out.returncode != 0 and "manifest" in out.stderr
