@@ -6,11 +6,12 @@ import sys
 
 import numpy as np
 import pytest
-import torch
 
-from detectors.base import DetectionResult
-from detectors.features import FEATURE_VERSION, FeatureConfig, feature_names
-from detectors.learned import (
+torch = pytest.importorskip("torch")  # the only reason to skip: CI installs torch
+
+from detectors.base import DetectionResult  # noqa: E402
+from detectors.features import FEATURE_VERSION, FeatureConfig, feature_names  # noqa: E402
+from detectors.learned import (  # noqa: E402
     DEFAULT_CHECKPOINT,
     LearnedKinDetector,
     ModelConfig,
@@ -20,7 +21,7 @@ from detectors.learned import (
     save_checkpoint,
     train_segment_net,
 )
-from kin_envs import LidarSpec, World, scenes
+from kin_envs import LidarSpec, World, scenes  # noqa: E402
 
 torch.set_num_threads(1)
 N_FEATURES = len(feature_names())

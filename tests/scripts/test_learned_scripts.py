@@ -44,6 +44,7 @@ def test_make_dataset_writes_shards_and_manifest(dataset):
 
 
 def test_train_classifier_tiny_budget(dataset, tmp_path):
+    torch = pytest.importorskip("torch")  # the only reason to skip: CI installs torch
     ckpt = tmp_path / "tiny.pt"
     cfg = json.dumps({"epochs": 1, "hidden": [8], "batch_size": 256})
     run("train_classifier.py", "--data", dataset, "--out", tmp_path / "train", "--checkpoint", ckpt,
@@ -57,8 +58,6 @@ def test_train_classifier_tiny_budget(dataset, tmp_path):
     ev = json.loads((tmp_path / "train" / "eval.json").read_text())
     assert ev["first_seed"] == 1_000_000 and set(ev["detectors"]) == {"learned", "learned_fit", "geometric"}
 
-    import torch
-
     torch.set_num_threads(1)
     from detectors.learned import LearnedKinDetector
     from kin_envs import World, scenes
@@ -70,6 +69,7 @@ def test_train_classifier_tiny_budget(dataset, tmp_path):
 
 
 def test_scripts_reject_bad_configs(dataset, tmp_path):
+    pytest.importorskip("torch")
     out = run("make_dataset.py", "--out", tmp_path, "--config", '{"n_kin": [1, 2], "colour": 3}', check=False)
     assert out.returncode == 2 and "unknown key" in out.stderr
     out = run(
