@@ -26,7 +26,15 @@ from gymnasium import spaces
 
 from agents.base import Policy, SeedLike
 
-__all__ = ["ALGOS", "SB3Policy", "SeededSB3VecEnv", "algo_class", "detect_algo", "shared_vec_env"]
+__all__ = [
+    "ALGOS",
+    "SB3Policy",
+    "resolve_policy_kwargs",
+    "SeededSB3VecEnv",
+    "algo_class",
+    "detect_algo",
+    "shared_vec_env",
+]
 
 ALGOS = ("ppo", "sac")
 
@@ -185,3 +193,88 @@ def shared_vec_env(parallel_env: Any, n_copies: int = 1, seed: int | None = None
     if seed is not None:
         venv.seed(seed)
     return venv
+
+
+# --- a 1-D convolutional feature extractor over the scan ----------------------------------------
+
+
+def resolve_policy_kwargs(policy_kwargs: dict | None) -> dict | None:
+    """``features_extractor_class`` given as ``"module:Name"`` (JSON-friendly) → the class."""
+    if not policy_kwargs or not isinstance(policy_kwargs.get("features_extractor_class"), str):
+        return policy_kwargs
+    import importlib
+
+    spec = policy_kwargs["features_extractor_class"]
+    module, sep, name = spec.partition(":")
+    try:
+        cls = getattr(importlib.import_module(module), name) if sep else None
+    except (ImportError, AttributeError):
+        cls = None
+    if cls is None:
+        raise ValueError(f"features_extractor_class must be 'module:Class' naming an importable class, "
+                         f"got {spec!r} (e.g. 'agents.sb3:ScanConvExtractor')")
+    return {**policy_kwargs, "features_extractor_class": cls}
+
+
+def _make_scan_conv_extractor():
+    import torch
+    from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
+    from torch import nn
+
+    class ScanConvExtractor(BaseFeaturesExtractor):
+        """Circular 1-D convolutions over the scan (frames as channels), the rest of each frame
+        (the detector channel, if any) through a small linear layer, concatenated.
+
+        A kin's housing is a small bump a few beams wide anywhere in the 360° scan: convolutions
+        share one bump detector over all bearings, which an MLP on raw beams must learn per beam.
+        Circular padding because beam 359 neighbours beam 0.
+
+        Args:
+            n_beams: beams per frame (360); ``frame_stack``: frames in an observation.
+            features_dim: output size.
+        """
+
+        def __init__(self, observation_space, n_beams: int = 360, frame_stack: int = 1,
+                     features_dim: int = 256) -> None:
+            super().__init__(observation_space, features_dim)
+            dim = int(np.prod(observation_space.shape))
+            if dim % frame_stack or dim // frame_stack < n_beams:
+                raise ValueError(f"ScanConvExtractor: observation size {dim} is not "
+                                 f"frame_stack={frame_stack} frames of >= n_beams={n_beams} values")
+            self.n_beams, self.frame_stack = n_beams, frame_stack
+            self.extra = dim // frame_stack - n_beams
+            c = frame_stack
+            self.conv = nn.Sequential(
+                nn.Conv1d(c, 16, 7, padding=3, padding_mode="circular"), nn.ReLU(),
+                nn.Conv1d(16, 32, 5, stride=2, padding=2, padding_mode="circular"), nn.ReLU(),
+                nn.Conv1d(32, 32, 5, stride=2, padding=2, padding_mode="circular"), nn.ReLU(),
+                nn.MaxPool1d(2),  # 360 -> 45 positions: about 8 degrees each, keeps the bearing
+                nn.Flatten(),
+            )
+            with torch.no_grad():
+                n_conv = self.conv(torch.zeros(1, c, n_beams)).shape[1]
+            n_extra = self.extra * frame_stack
+            self.head = nn.Sequential(nn.Linear(n_conv + (64 if n_extra else 0), features_dim), nn.ReLU())
+            self.extra_net = nn.Sequential(nn.Linear(n_extra, 64), nn.ReLU()) if n_extra else None
+
+        def forward(self, obs):
+            frames = obs.reshape(obs.shape[0], self.frame_stack, self.n_beams + self.extra)
+            # near obstacles matter most: 1 - range/12 puts them at the large values
+            feats = [self.conv(1.0 - frames[:, :, : self.n_beams])]
+            if self.extra_net is not None:
+                feats.append(self.extra_net(frames[:, :, self.n_beams :].reshape(obs.shape[0], -1)))
+            return self.head(torch.cat(feats, dim=1))
+
+    ScanConvExtractor.__module__ = __name__
+    ScanConvExtractor.__qualname__ = "ScanConvExtractor"
+    return ScanConvExtractor
+
+
+def __getattr__(name: str):
+    # Built on first access so that ``import agents.sb3`` stays torch-free, yet pickled models can
+    # name the class as ``agents.sb3.ScanConvExtractor`` (unpickling imports it from here).
+    if name == "ScanConvExtractor":
+        cls = _make_scan_conv_extractor()
+        globals()[name] = cls
+        return cls
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

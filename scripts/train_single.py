@@ -39,7 +39,7 @@ if str(ROOT) not in sys.path:  # run as a file: make agents / kin_envs importabl
 
 import kin_envs  # noqa: E402,F401  (registers the env ids)
 from agents.hyperparams import hyperparams_for  # noqa: E402
-from agents.sb3 import ALGOS, algo_class  # noqa: E402
+from agents.sb3 import ALGOS, algo_class, resolve_policy_kwargs  # noqa: E402
 
 VEC_ENVS = ("dummy", "subproc")
 EVAL_SEED_OFFSET = 10_000
@@ -255,8 +255,11 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     vec_cls = SubprocVecEnv if cfg.vec_env == "subproc" else DummyVecEnv
     env = make_vec_env(cfg.env_id, n_envs=cfg.n_envs, seed=cfg.seed, env_kwargs=cfg.env_kwargs,
                        vec_env_cls=vec_cls, monitor_dir=str(out / "monitor"))
+    algo_kwargs = dict(cfg.algo_kwargs)
+    if "policy_kwargs" in algo_kwargs:  # e.g. "agents.sb3:ScanConvExtractor" -> the class
+        algo_kwargs["policy_kwargs"] = resolve_policy_kwargs(algo_kwargs["policy_kwargs"])
     model = algo_class(cfg.algo)("MlpPolicy", env, seed=cfg.seed, tensorboard_log=str(out / "tb"),
-                                 device="cpu", verbose=0, **cfg.algo_kwargs)
+                                 device="cpu", verbose=0, **algo_kwargs)
     t0 = time.perf_counter()
     model.learn(total_timesteps=cfg.total_timesteps, callback=make_callbacks(cfg, out, not args.no_progress),
                 tb_log_name=cfg.algo)

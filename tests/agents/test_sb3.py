@@ -139,3 +139,24 @@ def test_shared_vec_env_reset_seed_argument():
     assert not np.array_equal(a[:2], a[2:])  # copy i is seeded with seed + i
     with pytest.raises(ValueError, match="n_copies"):
         shared_vec_env(aggregation_v0.parallel_env(n_robots=2), n_copies=0)
+
+
+def test_scan_conv_extractor_trains_saves_and_reloads(tmp_path):
+    from agents.sb3 import ScanConvExtractor, resolve_policy_kwargs
+
+    pk = resolve_policy_kwargs({"features_extractor_class": "agents.sb3:ScanConvExtractor",
+                                "features_extractor_kwargs": {"frame_stack": 2}, "net_arch": [16]})
+    assert pk["features_extractor_class"] is ScanConvExtractor
+    env = gym.make("kin_envs/KinSeek-v0", obs_detections="topk", frame_stack=2, max_steps=10)
+    model = sb3.PPO("MlpPolicy", env, n_steps=16, batch_size=16, n_epochs=1, seed=0, device="cpu",
+                    policy_kwargs=pk)
+    model.learn(16)
+    model.save(tmp_path / "conv.zip")
+    policy = SB3Policy.load(tmp_path / "conv.zip").check_env(env)
+    assert isinstance(policy.model.policy.features_extractor, ScanConvExtractor)
+    obs, info = env.reset(seed=0)
+    np.testing.assert_allclose(policy.act(obs, info), SB3Policy(model).act(obs, info), atol=1e-6)
+    with pytest.raises(ValueError, match="frame_stack=3"):
+        ScanConvExtractor(env.observation_space, frame_stack=3)
+    with pytest.raises(ValueError, match="module:Class"):
+        resolve_policy_kwargs({"features_extractor_class": "agents.sb3:Nope"})
