@@ -17,9 +17,15 @@ paper's two scenarios at 0.5, 0.8 and 1.2 m.
 Writes to ``--out``: ``results.md`` (tables), ``results.json``, ``f1_vs_distance.png``,
 ``centre_error_vs_distance.png`` and ``run.json`` (command, configuration, seeds, timings).
 
+The work unit is one scene (build, scan at every noise level, detect, score: :func:`scene_unit`),
+run by :func:`kin_envs.distributed.map_seeds` in this process (``--backend local``) or as Ray
+tasks (``--backend ray``: a local Ray with ``--num-cpus`` workers, or the cluster at
+``--address``); both give the same results.
+
 Example::
 
     python scripts/evaluate_detectors.py --detectors geometric learned --scenes 2000
+    python scripts/evaluate_detectors.py --scenes 100000 --backend ray --address auto
 """
 
 from __future__ import annotations
@@ -41,6 +47,7 @@ from detectors.evaluation import DEFAULT_GATE, Evaluation, Metrics, evaluate
 from kin_envs import World, scenes
 from kin_envs.core.lidar import LidarSpec
 from kin_envs.core.scenes import DetectionSceneConfig
+from kin_envs.distributed import BACKENDS, cached, map_seeds
 
 FIRST_SEED = 1_000_000
 DEFAULT_SCENES = 1000
@@ -92,16 +99,84 @@ def resolve_detector(name: str) -> KinDetector:
 # --------------------------------------------------------------------------- data
 
 
+def scene_pairs(seed: int, noise_levels, config: DetectionSceneConfig) -> list:
+    """``(scan, scene)`` pairs of one scene: drawn by ``default_rng(seed)``, which then draws the
+    lidar noise of each noise level in turn; scanned from robot 0."""
+    rng = np.random.default_rng(seed)
+    scene = scenes.detection_scene(rng, config)
+    pairs = []
+    for nz in noise_levels:
+        s = scene.replace(lidar=LidarSpec(noise_sigma=float(nz)))
+        pairs.append((World(s, seed=rng).scan(robots=[0]), s))
+    return pairs
+
+
 def sweep_pairs(n_scenes: int, first_seed: int, noise_levels, config: DetectionSceneConfig, progress=True):
     """``(scan, scene)`` pairs: every scene at every noise level, scanned from robot 0."""
     pairs = []
     for i in tqdm(range(n_scenes), desc="scenes", unit="scene", disable=not progress):
-        rng = np.random.default_rng(first_seed + i)
-        scene = scenes.detection_scene(rng, config)
-        for nz in noise_levels:
-            s = scene.replace(lidar=LidarSpec(noise_sigma=float(nz)))
-            pairs.append((World(s, seed=rng).scan(robots=[0]), s))
+        pairs.extend(scene_pairs(first_seed + i, noise_levels, config))
     return pairs
+
+
+@dataclasses.dataclass(frozen=True)
+class Sweep:
+    """What every work unit shares (sent to each Ray worker once)."""
+
+    first_seed: int
+    noise_levels: tuple[float, ...]
+    config: DetectionSceneConfig
+    detectors: tuple[str, ...]
+    gate: float
+    separate: bool
+    torch_threads: int
+
+
+def _build_detectors(sweep: Sweep) -> dict[str, KinDetector]:
+    detectors = {name: resolve_detector(name) for name in sweep.detectors}
+    if "torch" in sys.modules:
+        sys.modules["torch"].set_num_threads(sweep.torch_threads)
+    return detectors
+
+
+def scene_unit(i: int, sweep: Sweep) -> tuple[dict[str, Evaluation], float]:
+    """The sweep's work unit: scene ``i`` at every noise level, through every detector, scored.
+
+    Returns ``({detector: evaluation of this scene's scans}, seconds spent building and scanning)``;
+    :func:`merge_scenes` joins the units' evaluations in scene order.
+    """
+    # detectors are built once per process (worker), not once per scene
+    detectors = cached(
+        ("evaluate_detectors", sweep.detectors, sweep.torch_threads), lambda: _build_detectors(sweep)
+    )
+    t0 = time.perf_counter()
+    pairs = scene_pairs(sweep.first_seed + i, sweep.noise_levels, sweep.config)
+    t_data = time.perf_counter() - t0
+    evals = {
+        name: evaluate(det, pairs, gate=sweep.gate, same_radius_separate=sweep.separate, name=name)
+        for name, det in detectors.items()
+    }
+    return evals, t_data
+
+
+def merge_scenes(parts: list[Evaluation], pairs_per_scene: int) -> Evaluation:
+    """One evaluation from per-scene ones (in scene order), indexed as if evaluated in one call:
+    scan ``k`` of scene ``s`` becomes scan ``s * pairs_per_scene + k``; ``seconds`` add up."""
+    kin, dets = [], []
+    for s, ev in enumerate(parts):
+        scan0, det0 = s * pairs_per_scene, len(dets)
+        dets.extend(dataclasses.replace(d, scan=scan0 + d.scan) for d in ev.detections)
+        kin.extend(
+            dataclasses.replace(k, scan=scan0 + k.scan, detection=det0 + k.detection if k.detected else -1)
+            for k in ev.kin
+        )
+    return dataclasses.replace(
+        parts[0],
+        kin=tuple(kin),
+        detections=tuple(dets),
+        n_scans=sum(ev.n_scans for ev in parts),
+        seconds=sum(ev.seconds for ev in parts),
+    )
 
 
 def paper_pairs(distances=scenes.PAPER_DISTANCES):
@@ -205,7 +280,7 @@ def markdown(evals: dict[str, Evaluation], dist_edges, noise_levels, paper: list
     for k in kinds:
         lines.append(f"| {k} | " + " | ".join(str(fps[c].get(k, 0)) for c in cols) + " |")
     lines.append("| **total** | " + " | ".join(str(sum(fps[c].values())) for c in cols) + " |")
-    lines += ["", "## Speed (time inside `detect_batch`, this machine)", ""]
+    lines += ["", "## Speed (time inside `detect_batch`, one call per scene, this machine)", ""]
     lines += ["| detector | scans | seconds | scans/s |", "|---|---:|---:|---:|"]
     for name, ev in evals.items():
         lines.append(f"| {name} | {ev.n_scans} | {ev.seconds:.2f} | {ev.scans_per_second:.0f} |")
@@ -323,6 +398,12 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--torch-threads", type=int, default=1, help="torch threads for learned detectors")
     ap.add_argument("--out", type=Path, default=Path("outputs/evaluation"), help="output directory")
     ap.add_argument("--no-progress", action="store_true", help="no progress bars")
+    ap.add_argument(
+        "--backend", choices=BACKENDS, default="local",
+        help="run the scenes here (local) or as Ray tasks (ray: pip install kin-envs[distributed])",
+    )  # fmt: skip
+    ap.add_argument("--address", default=None, help="ray: join this cluster (e.g. auto, host:6379)")
+    ap.add_argument("--num-cpus", type=int, default=None, help="ray: CPUs of a local Ray (default: all)")
     args = ap.parse_args(argv)
     if not (math.isfinite(args.gate) and args.gate > 0):
         raise ValueError(f"--gate must be a finite distance > 0 m, got {args.gate!r}")
@@ -333,6 +414,12 @@ def main(argv: list[str] | None = None) -> dict:
         )
     if any(not (math.isfinite(n) and n >= 0) for n in args.noise):
         raise ValueError(f"--noise levels must be >= 0 (relative, 0.01 = 1 %), got {args.noise}")
+    if args.backend == "local" and (args.address is not None or args.num_cpus is not None):
+        raise ValueError("--address and --num-cpus need --backend ray")
+    if args.num_cpus is not None and (args.num_cpus < 1 or args.address is not None):
+        raise ValueError(
+            f"--num-cpus must be >= 1 and sizes a local Ray (not one at --address), got {args.num_cpus}"
+        )
     noise_levels = sorted(set(args.noise))
     config = _load_config(args.scene_config)
     detectors = {name: resolve_detector(name) for name in args.detectors}  # fail before the sweep
@@ -340,16 +427,23 @@ def main(argv: list[str] | None = None) -> dict:
         sys.modules["torch"].set_num_threads(args.torch_threads)
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
+    sweep = Sweep(
+        args.first_seed, tuple(noise_levels), config, tuple(args.detectors), args.gate,
+        args.separate_same_radius, args.torch_threads,
+    )  # fmt: skip
+    # this process's units reuse the detectors built above
+    cached(("evaluate_detectors", sweep.detectors, sweep.torch_threads), lambda: detectors)
     t0 = time.perf_counter()
-    pairs = sweep_pairs(args.scenes, args.first_seed, noise_levels, config, progress=not args.no_progress)
-    t_data = time.perf_counter() - t0
+    units = map_seeds(
+        scene_unit, range(args.scenes), args.backend, args=(sweep,), address=args.address,
+        num_cpus=args.num_cpus, progress=not args.no_progress, desc="scenes", unit="scene",
+    )  # fmt: skip
+    t_sweep = time.perf_counter() - t0
+    t_data = sum(t for _, t in units)
+    evals = {name: merge_scenes([u[name] for u, _ in units], len(noise_levels)) for name in detectors}
     ppairs, plabels = paper_pairs()
-    evals: dict[str, Evaluation] = {}
     paper_rows = []
-    for name, det in tqdm(detectors.items(), desc="detectors", unit="detector", disable=args.no_progress):
-        evals[name] = evaluate(
-            det, pairs, gate=args.gate, same_radius_separate=args.separate_same_radius, name=name
-        )
+    for name, det in detectors.items():
         pev = evaluate(det, ppairs, gate=args.gate, same_radius_separate=args.separate_same_radius, name=name)
         for i, (sc, d) in enumerate(plabels):
             sub = pev.select(scans=[i])
@@ -369,7 +463,7 @@ def main(argv: list[str] | None = None) -> dict:
     info = {
         "scenes": args.scenes,
         "first_seed": args.first_seed,
-        "scans": len(pairs),
+        "scans": args.scenes * len(noise_levels),
         "gate": args.gate,
         "separate": args.separate_same_radius,
         "config": dataclasses.asdict(config),
@@ -421,7 +515,8 @@ def main(argv: list[str] | None = None) -> dict:
             "training_seeds": "scripts/make_dataset.py starts at seed 0; keep 'first' above the seeds "
             "used for training",
         },
-        "seconds": {"data": t_data, "total": time.perf_counter() - t0},
+        # data: building and scanning, summed over the units (and so over workers); sweep: wall time
+        "seconds": {"data": t_data, "sweep": t_sweep, "total": time.perf_counter() - t0},
     }
     (out / "results.json").write_text(json.dumps(_plain(results), indent=2, allow_nan=False))
     (out / "run.json").write_text(json.dumps(_plain(run), indent=2, allow_nan=False))
@@ -449,5 +544,5 @@ def _plain(o):
 if __name__ == "__main__":
     try:
         main()
-    except ValueError as e:  # bad input: a message, not a traceback
+    except (ValueError, ImportError) as e:  # bad input, Ray missing: a message, not a traceback
         sys.exit(f"evaluate_detectors: error: {e}")
