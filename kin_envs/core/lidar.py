@@ -28,7 +28,7 @@ from functools import cached_property
 import numba
 import numpy as np
 
-__all__ = ["HitKind", "LidarSpec", "cast_rays", "cast_scan", "scan_shapes", "polygon_edges"]
+__all__ = ["HitKind", "LidarSpec", "cast_scan", "scan_shapes", "polygon_edges"]
 
 
 class HitKind(IntEnum):
@@ -248,31 +248,6 @@ def _beam_tables(n_beams):
 
 
 @numba.njit(cache=True, nogil=True)
-def _cast_kernel(ox, oy, heading, n_beams, range_max, circles, circle_skip, segments, out_dist, out_prim):
-    """:func:`_cast_one` for every origin (``out_dist`` = ``inf`` where nothing is hit)."""
-    cos_tab, sin_tab = _beam_tables(n_beams)
-    best_d = np.empty(n_beams)
-    best_p = np.empty(n_beams, dtype=np.int32)
-    for n in range(ox.shape[0]):
-        _cast_one(
-            ox[n],
-            oy[n],
-            heading[n],
-            circle_skip[n],
-            range_max,
-            circles,
-            segments,
-            cos_tab,
-            sin_tab,
-            best_d,
-            best_p,
-        )
-        for i in range(n_beams):
-            out_prim[n, i] = best_p[i]
-            out_dist[n, i] = best_d[i] if best_p[i] >= 0 else np.inf
-
-
-@numba.njit(cache=True, nogil=True)
 def _scan_kernel(
     ox,
     oy,
@@ -326,69 +301,6 @@ def _scan_kernel(
                 out_ranges[n, i] = d if d >= range_min else range_max
 
 
-def cast_rays(
-    origins: np.ndarray,
-    headings: np.ndarray,
-    circles: np.ndarray,
-    segments: np.ndarray,
-    n_beams: int,
-    range_max: float,
-    skip_circle: np.ndarray | None = None,
-    out: tuple[np.ndarray, np.ndarray] | None = None,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Exact distances to the nearest primitive for every beam of every origin.
-
-    Args:
-        origins: ``(N, 2)`` sensor positions, m (world frame).
-        headings: ``(N,)`` headings, rad, CCW from the world x axis.
-        circles: ``(C, 3)`` ``cx, cy, r``.
-        segments: ``(S, 4)`` ``x1, y1, x2, y2``.
-        n_beams: beams per revolution; beam ``i`` at ``heading - 2*pi*i/n_beams``.
-        range_max: hits beyond this are not reported.
-        skip_circle: ``(N,)`` circle index each origin's beams ignore (its own housing), -1 for none.
-        out: optional preallocated ``(dist, prim)`` buffers (float64, int32) of shape
-            ``(N, n_beams)``, reused across calls to avoid page-faulting fresh memory each scan.
-
-    Returns:
-        ``dist (N, n_beams)`` float64 (``inf`` for no hit within ``range_max``) and
-        ``prim (N, n_beams)`` int32 primitive ids (circles ``0..C-1``, then segments ``C..``;
-        -1 for none).
-    """
-    origins = np.ascontiguousarray(origins, dtype=np.float64).reshape(-1, 2)
-    n = origins.shape[0]
-    headings = np.ascontiguousarray(headings, dtype=np.float64).reshape(n)
-    circles = np.ascontiguousarray(circles, dtype=np.float64).reshape(-1, 3)
-    segments = np.ascontiguousarray(segments, dtype=np.float64).reshape(-1, 4)
-    if skip_circle is None:
-        skip_circle = np.full(n, -1, dtype=np.int64)
-    skip_circle = np.ascontiguousarray(skip_circle, dtype=np.int64).reshape(n)
-    if out is None:
-        dist = np.empty((n, n_beams), dtype=np.float64)
-        prim = np.empty((n, n_beams), dtype=np.int32)
-    else:
-        dist, prim = out
-        if (
-            dist.shape != (n, n_beams)
-            or dist.dtype != np.float64
-            or prim.shape != dist.shape
-            or (prim.dtype != np.int32)
-        ):
-            raise ValueError(f"cast_rays: out buffers must be float64 and int32 of shape {(n, n_beams)}")
-    _cast_kernel(
-        origins[:, 0].copy(),
-        origins[:, 1].copy(),
-        headings,
-        int(n_beams),
-        float(range_max),
-        circles,
-        skip_circle,
-        segments,
-        dist,
-        prim,
-    )
-    return dist, prim
-
-
 def cast_scan(
     origins: np.ndarray,
     headings: np.ndarray,
@@ -398,18 +310,19 @@ def cast_scan(
     prim_kind: np.ndarray,
     prim_index: np.ndarray,
     spec: LidarSpec,
+    dtype: type = np.float32,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Noise-free lidar readings plus per-beam ground truth, fused in one kernel pass.
 
     ``prim_kind`` / ``prim_index`` give each primitive's owner, indexed by primitive id + 1 (slot 0
-    is "no hit"). Returns ``ranges`` (float32, ``range_max`` for no return or a surface closer than
-    ``range_min``), ``true_ranges`` (float32, ``inf`` for no hit), ``hit_kind`` (int8) and
-    ``hit_index`` (int32), each ``(N, n_beams)``.
+    is "no hit"). Returns ``ranges`` (``dtype``, ``range_max`` for no return or a surface closer than
+    ``range_min``), ``true_ranges`` (``dtype``, ``inf`` for no hit), ``hit_kind`` (int8) and
+    ``hit_index`` (int32), each ``(N, n_beams)``. Distances are computed in float64 either way.
     """
     origins = np.ascontiguousarray(origins, dtype=np.float64).reshape(-1, 2)
     n, nb = origins.shape[0], spec.n_beams
-    ranges = np.empty((n, nb), np.float32)
-    true = np.empty((n, nb), np.float32)
+    ranges = np.empty((n, nb), dtype)
+    true = np.empty((n, nb), dtype)
     kind = np.empty((n, nb), np.int8)
     index = np.empty((n, nb), np.int32)
     _scan_kernel(
@@ -456,7 +369,9 @@ def scan_shapes(
     c = np.asarray(list(circles), dtype=np.float64).reshape(-1, 3)
     segs = [polygon_edges(_ccw(np.asarray(p, dtype=np.float64))) for p in polygons]
     s = np.concatenate(segs) if segs else np.zeros((0, 4))
-    dist, _ = cast_rays(np.asarray([origin]), np.asarray([heading]), c, s, spec.n_beams, spec.range_max)
-    d = dist[0]
-    d[(d < spec.range_min) | ~np.isfinite(d)] = spec.range_max
-    return d
+    n_prim = len(c) + len(s)
+    ranges, _, _, _ = cast_scan(
+        np.asarray([origin]), np.asarray([heading]), c, s, np.array([-1]),
+        np.zeros(n_prim + 1, np.int8), np.arange(-1, n_prim, dtype=np.int32), spec, dtype=np.float64,
+    )  # fmt: skip
+    return ranges[0]
