@@ -202,13 +202,14 @@ def test_custom_detector_and_observation_channels():
     assert mask.shape == (360,) and np.flatnonzero(mask).tolist() == [0, 1, 2, 3, 355, 356, 357, 358, 359]
 
 
-def test_learned_detector_missing_is_a_clear_error():
-    import detectors
-
-    if hasattr(detectors, "LearnedKinDetector"):
-        pytest.skip("detectors.LearnedKinDetector exists")
-    with pytest.raises(ValueError, match="LearnedKinDetector"):
-        gym.make(SEEK, detector="learned")
+def test_learned_detector_channel():
+    pytest.importorskip("torch")
+    env = gym.make(SEEK, detector="learned", obs_detections="topk")
+    obs, info = env.reset(seed=0)
+    assert env.observation_space.contains(obs)
+    assert set(info["kin_detections"]) >= {"range", "bearing", "score", "kin_index"}
+    with pytest.raises(ValueError, match="unknown detector 'neural'"):
+        gym.make(SEEK, detector="neural")
 
 
 @pytest.mark.parametrize("env_id", IDS)
