@@ -13,8 +13,11 @@ RLlib's new API stack (ray 2.60): ``PPOConfig().environment(...).env_runners(num
 
 Seeding: ``--seed`` goes to ``config.debugging(seed=...)``: RLlib seeds Python, numpy and torch
 in every process and env runner ``i`` resets its swarm with ``seed + i`` once; later episodes
-continue that env's RNG. With ``--env-runners 0`` a run is repeatable; with remote env runners
-the order in which their samples reach the learner can vary.
+continue that env's RNG. RLlib also keeps agent ids in sets, whose order follows Python's string
+hash, so run as a command the script fixes ``PYTHONHASHSEED`` (0 unless set; a local Ray's workers
+inherit it; on a cluster set it where ``ray start`` runs). Then the same command gives the same
+run (checked with 0 and 1 env runner; with several, the order in which their samples reach the
+learner may vary).
 
 Outputs in ``--out``: ``checkpoint/`` (``Algorithm.save_to_path``; the policy alone is
 ``checkpoint/learner_group/learner/rl_module/shared``, loadable with
@@ -32,6 +35,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import platform
 import sys
 import time
@@ -236,6 +240,7 @@ def main(argv=None) -> dict:
             "env": "aggregation_v0",
             "env_config": args.env_config,
             "seed": args.seed,
+            "python_hash_seed": os.environ.get("PYTHONHASHSEED"),
             "args": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()},
             "ray": {"address": args.address, "num_cpus": args.num_cpus, "cluster_cpus": cpus},
             "rllib_config": config.to_dict(),
@@ -260,6 +265,8 @@ def main(argv=None) -> dict:
 
 
 if __name__ == "__main__":
+    if "PYTHONHASHSEED" not in os.environ:  # see Seeding above: restart with a fixed string hash
+        os.execve(sys.executable, [sys.executable, *sys.argv], {**os.environ, "PYTHONHASHSEED": "0"})
     try:
         main()
     except (ValueError, ImportError) as e:
