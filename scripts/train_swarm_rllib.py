@@ -33,6 +33,7 @@ Example::
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
@@ -231,6 +232,8 @@ def main(argv=None) -> dict:
             checkpoint = Path(algo.save_to_path(str((out / "checkpoint").resolve())))
         finally:
             algo.stop()  # ends the env-runner actors before Ray shuts down
+            with contextlib.suppress(OSError):  # the empty ~/ray_results/<time> every Algorithm makes
+                Path(algo.logdir).rmdir()
         import gymnasium
         import pettingzoo
 
