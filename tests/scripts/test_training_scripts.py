@@ -147,3 +147,13 @@ def test_bad_input_raises(tmp_path):
     with pytest.raises(ValueError, match="no file"):
         ev.main(["--model", str(tmp_path / "nope.zip"), "--out", str(tmp_path), "--no-progress"])
     assert not list(tmp_path.iterdir())  # nothing written before the input was checked
+
+
+def test_train_single_sac_in_process(tmp_path):
+    ts = load("train_single")
+    res = ts.main(["--algo", "sac", "--env-kwargs", '{"detector": null, "max_steps": 10}',
+                   "--timesteps", "40",
+                   "--hyperparams", '{"learning_starts": 20, "buffer_size": 100, "batch_size": 8}',
+                   "--eval-freq", "0", "--checkpoint-freq", "0", "--out", str(tmp_path), "--no-progress"])
+    assert type(res["model_object"]).__name__ == "SAC" and res["run"]["timesteps"] == 40
+    assert json.loads((tmp_path / "run.json").read_text())["algo"] == "sac"
