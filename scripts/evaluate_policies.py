@@ -227,9 +227,11 @@ def markdown_table(results: dict[str, dict], swarm: bool, meta: dict[str, Any]) 
             lines.append(f"| {name} | {fmt_ci(r['success_rate'], *r['success_ci'])} | "
                          f"{fmt_ci(*r['return'])} | {fmt_ci(*r['collisions'], 1)} | "
                          f"{fmt_ci(*r['time_to_success'], 1)} |")
+    how = ("Student t over episodes; swarm metrics averaged over the last "
+           f"{meta['metric_cycles']} cycles of each episode" if swarm
+           else "Wilson for the success rate, Student t for means")
     note = (f"\n{meta['episodes']} episodes per policy, seeds {meta['first_seed']}–"
-            f"{meta['first_seed'] + meta['episodes'] - 1}; 95 % intervals in brackets (Wilson for the "
-            "success rate, Student t for means).\n")
+            f"{meta['first_seed'] + meta['episodes'] - 1}; 95 % intervals in brackets ({how}).\n")
     return "\n".join(lines) + "\n" + note
 
 
@@ -369,7 +371,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
 
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
-    meta = {"episodes": episodes, "first_seed": args.first_seed, "link_radius": args.link_radius}
+    meta = {"episodes": episodes, "first_seed": args.first_seed, "link_radius": args.link_radius,
+            "metric_cycles": args.metric_cycles}
     md = f"## {args.env}" + (f", {args.n_robots} robots" if swarm else "") + "\n\n"
     md += markdown_table(results, swarm, meta)
     (out / "results.md").write_text(md)
