@@ -51,7 +51,9 @@ __all__ = [
     "ModelConfig",
     "SegmentNet",
     "TrainConfig",
+    "check_thresholds",
     "load_checkpoint",
+    "sample_weights",
     "save_checkpoint",
     "train_segment_net",
 ]
@@ -157,11 +159,18 @@ def save_checkpoint(
     *,
     positioning: str = "regression",
     angular_resolution: float = 2 * math.pi / 360,
+    thresholds: dict | None = None,
     info: dict | None = None,
 ) -> Path:
-    """Write ``model`` with everything needed to use it (see :func:`load_checkpoint`)."""
+    """Write ``model`` with everything needed to use it (see :func:`load_checkpoint`).
+
+    ``thresholds``: the calibrated ``p(kin)`` thresholds per estimated scan-noise level,
+    ``{"noise_edges": [e_1, ..., e_k], "values": [t_0, ..., t_k]}`` (a scan whose noise estimate
+    :func:`detectors.features.scan_noise` lies in ``[e_j, e_{j+1})`` uses ``t_j``); default 0.5 for all.
+    """
     if positioning not in POSITIONING:
         raise ValueError(f"positioning must be one of {POSITIONING}, got {positioning!r}")
+    thresholds = check_thresholds(thresholds)
     names = feature_names(feature_config)
     if model.config.n_features != len(names):
         raise ValueError(
@@ -182,11 +191,33 @@ def save_checkpoint(
             "normalisation": model.normalisation(),
             "positioning": positioning,
             "angular_resolution": float(angular_resolution),
+            "thresholds": thresholds,
             "info": _plain(info or {}),
         },
         path,
     )
     return path
+
+
+def check_thresholds(thresholds) -> dict:
+    """Validated per-noise thresholds (see :func:`save_checkpoint`); ``None`` -> 0.5 everywhere."""
+    if thresholds is None:
+        return {"noise_edges": [], "values": [0.5]}
+    if not isinstance(thresholds, dict) or set(thresholds) - {"noise_edges", "values", "info"}:
+        raise ValueError(f"thresholds must be a dict with noise_edges and values, got {thresholds!r}")
+    edges = [float(e) for e in thresholds.get("noise_edges", [])]
+    values = [float(v) for v in thresholds.get("values", [])]
+    if len(values) != len(edges) + 1 or not all(0.0 <= v <= 1.0 for v in values):
+        raise ValueError(
+            f"thresholds: expected len(noise_edges) + 1 probabilities in [0, 1], got {len(edges)} edges "
+            f"and values {values}"
+        )
+    if any(not (b > a) for a, b in zip(edges, edges[1:], strict=False)) or not all(map(math.isfinite, edges)):
+        raise ValueError(f"thresholds: noise_edges must be finite and increasing, got {edges}")
+    out = {"noise_edges": edges, "values": values}
+    if "info" in thresholds:
+        out["info"] = _plain(thresholds["info"])
+    return out
 
 
 def load_checkpoint(path=None, device="cpu") -> tuple[SegmentNet, dict]:
@@ -239,11 +270,13 @@ def load_checkpoint(path=None, device="cpu") -> tuple[SegmentNet, dict]:
         if ck.get("positioning") not in POSITIONING:
             raise ValueError(f"positioning {ck.get('positioning')!r} is not one of {POSITIONING}")
         res = float(ck["angular_resolution"])
+        thresholds = check_thresholds(ck.get("thresholds"))
     except (KeyError, TypeError, ValueError, RuntimeError) as e:
         raise ValueError(f"{path}: inconsistent checkpoint ({type(e).__name__}: {e}); {expected}") from e
     ck["feature_config"] = fc
     ck["model_config"] = mc
     ck["angular_resolution"] = res
+    ck["thresholds"] = thresholds
     ck["path"] = str(path)
     return model.to(device).eval(), ck
 
@@ -274,7 +307,9 @@ class LearnedKinDetector(KinDetector):
 
     Args:
         checkpoint: path of a checkpoint (default: the shipped ``learned_default.pt``).
-        threshold: a segment is a kin if ``p(kin) >= threshold``.
+        threshold: a segment is a kin if ``p(kin) >= threshold``; ``None`` (default): the
+            checkpoint's thresholds, calibrated on validation scenes per estimated scan-noise level
+            (:func:`detectors.features.scan_noise`; 0.5 if the checkpoint has none).
         device: torch device for the forward pass (``"cpu"``).
         positioning: ``"regression"`` or ``"fit"``; default: the checkpoint's choice.
         reports: build one :class:`SegmentReport` per segment (pass False when only detections
@@ -289,13 +324,13 @@ class LearnedKinDetector(KinDetector):
     def __init__(
         self,
         checkpoint=None,
-        threshold: float = 0.5,
+        threshold: float | None = None,
         device="cpu",
         *,
         positioning: str | None = None,
         reports: bool = True,
     ) -> None:
-        if (
+        if threshold is not None and (
             isinstance(threshold, bool)
             or not isinstance(threshold, int | float)
             or not 0.0 <= threshold <= 1.0
@@ -309,7 +344,11 @@ class LearnedKinDetector(KinDetector):
             raise ValueError(f"LearnedKinDetector: invalid torch device {device!r} ({e})") from e
         self.model, self.checkpoint = load_checkpoint(checkpoint, self.device)
         self.feature_config: FeatureConfig = self.checkpoint["feature_config"]
-        self.threshold = float(threshold)
+        self.threshold = None if threshold is None else float(threshold)
+        th = self.checkpoint["thresholds"]
+        self._noise_edges = np.asarray(th["noise_edges"], dtype=np.float64)
+        self._noise_thresholds = np.asarray(th["values"], dtype=np.float64)
+        self._noise_col = feature_names(self.feature_config).index("log_scan_noise")
         pos = self.checkpoint["positioning"] if positioning is None else positioning
         if pos not in POSITIONING:
             raise ValueError(f"LearnedKinDetector: positioning must be one of {POSITIONING}, got {pos!r}")
@@ -363,24 +402,40 @@ class LearnedKinDetector(KinDetector):
         frame ``x, y``, m; with this detector's ``positioning``; regression for every segment,
         circle fit only where ``p_kin >= threshold``, NaN elsewhere).
         """
+        batch, feats, p, centres, _ = self._predict(ranges, angles)
+        return batch, feats, p, centres
+
+    def segment_thresholds(self, feats: SegmentFeatures) -> np.ndarray:
+        """``(S,)`` the ``p(kin)`` threshold of each segment: ``threshold``, or the checkpoint's for
+        the noise level its scan's noise estimate falls in."""
+        n = feats.x.shape[0]
+        if self.threshold is not None:
+            return np.full(n, self.threshold)
+        if self._noise_edges.size == 0:
+            return np.full(n, float(self._noise_thresholds[0]))
+        sigma = np.exp(feats.x[:, self._noise_col].astype(np.float64)) - 1e-4
+        return self._noise_thresholds[np.searchsorted(self._noise_edges, sigma, side="right")]
+
+    def _predict(self, ranges, angles):
         rb, a = self._check(ranges, angles)
         batch = segment_batch(rb, a, self.feature_config, circular=self._circular)
         feats = segment_features(batch, self.feature_config)
         if batch.n_segments == 0:
-            return batch, feats, np.zeros(0), np.zeros((0, 2))
+            return batch, feats, np.zeros(0), np.zeros((0, 2)), np.zeros(0)
         with torch.inference_mode():
             x = torch.from_numpy(feats.x).to(self.device)
             # one batched pass over every segment, in row chunks that keep the activations in cache
             # (2x faster than a single 26k-row matmul chain on one core)
             out = torch.cat([self.model(c) for c in x.split(_CHUNK)]).cpu().numpy().astype(np.float64)
         p = 1.0 / (1.0 + np.exp(-out[:, 0]))
+        thr = self.segment_thresholds(feats)
         if self.positioning == "regression":
             nrm = self.checkpoint["normalisation"]
             uv = np.asarray(nrm["t_mean"]) + np.asarray(nrm["t_std"]) * out[:, 1:3]
             centres = local_to_observer(feats.frames, uv)
         else:
-            centres = self._fit_centres(batch, feats, p >= self.threshold)
-        return batch, feats, p, centres
+            centres = self._fit_centres(batch, feats, p >= thr)
+        return batch, feats, p, centres, thr
 
     def _fit_centres(self, batch: SegmentBatch, feats: SegmentFeatures, which: np.ndarray) -> np.ndarray:
         """Geometric stage 4 for the segments ``which``: LM circle fit from eq. 7, else NaN.
@@ -425,9 +480,8 @@ class LearnedKinDetector(KinDetector):
             return self._detect_batch(ranges, angles)
 
     def _detect_batch(self, ranges, angles) -> list[DetectionResult]:
-        batch, _, p, centres = self.predict_segments(ranges, angles)
+        batch, _, p, centres, thr = self._predict(ranges, angles)
         n_scans = batch.ranges.shape[0]
-        thr = self.threshold
         acc = p >= thr
         out = []
         bounds = np.searchsorted(batch.scan, np.arange(n_scans + 1)).tolist()
@@ -454,15 +508,18 @@ class LearnedKinDetector(KinDetector):
         if self.reports:
             # the numbers are in metrics["p_kin"]; two shared reason strings keep ~100 reports per
             # cluttered scan cheap
-            why = (f"p(kin) < threshold {thr:g}", f"p(kin) >= threshold {thr:g}")
-            pl, accl = p.tolist(), acc.tolist()
+            why = {
+                t: (f"p(kin) < threshold {t:g}", f"p(kin) >= threshold {t:g}")
+                for t in np.unique(thr).tolist()
+            }
+            pl, accl, tl = p.tolist(), acc.tolist(), thr.tolist()
             reps = list(
                 map(
                     SegmentReport,
                     itertools.chain.from_iterable(batch.segments),
                     [_STAGES[a] for a in accl],
-                    [why[a] for a in accl],
-                    [{"p_kin": v} for v in pl],
+                    [why[t][a] for t, a in zip(tl, accl, strict=True)],
+                    [{"p_kin": v, "threshold": t} for v, t in zip(pl, tl, strict=True)],
                 )
             )
         for b in range(n_scans):
@@ -488,6 +545,9 @@ class TrainConfig:
         reg_weight: weight of the centre-regression loss.
         patience: stop after this many epochs without a better validation loss.
         max_seconds: stop after this much training time (0 = no limit).
+        pos_weight: loss weight of kin segments (:func:`sample_weights`).
+        hard_weight: loss weight of the hard negatives, kin-width prisms and cuboids (a 7 cm
+            hexagon deviates from the housing's circle by <= 4.7 mm, about one beam's noise at 1 %).
     """
 
     hidden: tuple[int, ...] = (64, 64)
@@ -498,6 +558,8 @@ class TrainConfig:
     reg_weight: float = 0.5
     patience: int = 5
     max_seconds: float = 0.0
+    pos_weight: float = 1.0
+    hard_weight: float = 1.0
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "hidden", tuple(self.hidden))
@@ -505,12 +567,15 @@ class TrainConfig:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 1:
                 raise ValueError(f"TrainConfig.{name} must be an integer >= 1, got {v!r}")
-        for name in ("lr", "weight_decay", "reg_weight", "max_seconds"):
+        for name in ("lr", "weight_decay", "reg_weight", "max_seconds", "pos_weight", "hard_weight"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v) or v < 0:
                 raise ValueError(f"TrainConfig.{name} must be a finite number >= 0, got {v!r}")
-        if self.lr <= 0:
-            raise ValueError(f"TrainConfig.lr must be > 0, got {self.lr!r}")
+        if self.lr <= 0 or self.pos_weight <= 0 or self.hard_weight <= 0:
+            raise ValueError(
+                f"TrainConfig.lr, pos_weight and hard_weight must be > 0, got {self.lr!r}, "
+                f"{self.pos_weight!r}, {self.hard_weight!r}"
+            )
         ModelConfig(1, self.hidden)  # validates hidden
 
     def to_dict(self) -> dict:
@@ -529,9 +594,32 @@ class TrainConfig:
         return cls(**d)
 
 
-def _losses(model: SegmentNet, x, y, t, tm, reg_weight: float):
+#: negatives weighted by TrainConfig.hard_weight (detectors.dataset.CATEGORIES names)
+HARD_CATEGORIES = ("kin_width_prism", "kin_width_box")
+
+
+def sample_weights(labels, categories, config: TrainConfig) -> np.ndarray:
+    """Per-segment loss weights: ``pos_weight`` for kin, ``hard_weight`` for the
+    :data:`HARD_CATEGORIES` negatives, 1 otherwise (``categories``: codes into
+    :data:`detectors.dataset.CATEGORIES`)."""
+    from .dataset import CATEGORIES
+
+    y = np.asarray(labels).reshape(-1) > 0
+    hard = np.isin(np.asarray(categories), [CATEGORIES.index(c) for c in HARD_CATEGORIES]) & ~y
+    w = np.ones(y.shape[0], dtype=np.float32)
+    w[y] = config.pos_weight
+    w[hard] = config.hard_weight
+    return w
+
+
+def _losses(model: SegmentNet, x, y, t, tm, reg_weight: float, w=None):
     out = model(x)
-    bce = nn.functional.binary_cross_entropy_with_logits(out[:, 0], y)
+    if w is None:
+        bce = nn.functional.binary_cross_entropy_with_logits(out[:, 0], y)
+    else:
+        bce = (
+            nn.functional.binary_cross_entropy_with_logits(out[:, 0], y, reduction="none") * w
+        ).sum() / w.sum()
     if tm.any():
         tn = (t[tm] - model.t_mean) / model.t_std
         reg = nn.functional.smooth_l1_loss(out[tm, 1:3], tn)
@@ -552,7 +640,8 @@ def train_segment_net(
 
     Args:
         train, val: ``x`` (N, F) float32 features, ``y`` (N,) 0/1 labels, ``target`` (N, 2) kin
-            centre in the local frame (NaN for non-kin; those rows get no centre loss).
+            centre in the local frame (NaN for non-kin; those rows get no centre loss); optional
+            ``weight`` (N,) per-segment classification loss weights (:func:`sample_weights`).
         config: hyper-parameters.
         seed: seeds torch (initialisation, shuffling).
         log: called with each epoch's record (dict) as it completes.
@@ -580,15 +669,22 @@ def train_segment_net(
         if not np.isfinite(x).all():
             raise ValueError(f"train_segment_net: {name} features contain non-finite values")
         tm = np.isfinite(t).all(axis=1) & (y > 0.5)
+        w = d.get("weight")
+        if w is not None:
+            w = np.asarray(w, dtype=np.float32).reshape(-1)
+            if w.shape != y.shape or not (np.isfinite(w).all() and (w > 0).all()):
+                raise ValueError(f"train_segment_net: {name} weight must be (N,) finite values > 0")
+            w = torch.from_numpy(w)
         return (
             torch.from_numpy(x),
             torch.from_numpy(y),
             torch.from_numpy(np.nan_to_num(t)),
             torch.from_numpy(tm),
+            w,
         )
 
-    xt, yt, tt, mt = tensors(train, "train")
-    xv, yv, tv, mv = tensors(val, "val")
+    xt, yt, tt, mt, wt = tensors(train, "train")
+    xv, yv, tv, mv, wv = tensors(val, "val")
     if xv.shape[1] != xt.shape[1]:
         raise ValueError(f"train_segment_net: train has {xt.shape[1]} features, val {xv.shape[1]}")
     model = SegmentNet(ModelConfig(int(xt.shape[1]), cfg.hidden))
@@ -613,7 +709,9 @@ def train_segment_net(
         sums = np.zeros(3)
         for k in tqdm(range(steps_per_epoch), desc=f"epoch {epoch}", leave=False, disable=not progress):
             i = perm[k * cfg.batch_size : (k + 1) * cfg.batch_size]
-            bce, reg, _ = _losses(model, xt[i], yt[i], tt[i], mt[i], cfg.reg_weight)
+            bce, reg, _ = _losses(
+                model, xt[i], yt[i], tt[i], mt[i], cfg.reg_weight, None if wt is None else wt[i]
+            )
             loss = bce + cfg.reg_weight * reg
             opt.zero_grad(set_to_none=True)
             loss.backward()
@@ -622,7 +720,7 @@ def train_segment_net(
             sums += (loss.item(), bce.item(), reg.item())
         model.eval()
         with torch.inference_mode():
-            vb, vr, out = _losses(model, xv, yv, tv, mv, cfg.reg_weight)
+            vb, vr, out = _losses(model, xv, yv, tv, mv, cfg.reg_weight, wv)
             pred = out[:, 0] > 0
             tp = float((pred & (yv > 0.5)).sum())
             fp = float((pred & (yv < 0.5)).sum())

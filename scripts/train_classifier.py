@@ -7,7 +7,10 @@ Steps (all seeded by ``--seed``):
    training (one scan cannot tell them from a kin: identical inputs with opposite labels);
 3. train ``detectors.learned.SegmentNet`` (classification + centre regression) with early stopping on
    the validation loss; one CSV row per epoch (``train_log.csv``);
-4. validation metrics from the dataset: segment level and kin level (``validation.json``);
+4. the checkpoint's threshold: ``--threshold`` (0.5), or with ``--calibrate`` one per estimated
+   scan-noise level (``--calib-noise-edges``; :func:`detectors.features.scan_noise`), the one with
+   the best segment F1 on the validation scenes' detection scenes; validation metrics from the
+   dataset with it: segment level and kin level (``validation.json``);
 5. held-out sweep (``--eval-scenes`` > 0): new detection scenes with seeds from ``--eval-first-seed``
    (disjoint from training), every noise level of ``--eval-noise``, scanned from every robot; the
    learned detector (both positioning options) and the geometric detector run on the same scans;
@@ -39,12 +42,13 @@ import torch
 from tqdm import tqdm
 
 from detectors.dataset import CATEGORIES, DatasetConfig, label_scan, load_dataset, make_scene
-from detectors.features import observer_to_local
+from detectors.features import feature_names, observer_to_local
 from detectors.geometric import GeometricKinDetector
 from detectors.learned import (
     LearnedKinDetector,
     TrainConfig,
     load_checkpoint,
+    sample_weights,
     save_checkpoint,
     train_segment_net,
 )
@@ -122,8 +126,43 @@ def predict(model, x: np.ndarray, frames: np.ndarray) -> tuple[np.ndarray, np.nd
     return 1.0 / (1.0 + np.exp(-out[:, 0])), local_to_observer(frames.astype(np.float64), uv)
 
 
-def validation_metrics(segs: dict, objs: dict, p: np.ndarray, xy: np.ndarray, thr: float) -> dict:
-    """Segment-level and kin-level metrics on the validation scenes of the dataset."""
+CALIB_NOISE_EDGES = (0.0015, 0.004, 0.0075, 0.015)
+_CALIB_GRID = np.round(np.arange(0.2, 0.91, 0.01), 2)
+_CALIB_MIN_KIN = 200  # kin segments a noise bin needs for its own threshold (else 0.5)
+
+
+def scan_noise_of(x: np.ndarray, fcfg) -> np.ndarray:
+    """The scan-noise estimate of each segment's scan, from its feature vector."""
+    return np.exp(x[:, feature_names(fcfg).index("log_scan_noise")].astype(np.float64)) - 1e-4
+
+
+def calibrate_thresholds(p, y, sigma, edges) -> dict:
+    """Per noise bin (``sigma`` binned by ``edges``), the grid threshold with the best segment F1
+    (every non-kin segment, same-radius cylinders included, is a negative, as in the evaluation)."""
+    edges = [float(e) for e in edges]
+    b = np.searchsorted(np.asarray(edges), sigma, side="right")
+    values, info = [], []
+    for k in range(len(edges) + 1):
+        m = b == k
+        pk, yk = p[m], y[m]
+        n_kin = int(yk.sum())
+        if n_kin < _CALIB_MIN_KIN:
+            values.append(0.5)
+            info.append({"segments": int(m.sum()), "kin": n_kin, "f1": None, "f1_at_0.5": None})
+            continue
+        acc = pk[None, :] >= _CALIB_GRID[:, None]
+        tp = (acc & yk).sum(1)
+        f1 = 2 * tp / (acc.sum(1) + n_kin)
+        j = int(np.argmax(f1))
+        values.append(float(_CALIB_GRID[j]))
+        f05 = float(f1[int(np.argmin(np.abs(_CALIB_GRID - 0.5)))])
+        info.append({"segments": int(m.sum()), "kin": n_kin, "f1": float(f1[j]), "f1_at_0.5": f05})
+    return {"noise_edges": edges, "values": values, "info": info}
+
+
+def validation_metrics(segs: dict, objs: dict, p: np.ndarray, xy: np.ndarray, thr) -> dict:
+    """Segment-level and kin-level metrics on the validation scenes of the dataset (``thr``: one
+    threshold or one per segment)."""
     acc = p >= thr
     y = segs["label"] == 1
     same = segs["same_radius"]
@@ -148,7 +187,7 @@ def validation_metrics(segs: dict, objs: dict, p: np.ndarray, xy: np.ndarray, th
         "median": float(np.median(err[hit])) if hit.any() else None,
         "p90": float(np.percentile(err[hit], 90)) if hit.any() else None,
     }
-    out["threshold"] = thr
+    out["threshold"] = thr if np.isscalar(thr) else "calibrated per noise level"
     return out
 
 
@@ -367,7 +406,7 @@ def evaluate(ckpt: Path, args, progress: bool) -> dict:
         "first_seed": args.eval_first_seed,
         "scene_config": EVAL_CONFIG.to_dict(),
         "gate_m": GATE,
-        "threshold": args.threshold,
+        "threshold": "calibrated" if args.threshold is None else args.threshold,
         "table": {n: tally.table(n, False) for n in names},
         "table_ge2": {n: tally.table(n, True) for n in names},
     }
@@ -449,7 +488,21 @@ def main(argv=None) -> dict:
     ap.add_argument("--seed", type=int, default=0, help="seed of the split, initialisation and shuffling")
     ap.add_argument("--config", default=None, help="TrainConfig overrides: JSON object or file")
     ap.add_argument("--val-fraction", type=float, default=0.15, help="fraction of scenes for validation")
-    ap.add_argument("--threshold", type=float, default=0.5, help="p(kin) threshold for the metrics")
+    ap.add_argument(
+        "--threshold", type=float, default=0.5, help="p(kin) threshold for the checkpoint and metrics"
+    )
+    ap.add_argument(
+        "--calibrate",
+        action="store_true",
+        help="instead of --threshold: one threshold per scan-noise level, chosen on the validation scenes",
+    )
+    ap.add_argument(
+        "--calib-noise-edges",
+        type=float,
+        nargs="*",
+        default=list(CALIB_NOISE_EDGES),
+        help="scan-noise bin edges of the threshold calibration (relative sigma)",
+    )
     ap.add_argument(
         "--positioning",
         choices=("auto", "regression", "fit"),
@@ -488,8 +541,10 @@ def main(argv=None) -> dict:
     tgt = targets(segs)
     keep = ~segs["same_radius"]  # indistinguishable from kin in one scan: not a training negative
 
+    weight = sample_weights(segs["label"], segs["category"], tcfg)
+
     def part(m):
-        return {"x": segs["x"][m], "y": segs["label"][m], "target": tgt[m]}
+        return {"x": segs["x"][m], "y": segs["label"][m], "target": tgt[m], "weight": weight[m]}
 
     log_path = args.out / "train_log.csv"
     with log_path.open("w", newline="") as f:
@@ -513,7 +568,19 @@ def main(argv=None) -> dict:
     vs = {k: v[is_val] for k, v in segs.items()}
     vo = {k: v[np.isin(objs["seed"], val_seeds)] for k, v in objs.items()}
     p, xy = predict(model, vs["x"], vs["frames"])
-    val = validation_metrics(vs, vo, p, xy, args.threshold)
+    sigma = scan_noise_of(vs["x"], fcfg)
+    if args.calibrate:
+        args.threshold = None  # the detectors of the sweep use the checkpoint's thresholds
+        detection = vs["family"] != 1  # detection scenes (with or without boundary wall)
+        thresholds = calibrate_thresholds(
+            p[detection], vs["label"][detection] == 1, sigma[detection], sorted(args.calib_noise_edges)
+        )
+    else:
+        thresholds = {"noise_edges": [], "values": [args.threshold]}
+    seg_thr = np.asarray(thresholds["values"])[
+        np.searchsorted(np.asarray(thresholds["noise_edges"]), sigma, side="right")
+    ]
+    val = validation_metrics(vs, vo, p, xy, seg_thr)
     (args.out / "validation.json").write_text(json.dumps(val, indent=2))
 
     lidar_res = 2 * math.pi / 360  # the dataset's lidar (LidarSpec default, RPLIDAR A1)
@@ -538,9 +605,18 @@ def main(argv=None) -> dict:
         "epochs_run": len(history),
         "train_seconds": round(train_seconds, 1),
         "validation": val,
+        "thresholds": thresholds,
     }
     positioning = "regression" if args.positioning == "auto" else args.positioning
-    save_checkpoint(ckpt, model, fcfg, positioning=positioning, angular_resolution=lidar_res, info=info)
+    save_checkpoint(
+        ckpt,
+        model,
+        fcfg,
+        positioning=positioning,
+        angular_resolution=lidar_res,
+        thresholds=thresholds,
+        info=info,
+    )
     ev = None
     if args.eval_scenes:
         ev = evaluate(ckpt, args, progress)
@@ -552,7 +628,15 @@ def main(argv=None) -> dict:
             k: ev[k] for k in ("targets", "positioning", "centre_error", "scenes_per_noise", "first_seed")
         }
         model, _ = load_checkpoint(ckpt)
-        save_checkpoint(ckpt, model, fcfg, positioning=positioning, angular_resolution=lidar_res, info=info)
+        save_checkpoint(
+            ckpt,
+            model,
+            fcfg,
+            positioning=positioning,
+            angular_resolution=lidar_res,
+            thresholds=thresholds,
+            info=info,
+        )
     info["positioning"] = positioning
     info["total_seconds"] = round(time.perf_counter() - t_start, 1)
     info["python"], info["torch"] = platform.python_version(), torch.__version__

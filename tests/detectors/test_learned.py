@@ -17,7 +17,9 @@ from detectors.learned import (  # noqa: E402
     ModelConfig,
     SegmentNet,
     TrainConfig,
+    check_thresholds,
     load_checkpoint,
+    sample_weights,
     save_checkpoint,
     train_segment_net,
 )
@@ -118,6 +120,11 @@ def test_bad_checkpoints_are_refused_clearly(tmp_path):
     old = rewrite(good, tmp_path / "old.pt", feature_version=FEATURE_VERSION - 1)
     with pytest.raises(ValueError, match=f"old.pt.*feature version {FEATURE_VERSION - 1}.*retrain"):
         load_checkpoint(old)
+    with pytest.raises(ValueError, match=f"old.pt.*feature version {FEATURE_VERSION - 1}.*retrain"):
+        LearnedKinDetector(old)
+    bad_thr = rewrite(good, tmp_path / "thr.pt", thresholds={"noise_edges": [0.01], "values": [0.5]})
+    with pytest.raises(ValueError, match="thr.pt: inconsistent checkpoint.*thresholds"):
+        load_checkpoint(bad_thr)
     small = random_model(n_features=10)
     wrong = rewrite(good, tmp_path / "wrong.pt", model_config=small.config.to_dict(),
                     state_dict=small.state_dict())  # fmt: skip
@@ -128,6 +135,61 @@ def test_bad_checkpoints_are_refused_clearly(tmp_path):
     torch.save(ck, tmp_path / "shape.pt")
     with pytest.raises(ValueError, match="shape.pt: inconsistent checkpoint"):
         load_checkpoint(tmp_path / "shape.pt")
+
+
+def test_thresholds_per_noise_level(tmp_path):
+    assert check_thresholds(None) == {"noise_edges": [], "values": [0.5]}
+    for bad in ({"noise_edges": [0.01], "values": [0.5]}, {"noise_edges": [0.02, 0.01], "values": [0.5] * 3},
+                {"noise_edges": [], "values": [1.5]}, {"edges": [], "values": [0.5]}):  # fmt: skip
+        with pytest.raises(ValueError, match="thresholds"):
+            check_thresholds(bad)
+    # noise-free scans (estimate ~0) take the first threshold, 1 % noise the second
+    thr = {"noise_edges": [0.003], "values": [0.2, 0.9]}
+    path = save_checkpoint(tmp_path / "t.pt", random_model(), FeatureConfig(), thresholds=thr)
+    assert load_checkpoint(path)[1]["thresholds"] == thr
+    for sigma, expected in ((0.0, 0.2), (0.01, 0.9)):
+        scan = World(scenes.detection_scene(5, lidar=LidarSpec(noise_sigma=sigma)), seed=0).scan(robots=[0])
+        det = LearnedKinDetector(path)
+        batch, feats, p, _ = det.predict_segments(scan.ranges, scan.angles)
+        np.testing.assert_array_equal(det.segment_thresholds(feats), expected)
+        res = det.detect(scan.ranges[0], scan.angles)
+        assert len(res.detections) == int((p >= expected).sum())
+        assert {r.metrics["threshold"] for r in res.reports} == {expected}
+        # an explicit threshold overrides the calibrated ones
+        fixed = LearnedKinDetector(path, threshold=0.5)
+        np.testing.assert_array_equal(fixed.segment_thresholds(feats), 0.5)
+        assert len(fixed.detect(scan.ranges[0], scan.angles).detections) == int((p >= 0.5).sum())
+
+
+def test_sample_weights_and_weighted_training():
+    from detectors.dataset import category_code
+
+    cats = np.array(
+        [category_code(c) for c in ("kin", "kin_width_prism", "kin_width_box", "wall", "cylinder")]
+    )
+    y = np.array([1, 0, 0, 0, 0])
+    w = sample_weights(y, cats, TrainConfig(pos_weight=2.0, hard_weight=4.0))
+    np.testing.assert_array_equal(w, [2.0, 4.0, 4.0, 1.0, 1.0])
+    with pytest.raises(ValueError, match="hard_weight"):
+        TrainConfig(hard_weight=0.0)
+    # unit weights train exactly as no weights; heavier negatives push p(kin) down; bad weights refused
+    rng = np.random.default_rng(1)
+    x = rng.normal(size=(200, 4)).astype(np.float32)
+    y = rng.integers(0, 2, 200)
+    x[:, 0] += 4.0 * y
+    data = {"x": x, "y": y, "target": np.full((200, 2), np.nan, np.float32)}
+    cfg = TrainConfig(hidden=(8,), epochs=5, batch_size=32, lr=1e-2, patience=5)
+
+    def logits(d):
+        model, _ = train_segment_net(d, d, cfg, progress=False)
+        with torch.inference_mode():
+            return model(torch.from_numpy(x))[:, 0]
+
+    plain = logits(data)
+    torch.testing.assert_close(logits({**data, "weight": np.ones(200)}), plain)
+    assert logits({**data, "weight": np.where(y, 1.0, 3.0)}).mean() < plain.mean()
+    with pytest.raises(ValueError, match="weight"):
+        train_segment_net({**data, "weight": np.zeros(200)}, data, cfg, progress=False)
 
 
 def test_detector_argument_and_input_errors(shipped):
@@ -167,10 +229,11 @@ def test_reports_detections_and_batch_consistency(shipped):
         assert len(acc) == len(res.detections)
         for rep, det in zip(acc, res.detections, strict=True):
             assert rep.segment.first_beam == det.first_beam and rep.segment.n_beams == det.n_beams
-            assert det.score == rep.metrics["p_kin"] >= 0.5
+            assert det.score == rep.metrics["p_kin"] >= rep.metrics["threshold"]
             assert det.range == pytest.approx(math.hypot(det.x, det.y))
         for rep in res.reports:
             assert rep.stage in ("accepted", "learned") and 0.0 <= rep.metrics["p_kin"] <= 1.0
+            assert (rep.stage == "accepted") == (rep.metrics["p_kin"] >= rep.metrics["threshold"])
     quiet = LearnedKinDetector(reports=False).detect_batch(scan.ranges, scan.angles)
     assert all(not r.reports for r in quiet)
     assert [len(r.detections) for r in quiet] == [len(r.detections) for r in batch]

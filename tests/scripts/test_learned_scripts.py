@@ -48,8 +48,10 @@ def test_train_classifier_tiny_budget(dataset, tmp_path):
     ckpt = tmp_path / "tiny.pt"
     cfg = json.dumps({"epochs": 1, "hidden": [8], "batch_size": 256})
     run("train_classifier.py", "--data", dataset, "--out", tmp_path / "train", "--checkpoint", ckpt,
-        "--config", cfg, "--eval-scenes", 1, "--val-fraction", 0.25)  # fmt: skip
+        "--config", cfg, "--eval-scenes", 1, "--val-fraction", 0.25, "--calibrate")  # fmt: skip
     side = json.loads(ckpt.with_suffix(".json").read_text())
+    thr = side["thresholds"]
+    assert len(thr["values"]) == len(thr["noise_edges"]) + 1 == 5 and all(0 < v < 1 for v in thr["values"])
     assert side["epochs_run"] == 1 and side["seed"] == 0 and side["train_config"]["hidden"] == [8]
     assert side["positioning"] in ("regression", "fit") and "--config" in side["command"]
     for name in ("train_log.csv", "validation.json", "eval.json", "eval.md", "config.json"):
@@ -64,6 +66,7 @@ def test_train_classifier_tiny_budget(dataset, tmp_path):
 
     det = LearnedKinDetector(ckpt)
     assert det.positioning == side["positioning"]
+    assert det.checkpoint["thresholds"]["values"] == thr["values"]
     scan = World(scenes.paper_scenario(1), seed=0).scan()
     assert len(det.detect_batch(scan.ranges, scan.angles)) == 2
 
