@@ -30,7 +30,7 @@ from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from typing import Any, TypeVar
 
-__all__ = ["BACKENDS", "cached", "map_seeds", "ray_session", "ship_by_value"]
+__all__ = ["BACKENDS", "cached", "imap_seeds", "map_seeds", "ray_session", "ship_by_value"]
 
 BACKENDS = ("local", "ray")
 U = TypeVar("U")
@@ -165,12 +165,40 @@ def map_seeds(
         desc, unit: the bar's label and unit name.
         chunksize: Ray only: consecutive units per task (default 1: a task per unit). A Ray task
             costs about a millisecond, so units much shorter than that are better run in chunks.
-        max_in_flight: Ray only: tasks submitted at a time (default: 4 per cluster CPU, at least
-            16), so millions of units do not all sit in the scheduler at once.
+        max_in_flight: Ray only: tasks submitted or finished but not yet handed over, at most
+            (default: 4 per cluster CPU, at least 16), so millions of units never sit in the
+            scheduler or in memory at once.
 
     A failing unit raises its exception here (with Ray, a ``RayTaskError`` that is also an
     instance of the original exception class), after cancelling the tasks still queued.
     """
+    return list(
+        imap_seeds(
+            fn, units, backend, args=args, address=address, num_cpus=num_cpus, progress=progress,
+            desc=desc, unit=unit, chunksize=chunksize, max_in_flight=max_in_flight,
+        )
+    )  # fmt: skip
+
+
+def imap_seeds(
+    fn: Callable[..., R],
+    units: Iterable[U],
+    backend: str = "local",
+    *,
+    args: tuple = (),
+    address: str | None = None,
+    num_cpus: int | None = None,
+    progress: bool = True,
+    desc: str = "units",
+    unit: str = "unit",
+    chunksize: int = 1,
+    max_in_flight: int | None = None,
+) -> Iterator[R]:
+    """:func:`map_seeds` as an iterator: each result as soon as it and all before it are done,
+    so a consumer (writing shards, say) holds only a window of results and overlaps with the
+    workers. Arguments are checked now; the work starts at the first ``next()``. A Ray started
+    here is shut down when the iterator is exhausted or closed (use it in a ``for`` loop or
+    ``contextlib.closing``)."""
     if backend not in BACKENDS:
         raise ValueError(f"unknown backend {backend!r}; expected one of {', '.join(BACKENDS)}")
     _check_fn(fn)
@@ -179,67 +207,69 @@ def map_seeds(
     for name, v in (("chunksize", chunksize), ("max_in_flight", max_in_flight)):
         if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v < 1):
             raise ValueError(f"map_seeds: {name} must be an int >= 1, got {v!r}")
+    if backend == "local" and (address is not None or num_cpus is not None):
+        raise ValueError("address and num_cpus apply to the 'ray' backend only")
     units = list(units)
-    if backend == "local":
-        if address is not None or num_cpus is not None:
-            raise ValueError("address and num_cpus apply to the 'ray' backend only")
-        bar = _progress(len(units), desc, unit, progress)
-        out = []
-        try:
-            for u in units:
-                out.append(fn(u, *args))
-                if bar is not None:
-                    bar.update(1)
-        finally:
+    if backend == "ray":
+        _import_ray()  # fail now, not at the first next()
+        return _imap_ray(fn, units, args, address, num_cpus, progress, desc, unit, chunksize, max_in_flight)
+    return _imap_local(fn, units, args, progress, desc, unit)
+
+
+def _imap_local(fn, units: list, args: tuple, progress: bool, desc: str, unit: str) -> Iterator:
+    bar = _progress(len(units), desc, unit, progress)
+    try:
+        for u in units:
+            result = fn(u, *args)
             if bar is not None:
-                bar.close()
-        return out
-    with ray_session(address, num_cpus) as ray:
-        return _map_ray(ray, fn, units, args, progress, desc, unit, chunksize, max_in_flight)
+                bar.update(1)
+            yield result
+    finally:
+        if bar is not None:
+            bar.close()
 
 
 def _run_chunk(chunk: list, fn, *args) -> list:
     return [fn(u, *args) for u in chunk]
 
 
-def _map_ray(ray, fn, units: list, args, progress, desc, unit, chunksize: int, max_in_flight) -> list:
-    ship_by_value(fn)
-    # units are seeded, so Ray may safely re-run a task whose worker or node died (its default)
-    if chunksize == 1:
-        task, head = ray.remote(num_cpus=1)(fn), ()
-    else:
-        task, head = ray.remote(num_cpus=1)(_run_chunk), (ray.put(fn),)
-    shared = [*head, *(ray.put(a) for a in args)]  # stored once; top-level refs arrive as values
-    if max_in_flight is None:
-        max_in_flight = max(16, 4 * int(ray.cluster_resources().get("CPU", 1)))
-    results: list = [None] * len(units)
-    starts = iter(range(0, len(units), chunksize))
-    pending: dict = {}
-
-    def submit(n: int) -> None:
-        for i in itertools.islice(starts, n):
-            arg = units[i] if chunksize == 1 else units[i : i + chunksize]
-            pending[task.remote(arg, *shared)] = i
-
-    bar = _progress(len(units), desc, unit, progress)
-    try:
-        submit(max_in_flight)
-        while pending:
-            done, _ = ray.wait(list(pending), num_returns=1)
-            for ref in done:
-                i, value = pending.pop(ref), ray.get(ref)
-                if chunksize == 1:
-                    results[i] = value
-                else:
-                    results[i : i + len(value)] = value
-                if bar is not None:
-                    bar.update(1 if chunksize == 1 else len(value))
-            submit(len(done))
-    except BaseException:
-        for ref in pending:  # do not leave the cluster busy with a sweep nobody waits for
-            ray.cancel(ref)
-        raise
-    finally:
-        if bar is not None:
-            bar.close()
-    return results
+def _imap_ray(fn, units: list, args, address, num_cpus, progress, desc, unit, chunksize, max_in_flight):
+    with ray_session(address, num_cpus) as ray:
+        ship_by_value(fn)
+        # units are seeded, so Ray may safely re-run a task whose worker or node died (its default)
+        if chunksize == 1:
+            task, head = ray.remote(num_cpus=1)(fn), ()
+        else:
+            task, head = ray.remote(num_cpus=1)(_run_chunk), (ray.put(fn),)
+        shared = [*head, *(ray.put(a) for a in args)]  # stored once; top-level refs arrive as values
+        if max_in_flight is None:
+            max_in_flight = max(16, 4 * int(ray.cluster_resources().get("CPU", 1)))
+        starts = iter(range(0, len(units), chunksize))
+        pending: dict = {}  # ref -> first unit index of its chunk
+        finished: dict[int, list] = {}  # first unit index -> results, until their turn comes
+        turn = 0  # the next unit index to hand over
+        bar = _progress(len(units), desc, unit, progress)
+        try:
+            while True:
+                # the window counts finished-but-waiting chunks too: one slow unit cannot make the
+                # results behind it pile up without bound
+                for i in itertools.islice(starts, max(0, max_in_flight - len(pending) - len(finished))):
+                    work = units[i] if chunksize == 1 else units[i : i + chunksize]
+                    pending[task.remote(work, *shared)] = i
+                if not pending:
+                    break
+                done, _ = ray.wait(list(pending), num_returns=1)
+                for ref in done:
+                    i, value = pending.pop(ref), ray.get(ref)
+                    finished[i] = [value] if chunksize == 1 else value
+                    if bar is not None:
+                        bar.update(len(finished[i]))
+                while turn in finished:
+                    chunk = finished.pop(turn)
+                    turn += len(chunk)
+                    yield from chunk
+        finally:
+            for ref in pending:  # failed or abandoned: do not leave the cluster busy
+                ray.cancel(ref)
+            if bar is not None:
+                bar.close()

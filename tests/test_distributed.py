@@ -7,11 +7,12 @@ where it is not installed.
 import functools
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
 
-from kin_envs.distributed import cached, map_seeds, ray_session
+from kin_envs.distributed import cached, imap_seeds, map_seeds, ray_session
 
 RAY_REASON = "ray is not installed here; the distributed tests run in .venv-ray (make test-distributed)"
 
@@ -20,6 +21,12 @@ RAY_REASON = "ray is not installed here; the distributed tests run in .venv-ray 
 def draw(seed: int, n: int) -> dict:
     rng = np.random.default_rng(seed)
     return {"seed": seed, "x": rng.normal(size=n), "k": int(rng.integers(1000))}
+
+
+def slow_first(seed: int) -> int:
+    if seed == 0:
+        time.sleep(1.0)  # finishes after the units behind it
+    return 10 * seed
 
 
 def fail_on_three(seed: int) -> int:
@@ -49,6 +56,22 @@ def _nested():
     return inner
 
 
+CALLS = []
+
+
+def logged(seed: int) -> int:
+    CALLS.append(seed)
+    return seed
+
+
+def test_imap_local_is_lazy():
+    CALLS.clear()
+    it = imap_seeds(logged, range(5), progress=False)
+    assert CALLS == []  # arguments are checked now, the work waits for next()
+    assert [next(it), next(it)] == [0, 1] and CALLS == [0, 1]
+    assert list(it) == [2, 3, 4]
+
+
 @pytest.mark.parametrize(
     "kwargs, error, match",
     [
@@ -73,6 +96,8 @@ def test_ray_missing_is_a_clear_error(monkeypatch):
     monkeypatch.setitem(sys.modules, "ray", None)  # as if ray were not installed
     with pytest.raises(ImportError, match=r"Ray is not installed .*pip install kin-envs\[distributed\]"):
         map_seeds(draw, [1], "ray", args=(2,), progress=False)
+    with pytest.raises(ImportError, match="pip install"):  # at the call, not at the first next()
+        imap_seeds(draw, [1], "ray", args=(2,), progress=False)
 
 
 def test_cached_builds_once_per_key():
@@ -132,3 +157,14 @@ def test_ray_unit_error_raises_the_original_exception_type(ray_local):
         map_seeds(fail_on_three, range(8), "ray", progress=False)
     # the session still works after a failed sweep
     assert map_seeds(fail_on_three, [1, 2], "ray", progress=False) == [1, 2]
+
+
+@pytest.mark.distributed
+@pytest.mark.parametrize("chunksize", [1, 2])
+def test_imap_ray_keeps_the_order_behind_a_slow_unit_and_can_stop_early(ray_local, chunksize):
+    it = imap_seeds(slow_first, range(12), "ray", chunksize=chunksize, max_in_flight=3, progress=False)
+    assert list(it) == [10 * s for s in range(12)]
+    it = imap_seeds(slow_first, range(1, 50), "ray", progress=False)
+    assert [next(it), next(it)] == [10, 20]
+    it.close()  # abandoned: the queued tasks are cancelled, the session goes on
+    assert map_seeds(slow_first, [3], "ray", progress=False) == [30]
