@@ -239,6 +239,8 @@ def load_curve(model_path: Path) -> dict[str, np.ndarray] | None:
     """Learning curve next to a model: ``eval/evaluations.npz`` (train_single) or ``monitor.csv``
     / ``monitor/*.monitor.csv`` (rolling mean training return)."""
     d = model_path.parent
+    if d.name in ("checkpoints", "best"):  # a checkpoint: the logs are in the run directory
+        d = d.parent
     npz = d / "eval" / "evaluations.npz"
     if npz.is_file():
         z = np.load(npz)
