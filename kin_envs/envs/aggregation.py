@@ -43,7 +43,7 @@ class AggregationConfig(CommonConfig):
     kin_radius: float = 0.6
     max_kin_counted: int = 6
     kin_reward: float = 0.1
-    collision_penalty: float = 0.5
+    collision_penalty: float = 1.0
     render_agent: int | None = 0
 
     def __post_init__(self) -> None:
@@ -102,7 +102,9 @@ class AggregationEnv(ParallelEnv):
     * ``kin``: ``kin_reward * min(k, max_kin_counted)``, ``k`` = other robots whose centres are
       within ``kin_radius`` (privileged ground truth, used only for the reward);
     * ``collision``: ``-collision_penalty`` if the robot ends the step touching anything (another
-      robot, an obstacle or a wall), so clusters should be close but not touching.
+      robot, an obstacle or a wall). The default (1.0) exceeds the largest kin term
+      (``kin_reward * max_kin_counted`` = 0.6), so touching never pays: clusters should be close but
+      not touching.
 
     ## Starting State
 
@@ -130,7 +132,7 @@ class AggregationEnv(ParallelEnv):
     * ``n_robots`` (16, 2–256); ``arena_size`` (None: ``max(3, sqrt(n_robots * area_per_robot))``
       m), ``area_per_robot`` (1.0 m²); ``n_obstacles`` (None: ``n_robots // 8``);
     * ``max_cycles`` (500); ``kin_radius`` (0.6 m); ``max_kin_counted`` (6); ``kin_reward``
-      (0.1); ``collision_penalty`` (0.5);
+      (0.1); ``collision_penalty`` (1.0);
     * common: ``noise_sigma``, ``dropout_prob``, ``detector`` (``"geometric"``), ``obs_detections``,
       ``obs_top_k``, ``frame_stack``, ``action_type``, ``control_dt``;
     * rendering: ``render_mode`` (None, ``"rgb_array"``, ``"human"``), ``render_size`` (512 px),
