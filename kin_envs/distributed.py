@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import inspect
 import itertools
+import socket
 import sys
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
@@ -80,11 +81,34 @@ def ray_session(address: str | None = None, num_cpus: int | None = None) -> Iter
         # light local instance: no dashboard; worker output not mirrored (errors still propagate)
         ray.init(num_cpus=num_cpus, include_dashboard=False, log_to_driver=False)
     else:
-        ray.init(address=address, log_to_driver=False)
+        _check_reachable(address)
+        try:
+            ray.init(address=address, log_to_driver=False)
+        except ConnectionError as e:
+            raise ConnectionError(
+                f"cannot join the Ray cluster at {address!r}: is `ray start --head` running there? With "
+                "token authentication (what `ray start` turns on since ray 2.59) this machine also needs "
+                "RAY_AUTH_MODE=token and the cluster's token (`ray get-auth-token` on the head, "
+                f"RAY_AUTH_TOKEN here). Ray said: {e}"
+            ) from e
     try:
         yield ray
     finally:
         ray.shutdown()
+
+
+def _check_reachable(address: str, timeout: float = 10.0) -> None:
+    """Fail fast on a ``host:port`` where nothing listens: ``ray.init`` waits many minutes there."""
+    host, _, port = address.rpartition(":")
+    if "://" in address or not host or not port.isdigit():
+        return  # "auto", "ray://...": Ray resolves those itself
+    try:
+        socket.create_connection((host, int(port)), timeout=timeout).close()
+    except OSError as e:
+        raise ConnectionError(
+            f"cannot join the Ray cluster at {address!r}: nothing answers there ({e}); "
+            "start it with `ray start --head --port PORT` on that machine"
+        ) from e
 
 
 def _check_fn(fn) -> None:

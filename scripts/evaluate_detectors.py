@@ -544,5 +544,6 @@ def _plain(o):
 if __name__ == "__main__":
     try:
         main()
-    except (ValueError, ImportError) as e:  # bad input, Ray missing: a message, not a traceback
+    # bad input, Ray not installed, no cluster at --address: a message, not a traceback
+    except (ValueError, ImportError, ConnectionError) as e:
         sys.exit(f"evaluate_detectors: error: {e}")

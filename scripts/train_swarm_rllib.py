@@ -272,5 +272,5 @@ if __name__ == "__main__":
         os.execve(sys.executable, [sys.executable, *sys.argv], {**os.environ, "PYTHONHASHSEED": "0"})
     try:
         main()
-    except (ValueError, ImportError) as e:
+    except (ValueError, ImportError, ConnectionError) as e:
         sys.exit(f"train_swarm_rllib: error: {e}")

@@ -5,6 +5,7 @@ where it is not installed.
 """
 
 import functools
+import socket
 import subprocess
 import sys
 import time
@@ -129,6 +130,20 @@ def test_a_ray_started_for_the_call_matches_local_and_is_shut_down():
     out = map_seeds(draw, range(6), "ray", args=(3,), num_cpus=2, progress=False)
     assert not ray.is_initialized()
     assert_same(out, map_seeds(draw, range(6), args=(3,), progress=False))
+
+
+@pytest.mark.distributed
+def test_an_address_where_nothing_listens_fails_fast():
+    ray = pytest.importorskip("ray", reason=RAY_REASON)
+    assert not ray.is_initialized(), "a Ray session leaked from another test"
+    with socket.socket() as s:  # a port that was free a moment ago
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    t0 = time.perf_counter()
+    with pytest.raises(ConnectionError, match=f"cannot join the Ray cluster at '127.0.0.1:{port}'"):
+        map_seeds(draw, [1], "ray", args=(2,), address=f"127.0.0.1:{port}", progress=False)
+    assert time.perf_counter() - t0 < 30  # ray.init alone would wait for minutes
+    assert not ray.is_initialized()
 
 
 @pytest.fixture(scope="module")
