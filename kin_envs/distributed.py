@@ -63,9 +63,10 @@ def _import_ray():
 def ray_session(address: str | None = None, num_cpus: int | None = None) -> Iterator[Any]:
     """A connected ``ray`` module for the ``with`` block; shut down afterwards if started here.
 
-    ``address`` joins an existing cluster (``"auto"``, ``"host:6379"``, ``"ray://host:10001"``);
-    without it a local Ray starts with ``num_cpus`` CPUs (default: all). An already initialised
-    Ray (the caller's own session) is used as it is and left running.
+    ``address`` joins an existing cluster (``"host:port"`` of a ``ray start --head``, or ``"auto"``
+    for one on this machine); without it a local Ray starts with ``num_cpus`` CPUs (default: all).
+    An already initialised Ray (the caller's own session) is used as it is, whatever ``address``
+    and ``num_cpus`` say, and left running.
     """
     ray = _import_ray()
     if ray.is_initialized():
@@ -101,7 +102,7 @@ def _check_reachable(address: str, timeout: float = 10.0) -> None:
     """Fail fast on a ``host:port`` where nothing listens: ``ray.init`` waits many minutes there."""
     host, _, port = address.rpartition(":")
     if "://" in address or not host or not port.isdigit():
-        return  # "auto", "ray://...": Ray resolves those itself
+        return  # "auto" and other forms: Ray resolves those itself
     try:
         socket.create_connection((host, int(port)), timeout=timeout).close()
     except OSError as e:
