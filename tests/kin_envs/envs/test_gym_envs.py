@@ -114,7 +114,7 @@ def test_seek_truncates_and_penalises_collisions():
         _, _, terminated, truncated, info = env.step(np.array([1.0, 1.0]))
         hits.append(info["reward_terms"]["collision"])
         assert truncated == (i == 11) and not terminated
-    assert hits[-1] == -0.5 and info["collision"]
+    assert hits[-1] == -0.1 and info["collision"]
 
 
 def test_follow_lost_terminates():
