@@ -11,6 +11,8 @@ BLOCKS = re.findall(r"```python\n(.*?)```", README.read_text(), re.S)
 
 @pytest.mark.parametrize("block", BLOCKS, ids=[f"block{i}" for i in range(len(BLOCKS))])
 def test_readme_python_block_runs(block, tmp_path, monkeypatch):
+    if "runs/" in block:
+        pytest.skip("needs models from the README's training commands (covered by tests/scripts)")
     monkeypatch.chdir(tmp_path)
     exec(compile(block, str(README), "exec"), {"__name__": "__readme__"})
 
