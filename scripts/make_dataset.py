@@ -10,9 +10,14 @@ Writes to ``--out``: ``shard_XXXXX.npz`` (compressed; ``seg_*`` per-segment and 
 object columns) and ``manifest.json`` (format, feature version and config, dataset config, seeds,
 counts per class and category, timing, command line).
 
+Each scene is one work unit of :func:`kin_envs.distributed.imap_seeds`: run here (``--backend
+local``) or as Ray tasks (``--backend ray``, a local Ray with ``--num-cpus`` workers or the cluster
+at ``--address``), with identical shards.
+
 Example::
 
     python scripts/make_dataset.py --out outputs/segments --scenes 3000
+    python scripts/make_dataset.py --out outputs/segments --scenes 300000 --backend ray --address auto
 """
 
 from __future__ import annotations
@@ -25,7 +30,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from detectors.dataset import (
     CATEGORIES,
@@ -36,6 +40,7 @@ from detectors.dataset import (
     scene_records,
 )
 from detectors.features import FEATURE_VERSION, FeatureConfig, feature_names
+from kin_envs.distributed import BACKENDS, imap_seeds
 
 
 def parse_json_arg(text: str | None, what: str) -> dict:
@@ -53,6 +58,12 @@ def parse_json_arg(text: str | None, what: str) -> dict:
     return d
 
 
+def scene_unit(seed: int, cfg: DatasetConfig, fcfg: FeatureConfig) -> tuple[dict, dict]:
+    """The work unit: one scene's segment and object records (its scan and scene stay behind)."""
+    segs, objs, _ = scene_records(seed, cfg, fcfg)
+    return segs, objs
+
+
 def write_shard(path: Path, segs: dict, objs: dict) -> None:
     np.savez_compressed(
         path, **{f"seg_{k}": v for k, v in segs.items()}, **{f"obj_{k}": v for k, v in objs.items()}
@@ -68,9 +79,16 @@ def main(argv=None) -> dict:
     ap.add_argument("--config", default=None, help="DatasetConfig overrides: JSON object or file")
     ap.add_argument("--feature-config", default=None, help="FeatureConfig overrides: JSON object or file")
     ap.add_argument("--no-progress", action="store_true", help="no progress bar")
+    ap.add_argument("--backend", choices=BACKENDS, default="local", help="scenes here or as Ray tasks")
+    ap.add_argument("--address", default=None, help="ray: join this cluster (e.g. auto, host:6379)")
+    ap.add_argument("--num-cpus", type=int, default=None, help="ray: CPUs of a local Ray (default: all)")
     args = ap.parse_args(argv)
     if args.scenes < 1 or args.shard_scenes < 1 or args.first_seed < 0:
         ap.error("--scenes and --shard-scenes must be >= 1 and --first-seed >= 0")
+    if args.backend == "local" and (args.address is not None or args.num_cpus is not None):
+        ap.error("--address and --num-cpus need --backend ray")
+    if args.num_cpus is not None and (args.num_cpus < 1 or args.address is not None):
+        ap.error("--num-cpus must be >= 1 and sizes a local Ray, not a cluster at --address")
     try:
         cfg = DatasetConfig.from_dict(parse_json_arg(args.config, "--config"))
         fcfg = FeatureConfig.from_dict(parse_json_arg(args.feature_config, "--feature-config"))
@@ -103,9 +121,16 @@ def main(argv=None) -> dict:
         seg_parts, obj_parts = [], []
 
     shard_first = args.first_seed
-    for i in tqdm(range(args.scenes), desc="scenes", disable=args.no_progress):
+    try:  # results stream back in seed order; only a window of scenes is held at a time
+        units = imap_seeds(
+            scene_unit, range(args.first_seed, args.first_seed + args.scenes), args.backend,
+            args=(cfg, fcfg), address=args.address, num_cpus=args.num_cpus,
+            progress=not args.no_progress, desc="scenes", unit="scene",
+        )  # fmt: skip
+    except ImportError as e:  # --backend ray without ray installed
+        ap.error(str(e))
+    for i, (segs, objs) in enumerate(units):
         seed = args.first_seed + i
-        segs, objs, _ = scene_records(seed, cfg, fcfg)
         seg_parts.append(segs)
         obj_parts.append(objs)
         label_counts += np.bincount(segs["label"], minlength=2)

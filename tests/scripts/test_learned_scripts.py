@@ -81,3 +81,25 @@ def test_scripts_reject_bad_configs(dataset, tmp_path):
     assert out.returncode == 2 and "unknown key" in out.stderr
     out = run("train_classifier.py", "--data", tmp_path / "none", "--out", tmp_path, check=False)
     assert out.returncode != 0 and "manifest" in out.stderr
+
+
+def test_make_dataset_backend_flags_need_ray(tmp_path):
+    out = run("make_dataset.py", "--out", tmp_path / "x", "--scenes", 2, "--num-cpus", 2, check=False)
+    assert out.returncode == 2 and "--address and --num-cpus need --backend ray" in out.stderr
+
+
+@pytest.mark.distributed
+def test_make_dataset_ray_backend_gives_the_local_shards(dataset, tmp_path):
+    pytest.importorskip("ray", reason="the distributed tests run in .venv-ray (make test-distributed)")
+    ray_out = tmp_path / "ray"
+    run("make_dataset.py", "--out", ray_out, "--scenes", 4, "--shard-scenes", 3, "--first-seed", 10,
+        "--backend", "ray", "--num-cpus", 2)  # fmt: skip
+    shards = sorted(p.name for p in dataset.glob("*.npz"))
+    assert shards == sorted(p.name for p in ray_out.glob("*.npz")) and len(shards) == 2
+    for name in shards:
+        a, b = np.load(dataset / name), np.load(ray_out / name)
+        assert sorted(a.files) == sorted(b.files)
+        for key in a.files:
+            np.testing.assert_array_equal(a[key], b[key])
+    ma, mb = (json.loads((d / "manifest.json").read_text()) for d in (dataset, ray_out))
+    assert ma["counts"] == mb["counts"] and ma["seeds"] == mb["seeds"] and ma["shards"] == mb["shards"]
