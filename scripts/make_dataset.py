@@ -40,22 +40,8 @@ from detectors.dataset import (
     scene_records,
 )
 from detectors.features import FEATURE_VERSION, FeatureConfig, feature_names
+from kin_envs.cli import parse_json_object
 from kin_envs.distributed import BACKENDS, imap_seeds
-
-
-def parse_json_arg(text: str | None, what: str) -> dict:
-    """``--config`` value: a JSON object, or the path of a JSON file holding one."""
-    if not text:
-        return {}
-    p = Path(text)
-    src = p.read_text() if p.is_file() else text
-    try:
-        d = json.loads(src)
-    except json.JSONDecodeError as e:
-        raise SystemExit(f"{what}: expected a JSON object or a JSON file path, got {text!r} ({e})") from e
-    if not isinstance(d, dict):
-        raise SystemExit(f"{what}: expected a JSON object, got {type(d).__name__}")
-    return d
 
 
 def scene_unit(seed: int, cfg: DatasetConfig, fcfg: FeatureConfig) -> tuple[dict, dict]:
@@ -90,8 +76,8 @@ def main(argv=None) -> dict:
     if args.num_cpus is not None and (args.num_cpus < 1 or args.address is not None):
         ap.error("--num-cpus must be >= 1 and sizes a local Ray, not a cluster at --address")
     try:
-        cfg = DatasetConfig.from_dict(parse_json_arg(args.config, "--config"))
-        fcfg = FeatureConfig.from_dict(parse_json_arg(args.feature_config, "--feature-config"))
+        cfg = DatasetConfig.from_dict(parse_json_object(args.config, "--config") or {})
+        fcfg = FeatureConfig.from_dict(parse_json_object(args.feature_config, "--feature-config") or {})
     except ValueError as e:
         ap.error(str(e))
     args.out.mkdir(parents=True, exist_ok=True)

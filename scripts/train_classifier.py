@@ -53,6 +53,7 @@ from detectors.learned import (
     train_segment_net,
 )
 from kin_envs import World, scenes
+from kin_envs.cli import parse_json_object
 
 GATE = 0.1  # m: a detection matches a kin whose centre is this close
 DISTANCE_BINS = (0.2, 0.3, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0)
@@ -62,21 +63,6 @@ EVAL_CONFIG = DatasetConfig(
     detection_prob=1.0, open_prob=0.0, n_kin=(3, 3), n_distractors=(12, 12), distance=(0.3, 3.0)
 )
 _KIN, _SAME = CATEGORIES.index("kin"), CATEGORIES.index("same_radius_cylinder")
-
-
-def parse_json_arg(text: str | None, what: str) -> dict:
-    """A JSON object given inline or as a file path."""
-    if not text:
-        return {}
-    p = Path(text)
-    src = p.read_text() if p.is_file() else text
-    try:
-        d = json.loads(src)
-    except json.JSONDecodeError as e:
-        raise SystemExit(f"{what}: expected a JSON object or a JSON file path, got {text!r} ({e})") from e
-    if not isinstance(d, dict):
-        raise SystemExit(f"{what}: expected a JSON object, got {type(d).__name__}")
-    return d
 
 
 def prf(tp: float, fp: float, fn: float) -> dict:
@@ -521,7 +507,7 @@ def main(argv=None) -> dict:
     if args.eval_scenes < 0 or args.threads < 1:
         ap.error("--eval-scenes must be >= 0 and --threads >= 1")
     try:
-        tcfg = TrainConfig.from_dict(parse_json_arg(args.config, "--config"))
+        tcfg = TrainConfig.from_dict(parse_json_object(args.config, "--config") or {})
     except ValueError as e:
         ap.error(str(e))
     torch.set_num_threads(args.threads)

@@ -40,6 +40,7 @@ if str(ROOT) not in sys.path:  # run as a file: make agents / kin_envs importabl
 import kin_envs  # noqa: E402,F401  (registers the env ids)
 from agents.hyperparams import hyperparams_for  # noqa: E402
 from agents.sb3 import ALGOS, algo_class, resolve_policy_kwargs  # noqa: E402
+from kin_envs.cli import parse_json_object  # noqa: E402
 
 VEC_ENVS = ("dummy", "subproc")
 EVAL_SEED_OFFSET = 10_000
@@ -90,21 +91,6 @@ class TrainConfig:
         return dataclasses.asdict(self)
 
 
-def parse_json_object(text: str | None, what: str) -> dict:
-    """A JSON object given inline or as a path to a JSON file."""
-    if not text:
-        return {}
-    p = Path(text)
-    src = p.read_text() if p.is_file() else text
-    try:
-        d = json.loads(src)
-    except json.JSONDecodeError as e:
-        raise ValueError(f"{what}: expected a JSON object or a JSON file path, got {text!r} ({e})") from e
-    if not isinstance(d, dict):
-        raise ValueError(f"{what}: expected a JSON object, got {type(d).__name__}: {text!r}")
-    return d
-
-
 def check_env_and_algo(cfg: TrainConfig) -> None:
     """Make the env once (bad env kwargs raise the env's ``ValueError``) and check the algorithm's
     keyword arguments against its signature."""
@@ -126,10 +112,10 @@ def check_env_and_algo(cfg: TrainConfig) -> None:
 def build_config(args: argparse.Namespace) -> TrainConfig:
     shipped = hyperparams_for(args.env, args.algo)
     train, algo_kwargs = shipped["train"], shipped["algo"]
-    algo_kwargs.update(parse_json_object(args.hyperparams, "--hyperparams"))
+    algo_kwargs.update(parse_json_object(args.hyperparams, "--hyperparams") or {})
     d = {
         "env_id": args.env,
-        "env_kwargs": parse_json_object(args.env_kwargs, "--env-kwargs"),
+        "env_kwargs": parse_json_object(args.env_kwargs, "--env-kwargs") or {},
         "algo": args.algo,
         "total_timesteps": args.timesteps if args.timesteps is not None else train["total_timesteps"],
         "n_envs": args.n_envs if args.n_envs is not None else train["n_envs"],

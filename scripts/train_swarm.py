@@ -38,6 +38,7 @@ if str(ROOT) not in sys.path:  # run as a file: make agents / kin_envs importabl
 
 from agents.hyperparams import hyperparams_for  # noqa: E402
 from kin_envs import aggregation_v0  # noqa: E402
+from kin_envs.cli import parse_json_object  # noqa: E402
 
 ENV_ID = "aggregation_v0"
 #: the swarm's env kwargs unless --env-kwargs says otherwise: the detector channel in the observation
@@ -79,20 +80,6 @@ class SwarmTrainConfig:
     def make_env(self):
         """The PettingZoo parallel env (bad kwargs raise the env's ``ValueError``)."""
         return aggregation_v0.parallel_env(n_robots=self.n_robots, **self.env_kwargs)
-
-
-def parse_json_object(text: str | None, what: str) -> dict | None:
-    if not text:
-        return None
-    p = Path(text)
-    src = p.read_text() if p.is_file() else text
-    try:
-        d = json.loads(src)
-    except json.JSONDecodeError as e:
-        raise ValueError(f"{what}: expected a JSON object or a JSON file path, got {text!r} ({e})") from e
-    if not isinstance(d, dict):
-        raise ValueError(f"{what}: expected a JSON object, got {type(d).__name__}: {text!r}")
-    return d
 
 
 def build_config(args: argparse.Namespace) -> SwarmTrainConfig:

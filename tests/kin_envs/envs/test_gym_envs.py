@@ -208,7 +208,7 @@ def test_learned_detector_channel():
     obs, info = env.reset(seed=0)
     assert env.observation_space.contains(obs)
     assert set(info["kin_detections"]) >= {"range", "bearing", "score", "kin_index"}
-    with pytest.raises(ValueError, match="detector must be 'geometric', 'learned', None or a detector object, got 'neural'"):
+    with pytest.raises(ValueError, match="detector must be .*, got 'neural'"):
         gym.make(SEEK, detector="neural")
 
 
