@@ -1,0 +1,52 @@
+"""scripts/benchmark.py runs end to end on tiny budgets (speed targets are checked by running it)."""
+
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "benchmark.py"
+
+
+@pytest.fixture(scope="module")
+def bench():
+    spec = importlib.util.spec_from_file_location("benchmark_under_test", SCRIPT)
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_lidar_and_detector_sections(bench, tmp_path):
+    res = bench.main(
+        ["--sections", "lidar,detector", "--min-time", "0.03", "--robots", "1", "4", "--out", str(tmp_path)]
+    )
+    assert [r["robots"] for r in res["lidar"]] == [1, 4]
+    for r in res["lidar"]:
+        assert r["scans_per_s"] > 0 and r["naive_scans_per_s"] > 0
+        assert r["ratio"] == pytest.approx(r["scans_per_s"] / r["naive_scans_per_s"])
+    assert {r["scene"] for r in res["detector"]} >= {
+        "paper_scenario_I_0.5m",
+        "random_arena_64_robots_50_obstacles",
+    }
+    saved = json.loads((tmp_path / "benchmark.json").read_text())
+    assert saved["config"]["robots"] == [1, 4]
+    assert "| robots |" in (tmp_path / "benchmark.md").read_text()
+
+
+def test_naive_baseline_matches_the_world_scan(bench):
+    import numpy as np
+
+    from kin_envs import World, scenes
+
+    world = World(scenes.random_arena(3, 10, seed=2, size=5.0))
+    np.testing.assert_allclose(bench.naive_scan(world, 1), world.scan().ranges[1], atol=1e-5)
+
+
+def test_bad_arguments(bench, tmp_path):
+    with pytest.raises(SystemExit):
+        bench.main(["--sections", "gpu", "--out", str(tmp_path)])
+    with pytest.raises(SystemExit):
+        bench.main(["--min-time", "0", "--out", str(tmp_path)])
