@@ -10,6 +10,7 @@ from .base import (
     KinDetector,
     Segment,
     SegmentReport,
+    validate_batch,
     validate_scan,
     wrap_angle,
 )
@@ -67,6 +68,7 @@ __all__ = [
     "range_derivative",
     "segment",
     "shape_error",
+    "validate_batch",
     "validate_scan",
     "wrap_angle",
 ]

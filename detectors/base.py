@@ -82,6 +82,24 @@ def validate_scan(ranges, angles) -> tuple[np.ndarray, np.ndarray]:
     return r, a
 
 
+def validate_batch(ranges, angles) -> tuple[np.ndarray, np.ndarray]:
+    """Shapes of a batch of scans sharing one beam layout: ``ranges (B, n)``, ``angles (n,)``.
+
+    Returns both as float64; raises ``ValueError`` naming the shapes when they do not fit. The
+    values of each row are checked by the detector (:func:`validate_scan` semantics).
+    """
+    r = np.asarray(ranges, dtype=np.float64)
+    a = np.asarray(angles, dtype=np.float64)
+    if r.ndim != 2:
+        raise ValueError(f"batched ranges must be 2-D (B, n_beams), got shape {r.shape}")
+    if a.ndim != 1 or a.shape[0] != r.shape[1]:
+        raise ValueError(
+            f"angles must be 1-D with n_beams = {r.shape[1]} entries to match ranges "
+            f"{r.shape}, got shape {a.shape}"
+        )
+    return r, a
+
+
 def _check_sweep(angles: np.ndarray) -> None:
     steps = wrap_angle(np.diff(angles))
     direction = 1.0 if steps[0] > 0 else -1.0
@@ -211,13 +229,5 @@ class KinDetector(ABC):
 
         The default loops over :meth:`detect`; subclasses may vectorise.
         """
-        r = np.asarray(ranges, dtype=np.float64)
-        a = np.asarray(angles, dtype=np.float64)
-        if r.ndim != 2:
-            raise ValueError(f"batched ranges must be 2-D (B, n_beams), got shape {r.shape}")
-        if a.ndim != 1 or a.shape[0] != r.shape[1]:
-            raise ValueError(
-                f"angles must be 1-D with n_beams = {r.shape[1]} entries to match ranges "
-                f"{r.shape}, got shape {a.shape}"
-            )
+        r, a = validate_batch(ranges, angles)
         return [self.detect(row, a) for row in r]

@@ -38,6 +38,7 @@ from .base import (
     KinDetector,
     Segment,
     SegmentReport,
+    validate_batch,
     validate_scan,
     wrap_angle,
 )
@@ -987,15 +988,7 @@ class GeometricKinDetector(KinDetector):
         Same results as calling :meth:`detect` per row, but the circle fits of
         all scans run together (vectorised when there are many).
         """
-        rb = np.asarray(ranges, dtype=np.float64)
-        a = np.asarray(angles, dtype=np.float64)
-        if rb.ndim != 2:
-            raise ValueError(f"batched ranges must be 2-D (B, n_beams), got shape {rb.shape}")
-        if a.ndim != 1 or a.shape[0] != rb.shape[1]:
-            raise ValueError(
-                f"angles must be 1-D with n_beams = {rb.shape[1]} entries to match ranges "
-                f"{rb.shape}, got shape {a.shape}"
-            )
+        rb, a = validate_batch(ranges, angles)
         staged = []
         for row in rb:
             r, a = self._check(row, a)

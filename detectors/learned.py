@@ -31,7 +31,15 @@ import numpy as np
 import torch
 from torch import nn
 
-from .base import Detection, DetectionResult, KinDetector, SegmentReport, validate_scan, wrap_angle
+from .base import (
+    Detection,
+    DetectionResult,
+    KinDetector,
+    SegmentReport,
+    validate_batch,
+    validate_scan,
+    wrap_angle,
+)
 from .features import (
     FEATURE_VERSION,
     FeatureConfig,
@@ -359,15 +367,7 @@ class LearnedKinDetector(KinDetector):
 
     # -- input checks ---------------------------------------------------------------------------
     def _check(self, ranges, angles) -> tuple[np.ndarray, np.ndarray]:
-        rb = np.asarray(ranges, dtype=np.float64)
-        a = np.asarray(angles, dtype=np.float64)
-        if rb.ndim != 2:
-            raise ValueError(f"batched ranges must be 2-D (B, n_beams), got shape {rb.shape}")
-        if a.ndim != 1 or a.shape[0] != rb.shape[1]:
-            raise ValueError(
-                f"angles must be 1-D with n_beams = {rb.shape[1]} entries to match ranges {rb.shape}, "
-                f"got shape {a.shape}"
-            )
+        rb, a = validate_batch(ranges, angles)
         key = self._angles_key
         if key is None or key.shape != a.shape or not np.array_equal(key, a):
             # the beam layout is validated once and remembered (costly for small scans)

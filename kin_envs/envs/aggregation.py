@@ -20,6 +20,7 @@ from kin_envs.envs.common import (
     ObservationLayout,
     check_float,
     check_int,
+    check_render_mode,
     config_from_kwargs,
     kin_truth,
     resolve_detector,
@@ -155,16 +156,7 @@ class AggregationEnv(ParallelEnv):
     def __init__(self, render_mode: str | None = None, **kwargs: Any) -> None:
         self.config = cfg = config_from_kwargs(AggregationConfig, kwargs)
         where = cfg.env_id
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(
-                f"{where}: render_mode must be None or one of {self.metadata['render_modes']}, "
-                f"got {render_mode!r}"
-            )
-        self.render_mode = render_mode
-        if render_mode is not None:
-            from kin_envs.envs.rendering import import_pygame
-
-            import_pygame()
+        self.render_mode = check_render_mode(render_mode, self.metadata["render_modes"], where)
         self.detector = resolve_detector(cfg.detector, where)
         self._lidar = cfg.lidar_spec()
         self._world_config = WorldConfig(control_dt=cfg.control_dt)

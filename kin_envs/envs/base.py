@@ -19,6 +19,7 @@ from kin_envs.envs.common import (
     CommonConfig,
     ObservationBuilder,
     ObservationLayout,
+    check_render_mode,
     config_from_kwargs,
     kin_truth,
     resolve_detector,
@@ -42,16 +43,7 @@ class SingleRobotEnv(gym.Env):
     def __init__(self, render_mode: str | None = None, **kwargs: Any) -> None:
         self.config = config_from_kwargs(self.config_class, kwargs)
         where = self.config.env_id
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(
-                f"{where}: render_mode must be None or one of {self.metadata['render_modes']}, "
-                f"got {render_mode!r}"
-            )
-        self.render_mode = render_mode
-        if render_mode is not None:
-            from kin_envs.envs.rendering import import_pygame
-
-            import_pygame()  # fail now with the install hint, not at the first frame
+        self.render_mode = check_render_mode(render_mode, self.metadata["render_modes"], where)
         self.detector = resolve_detector(self.config.detector, where)
         self._lidar = self.config.lidar_spec()
         self._world_config = WorldConfig(control_dt=self.config.control_dt)

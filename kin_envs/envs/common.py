@@ -193,6 +193,18 @@ class CommonConfig:
 # --- detector -----------------------------------------------------------------------------------
 
 
+def check_render_mode(render_mode: str | None, modes: list[str], where: str) -> str | None:
+    """Validate ``render_mode``; for a real mode import pygame now, so a missing install fails at
+    construction with the install hint rather than at the first frame."""
+    if render_mode is not None and render_mode not in modes:
+        raise ValueError(f"{where}: render_mode must be None or one of {modes}, got {render_mode!r}")
+    if render_mode is not None:
+        from kin_envs.envs.rendering import import_pygame
+
+        import_pygame()
+    return render_mode
+
+
 def resolve_detector(spec: Any, where: str = "kin_envs"):
     """The ``detector=`` argument → a detector object or ``None``.
 

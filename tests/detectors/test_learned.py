@@ -256,3 +256,20 @@ def test_shipped_model_on_the_paper_scenarios(shipped, number, distance):
         cyl = next(o for o in scene.obstacles if o.kind == "cylinder")
         for d in others:
             assert math.hypot(d.x - cyl.x, d.y - cyl.y) < 0.1, (d, "a prism or cuboid was accepted")
+
+
+def test_every_detector_checks_batch_shapes_the_same_way():
+    from detectors import GeometricKinDetector, KinDetector, LearnedKinDetector, validate_batch
+
+    class PerScan(KinDetector):  # the interface's default detect_batch
+        def detect(self, ranges, angles):
+            raise AssertionError("not reached")
+
+    angles = np.linspace(0, -2 * np.pi, 360, endpoint=False)
+    for det in (PerScan(), GeometricKinDetector(), LearnedKinDetector()):
+        with pytest.raises(ValueError, match=r"batched ranges must be 2-D \(B, n_beams\), got shape \(360,\)"):  # noqa: E501
+            det.detect_batch(np.ones(360), angles)
+        with pytest.raises(ValueError, match=r"angles must be 1-D with n_beams = 360"):
+            det.detect_batch(np.ones((2, 360)), angles[:359])
+    r, a = validate_batch([[1.0, 2.0, 3.0]], [0.0, -2.0, -4.0])
+    assert r.dtype == a.dtype == np.float64 and r.shape == (1, 3)
