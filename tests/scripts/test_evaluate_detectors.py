@@ -1,6 +1,5 @@
 """scripts/evaluate_detectors.py: a tiny sweep writing markdown, JSON and PNGs; detector names."""
 
-import importlib.util
 import json
 import subprocess
 import sys
@@ -9,21 +8,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tests.scripts.helpers import load_script
+
 ROOT = Path(__file__).resolve().parents[2]
 SCRIPT = ROOT / "scripts" / "evaluate_detectors.py"
 
 
-def load_script():
-    spec = importlib.util.spec_from_file_location("evaluate_detectors_under_test", SCRIPT)
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod
-    spec.loader.exec_module(mod)
-    return mod
-
-
 @pytest.fixture(scope="module")
 def mod():
-    return load_script()
+    return load_script("evaluate_detectors")
 
 
 def test_tiny_sweep_writes_tables_json_and_plots(mod, tmp_path):

@@ -1,21 +1,11 @@
 """scripts/reproduce_paper.py: the paper's outcomes per object, JSON, figures, sensitivity, noise."""
 
-import importlib.util
 import json
-import sys
 from pathlib import Path
 
 import pytest
 
-SCRIPT = Path(__file__).resolve().parents[2] / "scripts" / "reproduce_paper.py"
-
-
-def load_script():
-    spec = importlib.util.spec_from_file_location("reproduce_paper_under_test", SCRIPT)
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod
-    spec.loader.exec_module(mod)
-    return mod
+from tests.scripts.helpers import load_script
 
 
 @pytest.fixture(scope="module")
@@ -33,7 +23,7 @@ def run(tmp_path_factory):
         "--repeats",
         "3",
     ]
-    return out, load_script().main(argv)
+    return out, load_script("reproduce_paper").main(argv)
 
 
 # Outcome per object, right to left as the observer sees them (ascending bearing).
@@ -143,7 +133,7 @@ def test_sensitivity_and_noise_tables(run):
 
 
 def test_bad_arguments():
-    mod = load_script()
+    mod = load_script("reproduce_paper")
     with pytest.raises(SystemExit):
         mod.main(["--noise", "-0.1", "--no-figures", "--draws", "0"])
     with pytest.raises(SystemExit):

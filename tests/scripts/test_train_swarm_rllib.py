@@ -1,6 +1,5 @@
 """scripts/train_swarm_rllib.py: argument errors everywhere; a 1-iteration RLlib run on a local Ray."""
 
-import importlib.util
 import json
 import re
 import sys
@@ -9,8 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tests.scripts.helpers import load_script
+
 ROOT = Path(__file__).resolve().parents[2]
-SCRIPT = ROOT / "scripts" / "train_swarm_rllib.py"
 RAY_REASON = "ray is not installed here; the distributed tests run in .venv-ray (make test-distributed)"
 TINY = [
     "--n-robots", "3", "--max-cycles", "10", "--iterations", "1", "--batch", "40", "--minibatch", "20",
@@ -20,11 +20,7 @@ TINY = [
 
 @pytest.fixture(scope="module")
 def mod():
-    spec = importlib.util.spec_from_file_location("train_swarm_rllib_under_test", SCRIPT)
-    m = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = m
-    spec.loader.exec_module(m)
-    return m
+    return load_script("train_swarm_rllib")
 
 
 @pytest.mark.parametrize(

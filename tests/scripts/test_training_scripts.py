@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import subprocess
 import sys
@@ -11,20 +10,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tests.scripts.helpers import load_script
+
 pytest.importorskip("stable_baselines3")
 pytest.importorskip("supersuit")
 
 ROOT = Path(__file__).resolve().parents[2]
 SCRIPTS = ROOT / "scripts"
 SEEK_KW = json.dumps({"obs_detections": "topk", "max_steps": 15})
-
-
-def load(name: str):
-    spec = importlib.util.spec_from_file_location(f"{name}_under_test", SCRIPTS / f"{name}.py")
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod
-    spec.loader.exec_module(mod)
-    return mod
 
 
 def run(script: str, *argv: str) -> subprocess.CompletedProcess:
@@ -79,7 +72,7 @@ def test_train_swarm_outputs(trained):
 
 def test_evaluate_single_and_swarm(trained, tmp_path):
     single, swarm = trained
-    ev = load("evaluate_policies")
+    ev = load_script("evaluate_policies")
     out = tmp_path / "seek"
     res = ev.main(["--episodes", "3", "--env-kwargs", SEEK_KW, "--model", f"ppo={single / 'model.zip'}",
                    "--out", str(out), "--no-progress"])
@@ -105,7 +98,7 @@ def test_evaluate_single_and_swarm(trained, tmp_path):
 
 
 def test_statistics_by_hand():
-    ev = load("evaluate_policies")
+    ev = load_script("evaluate_policies")
     lo, hi = ev.wilson(8, 10)
     assert lo == pytest.approx(0.4902, abs=1e-3) and hi == pytest.approx(0.9433, abs=1e-3)
     assert ev.wilson(0, 5)[0] == 0.0
@@ -119,7 +112,7 @@ def test_statistics_by_hand():
 
 
 def test_bad_input_raises(tmp_path):
-    ts = load("train_single")
+    ts = load_script("train_single")
     with pytest.raises(ValueError, match="obs_detections"):
         ts.main(["--env-kwargs", '{"obs_detections": "everything"}', "--out", str(tmp_path)])
     with pytest.raises(ValueError, match="unknown argument"):
@@ -136,12 +129,12 @@ def test_bad_input_raises(tmp_path):
         ts.TrainConfig.from_dict({"total_steps": 5})
     with pytest.raises(ValueError, match="n_envs"):
         ts.TrainConfig(n_envs=0)
-    sw = load("train_swarm")
+    sw = load_script("train_swarm")
     with pytest.raises(ValueError, match="--n-robots"):
         sw.main(["--env-kwargs", '{"n_robots": 4}', "--out", str(tmp_path)])
     with pytest.raises(ValueError, match="n_robots"):
         sw.main(["--n-robots", "1", "--out", str(tmp_path)])
-    ev = load("evaluate_policies")
+    ev = load_script("evaluate_policies")
     with pytest.raises(ValueError, match="unknown policy"):
         ev.main(["--policies", "genius", "--out", str(tmp_path), "--no-progress"])
     with pytest.raises(ValueError, match="no file"):
@@ -150,7 +143,7 @@ def test_bad_input_raises(tmp_path):
 
 
 def test_train_single_sac_in_process(tmp_path):
-    ts = load("train_single")
+    ts = load_script("train_single")
     res = ts.main(["--algo", "sac", "--env-kwargs", '{"detector": null, "max_steps": 10}',
                    "--timesteps", "40",
                    "--hyperparams", '{"learning_starts": 20, "buffer_size": 100, "batch_size": 8}',
