@@ -1,7 +1,10 @@
 """Lidar kin detectors: the paper's geometric detector, the learned one and the shared interface.
 
-``import detectors`` stays light (numpy/scipy): ``LearnedKinDetector`` (torch) is loaded on first
-access, and the evaluation harness lives in :mod:`detectors.evaluation`.
+A library for any 2D scan, simulated or recorded on a real robot: it never imports ``kin_envs`` (or
+pymunk). ``import detectors`` stays light (numpy/scipy/numba): ``LearnedKinDetector`` (torch) is loaded
+on first access. The dataset format and category names are in :mod:`detectors.samples`; generating
+labelled data and evaluating against the simulator's ground truth is on the simulator side
+(:mod:`kin_envs.detection`).
 """
 
 from .base import (

@@ -594,15 +594,15 @@ class TrainConfig:
         return cls(**d)
 
 
-#: negatives weighted by TrainConfig.hard_weight (detectors.dataset.CATEGORIES names)
+#: negatives weighted by TrainConfig.hard_weight (detectors.samples.CATEGORIES names)
 HARD_CATEGORIES = ("kin_width_prism", "kin_width_box")
 
 
 def sample_weights(labels, categories, config: TrainConfig) -> np.ndarray:
     """Per-segment loss weights: ``pos_weight`` for kin, ``hard_weight`` for the
     :data:`HARD_CATEGORIES` negatives, 1 otherwise (``categories``: codes into
-    :data:`detectors.dataset.CATEGORIES`)."""
-    from .dataset import CATEGORIES
+    :data:`detectors.samples.CATEGORIES`)."""
+    from .samples import CATEGORIES
 
     y = np.asarray(labels).reshape(-1) > 0
     hard = np.isin(np.asarray(categories), [CATEGORIES.index(c) for c in HARD_CATEGORIES]) & ~y

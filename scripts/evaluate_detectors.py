@@ -11,7 +11,7 @@ starts at seed 0). Every scene is scanned from the observer (robot 0) once per n
 Detectors (``--detectors``): ``geometric`` (the paper's, :class:`detectors.GeometricKinDetector`),
 ``learned`` (:class:`detectors.learned.LearnedKinDetector`, the shipped checkpoint) or any
 ``module:Class`` path constructed without arguments. All are scored by
-:func:`detectors.evaluation.evaluate` (Hungarian matching within ``--gate`` m) and also run on the
+:func:`kin_envs.detection.evaluation.evaluate` (Hungarian matching within ``--gate`` m) and also run on the
 paper's two scenarios at 0.5, 0.8 and 1.2 m.
 
 Writes to ``--out``: ``results.md`` (tables), ``results.json``, ``f1_vs_distance.png``,
@@ -43,10 +43,10 @@ import numpy as np
 from tqdm import tqdm
 
 from detectors.base import KinDetector
-from detectors.evaluation import DEFAULT_GATE, Evaluation, Metrics, evaluate
 from kin_envs import World, scenes
 from kin_envs.core.lidar import LidarSpec
 from kin_envs.core.scenes import DetectionSceneConfig
+from kin_envs.detection.evaluation import DEFAULT_GATE, Evaluation, Metrics, evaluate
 from kin_envs.distributed import BACKENDS, cached, map_seeds
 
 FIRST_SEED = 1_000_000

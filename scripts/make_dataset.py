@@ -1,10 +1,10 @@
 """Generate labelled lidar segments for the learned kin classifier.
 
-Seeded random scenes (``detectors.dataset.DatasetConfig``: detection scenes - an observer among kin,
+Seeded random scenes (``kin_envs.detection.dataset.DatasetConfig``: detection scenes - an observer among kin,
 kin-width prisms 3-6 sides and cuboids, cylinders of radius 2-12 cm including the lidar housing's,
 walls and corners at 0.2-4 m - and random arenas), range noise 0-2 %, scanned from up to six robots
 each, segmented by the geometric detector's own segmentation and labelled from the scan's ground
-truth (rule and fields: ``detectors/dataset.py``). Scene ``i`` uses seed ``first_seed + i``.
+truth (rule and fields: ``kin_envs/detection/dataset.py``). Scene ``i`` uses seed ``first_seed + i``.
 
 Writes to ``--out``: ``shard_XXXXX.npz`` (compressed; ``seg_*`` per-segment and ``obj_*`` per-visible-
 object columns) and ``manifest.json`` (format, feature version and config, dataset config, seeds,
@@ -31,7 +31,9 @@ from pathlib import Path
 
 import numpy as np
 
-from detectors.dataset import (
+from detectors.features import FEATURE_VERSION, FeatureConfig, feature_names
+from kin_envs.cli import parse_json_object
+from kin_envs.detection.dataset import (
     CATEGORIES,
     DATASET_FORMAT,
     DATASET_FORMAT_VERSION,
@@ -39,8 +41,6 @@ from detectors.dataset import (
     concat_records,
     scene_records,
 )
-from detectors.features import FEATURE_VERSION, FeatureConfig, feature_names
-from kin_envs.cli import parse_json_object
 from kin_envs.distributed import BACKENDS, imap_seeds
 
 

@@ -48,10 +48,10 @@ from tqdm import tqdm
 
 from detectors import GeometricKinDetector, range_derivative
 from detectors.base import DetectionResult
-from detectors.evaluation import describe_hits
 from kin_envs import World, scenes
 from kin_envs.core.lidar import HitKind, LidarSpec
 from kin_envs.core.scenes import Box, Cylinder, Robot, Scene
+from kin_envs.detection.evaluation import describe_hits
 
 SCENARIO_NAMES = {1: "I", 2: "II"}
 FIGURE_NUMBERS = {1: 10, 2: 11}

@@ -41,7 +41,6 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from detectors.dataset import CATEGORIES, DatasetConfig, label_scan, load_dataset, make_scene
 from detectors.features import feature_names, observer_to_local
 from detectors.geometric import GeometricKinDetector
 from detectors.learned import (
@@ -54,6 +53,7 @@ from detectors.learned import (
 )
 from kin_envs import World, scenes
 from kin_envs.cli import parse_json_object
+from kin_envs.detection.dataset import CATEGORIES, DatasetConfig, label_scan, load_dataset, make_scene
 
 GATE = 0.1  # m: a detection matches a kin whose centre is this close
 DISTANCE_BINS = (0.2, 0.3, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0)

@@ -43,7 +43,7 @@ def random_model(seed=0, n_features=N_FEATURES):
 
 def test_import_detectors_does_not_import_torch():
     code = (
-        "import sys, detectors, detectors.features, detectors.dataset, kin_envs; "
+        "import sys, detectors, detectors.features, kin_envs.detection.dataset, kin_envs; "
         "print('torch' in sys.modules)"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
@@ -162,7 +162,7 @@ def test_thresholds_per_noise_level(tmp_path):
 
 
 def test_sample_weights_and_weighted_training():
-    from detectors.dataset import category_code
+    from detectors.samples import category_code
 
     cats = np.array(
         [category_code(c) for c in ("kin", "kin_width_prism", "kin_width_box", "wall", "cylinder")]

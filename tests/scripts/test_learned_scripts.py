@@ -27,8 +27,8 @@ def dataset(tmp_path_factory):
 
 
 def test_make_dataset_writes_shards_and_manifest(dataset):
-    from detectors.dataset import load_dataset
     from detectors.features import FEATURE_VERSION
+    from kin_envs.detection.dataset import load_dataset
 
     manifest = json.loads((dataset / "manifest.json").read_text())
     assert manifest["feature_version"] == FEATURE_VERSION

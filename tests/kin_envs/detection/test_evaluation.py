@@ -7,7 +7,10 @@ import pytest
 
 from detectors import GeometricKinDetector
 from detectors.base import Detection, DetectionResult, KinDetector
-from detectors.evaluation import (
+from kin_envs import World, scenes
+from kin_envs.core.lidar import HitKind, LidarSpec
+from kin_envs.core.scenes import Arena, Cylinder, Prism, Robot, Scene
+from kin_envs.detection.evaluation import (
     DEFAULT_GATE,
     describe_hits,
     evaluate,
@@ -15,9 +18,6 @@ from detectors.evaluation import (
     match_detections,
     segment_beams,
 )
-from kin_envs import World, scenes
-from kin_envs.core.lidar import HitKind, LidarSpec
-from kin_envs.core.scenes import Arena, Cylinder, Prism, Robot, Scene
 
 
 class ScriptedDetector(KinDetector):

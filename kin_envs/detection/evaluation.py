@@ -37,11 +37,11 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from kin_envs.core.lidar import HitKind
-from kin_envs.core.scenes import Scene
-from kin_envs.core.world import Scan
+from detectors.base import Detection, KinDetector
 
-from .base import Detection, KinDetector
+from ..core.lidar import HitKind
+from ..core.scenes import Scene
+from ..core.world import Scan
 
 __all__ = [
     "DEFAULT_GATE",

@@ -1,11 +1,13 @@
-"""detectors.dataset: labelling segments from a scan's ground truth, scene mix, loading."""
+"""kin_envs.detection.dataset: labelling segments from a scan's ground truth, scene mix, loading."""
 
 import json
 
 import numpy as np
 import pytest
 
-from detectors.dataset import (
+from detectors.features import FEATURE_VERSION, FeatureConfig, feature_names, segment_batch
+from kin_envs import HitKind, World
+from kin_envs.detection.dataset import (
     CATEGORIES,
     DATASET_FORMAT,
     DatasetConfig,
@@ -14,8 +16,6 @@ from detectors.dataset import (
     make_scene,
     scene_records,
 )
-from detectors.features import FEATURE_VERSION, FeatureConfig, feature_names, segment_batch
-from kin_envs import HitKind, World
 from kin_envs.scenes import Arena, Box, Cylinder, Prism, Robot, Scene, Wall
 
 CAT = {c: k for k, c in enumerate(CATEGORIES)}

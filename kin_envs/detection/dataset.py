@@ -1,4 +1,4 @@
-"""Labelled lidar segments for the learned kin classifier (numpy only, no torch).
+"""Labelled lidar segments for the learned kin classifier, generated in the simulator (no torch).
 
 A scene is scanned from several of its robots; every scan is pre-processed and segmented by the
 geometric detector's own stages (:func:`detectors.features.segment_batch`) and each segment gets its
@@ -21,29 +21,30 @@ Per segment: features, label, the kin's true centre (observer frame: x forward, 
 and its details (HitKind, index, category, cylinder radius, prism sides, width), distance, number of
 beams, noise level, scene seed and observer. Per scan, the *objects* table lists everything the scan
 sees (robots and obstacles with at least one valid beam), which kin-level evaluation matches
-detections against.
+detections against. The format and the category names are simulator-free: :mod:`detectors.samples`.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
-from kin_envs import HitKind, LidarSpec, World, scenes
-from kin_envs.scenes import Box, Cylinder, DetectionSceneConfig, Prism, RandomArenaConfig, Scene
-
-from .features import (
-    FEATURE_VERSION,
-    FeatureConfig,
-    feature_names,
-    segment_batch,
-    segment_features,
+from detectors.features import FeatureConfig, segment_batch, segment_features
+from detectors.samples import (
+    CATEGORIES,
+    DATASET_FORMAT,
+    category_code,
+    concat_records,
+    load_dataset,
 )
+
+from .. import scenes
+from ..core.lidar import HitKind, LidarSpec
+from ..core.scenes import Box, Cylinder, DetectionSceneConfig, Prism, RandomArenaConfig, Scene
+from ..core.world import World
 
 __all__ = [
     "CATEGORIES",
@@ -58,34 +59,9 @@ __all__ = [
     "load_dataset",
 ]
 
-#: Segment / object categories (``category`` codes are indices into this tuple).
-CATEGORIES: tuple[str, ...] = (
-    "kin",  # a robot's lidar housing
-    "same_radius_cylinder",  # cylinder of the housing's radius: indistinguishable in one scan
-    "kin_width_prism",  # regular prism, circumscribed diameter = the housing's
-    "kin_width_box",  # 7 x 7 cm cuboid
-    "cylinder",  # any other cylinder
-    "prism",  # any other prism
-    "box",  # any other cuboid
-    "polygon",
-    "wall",  # one interior wall
-    "corner",  # two or more interior walls in one segment
-    "boundary",  # the arena's boundary wall
-    "kin_minority",  # a robot is the plurality of the beams but not the majority
-)
-_CAT = {name: k for k, name in enumerate(CATEGORIES)}
-DATASET_FORMAT = "kin-envs/segment-dataset"
-DATASET_FORMAT_VERSION = 1
 #: m: cylinders whose radius is this close to the housing radius count as "same radius".
 SAME_RADIUS_TOL = 0.002
 _WIDTH_TOL = 1e-4  # m: "exactly the kin's width" for prisms and boxes
-
-
-def category_code(name: str) -> int:
-    """Index of ``name`` in :data:`CATEGORIES` (``ValueError`` for an unknown name)."""
-    if name not in _CAT:
-        raise ValueError(f"unknown category {name!r}; expected one of {CATEGORIES}")
-    return _CAT[name]
 
 
 def _pair(name: str, v, cast=float, lo=0.0):
@@ -223,7 +199,7 @@ def _obstacle_table(scene: Scene) -> dict[str, np.ndarray]:
     """
     r = scene.robot.housing_radius
     n = len(scene.obstacles) + 1
-    cat = np.full(n, _CAT["boundary"], np.int8)
+    cat = np.full(n, category_code("boundary"), np.int8)
     cx, cy = np.zeros(n), np.zeros(n)
     radius, width = np.full(n, np.nan), np.full(n, np.nan)
     sides = np.zeros(n, np.int8)
@@ -232,18 +208,18 @@ def _obstacle_table(scene: Scene) -> dict[str, np.ndarray]:
         if isinstance(o, Cylinder):
             radius[j], width[j] = o.radius, 2 * o.radius
             same = abs(o.radius - r) <= SAME_RADIUS_TOL
-            cat[j] = _CAT["same_radius_cylinder" if same else "cylinder"]
+            cat[j] = category_code("same_radius_cylinder" if same else "cylinder")
         elif isinstance(o, Prism):
             sides[j], width[j] = o.sides, o.width
-            cat[j] = _CAT["kin_width_prism" if abs(o.width - 2 * r) <= _WIDTH_TOL else "prism"]
+            cat[j] = category_code("kin_width_prism" if abs(o.width - 2 * r) <= _WIDTH_TOL else "prism")
         elif isinstance(o, Box):
             sides[j], width[j] = 4, max(o.width, o.depth)
             kin_w = abs(o.width - 2 * r) <= _WIDTH_TOL and abs(o.depth - 2 * r) <= _WIDTH_TOL
-            cat[j] = _CAT["kin_width_box" if kin_w else "box"]
+            cat[j] = category_code("kin_width_box" if kin_w else "box")
         elif o.kind == "wall":
-            cat[j] = _CAT["wall"]
+            cat[j] = category_code("wall")
         else:
-            cat[j] = _CAT["polygon"]
+            cat[j] = category_code("polygon")
     return {"category": cat, "cx": cx, "cy": cy, "radius": radius, "sides": sides, "width": width}
 
 
@@ -306,16 +282,16 @@ def label_scan(scan, scene: Scene, batch, poses: np.ndarray) -> tuple[dict, dict
 
     seg_row = batch.scan
     obs_pose = scan.poses[seg_row]
-    category = np.full(n_seg, _CAT["boundary"], np.int8)
+    category = np.full(n_seg, category_code("boundary"), np.int8)
     is_obst = (dom_kind >= HitKind.CYLINDER) & (dom_idx >= 0)
     category[is_obst] = obst["category"][dom_idx[is_obst]]
-    category[(dom_kind == HitKind.WALL) & (n_walls > 1)] = _CAT["corner"]
-    category[is_robot] = np.where(label[is_robot], _CAT["kin"], _CAT["kin_minority"])
+    category[(dom_kind == HitKind.WALL) & (n_walls > 1)] = category_code("corner")
+    category[is_robot] = np.where(label[is_robot], category_code("kin"), category_code("kin_minority"))
 
     wx, wy = np.full(n_seg, np.nan), np.full(n_seg, np.nan)
     wx[is_robot], wy[is_robot] = poses[dom_idx[is_robot], 0], poses[dom_idx[is_robot], 1]
     take = np.where(is_obst, dom_idx, len(scene.obstacles))
-    centred = is_obst & (obst["category"][take] != _CAT["wall"])
+    centred = is_obst & (obst["category"][take] != category_code("wall"))
     wx[centred], wy[centred] = obst["cx"][take[centred]], obst["cy"][take[centred]]
     ox, oy = _to_observer(obs_pose, wx, wy)
     range_min = np.minimum.reduceat(batch.ranges[row, beam], offsets)
@@ -329,7 +305,7 @@ def label_scan(scan, scene: Scene, batch, poses: np.ndarray) -> tuple[dict, dict
     housing = scene.robot.housing_radius
     segments = {
         "label": label.astype(np.int8),
-        "same_radius": category == _CAT["same_radius_cylinder"],
+        "same_radius": category == category_code("same_radius_cylinder"),
         "category": category,
         "hit_kind": dom_kind.astype(np.int8),
         "obj_index": dom_idx.astype(np.int32),
@@ -353,12 +329,12 @@ def label_scan(scan, scene: Scene, batch, poses: np.ndarray) -> tuple[dict, dict
     okind, oidx = okey // n_obj, okey % n_obj - 1
     o_robot = okind == HitKind.ROBOT
     o_obst = (okind >= HitKind.CYLINDER) & (oidx >= 0)
-    ocat = np.full(orow.shape[0], _CAT["boundary"], np.int8)
+    ocat = np.full(orow.shape[0], category_code("boundary"), np.int8)
     ocat[o_obst] = obst["category"][oidx[o_obst]]
-    ocat[o_robot] = _CAT["kin"]
+    ocat[o_robot] = category_code("kin")
     owx, owy = np.full(orow.shape[0], np.nan), np.full(orow.shape[0], np.nan)
     owx[o_robot], owy[o_robot] = poses[oidx[o_robot], 0], poses[oidx[o_robot], 1]
-    oc = o_obst & (ocat != _CAT["wall"])
+    oc = o_obst & (ocat != category_code("wall"))
     owx[oc], owy[oc] = obst["cx"][oidx[oc]], obst["cy"][oidx[oc]]
     ox2, oy2 = _to_observer(scan.poses[orow], owx, owy)
     objects = {
@@ -411,49 +387,3 @@ def scene_records(
     return segs, objs, info
 
 
-def concat_records(parts: list[dict]) -> dict:
-    """Concatenate a list of record dicts column by column."""
-    if not parts:
-        return {}
-    return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
-
-
-# --- loading ------------------------------------------------------------------------------------
-
-
-def load_dataset(path, feature_config: FeatureConfig | None = None) -> tuple[dict, dict, dict]:
-    """Read a dataset directory written by ``scripts/make_dataset.py``.
-
-    Returns ``(segments, objects, manifest)`` with every shard concatenated. Raises
-    ``FileNotFoundError`` for a missing directory / manifest / shard and ``ValueError`` for a
-    manifest of another format, another ``FEATURE_VERSION`` or (if given) another feature config.
-    """
-    root = Path(path)
-    mpath = root / "manifest.json"
-    if not mpath.is_file():
-        raise FileNotFoundError(f"{mpath}: no dataset manifest (write one with scripts/make_dataset.py)")
-    try:
-        manifest = json.loads(mpath.read_text())
-    except (OSError, json.JSONDecodeError) as e:
-        raise ValueError(f"{mpath}: not a readable JSON manifest ({e})") from e
-    if not isinstance(manifest, dict) or manifest.get("format") != DATASET_FORMAT:
-        raise ValueError(f"{mpath}: not a {DATASET_FORMAT!r} manifest")
-    if manifest.get("feature_version") != FEATURE_VERSION:
-        raise ValueError(
-            f"{mpath}: dataset has feature version {manifest.get('feature_version')!r}, this code computes "
-            f"version {FEATURE_VERSION}; regenerate it with scripts/make_dataset.py"
-        )
-    fc = FeatureConfig.from_dict(manifest["feature_config"])
-    if feature_config is not None and fc != feature_config:
-        raise ValueError(f"{mpath}: dataset feature config {fc} differs from the requested {feature_config}")
-    if manifest.get("feature_names") != feature_names(fc):
-        raise ValueError(f"{mpath}: feature names differ from feature version {FEATURE_VERSION}'s")
-    segs, objs = [], []
-    for shard in manifest["shards"]:
-        f = root / shard["file"]
-        if not f.is_file():
-            raise FileNotFoundError(f"{f}: dataset shard listed in {mpath} is missing")
-        with np.load(f) as z:
-            segs.append({k[4:]: z[k] for k in z.files if k.startswith("seg_")})
-            objs.append({k[4:]: z[k] for k in z.files if k.startswith("obj_")})
-    return concat_records(segs), concat_records(objs), manifest

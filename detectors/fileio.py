@@ -1,0 +1,62 @@
+"""Atomic file output: nothing half-written is ever left under a final name.
+
+Every file the project writes (checkpoints, dataset shards, manifests, tables, figures, run records) goes
+through :func:`atomic_write`: the data goes to a temporary file in the same directory, is flushed to disk,
+then renamed over the final name (``os.replace`` is atomic on POSIX and Windows). An exception or Ctrl-C
+inside the block removes the temporary file and leaves any previous file untouched. Simulator-free, so
+both ``detectors`` (checkpoints) and ``kin_envs`` / the scripts use it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import os
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+from typing import IO, Any
+
+__all__ = ["atomic_write", "write_json", "sha256_file"]
+
+
+@contextlib.contextmanager
+def atomic_write(path, mode: str = "wb") -> Iterator[IO[Any]]:
+    """Open a temporary file beside ``path`` for writing; rename it to ``path`` when the block succeeds.
+
+    ``mode`` is ``"wb"`` (bytes) or ``"w"`` (UTF-8 text). The parent directory must exist.
+    """
+    if mode not in ("wb", "w"):
+        raise ValueError(f"atomic_write: mode must be 'wb' or 'w', got {mode!r}")
+    path = Path(path)
+    if not path.parent.is_dir():
+        raise FileNotFoundError(f"{path.parent}: output directory does not exist")
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, mode, **({"encoding": "utf-8"} if mode == "w" else {})) as f:
+            yield f
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise
+
+
+def write_json(path, obj, **dump_kwargs) -> None:
+    """Write ``obj`` as indented JSON to ``path`` atomically."""
+    dump_kwargs.setdefault("indent", 2)
+    with atomic_write(path, "w") as f:
+        json.dump(obj, f, **dump_kwargs)
+        f.write("\n")
+
+
+def sha256_file(path, chunk: int = 1 << 20) -> str:
+    """Hex SHA-256 of a file's bytes."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        while block := f.read(chunk):
+            h.update(block)
+    return h.hexdigest()
