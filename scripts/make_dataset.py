@@ -32,15 +32,9 @@ from pathlib import Path
 import numpy as np
 
 from detectors.features import FEATURE_VERSION, FeatureConfig, feature_names
+from detectors.samples import CATEGORIES, DATASET_FORMAT, DATASET_FORMAT_VERSION, concat_records
 from kin_envs.cli import parse_json_object
-from kin_envs.detection.dataset import (
-    CATEGORIES,
-    DATASET_FORMAT,
-    DATASET_FORMAT_VERSION,
-    DatasetConfig,
-    concat_records,
-    scene_records,
-)
+from kin_envs.detection.dataset import DatasetConfig, scene_records
 from kin_envs.distributed import BACKENDS, imap_seeds
 
 
