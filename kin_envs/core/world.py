@@ -40,7 +40,8 @@ def _make_rng(seed) -> np.random.Generator:
         return np.random.default_rng(seed)
     if isinstance(seed, bool) or not isinstance(seed, int | np.integer):
         raise FieldTypeError(
-            f"World: seed must be None, an integer >= 0 or a numpy Generator, got {type(seed).__name__} {seed!r}"
+            f"World: seed must be None, an integer >= 0 or a numpy Generator, "
+            f"got {type(seed).__name__} {seed!r}"
         )
     if seed < 0:
         raise ValueError(f"World: seed must be >= 0, got {seed}")
