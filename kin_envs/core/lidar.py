@@ -28,6 +28,10 @@ from functools import cached_property
 import numba
 import numpy as np
 
+from detectors._numba_cache import ensure_cache_dir
+
+ensure_cache_dir(__file__.rsplit('/', 1)[0])  # before the @njit(cache=True) below: read-only installs
+
 __all__ = ["HitKind", "LidarSpec", "cast_scan", "scan_shapes", "polygon_edges"]
 
 
