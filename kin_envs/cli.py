@@ -13,7 +13,9 @@ EXIT_INTERRUPTED = 130
 
 
 def run_main(main: Callable[[], object]) -> None:
-    """Run a script's ``main()``; Ctrl-C ends it with one line on stderr and exit status 130.
+    """Run a script's ``main()``; Ctrl-C ends it with one line on stderr and exit status 130, and bad
+    input (a ``ValueError``, e.g. ``--env-kwargs '{bad'``) with one line and exit status 2, like argparse.
+    ``KIN_ENVS_TRACEBACK=1`` re-raises the ``ValueError`` with its traceback.
 
     Inside the world's build and step (and scene validation) Ctrl-C is deferred to the end of that
     unit of work (:mod:`kin_envs.core.interrupts`), so the stop is always clean; outputs are written
@@ -24,6 +26,13 @@ def run_main(main: Callable[[], object]) -> None:
     interrupts.install()
     try:
         main()
+    except ValueError as e:
+        if os.environ.get("KIN_ENVS_TRACEBACK"):
+            raise
+        name = os.path.basename(sys.argv[0]) or "script"
+        what = "an option is not valid JSON: " if isinstance(e, json.JSONDecodeError) else ""
+        print(f"{name}: error: {what}{e}", file=sys.stderr)
+        raise SystemExit(2) from None
     except KeyboardInterrupt:
         name = os.path.basename(sys.argv[0]) or "script"
         print(f"{name}: interrupted (Ctrl-C); finished outputs are intact, unfinished ones were not written",
