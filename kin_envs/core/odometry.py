@@ -83,6 +83,7 @@ def relative(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     out[..., 2] = np.arctan2(np.sin(th), np.cos(th))
     return out
 
+
 class Odometry:
     """Per-robot odometry state of one world (the world owns it; see the module docstring).
 
