@@ -33,18 +33,20 @@ absorbs.
       the score part of the log-odds is clamped to ``±score_clamp``: repeating one ambiguous view cannot
       make a track certain.
    b. **accumulated outline**: the candidate's scan points, moved into the odometry frame (ego-motion
-      compensated) and taken relative to the track's centre, accumulate (up to ``max_points``, newest
-      kept) with their expected noise ``sigma_i = sqrt(shape_sigma**2 + (noise * d_i)**2)`` (``noise``: the
-      frame's relative range noise, estimated from the scan itself by :func:`detectors.features.scan_noise`
-      in :meth:`KinTracker.update_from_result`). A circle of the housing radius ``r`` is fitted to all of
-      them (Gauss-Newton on the centre, radius fixed). As the observer moves and turns, the beams sample the
-      outline far more densely than one scan does: a housing stays on its circle, a 7 cm prism does not.
-      The cue is the Gaussian log-likelihood ratio of the residuals ``e_i`` between "on the circle"
-      (``e_i ~ N(0, sigma_i^2)``) and "off it by a look-alike's typical deviation ``shape_delta``"
-      (``N(0, sigma_i^2 + shape_delta^2)``), summed over the points, scaled down to at most
-      ``shape_n_cap`` points' worth (neighbouring points are not independent) and clamped to
-      ``±shape_clamp``. It replaces (is not added to) the previous frame's shape cue: the outline is one
-      growing piece of evidence. With noise much larger than ``shape_delta`` it is honestly ~0.
+      compensated), accumulate (up to ``max_points``, newest kept) with their expected noise
+      ``sigma_i = sqrt(shape_sigma**2 + (noise * d_i)**2)`` (``noise``: the frame's relative range noise,
+      estimated from the scan itself by :func:`detectors.features.scan_noise` in
+      :meth:`KinTracker.update_from_result`). A circle of the housing radius ``r`` is fitted to all of
+      them (Gauss-Newton on the centre, radius fixed, warm-started at the last fit). As the observer
+      moves and turns, the beams sample the outline far more densely than one scan does: a housing stays
+      on its circle, a 7 cm prism does not. The cue is the Gaussian log-likelihood ratio of the residuals
+      ``e_i`` between "on the circle" (``e_i ~ N(0, sigma_i^2)``) and "off it by a look-alike's typical
+      deviation ``shape_delta``" (``N(0, sigma_i^2 + shape_delta^2)``), summed over the points, scaled
+      down to at most ``shape_n_cap`` points' worth (neighbouring points are not independent) and clamped
+      to ``±shape_clamp``. It replaces (is not added to) the previous frame's shape cue: the outline is
+      one growing piece of evidence. With noise much larger than ``shape_delta`` it is honestly ~0. Once
+      a track has moved its points no longer share one frame, so its shape cue is frozen (the motion cue
+      has decided it anyway).
    c. **motion**: static obstacles do not move in the odometry frame. A track whose filtered position has
       left the place where it was first seen by more than ``motion_dist`` (and by more than 3 standard
       deviations of the two positions' uncertainty) has *moved*: it gets ``motion_gain``, strong evidence
@@ -67,6 +69,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, fields
 
+import numba
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
@@ -136,7 +139,7 @@ class TrackerParams:
     shape_n_cap: int = 60
     shape_min_points: int = 8
     shape_clamp: float = 6.0
-    max_points: int = 240
+    max_points: int = 120
     motion_dist: float = 0.1
     motion_gain: float = 6.0
     static_time: float = 5.0
@@ -186,7 +189,8 @@ class Track:
         frames_seen: frames with an associated candidate.
         age: frames since the track started.
         confirmed: existence has reached ``confirm_existence``.
-        points: (m, 2) accumulated outline points relative to the track's centre.
+        moved: the motion cue has fired (the track left where it was first seen).
+        points: (m, 2) accumulated outline points (odometry frame) relative to the track's centre.
     """
 
     id: int
@@ -200,6 +204,7 @@ class Track:
     frames_seen: int
     age: int
     confirmed: bool
+    moved: bool
     points: np.ndarray = field(repr=False)
 
     @property
@@ -213,26 +218,50 @@ def fit_known_circle(points: np.ndarray, r: float, centre0=(0.0, 0.0), iteration
     Minimises ``sum_i (|p_i - c| - r)^2`` over ``c`` by Gauss-Newton from ``centre0``.
     Returns ``(centre (2,), residuals (m,))``.
     """
-    p = np.asarray(points, dtype=np.float64)
-    c = np.asarray(centre0, dtype=np.float64).copy()
+    p = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 2)
+    c = np.array(centre0, dtype=np.float64)
+    e = np.empty(p.shape[0])
+    _fit_known_circle(p, float(r), c, int(iterations), e)
+    return c, e
+
+
+@numba.njit(cache=True, nogil=True)
+def _fit_known_circle(p, r, c, iterations, e):
+    """Gauss-Newton on the centre ``c`` (in place, 2x2 normal equations solved in closed form);
+    writes the residuals ``|p_i - c| - r`` into ``e``."""
+    m = p.shape[0]
     for _ in range(iterations):
-        d = p - c
-        dist = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-12)
-        e = dist - r
-        J = -d / dist[:, None]  # de/dc
-        JtJ = J.T @ J
-        if np.linalg.cond(JtJ) > 1e12:
+        a00 = a01 = a11 = g0 = g1 = 0.0
+        for i in range(m):
+            dx, dy = p[i, 0] - c[0], p[i, 1] - c[1]
+            d = max(math.sqrt(dx * dx + dy * dy), 1e-12)
+            jx, jy = -dx / d, -dy / d  # d e_i / d c
+            ei = d - r
+            a00 += jx * jx
+            a01 += jx * jy
+            a11 += jy * jy
+            g0 += jx * ei
+            g1 += jy * ei
+        det = a00 * a11 - a01 * a01
+        if det <= 1e-12 * (a00 + a11) ** 2:  # points on a line through c: no unique step
             break
-        step = np.linalg.solve(JtJ, -J.T @ e)
-        c += step
-        if np.hypot(*step) < 1e-9:
+        s0 = -(a11 * g0 - a01 * g1) / det
+        s1 = -(a00 * g1 - a01 * g0) / det
+        c[0] += s0
+        c[1] += s1
+        if s0 * s0 + s1 * s1 < 1e-18:
             break
-    d = p - c
-    return c, np.hypot(d[:, 0], d[:, 1]) - r
+    for i in range(m):
+        e[i] = math.sqrt((p[i, 0] - c[0]) ** 2 + (p[i, 1] - c[1]) ** 2) - r
 
 
 class KinTracker:
-    """Tracks kin over frames from one observer's candidates and odometry (see the module docstring).
+    """Kin tracks of ``n_observers`` robots at once, from their candidates and odometry (module docstring).
+
+    Batch-first: every observer's tracks live in one set of arrays (a row per track slot, its observer in
+    ``obs``), and one :meth:`update_batch` call advances all observers by one frame with array operations
+    and one compiled kernel for the outline cue; the Hungarian solver runs only for the observers whose
+    gates are ambiguous. :meth:`update` is the one-observer form.
 
     Example::
 
@@ -243,18 +272,27 @@ class KinTracker:
             kin = [t for t in tracker.tracks() if t.is_kin]
     """
 
-    def __init__(self, params: TrackerParams | None = None) -> None:
+    _FIELDS = ("_id", "_obs", "_x", "_P", "_exist", "_lo_score", "_lo_shape", "_lo_motion", "_seen", "_age",
+               "_static_t", "_moved", "_confirmed", "_anchor", "_anchor_var", "_alive", "_pts", "_npts",
+               "_head", "_fit_c")  # fmt: skip
+
+    def __init__(self, params: TrackerParams | None = None, n_observers: int = 1) -> None:
+        if isinstance(n_observers, bool) or not isinstance(n_observers, int | np.integer) or n_observers < 1:
+            raise ValueError(f"KinTracker: n_observers must be a positive integer, got {n_observers!r}")
         self.params = params or TrackerParams()
+        if not isinstance(self.params, TrackerParams):
+            raise TypeError(f"KinTracker: params must be a TrackerParams, got {type(self.params).__name__}")
+        self.n_observers = int(n_observers)
         self.reset()
 
     def reset(self) -> None:
-        """Forget every track; the odometry frame restarts at the robot's current pose."""
-        self.pose = np.zeros(3)  # the observer in its odometry frame
+        """Forget every track; each observer's odometry frame restarts at its current pose."""
+        self.poses = np.zeros((self.n_observers, 3))  # each observer in its own odometry frame
         self.time = 0.0
         self._next_id = 0
-        self._n = 0
-        cap = 16
+        cap, m = 8 * self.n_observers, int(self.params.max_points)
         self._id = np.zeros(cap, np.int64)
+        self._obs = np.zeros(cap, np.int64)
         self._x = np.zeros((cap, 4))
         self._P = np.zeros((cap, 4, 4))
         self._exist = np.zeros(cap)
@@ -268,13 +306,22 @@ class KinTracker:
         self._confirmed = np.zeros(cap, bool)
         self._anchor = np.zeros((cap, 2))  # where the track was first seen, odometry frame
         self._anchor_var = np.zeros(cap)
-        self._points: list[np.ndarray] = [np.zeros((0, 3)) for _ in range(cap)]
+        self._alive = np.zeros(cap, bool)
+        self._pts = np.zeros((cap, m, 3))  # outline points, odometry frame (x, y, sigma), a ring
+        self._npts = np.zeros(cap, np.int64)
+        self._head = np.zeros(cap, np.int64)
+        self._fit_c = np.zeros((cap, 2))  # the outline fit's centre, odometry frame (warm start)
+
+    @property
+    def pose(self) -> np.ndarray:
+        """Observer 0's pose in its odometry frame (the one-observer form)."""
+        return self.poses[0]
 
     # -- the frame update --------------------------------------------------------------------------
     def update(
         self, xy, scores, odom_delta, dt: float, points: Sequence[np.ndarray] | None = None, noise=None
     ) -> None:
-        """Advance one frame.
+        """Advance one frame of a one-observer tracker.
 
         Args:
             xy: (k, 2) candidate centres in the current robot frame (x forward, y left), m.
@@ -286,57 +333,99 @@ class KinTracker:
             noise: the frame's relative range noise (0.01 = 1 % of the distance); default
                 ``params.range_noise``.
         """
-        pr = self.params
-        noise = pr.range_noise if noise is None else float(noise)
-        if not (math.isfinite(noise) and noise >= 0):
-            raise ValueError(f"KinTracker.update: noise must be a relative range noise >= 0, got {noise!r}")
+        if self.n_observers != 1:
+            raise ValueError(f"KinTracker.update is the one-observer form; this tracker has "
+                             f"{self.n_observers} observers: use update_batch")  # fmt: skip
+        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        pts = owner = None
+        if points is not None:
+            if len(points) != xy.shape[0]:
+                raise ValueError(
+                    f"KinTracker.update: points must hold one array per candidate ({xy.shape[0]})"
+                )
+            arrs = [np.asarray(p, np.float64).reshape(-1, 2) for p in points]
+            pts = np.concatenate(arrs) if arrs else np.zeros((0, 2))
+            owner = np.repeat(np.arange(len(arrs)), [a.shape[0] for a in arrs])
+        delta = np.asarray(odom_delta, np.float64).reshape(1, -1)
+        obs = np.zeros(xy.shape[0], np.int64)
+        self.update_batch(obs, xy, scores, delta, dt, pts, owner, None if noise is None else [noise])
+
+    def update_batch(
+        self, obs, xy, scores, odom_delta, dt: float, points=None, owner=None, noise=None
+    ) -> None:
+        """Advance every observer by one frame.
+
+        Args:
+            obs: (k,) observer of each candidate, in [0, n_observers).
+            xy: (k, 2) candidate centres in their observer's current robot frame (x forward, y left), m.
+            scores: (k,) candidate scores in [0, 1] (higher = more kin-like).
+            odom_delta: (n_observers, 3) each observer's odometry increment since the previous frame.
+            dt: s since the previous frame (> 0).
+            points: optional (P, 2) scan points of the candidates, their observer's robot frame, m ...
+            owner: ... (P,) and the candidate each point belongs to.
+            noise: optional (n_observers,) relative range noise of each observer's scan.
+        """
+        pr, N = self.params, self.n_observers
+        obs = np.asarray(obs).reshape(-1)
         xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
         scores = np.asarray(scores, dtype=np.float64).reshape(-1)
-        delta = np.asarray(odom_delta, dtype=np.float64).reshape(-1)
-        if delta.shape != (3,) or not np.all(np.isfinite(delta)):
+        delta = np.asarray(odom_delta, dtype=np.float64)
+        k = xy.shape[0]
+        if delta.shape != (N, 3) or not np.all(np.isfinite(delta)):
             raise ValueError(
-                f"KinTracker.update: odom_delta must be 3 finite numbers (dx, dy, dtheta), got {odom_delta!r}"
+                f"KinTracker: odom_delta must be ({N}, 3) finite numbers (dx, dy, dtheta per observer), "
+                f"got {np.shape(odom_delta)} {odom_delta!r}"
             )
         if not (isinstance(dt, int | float) and math.isfinite(dt) and dt > 0):
-            raise ValueError(f"KinTracker.update: dt must be a positive number of seconds, got {dt!r}")
-        if scores.shape[0] != xy.shape[0] or not (np.all(np.isfinite(xy)) and np.all(np.isfinite(scores))):
+            raise ValueError(f"KinTracker: dt must be a positive number of seconds, got {dt!r}")
+        if (
+            scores.shape[0] != k
+            or obs.shape[0] != k
+            or not (np.all(np.isfinite(xy)) and np.all(np.isfinite(scores)))
+        ):
             raise ValueError(
-                f"KinTracker.update: xy (k, 2) and scores (k,) must be finite and of one length, got "
-                f"{xy.shape} and {scores.shape}"
+                f"KinTracker: obs (k,), xy (k, 2) and scores (k,) must be finite and of one length, got "
+                f"{obs.shape}, {xy.shape} and {scores.shape}"
             )
-        if points is not None and len(points) != xy.shape[0]:
-            raise ValueError(f"KinTracker.update: points must hold one array per candidate ({xy.shape[0]})")
-        # ego-motion: the observer's new pose in the odometry frame
-        c, s = math.cos(self.pose[2]), math.sin(self.pose[2])
-        self.pose = np.array(
-            [self.pose[0] + c * delta[0] - s * delta[1], self.pose[1] + s * delta[0] + c * delta[1],
-             float(wrap_angle(self.pose[2] + delta[2]))]
-        )  # fmt: skip
+        if k and (not np.issubdtype(obs.dtype, np.integer) or obs.min() < 0 or obs.max() >= N):
+            raise ValueError(f"KinTracker: obs must be observer indices in [0, {N}), got {obs!r}")
+        noise = np.full(N, pr.range_noise) if noise is None else np.asarray(noise, np.float64).reshape(-1)
+        if noise.shape != (N,) or not np.all(np.isfinite(noise) & (noise >= 0)):
+            raise ValueError(f"KinTracker: noise must be {N} relative range noises >= 0, got {noise!r}")
+        obs = obs.astype(np.int64)
+        # ego-motion: each observer's new pose in its odometry frame
+        c, s = np.cos(self.poses[:, 2]), np.sin(self.poses[:, 2])
+        self.poses = np.c_[
+            self.poses[:, 0] + c * delta[:, 0] - s * delta[:, 1],
+            self.poses[:, 1] + s * delta[:, 0] + c * delta[:, 1],
+            wrap_angle(self.poses[:, 2] + delta[:, 2]),
+        ]
         self.time += dt
-        R = self._to_odom_rotation()
-        z = xy @ R.T + self.pose[:2]  # candidates in the odometry frame
+        cos, sin = np.cos(self.poses[:, 2]), np.sin(self.poses[:, 2])
+        z = self._to_odom(xy, obs, cos, sin)  # candidates in their observer's odometry frame
         rng = np.hypot(xy[:, 0], xy[:, 1])
-        self._predict(dt)
-        pairs = self._associate(z, rng)
-        n_before = self._n
-        hit = np.zeros(n_before, bool)
-        for ti, ci in pairs:
-            hit[ti] = True
-            self._kalman_update(ti, z[ci], rng[ci])
-            self._evidence(ti, scores[ci], None if points is None else points[ci], R, noise)
-        matched = {ci for _, ci in pairs}
-        for ci in range(xy.shape[0]):
-            if ci not in matched:
-                ti = self._birth(z[ci], rng[ci])
-                self._evidence(ti, scores[ci], None if points is None else points[ci], R, noise)
-        self._existence(hit, n_before)
-        self._motion(dt)
-        self._age[: self._n] += 1
-        self._prune()
+        rows = np.flatnonzero(self._alive)
+        self._predict(rows, dt)
+        ti, ci = self._associate(rows, z, obs, rng)
+        hit = np.zeros(self._alive.shape[0], bool)
+        hit[ti] = True
+        self._kalman_update(ti, z[ci], rng[ci])
+        born = np.setdiff1d(np.arange(k), ci, assume_unique=True)
+        tb = self._birth(z[born], obs[born], rng[born])
+        tracks, cands = np.concatenate([ti, tb]), np.concatenate([ci, born])
+        self._score_cue(tracks, scores[cands])
+        if points is not None and len(tracks):
+            self._outline_cue(tracks, cands, points, owner, obs, noise, cos, sin, k)
+        self._existence(rows, hit[rows])
+        rows = np.flatnonzero(self._alive)
+        self._motion(rows, dt)
+        self._age[rows] += 1
+        self._alive[rows] = self._exist[rows] >= pr.delete_existence
 
     def update_from_result(self, result: DetectionResult, ranges, angles, odom_delta, dt: float) -> None:
         """:meth:`update` from a detector's :class:`DetectionResult` on scan ``(ranges, angles)``: each
-        detection's segment beams (``first_beam``..``last_beam``, wrapping) give its outline points."""
+        detection's segment beams (``first_beam``..``last_beam``, wrapping) give its outline points, and the
+        scan's own noise estimate (:func:`detectors.features.scan_noise`) the outline cue's noise."""
         ranges = np.asarray(ranges, dtype=np.float64)
         angles = np.asarray(angles, dtype=np.float64)
         n = ranges.shape[0]
@@ -353,13 +442,12 @@ class KinTracker:
         self.update(xy, scores, odom_delta, dt, pts, noise=float(noise[0]) if count[0] >= 5 else None)
 
     # -- steps ----------------------------------------------------------------------------------------
-    def _to_odom_rotation(self) -> np.ndarray:
-        c, s = math.cos(self.pose[2]), math.sin(self.pose[2])
-        return np.array([[c, -s], [s, c]])
+    def _to_odom(self, xy, obs, cos, sin) -> np.ndarray:
+        c, s = cos[obs], sin[obs]
+        return np.c_[c * xy[:, 0] - s * xy[:, 1], s * xy[:, 0] + c * xy[:, 1]] + self.poses[obs, :2]
 
-    def _predict(self, dt: float) -> None:
-        n = self._n
-        if not n:
+    def _predict(self, rows: np.ndarray, dt: float) -> None:
+        if not rows.size:
             return
         F = np.eye(4)
         F[0, 2] = F[1, 3] = dt
@@ -368,57 +456,99 @@ class KinTracker:
         Q = np.zeros((4, 4))
         Q[np.ix_([0, 2], [0, 2])] = Q1
         Q[np.ix_([1, 3], [1, 3])] = Q1
-        self._x[:n] = self._x[:n] @ F.T
-        self._P[:n] = F @ self._P[:n] @ F.T + Q
+        self._x[rows] = self._x[rows] @ F.T
+        self._P[rows] = F @ self._P[rows] @ F.T + Q
 
     def _meas_var(self, rng: np.ndarray) -> np.ndarray:
         return (self.params.meas_sigma + self.params.meas_sigma_rel * rng) ** 2
 
-    def _associate(self, z: np.ndarray, rng: np.ndarray) -> list[tuple[int, int]]:
-        n, k = self._n, z.shape[0]
-        if not n or not k:
-            return []
-        S = self._P[:n, None, :2, :2] + np.eye(2) * self._meas_var(rng)[None, :, None, None]  # (n, k, 2, 2)
-        d = z[None, :, :] - self._x[:n, None, :2]
-        det = S[..., 0, 0] * S[..., 1, 1] - S[..., 0, 1] * S[..., 1, 0]
-        m2 = (S[..., 1, 1] * d[..., 0] ** 2 - 2 * S[..., 0, 1] * d[..., 0] * d[..., 1]
-              + S[..., 0, 0] * d[..., 1] ** 2) / det  # fmt: skip
-        gated = m2 > self.params.gate_chi2
-        cost = np.where(gated, 1e6, m2)
-        rows, cols = linear_sum_assignment(cost)
-        return [(int(t), int(c)) for t, c in zip(rows, cols, strict=True) if not gated[t, c]]
+    def _associate(self, rows, z, obs, rng) -> tuple[np.ndarray, np.ndarray]:
+        """(track rows, candidate indices) of each observer's jointly optimal gated assignment."""
+        none = np.zeros(0, np.int64)
+        if not rows.size or not z.shape[0]:
+            return none, none
+        # every (track, candidate) pair of the same observer
+        order = np.argsort(self._obs[rows], kind="stable")
+        trk = rows[order]
+        n_t = np.bincount(self._obs[trk], minlength=self.n_observers)
+        start = np.cumsum(n_t) - n_t
+        per_c = n_t[obs]
+        if not per_c.sum():
+            return none, none
+        cand = np.repeat(np.arange(z.shape[0]), per_c)
+        within = np.arange(cand.size) - np.repeat(np.cumsum(per_c) - per_c, per_c)
+        tr = trk[start[obs[cand]] + within]
+        S = self._P[tr, :2, :2] + np.eye(2) * self._meas_var(rng[cand])[:, None, None]
+        d = z[cand] - self._x[tr, :2]
+        det = S[:, 0, 0] * S[:, 1, 1] - S[:, 0, 1] * S[:, 1, 0]
+        m2 = (
+            S[:, 1, 1] * d[:, 0] ** 2 - 2 * S[:, 0, 1] * d[:, 0] * d[:, 1] + S[:, 0, 0] * d[:, 1] ** 2
+        ) / det
+        ok = m2 <= self.params.gate_chi2
+        tr, cand, m2 = tr[ok], cand[ok], m2[ok]
+        if not tr.size:
+            return none, none
+        # a pair whose track and candidate are in no other gate is forced; the rest is solved per observer
+        cap = self._alive.shape[0]
+        forced = (np.bincount(tr, minlength=cap)[tr] == 1) & (
+            np.bincount(cand, minlength=z.shape[0])[cand] == 1
+        )
+        ti, ci = [tr[forced]], [cand[forced]]
+        amb = ~forced
+        for o in np.unique(obs[cand[amb]]):
+            sel = amb & (obs[cand] == o)
+            ut, t_inv = np.unique(tr[sel], return_inverse=True)
+            uc, c_inv = np.unique(cand[sel], return_inverse=True)
+            cost = np.full((ut.size, uc.size), 1e6)
+            cost[t_inv, c_inv] = m2[sel]
+            r, c = linear_sum_assignment(cost)
+            keep = cost[r, c] < 1e6
+            ti.append(ut[r[keep]])
+            ci.append(uc[c[keep]])
+        return np.concatenate(ti).astype(np.int64), np.concatenate(ci).astype(np.int64)
 
-    def _kalman_update(self, ti: int, z: np.ndarray, rng: float) -> None:
+    def _kalman_update(self, ti: np.ndarray, z: np.ndarray, rng: np.ndarray) -> None:
+        """Batched Kalman update of tracks ``ti`` with candidates ``z`` (Joseph form)."""
+        if not ti.size:
+            return
         x, P = self._x[ti], self._P[ti]
-        S = P[:2, :2] + np.eye(2) * self._meas_var(np.array(rng))
-        K = P[:, :2] @ np.linalg.inv(S)
-        x += K @ (z - x[:2])
-        IKH = np.eye(4)
-        IKH[:, :2] -= K
-        self._P[ti] = IKH @ P @ IKH.T + K @ (np.eye(2) * self._meas_var(np.array(rng))) @ K.T  # Joseph form
+        Rm = np.eye(2) * self._meas_var(rng)[:, None, None]  # (m, 2, 2)
+        S = P[:, :2, :2] + Rm
+        K = P[:, :, :2] @ np.linalg.inv(S)  # (m, 4, 2)
+        x += np.einsum("mij,mj->mi", K, z - x[:, :2])
+        IKH = np.broadcast_to(np.eye(4), P.shape).copy()
+        IKH[:, :, :2] -= K
+        self._P[ti] = IKH @ P @ IKH.transpose(0, 2, 1) + K @ Rm @ K.transpose(0, 2, 1)
+        self._x[ti] = x
         self._seen[ti] += 1
 
-    def _grow(self) -> None:
-        cap = self._id.shape[0] * 2
-        for name in ("_id", "_x", "_P", "_exist", "_lo_score", "_lo_shape", "_lo_motion", "_seen", "_age",
-                     "_static_t", "_moved", "_confirmed", "_anchor", "_anchor_var"):  # fmt: skip
+    def _grow(self, need: int) -> None:
+        cap = self._alive.shape[0]
+        while cap < need:
+            cap *= 2
+        for name in self._FIELDS:
             a = getattr(self, name)
             b = np.zeros((cap, *a.shape[1:]), a.dtype)
             b[: a.shape[0]] = a
             setattr(self, name, b)
-        self._points += [np.zeros((0, 3)) for _ in range(cap - len(self._points))]
 
-    def _birth(self, z: np.ndarray, rng: float) -> int:
-        if self._n == self._id.shape[0]:
-            self._grow()
-        ti, pr = self._n, self.params
-        self._n += 1
-        self._id[ti] = self._next_id
-        self._next_id += 1
-        self._x[ti] = (z[0], z[1], 0.0, 0.0)
-        self._P[ti] = np.diag(
-            [*(2 * [self._meas_var(np.array(rng))]), pr.init_speed_sigma**2, pr.init_speed_sigma**2]
-        )
+    def _birth(self, z: np.ndarray, obs: np.ndarray, rng: np.ndarray) -> np.ndarray:
+        """Start tentative tracks at candidates ``z`` (k, 2) of observers ``obs``; returns their rows."""
+        k, pr = z.shape[0], self.params
+        free = np.flatnonzero(~self._alive)
+        if free.size < k:
+            self._grow(self._alive.shape[0] + k)
+            free = np.flatnonzero(~self._alive)
+        ti = free[:k]
+        self._alive[ti] = True
+        self._id[ti] = np.arange(self._next_id, self._next_id + k)
+        self._next_id += k
+        self._obs[ti] = obs
+        var = self._meas_var(rng)
+        self._x[ti] = np.c_[z, np.zeros((k, 2))]
+        self._P[ti] = 0.0
+        self._P[ti, 0, 0] = self._P[ti, 1, 1] = var
+        self._P[ti, 2, 2] = self._P[ti, 3, 3] = pr.init_speed_sigma**2
         self._exist[ti] = pr.birth_existence
         self._lo_score[ti] = self._lo_shape[ti] = self._lo_motion[ti] = 0.0
         self._seen[ti] = 1
@@ -426,127 +556,176 @@ class KinTracker:
         self._static_t[ti] = 0.0
         self._moved[ti] = False
         self._confirmed[ti] = pr.birth_existence >= pr.confirm_existence
-        self._points[ti] = np.zeros((0, 3))
+        self._npts[ti] = self._head[ti] = 0
+        # the housing's centre is r behind the visible arc's middle, seen from the observer
+        away = z - self.poses[obs, :2]
+        self._fit_c[ti] = z + away / np.maximum(np.hypot(away[:, 0], away[:, 1]), 1e-9)[:, None] * pr.r * 0.5
         self._anchor[ti] = z
-        self._anchor_var[ti] = self._meas_var(np.array(rng))
+        self._anchor_var[ti] = var
         return ti
 
-    def _evidence(self, ti: int, score: float, pts, R: np.ndarray, noise: float) -> None:
-        pr = self.params
+    def _score_cue(self, ti: np.ndarray, scores: np.ndarray) -> None:
         # (a) the detector's score: correlated frames -> weight < 1, clamped sum
-        lo = self._lo_score[ti] + pr.score_weight * float(_logit(score) - _logit(pr.score_prior))
-        self._lo_score[ti] = float(np.clip(lo, -pr.score_clamp, pr.score_clamp))
-        # (b) the accumulated outline relative to the track centre (ego-motion compensated)
-        if pts is not None and len(pts):
-            pts = np.asarray(pts, np.float64)
-            sig = np.sqrt(pr.shape_sigma**2 + (noise * np.hypot(pts[:, 0], pts[:, 1])) ** 2)
-            rel = np.c_[pts @ R.T + self.pose[:2] - self._x[ti, :2], sig]
-            acc = np.concatenate([self._points[ti], rel])[-pr.max_points :]
-            self._points[ti] = acc
-            if acc.shape[0] >= pr.shape_min_points:
-                _, e = fit_known_circle(acc[:, :2], pr.r, centre0=self._fit_start(ti, acc[:, :2]))
-                v0, v1 = acc[:, 2] ** 2, acc[:, 2] ** 2 + pr.shape_delta**2
-                llr = 0.5 * np.log(v1 / v0) - 0.5 * e**2 * (1.0 / v0 - 1.0 / v1)
-                llr = float(llr.sum()) * min(1.0, pr.shape_n_cap / acc.shape[0])
-                self._lo_shape[ti] = float(np.clip(llr, -pr.shape_clamp, pr.shape_clamp))
-
-    def _fit_start(self, ti: int, acc: np.ndarray) -> np.ndarray:
-        cen = acc.mean(axis=0)
-        away = cen + self._x[ti, :2] - self.pose[:2]  # from the observer towards the points
-        norm = np.hypot(*away)
-        return cen + (away / norm * self.params.r * 0.5 if norm > 0 else 0.0)
-
-    def _existence(self, hit: np.ndarray, n_before: int) -> None:
         pr = self.params
-        p = self._exist[:n_before]
-        in_range = np.hypot(*(self._x[:n_before, :2] - self.pose[:2]).T) <= pr.max_range
+        lo = self._lo_score[ti] + pr.score_weight * (_logit(scores) - _logit(pr.score_prior))
+        self._lo_score[ti] = np.clip(lo, -pr.score_clamp, pr.score_clamp)
+
+    def _outline_cue(self, ti, ci, points, owner, obs, noise, cos, sin, k) -> None:
+        # (b) the accumulated outline relative to the track centre (ego-motion compensated)
+        pr = self.params
+        pts = np.asarray(points, np.float64).reshape(-1, 2)
+        owner = np.asarray(owner).reshape(-1).astype(np.int64)
+        if owner.shape[0] != pts.shape[0] or (owner.size and (owner.min() < 0 or owner.max() >= k)):
+            raise ValueError(
+                f"KinTracker: owner must give each of the {pts.shape[0]} points a candidate in [0, {k})"
+            )
+        if not np.all(np.isfinite(pts)):
+            raise ValueError("KinTracker: points must be finite")
+        order = np.argsort(owner, kind="stable")
+        pts, owner = pts[order], owner[order]
+        po = obs[owner]
+        sig = np.sqrt(pr.shape_sigma**2 + (noise[po] * np.hypot(pts[:, 0], pts[:, 1])) ** 2)
+        odom = self._to_odom(pts, po, cos, sin)
+        cstart = np.searchsorted(owner, np.arange(k + 1))
+        _outline_kernel(
+            ti, ci, np.ascontiguousarray(odom), sig, cstart, self._moved, self._pts, self._npts, self._head,
+            self._fit_c, self._lo_shape, pr.r, pr.shape_delta**2, float(pr.shape_n_cap),
+            int(pr.shape_min_points), pr.shape_clamp,
+        )  # fmt: skip
+
+    def _existence(self, rows: np.ndarray, hit: np.ndarray) -> None:
+        pr = self.params
+        p = self._exist[rows]
+        in_range = np.hypot(*(self._x[rows, :2] - self.poses[self._obs[rows], :2]).T) <= pr.max_range
         p_hit = p / (p + (1 - p) * pr.clutter_ratio)
         p_miss = p * (1 - pr.p_detect) / (1 - p * pr.p_detect)
-        self._exist[:n_before] = np.where(hit, p_hit, np.where(in_range, p_miss, p))
-        n = self._n
-        self._confirmed[:n] |= self._exist[:n] >= pr.confirm_existence
+        self._exist[rows] = np.where(hit, p_hit, np.where(in_range, p_miss, p))
+        alive = np.flatnonzero(self._alive)
+        self._confirmed[alive] |= self._exist[alive] >= pr.confirm_existence
 
-    def _motion(self, dt: float) -> None:
-        pr, n = self.params, self._n
-        if not n:
+    def _motion(self, rows: np.ndarray, dt: float) -> None:
+        pr = self.params
+        if not rows.size:
             return
-        disp = np.hypot(*(self._x[:n, :2] - self._anchor[:n]).T)
-        var = self._anchor_var[:n] + 0.5 * (self._P[:n, 0, 0] + self._P[:n, 1, 1])
-        moving = (disp > pr.motion_dist) & (disp > 3.0 * np.sqrt(var)) & (self._seen[:n] > 2)
-        self._moved[:n] |= moving
-        self._lo_motion[:n] = np.where(self._moved[:n], pr.motion_gain, 0.0)
-        self._static_t[:n] += dt
-
-    def _prune(self) -> None:
-        n = self._n
-        keep = np.flatnonzero(self._exist[:n] >= self.params.delete_existence)
-        if keep.size == n:
-            return
-        for name in ("_id", "_x", "_P", "_exist", "_lo_score", "_lo_shape", "_lo_motion", "_seen", "_age",
-                     "_static_t", "_moved", "_confirmed", "_anchor", "_anchor_var"):  # fmt: skip
-            a = getattr(self, name)
-            a[: keep.size] = a[keep]
-        pts = [self._points[i] for i in keep]
-        self._points[: keep.size] = pts
-        self._n = int(keep.size)
+        disp = np.hypot(*(self._x[rows, :2] - self._anchor[rows]).T)
+        var = self._anchor_var[rows] + 0.5 * (self._P[rows, 0, 0] + self._P[rows, 1, 1])
+        moving = (disp > pr.motion_dist) & (disp > 3.0 * np.sqrt(var)) & (self._seen[rows] > 2)
+        self._moved[rows] |= moving
+        self._lo_motion[rows] = np.where(self._moved[rows], pr.motion_gain, 0.0)
+        self._static_t[rows] += dt
 
     # -- outputs -----------------------------------------------------------------------------------------
-    def kin_prob(self) -> np.ndarray:
-        """(n_tracks,) kin probability of every current track."""
-        pr, n = self.params, self._n
-        active = bool(self._moved[:n].any())  # some track of this observer moved: the swarm is active
-        static = np.where(
-            active & ~self._moved[:n] & (self._static_t[:n] >= pr.static_time), pr.static_penalty, 0.0
-        )
-        lo = _logit(pr.kin_prior) + self._lo_score[:n] + self._lo_shape[:n] + self._lo_motion[:n] + static
+    def _rows(self, observer: int | None) -> np.ndarray:
+        rows = np.flatnonzero(self._alive)
+        if observer is not None:
+            if not 0 <= int(observer) < self.n_observers:
+                raise ValueError(f"KinTracker: observer must be in [0, {self.n_observers}), got {observer!r}")
+            rows = rows[self._obs[rows] == int(observer)]
+        return rows[np.argsort(self._id[rows], kind="stable")]
+
+    def _kin_prob(self, rows: np.ndarray) -> np.ndarray:
+        pr = self.params
+        # some track of the same observer moved: the swarm around it is active
+        active = np.bincount(self._obs[rows][self._moved[rows]], minlength=self.n_observers) > 0
+        idle = active[self._obs[rows]] & ~self._moved[rows] & (self._static_t[rows] >= pr.static_time)
+        lo = (_logit(pr.kin_prior) + self._lo_score[rows] + self._lo_shape[rows] + self._lo_motion[rows]
+              + np.where(idle, pr.static_penalty, 0.0))  # fmt: skip
         return 1.0 / (1.0 + np.exp(-lo))
 
+    def kin_prob(self, observer: int | None = 0) -> np.ndarray:
+        """Kin probability of ``observer``'s tracks (all observers' for ``None``), in track-id order."""
+        return self._kin_prob(self._rows(observer))
+
     def __len__(self) -> int:
-        return self._n
+        return int(self._alive.sum())
 
-    def tracks(self) -> list[Track]:
-        """The current tracks as :class:`Track` objects (built on demand)."""
-        kp = self.kin_prob()
-        return [
-            Track(
-                id=int(self._id[i]),
-                x=float(self._x[i, 0]),
-                y=float(self._x[i, 1]),
-                vx=float(self._x[i, 2]),
-                vy=float(self._x[i, 3]),
-                covariance=self._P[i].copy(),
-                existence=float(self._exist[i]),
-                kin_prob=float(kp[i]),
-                frames_seen=int(self._seen[i]),
-                age=int(self._age[i]),
-                confirmed=bool(self._confirmed[i]),
-                points=self._points[i][:, :2].copy(),
-            )  # fmt: skip
-            for i in range(self._n)
-        ]
+    def tracks(self, observer: int | None = 0) -> list[Track]:
+        """``observer``'s tracks (all for ``None``) as :class:`Track` objects, id order, built on demand."""
+        rows = self._rows(observer)
+        kp = self._kin_prob(rows)
+        out = []
+        for i, p in zip(rows.tolist(), kp.tolist(), strict=True):
+            m = int(self._npts[i])
+            out.append(Track(
+                id=int(self._id[i]), x=float(self._x[i, 0]), y=float(self._x[i, 1]), vx=float(self._x[i, 2]),
+                vy=float(self._x[i, 3]), covariance=self._P[i].copy(), existence=float(self._exist[i]),
+                kin_prob=p, frames_seen=int(self._seen[i]), age=int(self._age[i]),
+                confirmed=bool(self._confirmed[i]), moved=bool(self._moved[i]),
+                points=self._pts[i, :m, :2] - self._x[i, :2],
+            ))  # fmt: skip
+        return out
 
-    def in_robot_frame(self) -> np.ndarray:
-        """(n_tracks, 2) track positions in the observer's current robot frame (x forward, y left), m."""
-        R = self._to_odom_rotation()
-        return (self._x[: self._n, :2] - self.pose[:2]) @ R
+    def in_robot_frame(self, observer: int = 0) -> np.ndarray:
+        """(n_tracks, 2) ``observer``'s track positions in its current robot frame (x forward, y left), m."""
+        rows = self._rows(observer)
+        pose = self.poses[observer]
+        c, s = math.cos(pose[2]), math.sin(pose[2])
+        return (self._x[rows, :2] - pose[:2]) @ np.array([[c, -s], [s, c]])
 
     def track_arrays(self, max_tracks: int) -> dict[str, np.ndarray]:
-        """Fixed-shape view for vector envs: ``tracks`` (max_tracks, len(TRACK_FIELDS)) float32 padded with
-        zeros (columns :data:`TRACK_FIELDS`, positions and velocities in the robot frame), ``mask``
-        (max_tracks,) bool and ``count``. The most kin-like tracks come first when there are more."""
-        n = self._n
-        out = np.zeros((max_tracks, len(TRACK_FIELDS)), np.float32)
-        mask = np.zeros(max_tracks, bool)
-        if n:
-            kp = self.kin_prob()
-            order = np.argsort(-(kp + self._confirmed[:n]), kind="stable")[:max_tracks]
-            R = self._to_odom_rotation()
-            pos = self.in_robot_frame()[order]
-            vel = self._x[order, 2:] @ R
+        """Fixed-shape view for vector envs: ``tracks`` (n_observers, max_tracks, len(TRACK_FIELDS)) float32,
+        zero-padded (columns :data:`TRACK_FIELDS`; positions and velocities in each observer's current robot
+        frame), ``mask`` (n_observers, max_tracks) bool and ``count`` (n_observers,). Per observer, confirmed
+        tracks come first, then by kin probability, when there are more than ``max_tracks``."""
+        N = self.n_observers
+        out = np.zeros((N, max_tracks, len(TRACK_FIELDS)), np.float32)
+        mask = np.zeros((N, max_tracks), bool)
+        rows = np.flatnonzero(self._alive)
+        if rows.size:
+            kp = self._kin_prob(rows)
+            o = self._obs[rows]
+            order = np.lexsort((self._id[rows], -(kp + self._confirmed[rows]), o))
+            rows, kp, o = rows[order], kp[order], o[order]
+            n_o = np.bincount(o, minlength=N)
+            rank = np.arange(rows.size) - np.repeat(np.cumsum(n_o) - n_o, n_o)
+            keep = rank < max_tracks
+            rows, kp, o, rank = rows[keep], kp[keep], o[keep], rank[keep]
+            pose = self.poses[o]
+            c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
+            d = self._x[rows, :2] - pose[:, :2]
+            v = self._x[rows, 2:]
             cols = np.stack(
-                [self._id[order], pos[:, 0], pos[:, 1], vel[:, 0], vel[:, 1], self._exist[order], kp[order],
-                 self._seen[order], self._confirmed[order], self._age[order]], axis=1,
+                [self._id[rows], c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1],
+                 c * v[:, 0] + s * v[:, 1], -s * v[:, 0] + c * v[:, 1], self._exist[rows], kp,
+                 self._seen[rows], self._confirmed[rows], self._age[rows]], axis=1,
             )  # fmt: skip
-            out[: order.size] = cols
-            mask[: order.size] = True
-        return {"tracks": out, "mask": mask, "count": np.int64(min(n, max_tracks))}
+            out[o, rank] = cols
+            mask[o, rank] = True
+        count = mask.sum(axis=1).astype(np.int64)
+        return {"tracks": out, "mask": mask, "count": count}
+
+
+@numba.njit(cache=True, nogil=True)
+def _outline_kernel(ti, ci, pts, sig, cstart, moved, buf, npts, head, fit_c, lo_shape, r, delta2, n_cap,
+                    min_points, clamp):  # fmt: skip
+    """Append each updated track's candidate points (odometry frame) to its ring buffer, then refit its
+    outline (warm-started at the last fit's centre) and set its shape cue. A track that has moved keeps
+    its last shape cue: its points no longer share one frame, and the motion cue has decided it anyway."""
+    m_max = buf.shape[1]
+    e = np.empty(m_max)
+    for j in range(ti.shape[0]):
+        t, c = ti[j], ci[j]
+        a, b = cstart[c], cstart[c + 1]
+        if b == a or moved[t]:
+            continue
+        for p in range(a, b):
+            h = head[t]
+            buf[t, h, 0] = pts[p, 0]
+            buf[t, h, 1] = pts[p, 1]
+            buf[t, h, 2] = sig[p]
+            head[t] = (h + 1) % m_max
+            if npts[t] < m_max:
+                npts[t] += 1
+        m = npts[t]
+        if m < min_points:
+            continue
+        acc = buf[t, :m]
+        cen = fit_c[t]
+        _fit_known_circle(acc[:, :2], r, cen, 4, e[:m])
+        llr = 0.0
+        for i in range(m):
+            v0 = acc[i, 2] * acc[i, 2]
+            v1 = v0 + delta2
+            llr += 0.5 * math.log(v1 / v0) - 0.5 * e[i] * e[i] * (1.0 / v0 - 1.0 / v1)
+        llr *= min(1.0, n_cap / m)
+        lo_shape[t] = min(max(llr, -clamp), clamp)

@@ -61,7 +61,7 @@ def test_static_objects_seen_by_a_moving_observer_keep_their_tracks():
     # tracks live in the odometry frame, here the world frame (the first frame had no increment)
     np.testing.assert_allclose([[t.x, t.y] for t in tracks], posts, atol=1e-6)
     np.testing.assert_allclose(tr.in_robot_frame(), _robot_frame(pose, posts), atol=1e-6)
-    assert all(not t_moved for t_moved in tr._moved[: len(tr)])
+    assert not any(t.moved for t in tracks)  # static: no motion cue
 
 
 def test_crossing_targets_keep_their_identities():
@@ -73,6 +73,7 @@ def test_crossing_targets_keep_their_identities():
     t0, t1 = tr.tracks()
     assert (t0.id, t1.id) == (0, 1)
     assert t0.vx > 0.15 and t1.vx < -0.15  # each kept its own motion through the crossing
+    assert t0.moved and t1.moved
     assert tr.kin_prob().min() > 0.99  # both moved: the motion cue
 
 
@@ -154,7 +155,7 @@ def test_outline_cue_tells_a_housing_from_a_hexagon(kind, sign):
         tr.update([centre], [0.5], STILL, DT, points=[pts], noise=0.0)
     (t,) = tr.tracks()
     assert t.points.shape[0] >= 60
-    assert sign * tr._lo_shape[0] > 1.0  # noise-free: decisive either way
+    assert sign * tr._lo_shape[tr._rows(0)[0]] > 1.0  # noise-free: decisive either way
     assert (tr.kin_prob()[0] - 0.5) * sign > 0.3
 
 
@@ -163,7 +164,7 @@ def test_outline_cue_is_honest_under_noise():
     tr = KinTracker()
     for pts in _outline("hexagon", centre, np.zeros(2), 20, noise=0.02):
         tr.update([centre], [0.5], STILL, DT, points=[pts], noise=0.02)
-    assert abs(tr._lo_shape[0]) < 1.0  # 1.6 cm of noise hides a 2 mm deviation: little evidence
+    assert abs(tr._lo_shape[tr._rows(0)[0]]) < 1.0  # 1.6 cm of noise hides a 2 mm deviation
 
 
 def test_fit_known_circle_recovers_the_centre():
@@ -190,10 +191,39 @@ def test_track_arrays_fixed_shape():
     tr = KinTracker()
     for k in range(5):
         out = tr.track_arrays(4)
-        assert out["tracks"].shape == (4, len(TRACK_FIELDS)) and out["mask"].shape == (4,)
-        assert int(out["count"]) == min(len(tr), 4) == out["mask"].sum()
+        assert out["tracks"].shape == (1, 4, len(TRACK_FIELDS)) and out["mask"].shape == (1, 4)
+        assert int(out["count"][0]) == min(len(tr), 4) == out["mask"].sum()
         tr.update(np.array([[1.0 + 0.3 * j, 0.2 * j] for j in range(k + 1)]), np.full(k + 1, 0.6), STILL, DT)
     assert tr.track_arrays(4)["mask"].all()
+
+
+def test_batch_equals_separate_trackers():
+    """One tracker over 3 observers gives each observer exactly the tracks of its own tracker."""
+    rng = np.random.default_rng(3)
+    bank, single = KinTracker(n_observers=3), [KinTracker() for _ in range(3)]
+    objs = rng.uniform(-2, 2, (3, 5, 2))
+    for _ in range(25):
+        obs, xy, sc, pts, own, delta = [], [], [], [], [], rng.normal(0, 0.02, (3, 3))
+        for o in range(3):
+            keep = rng.random(5) < 0.8
+            z = objs[o][keep] + rng.normal(0, 0.005, (keep.sum(), 2))
+            s = rng.uniform(0.2, 0.9, keep.sum())
+            p = [zz + 0.035 * np.c_[np.cos(np.linspace(2, 4, 4)), np.sin(np.linspace(2, 4, 4))] for zz in z]
+            single[o].update(z, s, delta[o], DT, points=p, noise=0.005)
+            own += [np.full(4, len(xy) + i) for i in range(len(z))]
+            obs += [o] * len(z)
+            xy += list(z)
+            sc += list(s)
+            pts += p
+        bank.update_batch(np.array(obs), np.array(xy), np.array(sc), delta, DT,
+                          np.concatenate(pts), np.concatenate(own), noise=np.full(3, 0.005))  # fmt: skip
+    for o in range(3):
+        a, b = bank.tracks(o), single[o].tracks()
+        assert len(a) == len(b) > 0
+        for ta, tb in zip(a, b, strict=True):
+            fa = [ta.x, ta.y, ta.vx, ta.vy, ta.kin_prob, ta.existence]
+            np.testing.assert_allclose(fa, [tb.x, tb.y, tb.vx, tb.vy, tb.kin_prob, tb.existence], atol=1e-9)
+            assert ta.points.shape == tb.points.shape
 
 
 def test_bad_input():
@@ -202,10 +232,14 @@ def test_bad_input():
         tr.update([[1.0, 0.0]], [0.5], (0.0, float("nan"), 0.0), DT)
     with pytest.raises(ValueError, match="dt"):
         tr.update([[1.0, 0.0]], [0.5], STILL, 0.0)
-    with pytest.raises(ValueError, match="same length|one length"):
+    with pytest.raises(ValueError, match="one length"):
         tr.update([[1.0, 0.0]], [0.5, 0.5], STILL, DT)
     with pytest.raises(ValueError, match="points"):
         tr.update([[1.0, 0.0]], [0.5], STILL, DT, points=[])
+    with pytest.raises(ValueError, match="n_observers"):
+        KinTracker(n_observers=0)
+    with pytest.raises(ValueError, match="obs must be observer indices"):
+        KinTracker(n_observers=2).update_batch([2], [[1.0, 0.0]], [0.5], np.zeros((2, 3)), DT)
     with pytest.raises(ValueError, match="p_detect"):
         TrackerParams(p_detect=1.5)
     with pytest.raises(ValueError, match="unknown key"):
