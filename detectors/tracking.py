@@ -40,7 +40,8 @@ absorbs.
       them (Gauss-Newton on the centre, radius fixed, warm-started at the last fit). As the observer
       moves and turns, the beams sample the outline far more densely than one scan does: a housing stays
       on its circle, a 7 cm prism does not. The cue is the Gaussian log-likelihood ratio of the residuals
-      ``e_i`` between "on the circle" (``e_i ~ N(0, sigma_i^2)``) and "off it by a look-alike's typical
+      ``e_i`` between "on the circle" (``e_i ~ N(0, sigma_i^2)``, ``sigma_i`` grown by the odometry's
+      random-walk error since the point was seen, ``odom_heading_rate``) and "off it by a look-alike's typical
       deviation ``shape_delta``" (``N(0, sigma_i^2 + shape_delta^2)``), summed over the points, scaled
       down to at most ``shape_n_cap`` points' worth (neighbouring points are not independent) and clamped
       to ``±shape_clamp``. It replaces (is not added to) the previous frame's shape cue: the outline is
@@ -49,7 +50,8 @@ absorbs.
       has decided it anyway).
    c. **motion**: static obstacles do not move in the odometry frame. A track whose filtered position has
       left the place where it was first seen by more than ``motion_dist`` (and by more than 3 standard
-      deviations of the two positions' uncertainty) has *moved*: it gets ``motion_gain``, strong evidence
+      deviations of the two positions' uncertainty plus the odometry drift since, which slides static
+      objects through the odometry frame) has *moved*: it gets ``motion_gain``, strong evidence
       for a kin (only pushed movable obstacles also move). Displacement from an anchor rather than the
       filtered speed, because a slowly wandering kin's speed estimate stays within its own noise for many
       frames, while its displacement grows. Conversely, a track seen for longer than ``static_time``
@@ -110,6 +112,11 @@ class TrackerParams:
         shape_sigma: per-point noise floor, m; range_noise: relative range noise used when a frame gives
             none.
         shape_n_cap, shape_min_points, shape_clamp: the outline cue's point cap, minimum points, clamp.
+        odom_heading_rate, odom_position_rate: the odometry's random-walk heading (rad/sqrt(m)) and position
+            (m/sqrt(m)) error per metre of wheel travel; a point seen ``L`` m of travel ago has drifted by
+            ``sqrt(L) * (odom_heading_rate * range + odom_position_rate)``. Defaults match
+            ``kin_envs``' default odometry model (noise_k = 0.005 m^1/2, wheel base 0.16 m).
+        wheel_base: m, turns the odometry's dtheta into wheel travel for the odometer.
         max_points: accumulated outline points kept per track (newest).
         motion_dist, motion_gain: the motion cue (m; log-odds once moved).
         static_time, static_penalty: a track seen this long (s) without moving, while another track has
@@ -139,6 +146,9 @@ class TrackerParams:
     shape_n_cap: int = 60
     shape_min_points: int = 8
     shape_clamp: float = 6.0
+    odom_heading_rate: float = 0.045
+    odom_position_rate: float = 0.005
+    wheel_base: float = 0.16
     max_points: int = 120
     motion_dist: float = 0.1
     motion_gain: float = 6.0
@@ -152,9 +162,12 @@ class TrackerParams:
             if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
                 raise ValueError(f"TrackerParams.{f.name} must be a finite number, got {v!r}")
         for name in ("r", "meas_sigma", "init_speed_sigma", "gate_chi2", "max_range", "shape_sigma",
-                     "shape_delta"):  # fmt: skip
+                     "shape_delta", "wheel_base"):  # fmt: skip
             if getattr(self, name) <= 0:
                 raise ValueError(f"TrackerParams.{name} must be > 0, got {getattr(self, name)!r}")
+        for name in ("odom_heading_rate", "odom_position_rate"):  # 0: exact odometry
+            if getattr(self, name) < 0:
+                raise ValueError(f"TrackerParams.{name} must be >= 0, got {getattr(self, name)!r}")
         for name in ("p_detect", "birth_existence", "confirm_existence", "delete_existence", "kin_prior",
                      "score_prior", "kin_threshold"):  # fmt: skip
             if not 0 < getattr(self, name) < 1:
@@ -212,22 +225,23 @@ class Track:
         return self.confirmed and self.kin_prob >= 0.5
 
 
-def fit_known_circle(points: np.ndarray, r: float, centre0=(0.0, 0.0), iterations: int = 8):
+def fit_known_circle(points: np.ndarray, r: float, centre0=(0.0, 0.0), iterations: int = 8, weights=None):
     """Least-squares centre of a circle of known radius ``r`` through ``points`` (m, 2).
 
-    Minimises ``sum_i (|p_i - c| - r)^2`` over ``c`` by Gauss-Newton from ``centre0``.
-    Returns ``(centre (2,), residuals (m,))``.
+    Minimises ``sum_i w_i (|p_i - c| - r)^2`` over ``c`` (``weights`` default 1) by Gauss-Newton from
+    ``centre0``. Returns ``(centre (2,), residuals (m,))``.
     """
     p = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 2)
+    w = np.ones(p.shape[0]) if weights is None else np.ascontiguousarray(weights, dtype=np.float64)
     c = np.array(centre0, dtype=np.float64)
     e = np.empty(p.shape[0])
-    _fit_known_circle(p, float(r), c, int(iterations), e)
+    _fit_known_circle(p, w, float(r), c, int(iterations), e)
     return c, e
 
 
 @numba.njit(cache=True, nogil=True)
-def _fit_known_circle(p, r, c, iterations, e):
-    """Gauss-Newton on the centre ``c`` (in place, 2x2 normal equations solved in closed form);
+def _fit_known_circle(p, w, r, c, iterations, e):
+    """Weighted Gauss-Newton on the centre ``c`` (in place, 2x2 normal equations solved in closed form);
     writes the residuals ``|p_i - c| - r`` into ``e``."""
     m = p.shape[0]
     for _ in range(iterations):
@@ -237,11 +251,11 @@ def _fit_known_circle(p, r, c, iterations, e):
             d = max(math.sqrt(dx * dx + dy * dy), 1e-12)
             jx, jy = -dx / d, -dy / d  # d e_i / d c
             ei = d - r
-            a00 += jx * jx
-            a01 += jx * jy
-            a11 += jy * jy
-            g0 += jx * ei
-            g1 += jy * ei
+            a00 += w[i] * jx * jx
+            a01 += w[i] * jx * jy
+            a11 += w[i] * jy * jy
+            g0 += w[i] * jx * ei
+            g1 += w[i] * jy * ei
         det = a00 * a11 - a01 * a01
         if det <= 1e-12 * (a00 + a11) ** 2:  # points on a line through c: no unique step
             break
@@ -274,7 +288,7 @@ class KinTracker:
 
     _FIELDS = ("_id", "_obs", "_x", "_P", "_exist", "_lo_score", "_lo_shape", "_lo_motion", "_seen", "_age",
                "_static_t", "_moved", "_confirmed", "_anchor", "_anchor_var", "_alive", "_pts", "_npts",
-               "_head", "_fit_c")  # fmt: skip
+               "_head", "_fit_c", "_anchor_odo", "_anchor_rng")  # fmt: skip
 
     def __init__(self, params: TrackerParams | None = None, n_observers: int = 1) -> None:
         if isinstance(n_observers, bool) or not isinstance(n_observers, int | np.integer) or n_observers < 1:
@@ -306,8 +320,12 @@ class KinTracker:
         self._confirmed = np.zeros(cap, bool)
         self._anchor = np.zeros((cap, 2))  # where the track was first seen, odometry frame
         self._anchor_var = np.zeros(cap)
+        self._anchor_odo = np.zeros(cap)  # the observer's odometer and the range when first seen
+        self._anchor_rng = np.zeros(cap)
         self._alive = np.zeros(cap, bool)
-        self._pts = np.zeros((cap, m, 3))  # outline points, odometry frame (x, y, sigma), a ring
+        # outline points, a ring: odometry-frame x, y; sensor sigma; range when seen; observer's odometer then
+        self._pts = np.zeros((cap, m, 5))
+        self.odometer = np.zeros(self.n_observers)  # wheel travel so far, m (ages ego-motion errors)
         self._npts = np.zeros(cap, np.int64)
         self._head = np.zeros(cap, np.int64)
         self._fit_c = np.zeros((cap, 2))  # the outline fit's centre, odometry frame (warm start)
@@ -401,6 +419,9 @@ class KinTracker:
             wrap_angle(self.poses[:, 2] + delta[:, 2]),
         ]
         self.time += dt
+        # each wheel's travel: ego-motion errors grow with it (the odometry error model's random walk)
+        half_turn = 0.5 * self.params.wheel_base * np.abs(delta[:, 2])
+        self.odometer += np.hypot(delta[:, 0], delta[:, 1]) + half_turn
         cos, sin = np.cos(self.poses[:, 2]), np.sin(self.poses[:, 2])
         z = self._to_odom(xy, obs, cos, sin)  # candidates in their observer's odometry frame
         rng = np.hypot(xy[:, 0], xy[:, 1])
@@ -562,6 +583,8 @@ class KinTracker:
         self._fit_c[ti] = z + away / np.maximum(np.hypot(away[:, 0], away[:, 1]), 1e-9)[:, None] * pr.r * 0.5
         self._anchor[ti] = z
         self._anchor_var[ti] = var
+        self._anchor_odo[ti] = self.odometer[obs]
+        self._anchor_rng[ti] = rng
         return ti
 
     def _score_cue(self, ti: np.ndarray, scores: np.ndarray) -> None:
@@ -584,13 +607,15 @@ class KinTracker:
         order = np.argsort(owner, kind="stable")
         pts, owner = pts[order], owner[order]
         po = obs[owner]
-        sig = np.sqrt(pr.shape_sigma**2 + (noise[po] * np.hypot(pts[:, 0], pts[:, 1])) ** 2)
+        d = np.hypot(pts[:, 0], pts[:, 1])
+        sig = np.sqrt(pr.shape_sigma**2 + (noise[po] * d) ** 2)
         odom = self._to_odom(pts, po, cos, sin)
         cstart = np.searchsorted(owner, np.arange(k + 1))
         _outline_kernel(
-            ti, ci, np.ascontiguousarray(odom), sig, cstart, self._moved, self._pts, self._npts, self._head,
-            self._fit_c, self._lo_shape, pr.r, pr.shape_delta**2, float(pr.shape_n_cap),
-            int(pr.shape_min_points), pr.shape_clamp,
+            ti, ci, np.ascontiguousarray(odom), sig, d, cstart, self._obs, self.odometer, self._moved,
+            self._pts, self._npts, self._head, self._fit_c, self._lo_shape, pr.r, pr.shape_delta**2,
+            float(pr.shape_n_cap), int(pr.shape_min_points), pr.shape_clamp, pr.odom_heading_rate**2,
+            pr.odom_position_rate**2,
         )  # fmt: skip
 
     def _existence(self, rows: np.ndarray, hit: np.ndarray) -> None:
@@ -608,7 +633,10 @@ class KinTracker:
         if not rows.size:
             return
         disp = np.hypot(*(self._x[rows, :2] - self._anchor[rows]).T)
-        var = self._anchor_var[rows] + 0.5 * (self._P[rows, 0, 0] + self._P[rows, 1, 1])
+        # odometry drift makes static objects slide in the odometry frame: allow for it
+        aged = self.odometer[self._obs[rows]] - self._anchor_odo[rows]
+        drift = aged * (pr.odom_heading_rate**2 * self._anchor_rng[rows] ** 2 + pr.odom_position_rate**2)
+        var = self._anchor_var[rows] + 0.5 * (self._P[rows, 0, 0] + self._P[rows, 1, 1]) + drift
         moving = (disp > pr.motion_dist) & (disp > 3.0 * np.sqrt(var)) & (self._seen[rows] > 2)
         self._moved[rows] |= moving
         self._lo_motion[rows] = np.where(self._moved[rows], pr.motion_gain, 0.0)
@@ -696,13 +724,13 @@ class KinTracker:
 
 
 @numba.njit(cache=True, nogil=True)
-def _outline_kernel(ti, ci, pts, sig, cstart, moved, buf, npts, head, fit_c, lo_shape, r, delta2, n_cap,
-                    min_points, clamp):  # fmt: skip
+def _outline_kernel(ti, ci, pts, sig, dist, cstart, obs, odometer, moved, buf, npts, head, fit_c, lo_shape,
+                    r, delta2, n_cap, min_points, clamp, head_rate2, pos_rate2):  # fmt: skip
     """Append each updated track's candidate points (odometry frame) to its ring buffer, then refit its
     outline (warm-started at the last fit's centre) and set its shape cue. A track that has moved keeps
     its last shape cue: its points no longer share one frame, and the motion cue has decided it anyway."""
     m_max = buf.shape[1]
-    e = np.empty(m_max)
+    e, var, wgt = np.empty(m_max), np.empty(m_max), np.empty(m_max)
     for j in range(ti.shape[0]):
         t, c = ti[j], ci[j]
         a, b = cstart[c], cstart[c + 1]
@@ -713,6 +741,8 @@ def _outline_kernel(ti, ci, pts, sig, cstart, moved, buf, npts, head, fit_c, lo_
             buf[t, h, 0] = pts[p, 0]
             buf[t, h, 1] = pts[p, 1]
             buf[t, h, 2] = sig[p]
+            buf[t, h, 3] = dist[p]
+            buf[t, h, 4] = odometer[obs[t]]
             head[t] = (h + 1) % m_max
             if npts[t] < m_max:
                 npts[t] += 1
@@ -720,11 +750,18 @@ def _outline_kernel(ti, ci, pts, sig, cstart, moved, buf, npts, head, fit_c, lo_
         if m < min_points:
             continue
         acc = buf[t, :m]
+        odo = odometer[obs[t]]
+        for i in range(m):
+            # sensor noise plus the ego-motion error accumulated since the point was seen: heading drift
+            # moves it sideways in proportion to its range
+            aged = odo - acc[i, 4]
+            var[i] = acc[i, 2] * acc[i, 2] + aged * (head_rate2 * acc[i, 3] * acc[i, 3] + pos_rate2)
+            wgt[i] = 1.0 / var[i]
         cen = fit_c[t]
-        _fit_known_circle(acc[:, :2], r, cen, 4, e[:m])
+        _fit_known_circle(acc[:, :2], wgt[:m], r, cen, 4, e[:m])
         llr = 0.0
         for i in range(m):
-            v0 = acc[i, 2] * acc[i, 2]
+            v0 = var[i]
             v1 = v0 + delta2
             llr += 0.5 * math.log(v1 / v0) - 0.5 * e[i] * e[i] * (1.0 / v0 - 1.0 / v1)
         llr *= min(1.0, n_cap / m)
