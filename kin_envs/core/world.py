@@ -23,9 +23,10 @@ import numpy as np
 import pymunk
 import pymunk.batch as pmbatch
 
-from kin_envs.core._validate import FieldTypeError, check_number
+from kin_envs.core._validate import FieldTypeError, check_number, dataclass_from_dict
 from kin_envs.core.interrupts import atomic
 from kin_envs.core.lidar import HitKind, cast_scan, polygon_edges
+from kin_envs.core.odometry import Odometry, OdometrySpec
 from kin_envs.core.scenes import Robot, Scene
 
 __all__ = ["WorldConfig", "World", "Scan", "Contact", "LIDAR_QUERY_FILTER"]
@@ -89,12 +90,15 @@ class WorldConfig:
             rounded to a whole number of physics steps.
         floor_friction: Coulomb friction coefficient between movable obstacles and the floor.
         iterations: pymunk solver iterations.
+        odometry: the robots' wheel-odometry error model (:class:`~kin_envs.core.odometry.OdometrySpec`;
+            ``OdometrySpec.exact()`` for none).
     """
 
     control_dt: float = 0.1
     physics_dt: float = 0.02
     floor_friction: float = 0.5
     iterations: int = 10
+    odometry: OdometrySpec = OdometrySpec()
 
     def __post_init__(self) -> None:
         w = "WorldConfig"
@@ -111,6 +115,11 @@ class WorldConfig:
             )
         check_number(w, "floor_friction", self.floor_friction, 0.0, 100.0)
         check_number(w, "iterations", self.iterations, 1, 1000, integer=True)
+        if isinstance(self.odometry, dict):
+            spec = dataclass_from_dict(OdometrySpec, self.odometry, "WorldConfig.odometry")
+            object.__setattr__(self, "odometry", spec)
+        if not isinstance(self.odometry, OdometrySpec):
+            raise FieldTypeError(f"WorldConfig.odometry must be an OdometrySpec, got {self.odometry!r}")
 
     @property
     def substeps(self) -> int:
@@ -191,7 +200,7 @@ class World:
         with atomic():
             self._build(scene)
 
-    def _build(self, scene: Scene) -> None:
+    def _build(self, scene: Scene, odometry_rng: np.random.Generator | None = None) -> None:
         self.time = 0.0
         self.n_robots = len(scene.robots)
         self.n_obstacles = len(scene.obstacles)
@@ -201,6 +210,11 @@ class World:
         self._history: list[np.ndarray] = []  # applied commands of every step, for copies
         self._index_bodies()
         self.contacts = np.zeros(self.n_robots, dtype=np.int8)
+        # odometry draws from a child stream: its noise never shifts the lidar noise of the same seed
+        self._odometry = Odometry(
+            self.poses, self.scene.robot.wheel_base, self.config.odometry,
+            self.rng.spawn(1)[0] if odometry_rng is None else odometry_rng,
+        )
 
     def _index_bodies(self) -> None:
         """Lookups keyed by pymunk body ids (memory addresses: rebuilt after a copy)."""
@@ -223,14 +237,17 @@ class World:
         grows with the world's age: ~16 bytes per robot per step, and the replay's physics time.
         """
         hist = np.stack(self._history) if self._history else np.zeros((0, self.n_robots, 2))
-        return {"scene": self.scene, "config": self.config, "rng": self.rng, "history": hist}
+        return {"scene": self.scene, "config": self.config, "rng": self.rng, "history": hist,
+                "odometry": self._odometry}
 
     def __setstate__(self, state: dict) -> None:
         self.scene, self.config, self.rng = state["scene"], state["config"], state["rng"]
         with atomic():
-            self._build(self.scene)
+            # a throwaway odometry stream for the replay (spawning from self.rng would change it)
+            self._build(self.scene, np.random.default_rng(0))
             for commands in state["history"]:
                 self._advance(np.array(commands))
+        self._odometry = state["odometry"]
 
     # -- construction -----------------------------------------------------------------------------
     def _build_space(self) -> None:
@@ -506,21 +523,41 @@ class World:
         v, omega = applied[:, 0], applied[:, 1]
         get_buf, set_buf, _ = _buffers()
         rs, cs = self._slots("_robot_slots", self._robot_ids), self._control_slots
+        odom = self._odometry
+        odom.begin_step()
         for _ in range(self.config.substeps):
             # one batched read and write per substep instead of ~3 pymunk attribute calls per robot
             get_buf.clear()
             pmbatch.get_space_bodies(self.space, self._DRIVE_GET, get_buf)
             rows = np.frombuffer(get_buf.float_buf(), dtype=np.float64).reshape(-1, 4)  # angle, vx, vy, w
-            vel = rows[:, 1:].copy()
             heading = rows[rs, 0]
+            # pymunk moves bodies with the velocity they have now (positions are integrated first in a
+            # step), so this is the motion the wheel encoders are about to measure
+            r = rows[rs]
+            odom.integrate(r[:, 1] * np.cos(heading) + r[:, 2] * np.sin(heading), r[:, 3], dt)
+            vel = rows[:, 1:].copy()
             vel[cs, 0] = v * np.cos(heading)
             vel[cs, 1] = v * np.sin(heading)
             vel[cs, 2] = omega
             set_buf.set_float_buf(vel)
             pmbatch.set_space_bodies(self.space, self._DRIVE_SET, set_buf)
             self.space.step(dt)
+        odom.end_step()
         self.time += self.config.substeps * dt
         self._update_contacts()
+
+    @property
+    def odometry(self) -> np.ndarray:
+        """``(n_robots, 3)`` each robot's wheel-odometry pose ``x, y, theta`` (m, rad): the world frame at
+        t = 0, then integrated achieved wheel travel with the :class:`WorldConfig` ``odometry`` error model
+        (drifts from :attr:`poses`; see :mod:`kin_envs.core.odometry`)."""
+        return self._odometry.pose.copy()
+
+    @property
+    def odometry_delta(self) -> np.ndarray:
+        """``(n_robots, 3)`` the last :meth:`step`'s odometry increment ``dx, dy, dtheta`` in each robot's
+        frame at the start of the step (x forward, y left, CCW positive): what a tracker is given."""
+        return self._odometry.delta.copy()
 
     @property
     def commands(self) -> np.ndarray:
