@@ -12,10 +12,11 @@ from pathlib import Path
 EXIT_INTERRUPTED = 130
 
 
-def run_main(main: Callable[[], object]) -> None:
+def run_main(main: Callable[[], object], bad_input: tuple[type[BaseException], ...] = (ValueError,)) -> None:
     """Run a script's ``main()``; Ctrl-C ends it with one line on stderr and exit status 130, and bad
     input (a ``ValueError``, e.g. ``--env-kwargs '{bad'``) with one line and exit status 2, like argparse.
-    ``KIN_ENVS_TRACEBACK=1`` re-raises the ``ValueError`` with its traceback.
+    ``KIN_ENVS_TRACEBACK=1`` re-raises the ``ValueError`` with its traceback; ``bad_input=()`` leaves
+    errors to the script.
 
     Inside the world's build and step (and scene validation) Ctrl-C is deferred to the end of that
     unit of work (:mod:`kin_envs.core.interrupts`), so the stop is always clean; outputs are written
@@ -26,7 +27,7 @@ def run_main(main: Callable[[], object]) -> None:
     interrupts.install()
     try:
         main()
-    except ValueError as e:
+    except bad_input as e:
         if os.environ.get("KIN_ENVS_TRACEBACK"):
             raise
         name = os.path.basename(sys.argv[0]) or "script"

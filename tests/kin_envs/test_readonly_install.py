@@ -35,8 +35,8 @@ def test_import_from_a_read_only_install():
         "import numpy as np, kin_envs, detectors, numba; from kin_envs import World, scenes\n"
         "scan = World(scenes.paper_scenario(1)).scan()\n"
         "r = detectors.GeometricKinDetector().detect(scan.ranges[0], scan.angles)\n"
-        "assert len(r.detections) == 1 and numba.config.CACHE_DIR.startswith(%r)\n"
-        "print('ok', numba.config.CACHE_DIR)" % str(scratch)
+        f"assert len(r.detections) == 1 and numba.config.CACHE_DIR.startswith({str(scratch)!r})\n"
+        "print('ok', numba.config.CACHE_DIR)"
     )
     env = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_")}
     env.update(HOME=str(home), PYTHONPATH=str(pkg), TMPDIR=str(scratch), PYTHONDONTWRITEBYTECODE="1",

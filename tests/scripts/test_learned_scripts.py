@@ -117,7 +117,8 @@ def test_rerun_into_a_dataset_needs_overwrite_and_never_mixes_runs(dataset, tmp_
     shutil.copytree(dataset, out)
     refused = run("make_dataset.py", "--out", out, "--scenes", 2, "--first-seed", 50, check=False)
     assert refused.returncode == 2 and "--overwrite" in refused.stderr
-    run("make_dataset.py", "--out", out, "--scenes", 2, "--shard-scenes", 1, "--first-seed", 50, "--overwrite")
+    run("make_dataset.py", "--out", out, "--scenes", 2, "--shard-scenes", 1, "--first-seed", 50,
+        "--overwrite")
     assert sorted(p.name for p in out.iterdir()) == ["manifest.json", "shard_00000.npz", "shard_00001.npz"]
     segs, _, manifest = load_dataset(out)
     assert manifest["seeds"] == {"first": 50, "count": 2}
