@@ -16,7 +16,6 @@ Never assert wall-clock times in tests; this script is where speed targets are c
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import platform
 import sys
@@ -219,7 +218,7 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--sections", default=",".join(SECTIONS), help="comma-separated: " + ", ".join(SECTIONS))
     p.add_argument("--min-time", type=float, default=1.5, help="seconds of timing per measurement")
     p.add_argument("--robots", type=int, nargs="+", default=[1, 8, 64, 256], help="lidar: robot counts")
-    p.add_argument("--out", type=Path, default=Path("outputs/benchmark"))
+    p.add_argument("--out", type=Path, default=Path("outputs/benchmark"), help="output directory")
     args = p.parse_args(argv)
     sections = [s.strip() for s in args.sections.split(",") if s.strip()]
     unknown = sorted(set(sections) - set(SECTIONS))
@@ -227,6 +226,13 @@ def main(argv: list[str] | None = None) -> dict:
         p.error(f"unknown section(s) {unknown}; expected some of {sorted(SECTIONS)}")
     if args.min_time <= 0 or min(args.robots) < 1:
         p.error("--min-time must be > 0 and --robots >= 1")
+    from detectors.fileio import write_json, write_text
+    from kin_envs.cli import check_output_dir
+
+    try:  # before the timings: an unwritable --out must not cost a whole run
+        check_output_dir(args.out)
+    except ValueError as e:
+        p.error(str(e))
     results: dict = {
         "config": {
             "command": " ".join([sys.executable, *sys.argv]),
@@ -242,10 +248,9 @@ def main(argv: list[str] | None = None) -> dict:
         results[s] = (
             SECTIONS[s](args.min_time, robots=args.robots) if s == "lidar" else SECTIONS[s](args.min_time)
         )
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "benchmark.json").write_text(json.dumps(results, indent=2))
     md = to_markdown(results)
-    (args.out / "benchmark.md").write_text(md)
+    write_text(args.out / "benchmark.md", md)
+    write_json(args.out / "benchmark.json", results)
     print("\n" + md)
     print(f"wrote {args.out / 'benchmark.json'} and {args.out / 'benchmark.md'}")
     return results

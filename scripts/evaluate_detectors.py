@@ -43,7 +43,9 @@ import numpy as np
 from tqdm import tqdm
 
 from detectors.base import KinDetector
+from detectors.fileio import atomic_write, write_json, write_text
 from kin_envs import World, scenes
+from kin_envs.cli import check_output_dir, noise_level
 from kin_envs.core.lidar import LidarSpec
 from kin_envs.core.scenes import DetectionSceneConfig
 from kin_envs.detection.evaluation import DEFAULT_GATE, Evaluation, Metrics, evaluate
@@ -342,7 +344,8 @@ def plot(evals: dict[str, Evaluation], dist_edges, noise_levels, out: Path) -> l
             axes[0, 0].set_yscale("log")
         axes[0, -1].legend(fontsize=7)
         fig.tight_layout()
-        fig.savefig(out / fname, dpi=110)
+        with atomic_write(out / fname) as f:
+            fig.savefig(f, format="png", dpi=110)
         plt.close(fig)
         paths.append(out / fname)
     return paths
@@ -381,7 +384,7 @@ def main(argv: list[str] | None = None) -> dict:
     )
     ap.add_argument(
         "--noise",
-        type=float,
+        type=noise_level,
         nargs="+",
         default=list(NOISE_LEVELS),
         help="relative range noise levels (0.01 = 1 %% of the distance)",
@@ -412,8 +415,6 @@ def main(argv: list[str] | None = None) -> dict:
             "--scenes and --torch-threads must be >= 1 and --first-seed >= 0, got "
             f"{args.scenes}, {args.torch_threads}, {args.first_seed}"
         )
-    if any(not (math.isfinite(n) and n >= 0) for n in args.noise):
-        raise ValueError(f"--noise levels must be >= 0 (relative, 0.01 = 1 %), got {args.noise}")
     if args.backend == "local" and (args.address is not None or args.num_cpus is not None):
         raise ValueError("--address and --num-cpus need --backend ray")
     if args.num_cpus is not None and (args.num_cpus < 1 or args.address is not None):
@@ -423,10 +424,9 @@ def main(argv: list[str] | None = None) -> dict:
     noise_levels = sorted(set(args.noise))
     config = _load_config(args.scene_config)
     detectors = {name: resolve_detector(name) for name in args.detectors}  # fail before the sweep
+    out: Path = check_output_dir(args.out)  # likewise: an unwritable --out fails now
     if "torch" in sys.modules:
         sys.modules["torch"].set_num_threads(args.torch_threads)
-    out: Path = args.out
-    out.mkdir(parents=True, exist_ok=True)
     sweep = Sweep(
         args.first_seed, tuple(noise_levels), config, tuple(args.detectors), args.gate,
         args.separate_same_radius, args.torch_threads,
@@ -469,7 +469,7 @@ def main(argv: list[str] | None = None) -> dict:
         "config": dataclasses.asdict(config),
     }
     md = markdown(evals, dist_edges, noise_levels, paper_rows, info)
-    (out / "results.md").write_text(md)
+    write_text(out / "results.md", md)
     figures = [str(p) for p in plot(evals, dist_edges, noise_levels, out)]
     results = {
         "detectors": {
@@ -518,8 +518,8 @@ def main(argv: list[str] | None = None) -> dict:
         # data: building and scanning, summed over the units (and so over workers); sweep: wall time
         "seconds": {"data": t_data, "sweep": t_sweep, "total": time.perf_counter() - t0},
     }
-    (out / "results.json").write_text(json.dumps(_plain(results), indent=2, allow_nan=False))
-    (out / "run.json").write_text(json.dumps(_plain(run), indent=2, allow_nan=False))
+    write_json(out / "results.json", _plain(results), allow_nan=False)
+    write_json(out / "run.json", _plain(run), allow_nan=False)  # last: the run record
     print(md)
     print(
         f"wrote {out}/results.md, results.json, run.json and {len(figures)} figures "

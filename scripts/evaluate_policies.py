@@ -55,7 +55,9 @@ from agents import (  # noqa: E402
     run_episode,
     run_parallel_episode,
 )
+from detectors.fileio import atomic_write, write_json, write_text  # noqa: E402
 from kin_envs import aggregation_v0  # noqa: E402
+from kin_envs.cli import check_output_dir  # noqa: E402
 
 SWARM_ID = "aggregation_v0"
 BUILTIN = {"random": RandomPolicy, "wander": Wanderer, "scripted": KinSeeker, "aggregator": Aggregator}
@@ -287,7 +289,8 @@ def plot_curves(curves: dict[str, dict], path: Path) -> bool:
         ax.grid(alpha=0.3)
         ax.legend()
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    with atomic_write(path) as f:
+        fig.savefig(f, format="png", dpi=110)
     plt.close(fig)
     return True
 
@@ -334,6 +337,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     if not args.link_radius > 0:
         raise ValueError(f"--link-radius must be > 0 m, got {args.link_radius}")
     names = args.policies if args.policies is not None else DEFAULT_POLICIES["swarm" if swarm else "single"]
+    out: Path = check_output_dir(args.out)  # before the episodes: an unwritable --out fails now
     models = [parse_model_arg(m) for m in args.model]
     seeds = np.arange(args.first_seed, args.first_seed + episodes)
     progress = not args.no_progress
@@ -371,15 +375,12 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             if curve is not None:
                 curves[name] = curve
 
-    out: Path = args.out
-    out.mkdir(parents=True, exist_ok=True)
     meta = {"episodes": episodes, "first_seed": args.first_seed, "link_radius": args.link_radius,
             "metric_cycles": args.metric_cycles}
     md = f"## {args.env}" + (f", {args.n_robots} robots" if swarm else "") + "\n\n"
     md += markdown_table(results, swarm, meta)
-    (out / "results.md").write_text(md)
-    (out / "results.json").write_text(json.dumps({"env": args.env, "results": results}, indent=1,
-                                                 default=float) + "\n")
+    write_text(out / "results.md", md)
+    write_json(out / "results.json", {"env": args.env, "results": results}, indent=1, default=float)
     plotted = plot_curves(curves, out / "learning_curve.png")
     run = {"script": "scripts/evaluate_policies.py",
            "command": ([sys.executable, *sys.argv] if argv is None
@@ -387,7 +388,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
            "args": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()},
            "env_kwargs": used_kwargs, "seeds": [int(seeds[0]), int(seeds[-1])],
            "models": {n: str(p) for n, p in models}, "python": platform.python_version()}
-    (out / "run.json").write_text(json.dumps(run, indent=2) + "\n")
+    write_json(out / "run.json", run)
     if progress:
         print(md)
     return {"results": results, "markdown": md, "out": out,

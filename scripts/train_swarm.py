@@ -153,8 +153,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     from tqdm import tqdm
 
     torch.set_num_threads(cfg.torch_threads)
-    out: Path = args.out
-    out.mkdir(parents=True, exist_ok=True)
+    from kin_envs.cli import check_output_dir
+
+    out: Path = check_output_dir(args.out)  # a clear error before training, not a traceback
     run: dict[str, Any] = {
         "script": "scripts/train_swarm.py",
         "command": [sys.executable, *sys.argv] if argv is None else ["scripts/train_swarm.py", *argv],

@@ -197,8 +197,9 @@ def main(argv=None) -> dict:
     torch.set_num_threads(args.torch_threads)
     from tqdm import tqdm
 
-    out: Path = args.out
-    out.mkdir(parents=True, exist_ok=True)
+    from kin_envs.cli import check_output_dir
+
+    out: Path = check_output_dir(args.out)  # a clear error before training, not a traceback
     command = [sys.executable, *(sys.argv if argv is None else ["scripts/train_swarm_rllib.py", *argv])]
     t0 = time.perf_counter()
     rows: list[dict] = []
