@@ -10,7 +10,7 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 try:
     from hypothesis import settings
 
-    settings.register_profile("ci", max_examples=12, deadline=None)
+    settings.register_profile("ci", max_examples=20, deadline=None)
     settings.register_profile("full", max_examples=300, deadline=None)
     settings.load_profile(os.environ.get("KIN_HYPOTHESIS_PROFILE", "ci"))
 except ImportError:  # hypothesis is a dev extra; the fuzz tests import it themselves

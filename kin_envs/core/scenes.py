@@ -325,7 +325,7 @@ def obstacle_from_dict(d: Any, where: str = "obstacle") -> Obstacle:
     if not isinstance(d, dict) or "kind" not in d:
         raise ValueError(f"{where}: expected a dict with a 'kind' key, got {d!r}")
     kind = d["kind"]
-    if kind not in OBSTACLE_TYPES:
+    if not isinstance(kind, str) or kind not in OBSTACLE_TYPES:  # a list would be unhashable
         raise ValueError(f"{where}: unknown obstacle kind {kind!r}; expected one of {sorted(OBSTACLE_TYPES)}")
     rest = {k: v for k, v in d.items() if k != "kind"}
     if "vertices" in rest:
