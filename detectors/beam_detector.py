@@ -9,9 +9,12 @@ beam.
 1. **Cut-out** (:func:`beam_inputs`): for every valid beam ``i`` (0.0, NaN, inf and readings at or
    beyond ``d_max`` are no return), the range differences ``r[i+j] - r[i]`` of its ``half_window``
    neighbours on each side, squashed by ``asinh(d / 1 cm)`` (millimetre detail near 0, walls and
-   no-return neighbours saturate), plus ``r[i]`` and ``log r[i]``. DROW normalises its cut-outs to a
-   fixed metric window instead; a fixed beam window plus the range keeps the actual points (no
-   resampling) and lets the network learn how a 7 cm circle looks at each distance.
+   no-return neighbours saturate); the signed curvature of the circles through nearby returns at a
+   few beam spacings, in units of the housing's (a kin reads +1 at every spacing, a prism face 0, its
+   corners large); ``r[i]``, ``log r[i]``; and the scan's relative range noise estimated from the
+   second differences of all its smooth runs (residuals mean nothing without it). DROW normalises its
+   cut-outs to a fixed metric window instead; a fixed beam window plus the range keeps the actual
+   points (no resampling) and lets the network learn how a 7 cm circle looks at each distance.
 2. **Per-beam network** (numpy, no torch at inference): a ReLU MLP gives ``p(beam hits a kin)`` and
    the kin's centre as an offset from the beam's return, in the beam's frame (along / across).
 3. **Voting and grouping** (:func:`group_votes`, numba): consecutive beams with ``p >= vote_threshold``
@@ -70,24 +73,35 @@ class BeamConfig:
 
     Attributes:
         half_window: neighbouring beams on each side in the cut-out.
+        curvature_offsets, curvature_scales: signed curvature of the circle through the returns
+            ``i+o-s, i+o, i+o+s`` for ``|o| <= curvature_offsets``, ``1 <= s <= curvature_scales``.
         hidden: ReLU hidden layer widths.
         d_max: readings at or beyond this are no return, m.
         vote_threshold: beams with ``p >= vote_threshold`` vote for a centre.
         group_radius: a vote joins a group if within this of the group's mean centre, m.
         max_gap: beams below ``vote_threshold`` bridged inside a group.
+        min_votes: groups with fewer voting beams are dropped (the benchmark's ground truth needs 2
+            valid beams on a kin; one beam says nothing about shape).
     """
 
     half_window: int = 8
+    curvature_offsets: int = 2
+    curvature_scales: int = 3
     hidden: tuple[int, ...] = (48, 32)
     d_max: float = 12.0
     vote_threshold: float = 0.3
     group_radius: float = 0.06
     max_gap: int = 1
+    min_votes: int = 2
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "hidden", tuple(self.hidden))
         if isinstance(self.half_window, bool) or not isinstance(self.half_window, int) or self.half_window < 1:
             raise ValueError(f"BeamConfig.half_window must be an int >= 1, got {self.half_window!r}")
+        for name in ("curvature_offsets", "curvature_scales"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+                raise ValueError(f"BeamConfig.{name} must be an int >= 0, got {v!r}")
         if not self.hidden or not all(isinstance(h, int) and not isinstance(h, bool) and h >= 1 for h in self.hidden):
             raise ValueError(f"BeamConfig.hidden must be one or more ints >= 1, got {self.hidden!r}")
         if not (math.isfinite(self.d_max) and self.d_max > 0):
@@ -96,12 +110,14 @@ class BeamConfig:
             raise ValueError(f"BeamConfig.vote_threshold must be in [0, 1], got {self.vote_threshold!r}")
         if not self.group_radius > 0:
             raise ValueError(f"BeamConfig.group_radius must be > 0 m, got {self.group_radius!r}")
-        if isinstance(self.max_gap, bool) or not isinstance(self.max_gap, int) or self.max_gap < 0:
-            raise ValueError(f"BeamConfig.max_gap must be an int >= 0, got {self.max_gap!r}")
+        for name in ("max_gap", "min_votes"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+                raise ValueError(f"BeamConfig.{name} must be an int >= 0, got {v!r}")
 
     @property
     def n_inputs(self) -> int:
-        return 2 * self.half_window + 2
+        return 2 * self.half_window + (2 * self.curvature_offsets + 1) * self.curvature_scales + 3
 
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
@@ -123,13 +139,58 @@ class BeamConfig:
 
 
 @numba.njit(cache=True)
-def _inputs_kernel(r, valid, half, circular, out_x, out_row, out_beam):
+def _curvature(px, py, ok, i, j, k):
+    """Signed curvature of the circle through points i, j, k, in units of the housing's (1 / 3.5 cm),
+    clipped to +-3; 0 when a point has no return."""
+    if not (ok[i] and ok[j] and ok[k]):
+        return 0.0
+    ax, ay = px[j] - px[i], py[j] - py[i]
+    bx, by = px[k] - px[j], py[k] - py[j]
+    cx, cy = px[k] - px[i], py[k] - py[i]
+    den = math.sqrt((ax * ax + ay * ay) * (bx * bx + by * by) * (cx * cx + cy * cy))
+    if den <= 1e-12:
+        return 0.0
+    kappa = 2.0 * (ax * by - ay * bx) / den * 0.035
+    return min(3.0, max(-3.0, kappa))
+
+
+@numba.njit(cache=True)
+def _scan_noise(r, ok, circular):
+    """Relative range noise of one scan from the second differences of smooth runs of beams (MAD)."""
+    n = r.shape[0]
+    vals = np.empty(n)
+    m = 0
+    for i in range(n):
+        a, b = i - 1, i + 1
+        if circular:
+            a %= n
+            b %= n
+        if a < 0 or b >= n or not (ok[a] and ok[i] and ok[b]):
+            continue
+        if abs(r[a] - r[i]) > 0.05 or abs(r[b] - r[i]) > 0.05:
+            continue
+        vals[m] = abs(r[a] - 2.0 * r[i] + r[b]) / r[i]
+        m += 1
+    if m < 5:
+        return 0.0
+    return np.median(vals[:m]) / (0.6745 * math.sqrt(6.0))
+
+
+@numba.njit(cache=True)
+def _inputs_kernel(r, valid, angles, half, n_off, n_scale, circular, out_x, out_row, out_beam):
     b_n, n = r.shape
     sat = math.asinh(1.0 / _SQUASH)  # a no-return neighbour reads as 1 m farther
+    px = np.empty(n)
+    py = np.empty(n)
     m = 0
     for b in range(b_n):
+        ok = valid[b]
         for i in range(n):
-            if not valid[b, i]:
+            px[i] = r[b, i] * math.cos(angles[i]) if ok[i] else 0.0
+            py[i] = r[b, i] * math.sin(angles[i]) if ok[i] else 0.0
+        noise = math.log(_scan_noise(r[b], ok, circular) + 1e-4)
+        for i in range(n):
+            if not ok[i]:
                 continue
             ri = r[b, i]
             c = 0
@@ -139,13 +200,25 @@ def _inputs_kernel(r, valid, half, circular, out_x, out_row, out_beam):
                 k = i + j
                 if circular:
                     k %= n
-                if k < 0 or k >= n or not valid[b, k]:
+                if k < 0 or k >= n or not ok[k]:
                     out_x[m, c] = sat
                 else:
                     out_x[m, c] = math.asinh((r[b, k] - ri) / _SQUASH)
                 c += 1
+            # curvature of the returns around the beam, at several spacings (a kin: +1 at every one)
+            for o in range(-n_off, n_off + 1):
+                for s in range(1, n_scale + 1):
+                    i0, i1, i2 = i + o - s, i + o, i + o + s
+                    if circular:
+                        i0, i1, i2 = i0 % n, i1 % n, i2 % n
+                    if i0 < 0 or i2 >= n or i1 < 0 or i1 >= n or i0 >= n or i2 < 0:
+                        out_x[m, c] = 0.0
+                    else:
+                        out_x[m, c] = _curvature(px, py, ok, i0, i1, i2)
+                    c += 1
             out_x[m, c] = ri
             out_x[m, c + 1] = math.log(ri)
+            out_x[m, c + 2] = noise
             out_row[m] = b
             out_beam[m] = i
             m += 1
@@ -157,21 +230,22 @@ def _valid(ranges: np.ndarray, d_max: float) -> np.ndarray:
         return np.isfinite(ranges) & (ranges > 0.0) & (ranges < d_max)
 
 
-def beam_inputs(ranges, config: BeamConfig | None = None, circular: bool = True):
+def beam_inputs(ranges, angles, config: BeamConfig | None = None, circular: bool = True):
     """Cut-outs of every valid beam of ``ranges (B, n)`` → ``(x (M, n_inputs) float32, row (M,), beam (M,))``.
 
     0.0, NaN, inf and readings ``>= d_max`` are no return (no cut-out; as a neighbour they saturate).
     """
     c = config or BeamConfig()
     r = np.asarray(ranges, dtype=np.float64)
-    if r.ndim != 2:
-        raise ValueError(f"beam_inputs: ranges must be 2-D (B, n_beams), got shape {r.shape}")
+    a = np.asarray(angles, dtype=np.float64)
+    if r.ndim != 2 or a.shape != (r.shape[1],):
+        raise ValueError(f"beam_inputs: ranges must be (B, n_beams) and angles (n_beams,), got {r.shape}, {a.shape}")
     valid = _valid(r, c.d_max)
     total = int(valid.sum())
     x = np.empty((total, c.n_inputs), np.float32)
     row = np.empty(total, np.int64)
     beam = np.empty(total, np.int64)
-    _inputs_kernel(r, valid, c.half_window, bool(circular), x, row, beam)
+    _inputs_kernel(r, valid, a, c.half_window, c.curvature_offsets, c.curvature_scales, bool(circular), x, row, beam)
     return x, row, beam
 
 
@@ -368,7 +442,8 @@ def group_votes(p, cx, cy, config: BeamConfig | None = None, circular: bool = Tr
         p, np.ascontiguousarray(cx, np.float64), np.ascontiguousarray(cy, np.float64), c.vote_threshold,
         c.group_radius, c.max_gap, bool(circular), out_row, out_f, out_i,
     )  # fmt: skip
-    return out_row[:m], out_f[:m, :2], out_f[:m, 2], out_i[:m]
+    keep = out_i[:m, 2] >= c.min_votes
+    return out_row[:m][keep], out_f[:m, :2][keep], out_f[:m, 2][keep], out_i[:m][keep]
 
 
 # --------------------------------------------------------------------------- samples
@@ -433,7 +508,7 @@ class BeamKinDetector(KinDetector):
     def beam_probabilities(self, ranges, angles):
         """Per-beam ``p(kin)`` and voted centres ``(p, cx, cy)``, each ``(B, n)`` (0 / NaN off valid beams)."""
         r, a = validate_batch(ranges, angles)
-        x, row, beam = beam_inputs(r, self.config, is_circular_sweep(a))
+        x, row, beam = beam_inputs(r, a, self.config, is_circular_sweep(a))
         logit, off = self.model.forward(x)
         p = np.zeros(r.shape)
         cx = np.full(r.shape, np.nan)

@@ -62,7 +62,7 @@ class BeamTrainConfig:
 def beam_training_set(records: dict, config: BeamConfig, easy_keep: float, rng: np.random.Generator):
     """``(x, y, offset target (m, beam frame), weight)`` from per-beam records (see the module docstring)."""
     ranges = records["ranges"]
-    x, row, beam = beam_inputs(ranges, config)
+    x, row, beam = beam_inputs(ranges, records["angles"], config)
     label = records["label"][row, beam].astype(np.float32)
     cat = records["category"][row, beam]
     keep = cat != category_code("same_radius_cylinder")
