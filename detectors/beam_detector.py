@@ -32,6 +32,7 @@ format, version or weight shape with a ``ValueError`` naming the file). Training
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
 import math
 from dataclasses import dataclass
@@ -87,7 +88,7 @@ class BeamConfig:
     half_window: int = 8
     curvature_offsets: int = 2
     curvature_scales: int = 3
-    hidden: tuple[int, ...] = (48, 32)
+    hidden: tuple[int, ...] = (64, 32)
     d_max: float = 12.0
     vote_threshold: float = 0.3
     group_radius: float = 0.06
@@ -304,6 +305,18 @@ class BeamModel:
         return out[:, 0], out[:, 1:] * _OFFSET_SCALE
 
 
+def _digest(model: BeamModel) -> str:
+    """SHA-256 over every weight array (shape, bytes) and the input statistics, checked on load."""
+    h = hashlib.sha256()
+    for k, (w, b) in enumerate(model.weights):
+        for name, a in ((f"W{k}", w), (f"b{k}", b)):
+            h.update(f"{name}|{a.shape}|".encode())
+            h.update(np.ascontiguousarray(a, np.float32).tobytes())
+    for a in (model.x_mean, model.x_std):
+        h.update(np.ascontiguousarray(a, np.float32).tobytes())
+    return h.hexdigest()
+
+
 def save_beam_checkpoint(path, model: BeamModel, *, threshold: float, info: dict | None = None) -> Path:
     """Write ``model`` and its reporting ``threshold`` as an ``.npz`` (atomically)."""
     if not (isinstance(threshold, int | float) and 0.0 <= threshold <= 1.0):
@@ -313,6 +326,7 @@ def save_beam_checkpoint(path, model: BeamModel, *, threshold: float, info: dict
         "format_version": BEAM_CHECKPOINT_VERSION,
         "config": model.config.to_dict(),
         "threshold": float(threshold),
+        "weights_sha256": _digest(model),
         "info": json.loads(json.dumps(info or {}, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o))),
     }
     arrays = {"header": np.frombuffer(json.dumps(header).encode(), np.uint8)}
@@ -357,6 +371,8 @@ def load_beam_checkpoint(path=None) -> tuple[BeamModel, dict]:
         threshold = float(header["threshold"])
         if not 0.0 <= threshold <= 1.0:
             raise ValueError(f"threshold {threshold} is not in [0, 1]")
+        if header.get("weights_sha256") != _digest(model):
+            raise ValueError("the weights do not match their stored SHA-256 (corrupt file)")
     except (KeyError, TypeError, ValueError) as e:
         raise ValueError(f"{path}: inconsistent checkpoint ({type(e).__name__}: {e}); {expected}") from e
     header["path"] = str(path)

@@ -36,12 +36,12 @@ class BeamTrainConfig:
         max_minutes: stop early after this wall time.
     """
 
-    epochs: int = 12
+    epochs: int = 8
     batch_size: int = 2048
     lr: float = 3e-3
     weight_decay: float = 1e-5
     offset_weight: float = 1.0
-    easy_keep: float = 0.25
+    easy_keep: float = 0.1
     max_minutes: float = 12.0
 
     def __post_init__(self) -> None:
