@@ -97,13 +97,19 @@ class BeamConfig:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "hidden", tuple(self.hidden))
-        if isinstance(self.half_window, bool) or not isinstance(self.half_window, int) or self.half_window < 1:
+        if (
+            isinstance(self.half_window, bool)
+            or not isinstance(self.half_window, int)
+            or self.half_window < 1
+        ):
             raise ValueError(f"BeamConfig.half_window must be an int >= 1, got {self.half_window!r}")
         for name in ("curvature_offsets", "curvature_scales"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 0:
                 raise ValueError(f"BeamConfig.{name} must be an int >= 0, got {v!r}")
-        if not self.hidden or not all(isinstance(h, int) and not isinstance(h, bool) and h >= 1 for h in self.hidden):
+        if not self.hidden or not all(
+            isinstance(h, int) and not isinstance(h, bool) and h >= 1 for h in self.hidden
+        ):
             raise ValueError(f"BeamConfig.hidden must be one or more ints >= 1, got {self.hidden!r}")
         if not (math.isfinite(self.d_max) and self.d_max > 0):
             raise ValueError(f"BeamConfig.d_max must be a finite distance > 0 m, got {self.d_max!r}")
@@ -240,13 +246,17 @@ def beam_inputs(ranges, angles, config: BeamConfig | None = None, circular: bool
     r = np.asarray(ranges, dtype=np.float64)
     a = np.asarray(angles, dtype=np.float64)
     if r.ndim != 2 or a.shape != (r.shape[1],):
-        raise ValueError(f"beam_inputs: ranges must be (B, n_beams) and angles (n_beams,), got {r.shape}, {a.shape}")
+        raise ValueError(
+            f"beam_inputs: ranges must be (B, n_beams) and angles (n_beams,), got {r.shape}, {a.shape}"
+        )
     valid = _valid(r, c.d_max)
     total = int(valid.sum())
     x = np.empty((total, c.n_inputs), np.float32)
     row = np.empty(total, np.int64)
     beam = np.empty(total, np.int64)
-    _inputs_kernel(r, valid, a, c.half_window, c.curvature_offsets, c.curvature_scales, bool(circular), x, row, beam)
+    _inputs_kernel(
+        r, valid, a, c.half_window, c.curvature_offsets, c.curvature_scales, bool(circular), x, row, beam
+    )
     return x, row, beam
 
 
@@ -279,8 +289,10 @@ class BeamModel:
             self.weights.append((w, b))
         self.x_mean = np.asarray(x_mean, np.float32).reshape(-1)
         self.x_std = np.asarray(x_std, np.float32).reshape(-1)
-        if self.x_mean.shape != (config.n_inputs,) or self.x_std.shape != (config.n_inputs,) or (
-            not (self.x_std > 0).all()
+        if (
+            self.x_mean.shape != (config.n_inputs,)
+            or self.x_std.shape != (config.n_inputs,)
+            or (not (self.x_std > 0).all())
         ):
             raise ValueError(
                 f"BeamModel: x_mean / x_std must be {config.n_inputs} values (std > 0), got "
@@ -327,7 +339,9 @@ def save_beam_checkpoint(path, model: BeamModel, *, threshold: float, info: dict
         "config": model.config.to_dict(),
         "threshold": float(threshold),
         "weights_sha256": _digest(model),
-        "info": json.loads(json.dumps(info or {}, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o))),
+        "info": json.loads(
+            json.dumps(info or {}, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o))
+        ),
     }
     arrays = {"header": np.frombuffer(json.dumps(header).encode(), np.uint8)}
     for k, (w, b) in enumerate(model.weights):
@@ -358,7 +372,9 @@ def load_beam_checkpoint(path=None) -> tuple[BeamModel, dict]:
             arrays = {k: z[k] for k in z.files}
         header = json.loads(arrays.pop("header").tobytes().decode())
     except Exception as e:  # not an npz, or no / broken header
-        raise ValueError(f"{path}: not a readable beam detector checkpoint ({type(e).__name__}: {e}); {expected}") from e
+        raise ValueError(
+            f"{path}: not a readable beam detector checkpoint ({type(e).__name__}: {e}); {expected}"
+        ) from e
     if not isinstance(header, dict) or header.get("format") != BEAM_CHECKPOINT_FORMAT:
         raise ValueError(f"{path}: not a beam kin detector checkpoint; {expected}")
     if header.get("format_version") != BEAM_CHECKPOINT_VERSION:
@@ -469,7 +485,8 @@ def load_beam_dataset(path) -> tuple[dict[str, np.ndarray], dict]:
     """Read a per-beam dataset directory (``manifest.json`` + ``.npz`` shards, written by
     ``scripts/train_beam_detector.py`` from :mod:`kin_envs.detection.beam_dataset`) → ``(records, manifest)``.
 
-    Records are stacked per scan row (plus the shared ``angles (n,)``): ``ranges (N, n)``, ``label (N, n)``, ``centre (N, n, 2)``,
+    Records are stacked per scan row (plus the shared ``angles (n,)``): ``ranges (N, n)``,
+    ``label (N, n)``, ``centre (N, n, 2)``,
     ``category (N, n)``, ``noise``, ``dropout``, ``seed``, ``family`` ``(N,)``.
     """
     root = Path(path)
@@ -514,7 +531,9 @@ class BeamKinDetector(KinDetector):
 
     def __init__(self, checkpoint=None, threshold: float | None = None) -> None:
         if threshold is not None and (
-            isinstance(threshold, bool) or not isinstance(threshold, int | float) or not 0.0 <= threshold <= 1.0
+            isinstance(threshold, bool)
+            or not isinstance(threshold, int | float)
+            or not 0.0 <= threshold <= 1.0
         ):
             raise ValueError(f"BeamKinDetector: threshold must be a probability in [0, 1], got {threshold!r}")
         self.model, self.checkpoint = load_beam_checkpoint(checkpoint)
@@ -522,7 +541,8 @@ class BeamKinDetector(KinDetector):
         self.threshold = float(self.checkpoint["threshold"] if threshold is None else threshold)
 
     def beam_probabilities(self, ranges, angles):
-        """Per-beam ``p(kin)`` and voted centres ``(p, cx, cy)``, each ``(B, n)`` (0 / NaN off valid beams)."""
+        """Per-beam ``p(kin)`` and voted centres ``(p, cx, cy)``, each ``(B, n)`` (0 / NaN off valid
+        beams)."""
         r, a = validate_batch(ranges, angles)
         x, row, beam = beam_inputs(r, a, self.config, is_circular_sweep(a))
         logit, off = self.model.forward(x)
@@ -547,7 +567,9 @@ class BeamKinDetector(KinDetector):
         neg = r < 0.0
         if neg.any():
             b, i = (int(v[0]) for v in np.nonzero(neg))
-            raise ValueError(f"ranges must be >= 0 metres (non-finite means no return), got ranges[{b}, {i}] = {r[b, i]}")
+            raise ValueError(
+                f"ranges must be >= 0 metres (non-finite means no return), got ranges[{b}, {i}] = {r[b, i]}"
+            )
         p, cx, cy = self.beam_probabilities(r, a)
         row, xy, score, beams = group_votes(p, cx, cy, self.config, is_circular_sweep(a))
         keep = score >= self.threshold
@@ -568,7 +590,10 @@ class BeamKinDetector(KinDetector):
         d = self.detect_arrays(ranges, angles)
         b_n = np.asarray(ranges).shape[0]
         per: list[list[Detection]] = [[] for _ in range(b_n)]
-        cols = [d[k].tolist() for k in ("scan", "range", "bearing", "x", "y", "score", "first_beam", "last_beam", "n_beams")]
+        cols = [
+            d[k].tolist()
+            for k in ("scan", "range", "bearing", "x", "y", "score", "first_beam", "last_beam", "n_beams")
+        ]
         for s, rng_, brg, x, y, sc, f, la, nb in zip(*cols, strict=True):
             per[s].append(Detection(rng_, brg, x, y, sc, f, la, nb))
         return [DetectionResult(dets, []) for dets in per]

@@ -55,7 +55,9 @@ class BeamTrainConfig:
     def from_dict(cls, d) -> BeamTrainConfig:
         names = {f.name for f in dataclasses.fields(cls)}
         if not isinstance(d, dict) or set(d) - names:
-            raise ValueError(f"BeamTrainConfig: unknown key(s) {sorted(set(d) - names)}; expected {sorted(names)}")
+            raise ValueError(
+                f"BeamTrainConfig: unknown key(s) {sorted(set(d) - names)}; expected {sorted(names)}"
+            )
         return cls(**d)
 
 

@@ -100,7 +100,9 @@ def resolve_detector(name: str) -> KinDetector:
         if not callable(getattr(det, "detect_batch", None)):
             raise ValueError(f"detector {name!r}: {cls_name} has no detect_batch(ranges, angles)")
         return det
-    raise ValueError(f"unknown detector {name!r}; expected 'geometric', 'learned', 'beam' or a 'module:Class' path")
+    raise ValueError(
+        f"unknown detector {name!r}; expected 'geometric', 'learned', 'beam' or a 'module:Class' path"
+    )
 
 
 # --------------------------------------------------------------------------- data

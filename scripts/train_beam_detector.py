@@ -39,7 +39,6 @@ from detectors.fileio import atomic_write, sha256_file, write_json
 from detectors.samples import category_code
 from kin_envs.cli import parse_json_object
 from kin_envs.detection.beam_dataset import BEAM_DATASET_CONFIG, beam_records
-from kin_envs.detection.evaluation import match_detections
 from kin_envs.detection.swarm_scenes import check_training_seeds
 
 
@@ -56,8 +55,15 @@ def make_data(out: Path, first_seed: int, n_scenes: int, shard_scenes: int, prog
             rec = {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
             with atomic_write(out / name) as f:
                 np.savez_compressed(f, angles=_angles(), **rec)
-            shards.append({"file": name, "first_seed": int(seed) - len(parts) + 1, "n_scenes": len(parts),
-                           "n_scans": int(rec["ranges"].shape[0]), "sha256": sha256_file(out / name)})
+            shards.append(
+                {
+                    "file": name,
+                    "first_seed": int(seed) - len(parts) + 1,
+                    "n_scenes": len(parts),
+                    "n_scans": int(rec["ranges"].shape[0]),
+                    "sha256": sha256_file(out / name),
+                }
+            )
             parts = []
     manifest = {
         "format": BEAM_DATASET_FORMAT,
@@ -153,14 +159,21 @@ def calibrate(table: dict) -> tuple[float, dict]:
     thr = float(s[k])
     prec = ctp / np.maximum(ctp + cfp, 1)
     ap = float(np.sum(np.diff(np.concatenate(([0.0], ctp / max(table["n_kin"], 1)))) * prec))
-    return thr, {"f1": float(f1[k]), "precision": float(prec[k]), "recall": float(ctp[k] / max(table["n_kin"], 1)),
-                 "ap": ap, "n_kin": int(table["n_kin"])}
+    return thr, {
+        "f1": float(f1[k]),
+        "precision": float(prec[k]),
+        "recall": float(ctp[k] / max(table["n_kin"], 1)),
+        "ap": ap,
+        "n_kin": int(table["n_kin"]),
+    }
 
 
 def main(argv: list[str] | None = None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", type=Path, default=Path("outputs/beam_detector"), help="output directory")
-    ap.add_argument("--data", type=Path, default=None, help="existing beam dataset directory (skip generation)")
+    ap.add_argument(
+        "--data", type=Path, default=None, help="existing beam dataset directory (skip generation)"
+    )
     ap.add_argument("--scenes", type=int, default=3000, help="scenes to generate (training + validation)")
     ap.add_argument("--first-seed", type=int, default=0, help="seed of the first scene (a training seed)")
     ap.add_argument("--shard-scenes", type=int, default=500, help="scenes per .npz shard")
@@ -202,8 +215,13 @@ def main(argv: list[str] | None = None) -> dict:
     model, history = train_beam_model(x, y, t, w, bcfg, tcfg, seed=args.seed, log=log)
     t_train = time.perf_counter() - t1
     ckpt = args.out / "beam.npz"
-    info = {"dataset": manifest.get("seeds"), "train_config": tcfg.to_dict(), "seed": args.seed,
-            "train_seconds": round(t_train, 1), "torch_threads": args.threads}
+    info = {
+        "dataset": manifest.get("seeds"),
+        "train_config": tcfg.to_dict(),
+        "seed": args.seed,
+        "train_seconds": round(t_train, 1),
+        "torch_threads": args.threads,
+    }
     save_beam_checkpoint(ckpt, model, threshold=0.5, info=info)
     val = {}
     if va.size:
@@ -211,18 +229,29 @@ def main(argv: list[str] | None = None) -> dict:
         thr, val = calibrate(score_table(det, subset(records, va)))
         info["validation"] = val
         save_beam_checkpoint(ckpt, model, threshold=thr, info=info)
-        print(f"validation: threshold {thr:.3f}, F1 {val['f1']:.3f} (P {val['precision']:.3f} / R "
-              f"{val['recall']:.3f}), AP {val['ap']:.3f}")
+        print(
+            f"validation: threshold {thr:.3f}, F1 {val['f1']:.3f} (P {val['precision']:.3f} / R "
+            f"{val['recall']:.3f}), AP {val['ap']:.3f}"
+        )
     with atomic_write(args.out / "train_log.csv", "w") as f:
         f.write("\n".join(lines) + "\n")
     if args.install:
         shutil.copyfile(ckpt, DEFAULT_BEAM_CHECKPOINT)
     run = {
         "command": [sys.executable, *sys.argv] if argv is None else ["train_beam_detector.py", *argv],
-        "model_config": bcfg.to_dict(), "train_config": tcfg.to_dict(), "seed": args.seed,
-        "data": str(data_dir), "data_seconds": round(t_data, 1), "train_seconds": round(t_train, 1),
-        "epochs": len(history), "validation": val, "checkpoint": str(ckpt), "sha256": sha256_file(ckpt),
-        "installed": bool(args.install), "python": platform.python_version(), "torch": torch.__version__,
+        "model_config": bcfg.to_dict(),
+        "train_config": tcfg.to_dict(),
+        "seed": args.seed,
+        "data": str(data_dir),
+        "data_seconds": round(t_data, 1),
+        "train_seconds": round(t_train, 1),
+        "epochs": len(history),
+        "validation": val,
+        "checkpoint": str(ckpt),
+        "sha256": sha256_file(ckpt),
+        "installed": bool(args.install),
+        "python": platform.python_version(),
+        "torch": torch.__version__,
     }
     write_json(args.out / "run.json", run)
     return run

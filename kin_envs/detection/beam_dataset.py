@@ -9,7 +9,8 @@ to a kin in one scan) are flagged so that training can leave them out.
 Per scan row (arrays stacked over rows): ``ranges`` ``(n, 360)`` float32 (what the lidar reported),
 ``label`` int8, ``centre`` ``(n, 360, 2)`` float32 (NaN off kin), ``category`` int8 (index into
 :data:`detectors.samples.CATEGORIES`, -1 nothing), ``noise``, ``dropout``, ``seed``, ``family``.
-The on-disk format (``.npz`` shards + ``manifest.json``) is read by :func:`detectors.beam_detector.load_beam_dataset`.
+The on-disk format (``.npz`` shards + ``manifest.json``) is read by
+:func:`detectors.beam_detector.load_beam_dataset`.
 """
 
 from __future__ import annotations

@@ -170,7 +170,9 @@ def make_scene(seed: int, config: DatasetConfig | None = None, noise: float | No
     sigma = 0.0 if rng.random() < c.zero_noise_prob else float(rng.uniform(*c.noise))
     open_world = bool(rng.random() < c.open_prob) and detection
     swarm = c.swarm_prob > 0 and bool(rng.random() < c.swarm_prob)
-    dropout = float(rng.uniform(*c.dropout)) if c.dropout_share > 0 and rng.random() < c.dropout_share else 0.0
+    dropout = 0.0
+    if c.dropout_share > 0 and rng.random() < c.dropout_share:
+        dropout = float(rng.uniform(*c.dropout))
     if noise is not None:
         sigma = float(noise)
     lidar = LidarSpec(noise_sigma=sigma, dropout_prob=dropout)

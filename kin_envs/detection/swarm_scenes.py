@@ -91,7 +91,9 @@ class SwarmSceneConfig:
     def from_dict(cls, d) -> SwarmSceneConfig:
         names = {f.name for f in dataclasses.fields(cls)}
         if not isinstance(d, dict) or set(d) - names:
-            raise ValueError(f"SwarmSceneConfig: unknown key(s) {sorted(set(d) - names)}; expected {sorted(names)}")
+            raise ValueError(
+                f"SwarmSceneConfig: unknown key(s) {sorted(set(d) - names)}; expected {sorted(names)}"
+            )
         return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
 
 
@@ -142,7 +144,9 @@ def swarm_scene(
 
     for i in range(int(rng.integers(c.n_robots[0], c.n_robots[1] + 1))):
         try:
-            r = placer.place(lambda x, y: Robot(x, y, float(rng.uniform(-math.pi, math.pi))), robot_xy, f"r{i}")
+            r = placer.place(
+                lambda x, y: Robot(x, y, float(rng.uniform(-math.pi, math.pi))), robot_xy, f"r{i}"
+            )
         except ValueError:
             break
         robots.append(r)

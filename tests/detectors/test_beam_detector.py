@@ -26,8 +26,10 @@ def random_model(config=None, seed=0):
     c = config or BeamConfig(half_window=3, hidden=(8,), curvature_offsets=1, curvature_scales=1)
     rng = np.random.default_rng(seed)
     dims = [c.n_inputs, *c.hidden, 3]
-    w = [(rng.normal(size=(a, b)).astype(np.float32), rng.normal(size=b).astype(np.float32))
-         for a, b in zip(dims, dims[1:], strict=False)]
+    w = [
+        (rng.normal(size=(a, b)).astype(np.float32), rng.normal(size=b).astype(np.float32))
+        for a, b in zip(dims, dims[1:], strict=False)
+    ]
     return BeamModel(c, w, np.zeros(c.n_inputs), np.ones(c.n_inputs))
 
 

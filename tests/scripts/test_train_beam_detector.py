@@ -20,7 +20,9 @@ def test_tiny_run_writes_a_loadable_calibrated_checkpoint(tmp_path):
         "--model-config", '{"hidden": [8]}', "--config", '{"epochs": 1}', "--no-progress",
     ])  # fmt: skip
     manifest = json.loads((out / "data" / "manifest.json").read_text())
-    assert [s["n_scenes"] for s in manifest["shards"]] == [4, 4] and all("sha256" in s for s in manifest["shards"])
+    assert [s["n_scenes"] for s in manifest["shards"]] == [4, 4] and all(
+        "sha256" in s for s in manifest["shards"]
+    )
     records, _ = load_beam_dataset(out / "data")
     assert records["seed"].min() == 0 and records["seed"].max() == 7
     det = BeamKinDetector(out / "beam.npz")
