@@ -465,8 +465,12 @@ def group_votes(p, cx, cy, config: BeamConfig | None = None, circular: bool = Tr
     """
     c = config or BeamConfig()
     p = np.ascontiguousarray(p, np.float64)
+    if p.ndim != 2 or np.shape(cx) != p.shape or np.shape(cy) != p.shape:
+        raise ValueError(
+            f"group_votes: p, cx, cy must share one (B, n) shape, got {p.shape}, {np.shape(cx)}, {np.shape(cy)}"
+        )
     b_n, n = p.shape
-    cap = b_n * (n // 2 + 1)
+    cap = b_n * n  # every voting beam may open its own group (votes for centres far apart)
     out_row = np.empty(cap, np.int64)
     out_f = np.empty((cap, 3), np.float64)
     out_i = np.empty((cap, 3), np.int64)

@@ -81,6 +81,11 @@ def test_grouping_splits_distinct_centres_bridges_gaps_and_the_seam():
     assert beams[order].tolist() == [[2, 4, 3], [5, 6, 2], [10, 12, 2], [18, 0, 3]]
     p[0, 5] = 0.0  # the second kin now has one vote: dropped by min_votes=2 (the default)
     assert group_votes(p, cx, cy)[0].size == 3
+    # worst case: every beam votes for a centre far from its neighbour's -> one group per beam
+    n = 360
+    far = np.tile(np.arange(n, dtype=float), (3, 1))
+    row, _, _, _ = group_votes(np.ones((3, n)), far, np.zeros((3, n)), BeamConfig(min_votes=1))
+    assert row.size == 3 * n
 
 
 def test_checkpoint_round_trip_and_refusals(tmp_path):
