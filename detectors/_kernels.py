@@ -112,6 +112,18 @@ def segment_rows(d, d_th, d_max, circular, scan, first, count, prev, nxt, prev_n
     return s
 
 
+def segment_arrays(d: np.ndarray, d_th: float, d_max: float, circular: bool) -> tuple[np.ndarray, ...]:
+    """Flat segments of pre-processed scans ``d`` (B, n) with :func:`segment_rows`: ``(scan, first,
+    count, prev, next, prev_nearer, next_nearer)`` arrays (int64 x 5, bool x 2)."""
+    cap = d.shape[0] * d.shape[1]
+    out = tuple(np.empty(cap, dtype=np.int64) for _ in range(5)) + (
+        np.empty(cap, dtype=np.bool_),
+        np.empty(cap, dtype=np.bool_),
+    )
+    s = segment_rows(d, d_th, d_max, circular, *out)
+    return tuple(x[:s].copy() for x in out)
+
+
 @numba.njit(cache=True, inline="always")
 def _half_width(d_cest, alpha):
     # eqs. 4-5 half-widths; an angle >= 90 deg from the min beam bounds no finite diameter

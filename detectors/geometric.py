@@ -891,10 +891,11 @@ class GeometricKinDetector(KinDetector):
         its scan row and beam.
         """
         rb, a = self._check_batch(ranges, angles)
+        rb, a = np.ascontiguousarray(rb), np.ascontiguousarray(a)  # one compiled signature
         p = self.params
         d = np.empty(rb.shape)
         _k.preprocess_rows(rb, p.d_max, p.d_th, self._circular, p.noise_filter, d)
-        seg = _segment_arrays(d, p.d_th, p.d_max, self._circular)
+        seg = _k.segment_arrays(d, p.d_th, p.d_max, self._circular)
         S = seg[0].shape[0]
         stage = np.empty(S, dtype=np.int8)
         min_beam = np.empty(S, dtype=np.int64)
@@ -997,15 +998,3 @@ def _check_negative_rows(rb: np.ndarray, a: np.ndarray) -> None:
             validate_scan(rb[b], a)
         except ValueError as e:
             raise ValueError(f"ranges[{b}]: {e}") from None
-
-
-def _segment_arrays(d: np.ndarray, d_th: float, d_max: float, circular: bool) -> tuple[np.ndarray, ...]:
-    """Flat segments of pre-processed scans ``d`` (B, n): ``(scan, first, count, prev, next,
-    prev_nearer, next_nearer)``, compiled :func:`segment` for every row."""
-    cap = d.shape[0] * d.shape[1]
-    out = tuple(np.empty(cap, dtype=np.int64) for _ in range(5)) + (
-        np.empty(cap, dtype=bool),
-        np.empty(cap, dtype=bool),
-    )
-    s = _k.segment_rows(d, d_th, d_max, circular, *out)
-    return tuple(x[:s].copy() for x in out)
