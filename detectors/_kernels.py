@@ -324,47 +324,42 @@ def fit_centres(d, ang, scan, first, count, which, r, max_iter, xtol, lam0, lam_
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
-def mlp_forward(x, mean, std, weights, biases, out):
+def mlp_forward(x, mean, std, weights, biases, sizes, out):
     """``out = MLP((x - mean) / std)``: ReLU hidden layers, linear head, float32.
 
+    Layer ``l`` maps ``sizes[l]`` to ``sizes[l + 1]`` units with ``weights[l, :sizes[l + 1],
+    :sizes[l]]`` (``(out, in)``, zero-padded to one 3-D array) and ``biases[l, :sizes[l + 1]]``.
     Rows go through in blocks of 64, activations stored transposed (unit, row) so that the inner
     loops run over contiguous rows and compile to SIMD.
     """
     n_rows, n_in = x.shape
     blk = 64
-    width = n_in
-    for w in weights:
-        width = max(width, w.shape[0])
+    width = max(sizes.max(), n_in)
     a = np.zeros((width, blk), dtype=np.float32)
     h = np.zeros((width, blk), dtype=np.float32)
-    n_layers = len(weights)
+    n_layers = weights.shape[0]
     for s in range(0, n_rows, blk):
         m = min(blk, n_rows - s)
         for r_ in range(m):
             for k in range(n_in):
                 a[k, r_] = (x[s + r_, k] - mean[k]) / std[k]
-        for r_ in range(m, blk):
-            for k in range(n_in):
-                a[k, r_] = 0.0
-        k_in = n_in
         for li in range(n_layers):
-            w = weights[li]
-            bias = biases[li]
-            n_out = w.shape[0]
+            k_in = sizes[li]
+            n_out = sizes[li + 1]
             for j in range(n_out):
-                bj = bias[j]
-                for r_ in range(blk):
+                bj = biases[li, j]
+                for r_ in range(m):
                     h[j, r_] = bj
                 for k in range(k_in):
-                    wjk = w[j, k]
-                    for r_ in range(blk):
+                    wjk = weights[li, j, k]
+                    for r_ in range(m):
                         h[j, r_] += wjk * a[k, r_]
                 if li < n_layers - 1:
-                    for r_ in range(blk):
+                    for r_ in range(m):
                         if h[j, r_] < 0.0:
                             h[j, r_] = 0.0
             a, h = h, a
-            k_in = n_out
+        n_out = sizes[n_layers]
         for r_ in range(m):
-            for j in range(k_in):
+            for j in range(n_out):
                 out[s + r_, j] = a[j, r_]

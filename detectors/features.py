@@ -155,11 +155,15 @@ _GEOMETRIC_NAMES = (
 
 def feature_names(config: FeatureConfig | None = None) -> list[str]:
     """Names of the feature vector's entries, in order (for ``config``)."""
-    c = config or FeatureConfig()
+    return list(_feature_names(config or FeatureConfig()))
+
+
+@functools.lru_cache(maxsize=16)
+def _feature_names(c: FeatureConfig) -> tuple[str, ...]:
     names = [f"u{k}" for k in range(c.n_points)] + [f"v{k}" for k in range(c.n_points)]
     names += [f"ctx_prev{j}" for j in range(1, c.n_context + 1)]
     names += [f"ctx_next{j}" for j in range(1, c.n_context + 1)]
-    return names + list(_GEOMETRIC_NAMES) + [f"e{k}" for k in range(c.n_points)]
+    return tuple(names + list(_GEOMETRIC_NAMES) + [f"e{k}" for k in range(c.n_points)])
 
 
 @dataclass(frozen=True, eq=False)
@@ -598,7 +602,7 @@ def segment_features(batch: SegmentBatch, config: FeatureConfig | None = None) -
     """The feature vectors of every segment in ``batch`` (see the module docstring)."""
     c = config or FeatureConfig()
     n_seg = batch.n_segments
-    n_feat = len(feature_names(c))
+    n_feat = len(_feature_names(c))
     x = np.empty((n_seg, n_feat), dtype=np.float32)
     frames = np.empty((n_seg, 4))
     fit_centre = np.empty((n_seg, 2))

@@ -345,7 +345,7 @@ class LearnedKinDetector(KinDetector):
         *,
         positioning: str | None = None,
         reports: bool = True,
-        inference: str = "torch",
+        inference: str = "numba",
         torch_threads: int = 1,
     ) -> None:
         if inference not in INFERENCE:
@@ -579,17 +579,19 @@ class LearnedKinDetector(KinDetector):
 
 def _export_weights(model: SegmentNet) -> tuple:
     """The network as arguments of :func:`detectors._kernels.mlp_forward`: ``(mean, std, weights,
-    biases)``, float32, weights as ``(out, in)`` matrices in layer order (head last)."""
-    from numba.typed import List
-
+    biases, sizes)``, float32, the layers' ``(out, in)`` matrices zero-padded into one array (head
+    last)."""
     linears = [m for m in model.body if isinstance(m, nn.Linear)] + [model.head]
-    weights, biases = List(), List()
-    for lin in linears:
-        weights.append(np.ascontiguousarray(lin.weight.detach().cpu().numpy(), dtype=np.float32))
-        biases.append(np.ascontiguousarray(lin.bias.detach().cpu().numpy(), dtype=np.float32))
+    sizes = np.array([linears[0].in_features] + [lin.out_features for lin in linears], dtype=np.int64)
+    w = int(sizes.max())
+    weights = np.zeros((len(linears), w, w), dtype=np.float32)
+    biases = np.zeros((len(linears), w), dtype=np.float32)
+    for i, lin in enumerate(linears):
+        weights[i, : lin.out_features, : lin.in_features] = lin.weight.detach().cpu().numpy()
+        biases[i, : lin.out_features] = lin.bias.detach().cpu().numpy()
     mean = model.x_mean.detach().cpu().numpy().astype(np.float32)
     std = model.x_std.detach().cpu().numpy().astype(np.float32)
-    return mean, std, weights, biases
+    return mean, std, weights, biases, sizes
 
 
 @contextlib.contextmanager
