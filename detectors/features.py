@@ -235,7 +235,7 @@ def segment_batch(ranges, angles, config: FeatureConfig | None = None, circular:
     circ = is_circular_sweep(a) if circular is None else bool(circular)
     d = np.empty(r.shape)
     _k.preprocess_rows(np.ascontiguousarray(r), float(c.d_max), float(c.d_th), circ, False, d)
-    scan, first, count, prev, nxt, p_near, n_near = _k.segment_arrays(d, c.d_th, c.d_max, circ)
+    scan, first, count, prev, nxt, p_near, n_near = _k.segment_arrays(d, float(c.d_th), float(c.d_max), circ)
     return SegmentBatch(
         ranges=d,
         angles=a,

@@ -894,8 +894,9 @@ class GeometricKinDetector(KinDetector):
         rb, a = np.ascontiguousarray(rb), np.ascontiguousarray(a)  # one compiled signature
         p = self.params
         d = np.empty(rb.shape)
-        _k.preprocess_rows(rb, p.d_max, p.d_th, self._circular, p.noise_filter, d)
-        seg = _k.segment_arrays(d, p.d_th, p.d_max, self._circular)
+        d_max, d_th = float(p.d_max), float(p.d_th)  # ints would compile another signature
+        _k.preprocess_rows(rb, d_max, d_th, self._circular, p.noise_filter, d)
+        seg = _k.segment_arrays(d, d_th, d_max, self._circular)
         S = seg[0].shape[0]
         stage = np.empty(S, dtype=np.int8)
         min_beam = np.empty(S, dtype=np.int64)
@@ -905,8 +906,8 @@ class GeometricKinDetector(KinDetector):
             a,
             self._sweep,
             *seg,
-            p.r,
-            p.F_threshold,
+            float(p.r),
+            float(p.F_threshold),
             p.shape_metric == "mean",
             p.occlusion_unbounded,
             p.min_points,
