@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -27,6 +27,7 @@ __all__ = [
     "Detection",
     "DetectionResult",
     "KinDetector",
+    "LazyBatchReports",
     "Segment",
     "SegmentReport",
     "segments_from_arrays",
@@ -211,12 +212,58 @@ class SegmentReport:
         return self.stage == "accepted"
 
 
-@dataclass(frozen=True, eq=False)
 class DetectionResult:
-    """Detections of one scan plus one report per segment (in scan order)."""
+    """Detections of one scan plus one report per segment (in scan order).
 
-    detections: list[Detection]
-    reports: list[SegmentReport]
+    ``DetectionResult(detections, reports)``. The built-in detectors build ``reports`` lazily: the
+    readable :class:`SegmentReport` objects of a whole batch are made on the first access to any
+    scan's ``reports`` (an env that reads only ``detections`` never pays for them).
+    """
+
+    __slots__ = ("_lazy", "_reports", "detections")
+
+    def __init__(self, detections: list[Detection], reports: list[SegmentReport] | None = None) -> None:
+        self.detections = detections
+        self._reports = [] if reports is None else reports
+        self._lazy = None
+
+    @classmethod
+    def lazy(cls, detections: list[Detection], build: Callable[[], list[list[SegmentReport]]], b: int):
+        """Scan ``b``'s result whose reports are ``build()[b]``, ``build`` called at most once per
+        batch (it must cache its result)."""
+        res = cls(detections)
+        res._reports = None
+        res._lazy = (build, b)
+        return res
+
+    @property
+    def reports(self) -> list[SegmentReport]:
+        if self._reports is None:
+            build, b = self._lazy
+            self._reports = build()[b]
+            self._lazy = None
+        return self._reports
+
+    def __repr__(self) -> str:
+        n = "?" if self._reports is None else len(self._reports)
+        return f"DetectionResult(detections={self.detections!r}, reports=<{n} reports>)"
+
+
+class LazyBatchReports:
+    """Builds the per-scan report lists of a batch once, on the first call (see
+    :meth:`DetectionResult.lazy`)."""
+
+    __slots__ = ("_build", "_value")
+
+    def __init__(self, build: Callable[[], list[list[SegmentReport]]]) -> None:
+        self._build = build
+        self._value = None
+
+    def __call__(self) -> list[list[SegmentReport]]:
+        if self._value is None:
+            self._value = self._build()
+            self._build = None
+        return self._value
 
 
 #: ``SegmentReport.stage`` of each :attr:`BatchDetections.seg_stage` code: accepted, rejected by the

@@ -40,6 +40,7 @@ from .base import (
     BatchDetections,
     DetectionResult,
     KinDetector,
+    LazyBatchReports,
     Segment,
     SegmentReport,
     validate_batch,
@@ -949,11 +950,18 @@ class GeometricKinDetector(KinDetector):
 
     def results(self, arrays: BatchDetections, reports: bool | None = None) -> list[DetectionResult]:
         """:class:`DetectionResult` per scan of ``arrays`` (from :meth:`detect_arrays`), with
-        readable per-segment reports if ``reports`` (default: this detector's ``reports``)."""
+        readable per-segment reports if ``reports`` (default: this detector's ``reports``), built
+        on first access."""
         reports = self.reports if reports is None else bool(reports)
         dets = arrays.detections()
         if not reports:
             return [DetectionResult(ds, []) for ds in dets]
+        build = LazyBatchReports(lambda: self.segment_reports(arrays))
+        return [DetectionResult.lazy(ds, build, b) for b, ds in enumerate(dets)]
+
+    def segment_reports(self, arrays: BatchDetections) -> list[list[SegmentReport]]:
+        """The readable :class:`SegmentReport` of every segment of ``arrays``, per scan: stage,
+        reason string and the stage numbers."""
         p = self.params
         diameter = 2.0 * p.r
         v = {k: a.tolist() for k, a in arrays.seg_values.items()}
@@ -973,7 +981,7 @@ class GeometricKinDetector(KinDetector):
                 )
             reps.append(SegmentReport(sg, STAGES[code], reason, m))
         bounds = np.searchsorted(arrays.seg_scan, np.arange(arrays.n_scans + 1)).tolist()
-        return [DetectionResult(ds, reps[bounds[b] : bounds[b + 1]]) for b, ds in enumerate(dets)]
+        return [reps[bounds[b] : bounds[b + 1]] for b in range(arrays.n_scans)]
 
     def detect(self, ranges, angles) -> DetectionResult:
         """Detect kins in one scan (``ranges`` (n,) m, ``angles`` (n,) rad)."""

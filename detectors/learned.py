@@ -36,6 +36,7 @@ from .base import (
     BatchDetections,
     DetectionResult,
     KinDetector,
+    LazyBatchReports,
     SegmentReport,
     validate_batch,
     validate_scan,
@@ -534,12 +535,19 @@ class LearnedKinDetector(KinDetector):
 
     def results(self, arrays: BatchDetections, reports: bool | None = None) -> list[DetectionResult]:
         """:class:`DetectionResult` per scan of ``arrays`` (from :meth:`detect_arrays`), with
-        per-segment reports if ``reports`` (default: this detector's ``reports``)."""
+        per-segment reports if ``reports`` (default: this detector's ``reports``), built on first
+        access."""
         reports = self.reports if reports is None else bool(reports)
+        dets = arrays.detections()
+        if not reports:
+            return [DetectionResult(ds, []) for ds in dets]
+        build = LazyBatchReports(lambda: self.segment_reports(arrays))
+        return [DetectionResult.lazy(ds, build, b) for b, ds in enumerate(dets)]
+
+    def segment_reports(self, arrays: BatchDetections) -> list[list[SegmentReport]]:
+        """The :class:`SegmentReport` of every segment of ``arrays``, per scan (stage ``"accepted"``
+        or ``"learned"``, ``metrics`` ``p_kin`` and ``threshold``)."""
         with _gc_paused():
-            dets = arrays.detections()
-            if not reports:
-                return [DetectionResult(ds, []) for ds in dets]
             p, thr = arrays.seg_values["p_kin"], arrays.seg_values["threshold"]
             accl = (arrays.seg_stage == _k.ACCEPTED).tolist()
             # the numbers are in metrics["p_kin"]; two shared reason strings keep ~100 reports per
@@ -559,7 +567,7 @@ class LearnedKinDetector(KinDetector):
                 )
             )
             bounds = np.searchsorted(arrays.seg_scan, np.arange(arrays.n_scans + 1)).tolist()
-            return [DetectionResult(ds, reps[bounds[b] : bounds[b + 1]]) for b, ds in enumerate(dets)]
+            return [reps[bounds[b] : bounds[b + 1]] for b in range(arrays.n_scans)]
 
     def detect(self, ranges, angles) -> DetectionResult:
         """Detect kins in one scan: ``ranges`` (n,) m, ``angles`` (n,) rad."""

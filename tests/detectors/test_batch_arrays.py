@@ -263,3 +263,21 @@ def test_learned_inference_leaves_the_callers_torch_threads_alone(torch_mod):
         LearnedKinDetector(inference="onnx")
     with pytest.raises(ValueError, match="torch_threads"):
         LearnedKinDetector(torch_threads=0)
+
+
+@pytest.mark.parametrize("kind", ["geometric", "learned-numba"])
+def test_reports_are_built_once_on_first_access(kind, monkeypatch):
+    det = _detector(kind)
+    ranges, angles = _arena_scans(0.01, 2)
+    eager = det.segment_reports(det.detect_arrays(ranges, angles))
+    calls = []
+    build = det.segment_reports
+    monkeypatch.setattr(det, "segment_reports", lambda arr: calls.append(1) or build(arr))
+    res = det.detect_batch(ranges, angles)
+    assert calls == []  # detections only: no report objects made
+    assert [r.stage for r in res[3].reports] == [r.stage for r in eager[3]]
+    assert [r.reason for r in res[0].reports] == [r.reason for r in eager[0]]
+    assert calls == [1]  # one build for the whole batch
+    assert sum(len(r.reports) for r in res) == sum(map(len, eager))
+    det.reports = False
+    assert all(r.reports == [] for r in det.detect_batch(ranges, angles)) and calls == [1]
