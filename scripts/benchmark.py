@@ -300,7 +300,8 @@ def to_markdown(results: dict) -> str:
         ]
         lines += [
             f"| {r['detector']} | {r['arrays']:,.0f} | {r['objects']:,.0f} | {r['objects_reports']:,.0f} | "
-            f"{r['old']:,.0f} | {r['speed_up']:.1f}x | {r['single_scan']:,.0f} |"
+            + (f"{r['old']:,.0f} | {r['speed_up']:.1f}x" if math.isfinite(r["old"]) else "— | —")
+            + f" | {r['single_scan']:,.0f} |"
             for r in results["detector"]
         ]
         lines += [
