@@ -1,16 +1,18 @@
-"""Learned lidar kin detector: the paper's segmentation, a small torch network as the classifier.
+"""Learned lidar kin detector: the paper's segmentation, a small network as the classifier.
 
 Pipeline (same interface and output types as :class:`detectors.GeometricKinDetector`):
 
-1. pre-processing and segmentation: the geometric detector's own :func:`detectors.geometric.preprocess`
-   and :func:`detectors.geometric.segment` (paper 4.1-4.2), so both detectors see the same segments;
+1. pre-processing and segmentation: the geometric detector's own stages (paper 4.1-4.2, the compiled
+   kernels behind its ``detect_arrays``, equal to :func:`detectors.geometric.preprocess` and
+   :func:`detectors.geometric.segment`), so both detectors see the same segments;
 2. one feature vector per segment (:mod:`detectors.features`, ``FEATURE_VERSION``);
 3. **classification** (replaces the paper's diameter and shape filters, 4.3): an MLP gives
-   ``p(kin)`` for every segment of every scan of a batch in one forward pass;
+   ``p(kin)`` for every segment of every scan of a batch in one pass (the checkpoint's weights in a
+   compiled kernel by default, or its torch module);
 4. **positioning** (4.4): the same network regresses the kin's centre in the segment's local frame
    (``positioning="regression"``), or the geometric detector's circle fit is used
-   (``positioning="fit"``: :func:`detectors.geometric.fit_circles` from the eq. 7 start, then
-   :func:`detectors.geometric.position_kin`). The checkpoint names the better one on held-out data.
+   (``positioning="fit"``: the Levenberg-Marquardt fit of :func:`detectors.geometric.fit_circle` from
+   the eq. 7 start). The checkpoint names the better one on held-out data.
 
 This is the only module of ``detectors`` that imports torch.
 """
