@@ -544,6 +544,10 @@ class BeamKinDetector(KinDetector):
         self.config = self.model.config
         self.threshold = float(self.checkpoint["threshold"] if threshold is None else threshold)
 
+    def permissive(self) -> BeamKinDetector:
+        """This detector reporting every group (``threshold=0``), for precision-recall curves."""
+        return BeamKinDetector(self.checkpoint["path"], threshold=0.0)
+
     def beam_probabilities(self, ranges, angles):
         """Per-beam ``p(kin)`` and voted centres ``(p, cx, cy)``, each ``(B, n)`` (0 / NaN off valid
         beams)."""
