@@ -467,7 +467,8 @@ def group_votes(p, cx, cy, config: BeamConfig | None = None, circular: bool = Tr
     p = np.ascontiguousarray(p, np.float64)
     if p.ndim != 2 or np.shape(cx) != p.shape or np.shape(cy) != p.shape:
         raise ValueError(
-            f"group_votes: p, cx, cy must share one (B, n) shape, got {p.shape}, {np.shape(cx)}, {np.shape(cy)}"
+            "group_votes: p, cx, cy must share one (B, n) shape, got "
+            f"{p.shape}, {np.shape(cx)}, {np.shape(cy)}"
         )
     b_n, n = p.shape
     cap = b_n * n  # every voting beam may open its own group (votes for centres far apart)
