@@ -177,8 +177,9 @@ def preprocess(
 ) -> np.ndarray:
     """Paper 4.1: clean a scan's ranges (m) before segmentation.
 
-    Non-finite readings (inf = no return, NaN = failed reading) become
-    ``d_max``; readings above ``d_max`` are clipped to it. Everything at
+    Non-finite readings (inf = no return, NaN = failed reading) and 0.0 (a
+    real RPLIDAR's "no return") become ``d_max``; readings above ``d_max``
+    are clipped to it. Everything at
     ``d_max`` is then ignored by :func:`segment`.
 
     If ``noise_filter``, isolated beams - ones that jump away from *both*
@@ -193,7 +194,7 @@ def preprocess(
     Returns a new float64 (n_beams,) array.
     """
     r = np.asarray(ranges, dtype=np.float64)
-    d = np.where(np.isfinite(r), r, d_max)
+    d = np.where(np.isfinite(r) & (r > 0.0), r, d_max)
     np.minimum(d, d_max, out=d)
     if noise_filter:
         if circular:
