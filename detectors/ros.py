@@ -217,9 +217,17 @@ def read_scans(bag, topic: str) -> Iterator[RosScan]:
                 raise BagError(f"{bag}: {topic} message {k}: {e}") from None
             st = stamp_ns(msg.header.stamp)
             yield RosScan(
-                k, st if st else int(t), int(t), str(msg.header.frame_id), r, a, idx,
-                float(msg.range_min), float(msg.range_max), msg,
-            )  # fmt: skip
+                k,
+                st if st else int(t),
+                int(t),
+                str(msg.header.frame_id),
+                r,
+                a,
+                idx,
+                float(msg.range_min),
+                float(msg.range_max),
+                msg,
+            )
 
 
 def _yaw(q) -> float:
@@ -277,7 +285,9 @@ def read_poses(bag, topic: str, child_frame: str | None = None) -> PoseTrack:
                 rows.append((stamp_ns(msg.header.stamp), p.position.x, p.position.y, _yaw(p.orientation)))
                 frame = msg.header.frame_id
     if not rows:
-        raise BagError(f"{bag}: {topic} has no pose of frame {want!r}" if is_tf else f"{bag}: {topic} is empty")
+        raise BagError(
+            f"{bag}: {topic} has no pose of frame {want!r}" if is_tf else f"{bag}: {topic} is empty"
+        )
     rows.sort(key=lambda r: r[0])
     a = np.asarray(rows, dtype=np.float64)
     stamps = np.asarray([r[0] for r in rows], dtype=np.int64)
@@ -326,10 +336,20 @@ def _typestore(storage: str):
 
 
 _NP = {
-    "float32": np.float32, "float64": np.float64, "int8": np.int8, "uint8": np.uint8, "byte": np.uint8,
-    "char": np.uint8, "int16": np.int16, "uint16": np.uint16, "int32": np.int32, "uint32": np.uint32,
-    "int64": np.int64, "uint64": np.uint64, "bool": np.bool_,
-}  # fmt: skip
+    "float32": np.float32,
+    "float64": np.float64,
+    "int8": np.int8,
+    "uint8": np.uint8,
+    "byte": np.uint8,
+    "char": np.uint8,
+    "int16": np.int16,
+    "uint16": np.uint16,
+    "int32": np.int32,
+    "uint32": np.uint32,
+    "int64": np.int64,
+    "uint64": np.uint64,
+    "bool": np.bool_,
+}
 
 
 def _default(ts, desc):
@@ -361,7 +381,9 @@ def make_msg(ts, msgtype: str, **fields):
 def to_stamp(ts, t_ns: int):
     """Integer nanoseconds → ``builtin_interfaces/Time``."""
     t_ns = int(t_ns)
-    return make_msg(ts, "builtin_interfaces/msg/Time", sec=t_ns // 1_000_000_000, nanosec=t_ns % 1_000_000_000)
+    return make_msg(
+        ts, "builtin_interfaces/msg/Time", sec=t_ns // 1_000_000_000, nanosec=t_ns % 1_000_000_000
+    )
 
 
 class BagWriter:
@@ -434,10 +456,16 @@ class BagWriter:
         """A ``sensor_msgs/LaserScan`` (``angle_max`` from the others; ranges as float32)."""
         r = np.asarray(ranges, dtype=np.float32)
         return self.msg(
-            SCAN_TYPE, header=header, angle_min=float(angle_min), angle_increment=float(angle_increment),
+            SCAN_TYPE,
+            header=header,
+            angle_min=float(angle_min),
+            angle_increment=float(angle_increment),
             angle_max=float(np.float32(angle_min) + np.float32(angle_increment) * (r.shape[0] - 1)),
-            range_min=float(range_min), range_max=float(range_max), ranges=r, **fields,
-        )  # fmt: skip
+            range_min=float(range_min),
+            range_max=float(range_max),
+            ranges=r,
+            **fields,
+        )
 
 
 def _color(w: BagWriter, r: float, g: float, b: float, a: float = 1.0):
@@ -446,7 +474,9 @@ def _color(w: BagWriter, r: float, g: float, b: float, a: float = 1.0):
 
 def _pose(w: BagWriter, x: float, y: float, yaw: float = 0.0, z: float = 0.0):
     q = w.msg("geometry_msgs/msg/Quaternion", x=0.0, y=0.0, z=math.sin(yaw / 2), w=math.cos(yaw / 2))
-    return w.msg("geometry_msgs/msg/Pose", position=w.msg("geometry_msgs/msg/Point", x=x, y=y, z=z), orientation=q)
+    return w.msg(
+        "geometry_msgs/msg/Pose", position=w.msg("geometry_msgs/msg/Point", x=x, y=y, z=z), orientation=q
+    )
 
 
 def detection_markers(w: BagWriter, frame_id: str, t_ns: int, points, ns: str = "kin_detections", color=None):
@@ -461,8 +491,15 @@ def detection_markers(w: BagWriter, frame_id: str, t_ns: int, points, ns: str = 
     for k, (x, y) in enumerate(points):
         markers.append(
             w.msg(
-                mt, header=hdr, ns=ns, id=k + 1, type=3, action=0, pose=_pose(w, float(x), float(y)),
-                scale=scale, color=rgba,
+                mt,
+                header=hdr,
+                ns=ns,
+                id=k + 1,
+                type=3,
+                action=0,
+                pose=_pose(w, float(x), float(y)),
+                scale=scale,
+                color=rgba,
             )
-        )  # fmt: skip
+        )
     return w.msg("visualization_msgs/msg/MarkerArray", markers=markers)

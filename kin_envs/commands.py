@@ -22,9 +22,25 @@ from detectors.fileio import atomic_write, write_json
 __all__ = ["main"]
 
 _CSV_FIELDS = (
-    "scan", "stamp_ns", "stamp", "frame_id", "detection", "range", "bearing", "x", "y", "score",
-    "first_beam", "last_beam", "n_beams", "pose_x", "pose_y", "pose_yaw", "wx", "wy",
-)  # fmt: skip
+    "scan",
+    "stamp_ns",
+    "stamp",
+    "frame_id",
+    "detection",
+    "range",
+    "bearing",
+    "x",
+    "y",
+    "score",
+    "first_beam",
+    "last_beam",
+    "n_beams",
+    "pose_x",
+    "pose_y",
+    "pose_yaw",
+    "wx",
+    "wy",
+)
 
 
 def _make_detector(name: str, checkpoint: str | None):
@@ -75,7 +91,9 @@ def detect(args: argparse.Namespace) -> int:
 
     out_cm = atomic_write(args.out, "w") if args.out else contextlib.nullcontext(sys.stdout)
     markers_cm = (
-        ros.BagWriter(args.markers, _markers_storage(args.markers)) if args.markers else contextlib.nullcontext()
+        ros.BagWriter(args.markers, _markers_storage(args.markers))
+        if args.markers
+        else contextlib.nullcontext()
     )
     from tqdm import tqdm
 
@@ -102,9 +120,17 @@ def detect(args: argparse.Namespace) -> int:
                 f.write(json.dumps(row) + "\n")
             else:
                 for k, d in enumerate(recs):
-                    pose_cols = {} if pose is None else dict(zip(("pose_x", "pose_y", "pose_yaw"), pose, strict=True))
-                    writer.writerow({**{c: row[c] for c in ("scan", "stamp_ns", "stamp", "frame_id")},
-                                     "detection": k, **d, **pose_cols})  # fmt: skip
+                    pose_cols = (
+                        {} if pose is None else dict(zip(("pose_x", "pose_y", "pose_yaw"), pose, strict=True))
+                    )
+                    writer.writerow(
+                        {
+                            **{c: row[c] for c in ("scan", "stamp_ns", "stamp", "frame_id")},
+                            "detection": k,
+                            **d,
+                            **pose_cols,
+                        }
+                    )
             if mw is not None:
                 _write_marker_scan(mw, args.topic, s, result.detections)
             n_scans += 1
@@ -131,10 +157,16 @@ def _write_marker_scan(mw, topic: str, s, detections) -> None:
     m = s.msg
     hdr = mw.header(s.frame_id, s.stamp_ns)
     scan = mw.laserscan(
-        hdr, m.angle_min, m.angle_increment, m.ranges, m.range_min, m.range_max,
-        time_increment=float(m.time_increment), scan_time=float(m.scan_time),
+        hdr,
+        m.angle_min,
+        m.angle_increment,
+        m.ranges,
+        m.range_min,
+        m.range_max,
+        time_increment=float(m.time_increment),
+        scan_time=float(m.scan_time),
         intensities=m.intensities.astype("float32"),
-    )  # fmt: skip
+    )
     mw.write(topic, "sensor_msgs/msg/LaserScan", s.log_ns, scan)
     from detectors.ros import detection_markers
 
@@ -164,9 +196,14 @@ def record(args: argparse.Namespace) -> int:
     storage = args.storage or ("ros1" if args.out.lower().endswith(".bag") else "mcap")
     try:
         info = record_episode(
-            env, args.out, seed=args.seed, steps=args.steps, storage=storage, detector=detector,
+            env,
+            args.out,
+            seed=args.seed,
+            steps=args.steps,
+            storage=storage,
+            detector=detector,
             progress=not args.quiet,
-        )  # fmt: skip
+        )
     finally:
         env.close()
     run = {
@@ -191,30 +228,63 @@ def build_parser() -> argparse.ArgumentParser:
     d = sub.add_parser("detect", help="detect kin in every LaserScan of a ROS 1 / ROS 2 bag")
     d.add_argument("bag", help="ROS 1 .bag file or ROS 2 bag directory (sqlite3 or MCAP)")
     d.add_argument("--topic", required=True, help="sensor_msgs/LaserScan topic, e.g. /scan")
-    d.add_argument("--detector", default="geometric", choices=("geometric", "learned"), help="detector to run")
-    d.add_argument("--checkpoint", default=None, help="learned detector checkpoint (default: the shipped one)")
-    d.add_argument("--odom", default=None, help="nav_msgs/Odometry or tf2_msgs/TFMessage topic: adds the "
-                   "robot's pose and world coordinates (wx, wy) of each detection")  # fmt: skip
-    d.add_argument("--base-frame", default=None, help="with a TF --odom: the robot's child_frame_id to follow "
-                   "(default: the scan's frame_id)")  # fmt: skip
-    d.add_argument("--out", default=None, help="output FILE.jsonl (one line per scan) or FILE.csv (one row per "
-                   "detection); default: JSON Lines on stdout")  # fmt: skip
-    d.add_argument("--markers", default=None, help="also write a bag with the scans and the detections as "
-                   "visualization_msgs/MarkerArray on TOPIC/kin_detections (OUT.bag: ROS 1, else ROS 2 MCAP)")  # fmt: skip
+    d.add_argument(
+        "--detector", default="geometric", choices=("geometric", "learned"), help="detector to run"
+    )
+    d.add_argument(
+        "--checkpoint", default=None, help="learned detector checkpoint (default: the shipped one)"
+    )
+    d.add_argument(
+        "--odom",
+        default=None,
+        help="nav_msgs/Odometry or tf2_msgs/TFMessage topic: adds the "
+        "robot's pose and world coordinates (wx, wy) of each detection",
+    )
+    d.add_argument(
+        "--base-frame",
+        default=None,
+        help="with a TF --odom: the robot's child_frame_id to follow (default: the scan's frame_id)",
+    )
+    d.add_argument(
+        "--out",
+        default=None,
+        help="output FILE.jsonl (one line per scan) or FILE.csv (one row per "
+        "detection); default: JSON Lines on stdout",
+    )
+    d.add_argument(
+        "--markers",
+        default=None,
+        help="also write a bag with the scans and the detections as "
+        "visualization_msgs/MarkerArray on TOPIC/kin_detections (OUT.bag: ROS 1, else ROS 2 MCAP)",
+    )
     d.add_argument("--quiet", action="store_true", help="no progress bar")
     d.set_defaults(func=detect)
 
     r = sub.add_parser("record", help="record one simulated episode to a ROS bag")
     r.add_argument("out", help="bag to create: a ROS 2 bag directory, or OUT.bag for ROS 1")
-    r.add_argument("--env", default="kin_envs/KinSeek-v0", help="Gymnasium id, or aggregation_v0 (PettingZoo)")
+    r.add_argument(
+        "--env", default="kin_envs/KinSeek-v0", help="Gymnasium id, or aggregation_v0 (PettingZoo)"
+    )
     r.add_argument("--env-kwargs", default=None, help="env keyword arguments: a JSON object or a JSON file")
-    r.add_argument("--steps", type=int, default=None, help="stop after this many steps (default: episode end)")
+    r.add_argument(
+        "--steps", type=int, default=None, help="stop after this many steps (default: episode end)"
+    )
     r.add_argument("--seed", type=int, default=0, help="reset seed (random actions are seeded with it too)")
-    r.add_argument("--storage", default=None, choices=("mcap", "sqlite3", "ros1"),
-                   help="bag format (default: ros1 for OUT.bag, else mcap)")  # fmt: skip
-    r.add_argument("--detector", default="geometric", choices=("geometric", "learned", "none"),
-                   help="detector whose output is recorded as markers")  # fmt: skip
-    r.add_argument("--checkpoint", default=None, help="learned detector checkpoint (default: the shipped one)")
+    r.add_argument(
+        "--storage",
+        default=None,
+        choices=("mcap", "sqlite3", "ros1"),
+        help="bag format (default: ros1 for OUT.bag, else mcap)",
+    )
+    r.add_argument(
+        "--detector",
+        default="geometric",
+        choices=("geometric", "learned", "none"),
+        help="detector whose output is recorded as markers",
+    )
+    r.add_argument(
+        "--checkpoint", default=None, help="learned detector checkpoint (default: the shipped one)"
+    )
     r.add_argument("--quiet", action="store_true", help="no progress bar")
     r.set_defaults(func=record)
     return p

@@ -151,8 +151,10 @@ class WorldRecorder:
 
 def _all_rows(world: World, scan: Scan | None) -> Scan:
     """A Scan of every robot: ``scan``'s rows where given, noise-free scans (no RNG draw) for the rest."""
-    if scan is not None and scan.robots.shape[0] == world.n_robots and np.array_equal(
-        scan.robots, np.arange(world.n_robots)
+    if (
+        scan is not None
+        and scan.robots.shape[0] == world.n_robots
+        and np.array_equal(scan.robots, np.arange(world.n_robots))
     ):
         return scan
     full = world.scan(noise=False)
@@ -161,9 +163,15 @@ def _all_rows(world: World, scan: Scan | None) -> Scan:
     ranges = full.ranges.copy()
     ranges[scan.robots] = scan.ranges
     return Scan(
-        ranges=ranges, angles=full.angles, hit_kind=full.hit_kind, hit_index=full.hit_index,
-        true_ranges=full.true_ranges, robots=full.robots, poses=full.poses, range_max=full.range_max,
-    )  # fmt: skip
+        ranges=ranges,
+        angles=full.angles,
+        hit_kind=full.hit_kind,
+        hit_index=full.hit_index,
+        true_ranges=full.true_ranges,
+        robots=full.robots,
+        poses=full.poses,
+        range_max=full.range_max,
+    )
 
 
 def _quat(w: BagWriter, yaw: float):
@@ -172,7 +180,9 @@ def _quat(w: BagWriter, yaw: float):
 
 def _pose(w: BagWriter, x: float, y: float, yaw: float):
     return w.msg(
-        "geometry_msgs/msg/Pose", position=w.msg("geometry_msgs/msg/Point", x=x, y=y, z=0.0), orientation=_quat(w, yaw)
+        "geometry_msgs/msg/Pose",
+        position=w.msg("geometry_msgs/msg/Point", x=x, y=y, z=0.0),
+        orientation=_quat(w, yaw),
     )
 
 
@@ -190,18 +200,34 @@ def _world_markers(w: BagWriter, world: World, t: int):
         d = 2 * (HOUSING_RADIUS if k < n else r)
         markers.append(
             w.msg(
-                mt, header=hdr, ns="robots" if k < n else "obstacles", id=k + 1, type=3, pose=_pose(w, x, y, 0.0),
-                scale=w.msg("geometry_msgs/msg/Vector3", x=d, y=d, z=0.1), color=blue if k < n else grey,
+                mt,
+                header=hdr,
+                ns="robots" if k < n else "obstacles",
+                id=k + 1,
+                type=3,
+                pose=_pose(w, x, y, 0.0),
+                scale=w.msg("geometry_msgs/msg/Vector3", x=d, y=d, z=0.1),
+                color=blue if k < n else grey,
             )
-        )  # fmt: skip
+        )
     if segments.shape[0]:
-        pts = [w.msg("geometry_msgs/msg/Point", x=float(a), y=float(b), z=0.0) for a, b in segments.reshape(-1, 2)]
+        pts = [
+            w.msg("geometry_msgs/msg/Point", x=float(a), y=float(b), z=0.0)
+            for a, b in segments.reshape(-1, 2)
+        ]
         markers.append(
             w.msg(
-                mt, header=hdr, ns="obstacles", id=len(circles) + 1, type=5, pose=_pose(w, 0.0, 0.0, 0.0),
-                scale=w.msg("geometry_msgs/msg/Vector3", x=0.02, y=0.0, z=0.0), color=grey, points=pts,
+                mt,
+                header=hdr,
+                ns="obstacles",
+                id=len(circles) + 1,
+                type=5,
+                pose=_pose(w, 0.0, 0.0, 0.0),
+                scale=w.msg("geometry_msgs/msg/Vector3", x=0.02, y=0.0, z=0.0),
+                color=grey,
+                points=pts,
             )
-        )  # fmt: skip
+        )
     return w.msg(_MARKERS, markers=markers)
 
 
