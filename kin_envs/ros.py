@@ -257,7 +257,7 @@ def record_episode(
     as they are (with its noise); robots it did not scan are recorded noise-free.
     """
     parallel = hasattr(env, "possible_agents")
-    base = env if parallel else env.unwrapped
+    base = env if parallel else getattr(env, "unwrapped", env)
     if not hasattr(base, "world"):
         raise TypeError(f"record_episode: expected a kin_envs env with a .world, got {type(base).__name__}")
     if steps is not None and (isinstance(steps, bool) or not isinstance(steps, int) or steps < 0):
