@@ -28,6 +28,7 @@ segment features follow the sweep direction, and its checkpoint was trained on t
 from __future__ import annotations
 
 import contextlib
+import functools
 import math
 import os
 import shutil
@@ -323,7 +324,9 @@ def detections_to_records(
 # --------------------------------------------------------------------------- writing
 
 
+@functools.cache
 def _typestore(storage: str):
+    """One typestore per ROS version and process: rosbags compiles (de)serialisers per typestore."""
     _rosbags()
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
@@ -368,14 +371,27 @@ def _default(ts, desc):
 
 def make_msg(ts, msgtype: str, **fields):
     """A message of ``msgtype`` from typestore ``ts``: the given fields, every other field at its zero
-    default (so one call works across ROS distributions whose messages differ in extra fields)."""
-    cls = ts.types[msgtype]
-    _, defs = ts.fielddefs[msgtype]
-    names = {n for n, _ in defs}
-    unknown = sorted(set(fields) - names)
-    if unknown:
-        raise TypeError(f"{msgtype} has no field(s) {unknown}")
-    return cls(**{n: fields[n] if n in fields else _default(ts, d) for n, d in defs})
+    default (so one call works across ROS distributions whose messages differ in extra fields).
+
+    Defaults are built once per type and shared between messages (they are only serialised, never
+    modified)."""
+    _, cls, defaults = _defaults(ts, msgtype)
+    if not fields.keys() <= defaults.keys():
+        raise TypeError(f"{msgtype} has no field(s) {sorted(set(fields) - set(defaults))}")
+    return cls(**{**defaults, **fields})
+
+
+# keyed by id(ts); the entry holds ts itself, so that id cannot be reused by another typestore
+_DEFAULTS: dict[tuple[int, str], tuple[object, type, dict]] = {}
+
+
+def _defaults(ts, msgtype: str):
+    key = (id(ts), msgtype)
+    hit = _DEFAULTS.get(key)
+    if hit is None:
+        _, defs = ts.fielddefs[msgtype]
+        hit = _DEFAULTS[key] = (ts, ts.types[msgtype], {n: _default(ts, d) for n, d in defs})
+    return hit
 
 
 def to_stamp(ts, t_ns: int):

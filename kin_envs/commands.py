@@ -81,6 +81,9 @@ def detect(args: argparse.Namespace) -> int:
     fmt = _output_format(args.out)
     detector = _make_detector(args.detector, args.checkpoint)
     bag = Path(args.bag)
+    for out in (args.out, args.markers):
+        if out:
+            Path(out).parent.mkdir(parents=True, exist_ok=True)
     n_msgs = ros.count_messages(bag, args.topic)
     scans = ros.read_scans(bag, args.topic)
     first = next(scans, None)  # checks the type (BagError) before anything is written
@@ -110,7 +113,7 @@ def detect(args: argparse.Namespace) -> int:
             row = {
                 "scan": s.index,
                 "stamp_ns": s.stamp_ns,
-                "stamp": s.stamp_ns * 1e-9,
+                "stamp": s.stamp_ns / 1e9,
                 "frame_id": s.frame_id,
                 "n_beams": int(s.ranges.shape[0]),
                 "pose": None if pose is None else {"x": pose[0], "y": pose[1], "yaw": pose[2]},
@@ -193,6 +196,7 @@ def record(args: argparse.Namespace) -> int:
         except gym.error.Error as e:  # unknown / misspelt id
             raise ValueError(f"--env {args.env!r}: {e}") from e
     detector = None if args.detector == "none" else _make_detector(args.detector, args.checkpoint)
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     storage = args.storage or ("ros1" if args.out.lower().endswith(".bag") else "mcap")
     try:
         info = record_episode(

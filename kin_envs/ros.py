@@ -13,8 +13,9 @@ Per recorded step (stamp = ``world.time`` + ``start_ns``), for every robot ``i``
   detector is given;
 
 and once per step: ``/tf`` (``world`` → every ``robot_i/base_link``), ``/ground_truth/kin``
-``geometry_msgs/PoseArray`` (every robot's pose, frame ``world``) and ``/ground_truth/markers`` (robot
-housings and obstacles as a MarkerArray, frame ``world``).
+``geometry_msgs/PoseArray`` (every robot's pose, frame ``world``) and ``/ground_truth/kin_markers``
+(the robots' housings as cylinders, a MarkerArray); ``/ground_truth/obstacles`` (a MarkerArray: cylinders
+and polygon edges, frame ``world``) is written at the first step and again only when an obstacle moved.
 
 Reading such a bag back with :func:`detectors.ros.read_scans` gives the simulator's beam order and
 ranges exactly (angles to float32 precision; tested). The bag-writing machinery is simulator-free and
@@ -77,6 +78,7 @@ class WorldRecorder:
         self.detector = detector
         self.start_ns = int(start_ns)
         self.n_records = 0
+        self._obstacles = None  # the obstacle geometry last written
 
     def __enter__(self) -> WorldRecorder:
         self.writer.__enter__()
@@ -144,7 +146,13 @@ class WorldRecorder:
             poses=[_pose(w, float(p[0]), float(p[1]), float(p[2])) for p in poses],
         )
         w.write("/ground_truth/kin", "geometry_msgs/msg/PoseArray", t, kin)
-        w.write("/ground_truth/markers", _MARKERS, t, _world_markers(w, world, t))
+        w.write("/ground_truth/kin_markers", _MARKERS, t, _kin_markers(w, poses, t))
+        # static obstacles are written once: markers without a lifetime stay until replaced
+        geom = (world._circles[world.n_robots :].copy(), world._segments.copy())
+        old = self._obstacles
+        if old is None or not all(np.array_equal(a, b) for a, b in zip(geom, old, strict=True)):
+            w.write("/ground_truth/obstacles", _MARKERS, t, _obstacle_markers(w, world, t))
+            self._obstacles = geom
         self.n_records += 1
         return results
 
@@ -186,35 +194,47 @@ def _pose(w: BagWriter, x: float, y: float, yaw: float):
     )
 
 
-def _world_markers(w: BagWriter, world: World, t: int):
-    """Robot housings (blue cylinders) and obstacles (grey cylinders, line list of polygon edges)."""
+def _kin_markers(w: BagWriter, poses: np.ndarray, t: int):
+    """Every robot's lidar housing (what a kin detector looks for) as a blue cylinder, frame ``world``."""
+    mt = "visualization_msgs/msg/Marker"
+    hdr = w.header(WORLD_FRAME, t)
+    blue = w.msg("std_msgs/msg/ColorRGBA", r=0.2, g=0.4, b=1.0, a=1.0)
+    d = 2 * HOUSING_RADIUS
+    scale = w.msg("geometry_msgs/msg/Vector3", x=d, y=d, z=0.1)
+    markers = [w.msg(mt, header=hdr, ns="kin", id=0, action=3)]
+    for i, (x, y, th) in enumerate(poses.tolist()):
+        markers.append(
+            w.msg(
+                mt, header=hdr, ns="kin", id=i + 1, type=3, pose=_pose(w, x, y, th), scale=scale, color=blue
+            )
+        )
+    return w.msg(_MARKERS, markers=markers)
+
+
+def _obstacle_markers(w: BagWriter, world: World, t: int):
+    """Obstacles as grey cylinders (circles) and one line list of polygon and wall edges, frame ``world``."""
     mt = "visualization_msgs/msg/Marker"
     hdr = w.header(WORLD_FRAME, t)
     # the lidar geometry the last scan used (kept current by World.scan): circles (x, y, r), segments
-    circles, segments = world._circles, world._segments
-    n = world.n_robots
-    blue = w.msg("std_msgs/msg/ColorRGBA", r=0.2, g=0.4, b=1.0, a=1.0)
+    circles, segments = world._circles[world.n_robots :], world._segments
     grey = w.msg("std_msgs/msg/ColorRGBA", r=0.6, g=0.6, b=0.6, a=1.0)
-    markers = [w.msg(mt, header=hdr, ns="ground_truth", id=0, action=3)]
+    markers = [w.msg(mt, header=hdr, ns="obstacles", id=0, action=3)]
     for k, (x, y, r) in enumerate(circles.tolist()):
-        d = 2 * (HOUSING_RADIUS if k < n else r)
+        scale = w.msg("geometry_msgs/msg/Vector3", x=2 * r, y=2 * r, z=0.1)
         markers.append(
             w.msg(
                 mt,
                 header=hdr,
-                ns="robots" if k < n else "obstacles",
+                ns="obstacles",
                 id=k + 1,
                 type=3,
                 pose=_pose(w, x, y, 0.0),
-                scale=w.msg("geometry_msgs/msg/Vector3", x=d, y=d, z=0.1),
-                color=blue if k < n else grey,
+                scale=scale,
+                color=grey,
             )
         )
     if segments.shape[0]:
-        pts = [
-            w.msg("geometry_msgs/msg/Point", x=float(a), y=float(b), z=0.0)
-            for a, b in segments.reshape(-1, 2)
-        ]
+        pts = [w.msg("geometry_msgs/msg/Point", x=a, y=b, z=0.0) for a, b in segments.reshape(-1, 2).tolist()]
         markers.append(
             w.msg(
                 mt,
@@ -223,7 +243,7 @@ def _world_markers(w: BagWriter, world: World, t: int):
                 id=len(circles) + 1,
                 type=5,
                 pose=_pose(w, 0.0, 0.0, 0.0),
-                scale=w.msg("geometry_msgs/msg/Vector3", x=0.02, y=0.0, z=0.0),
+                scale=w.msg("geometry_msgs/msg/Vector3", x=0.02),
                 color=grey,
                 points=pts,
             )

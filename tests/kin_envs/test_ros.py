@@ -98,7 +98,9 @@ def test_recorded_topics_and_markers(tmp_path):
     n = world.n_robots
     assert topics["/tf"] == ("tf2_msgs/msg/TFMessage", 2)
     assert topics["/ground_truth/kin"] == ("geometry_msgs/msg/PoseArray", 2)
-    assert topics["/ground_truth/markers"][0] == "visualization_msgs/msg/MarkerArray"
+    assert topics["/ground_truth/kin_markers"] == ("visualization_msgs/msg/MarkerArray", 2)
+    # static obstacles: written once (markers without a lifetime persist)
+    assert topics["/ground_truth/obstacles"] == ("visualization_msgs/msg/MarkerArray", 1)
     for i in range(n):
         assert topics[f"/robot_{i}/scan"] == ("sensor_msgs/msg/LaserScan", 2)
         assert topics[f"/robot_{i}/odom"] == ("nav_msgs/msg/Odometry", 2)
