@@ -45,6 +45,7 @@ from .geometric import is_circular_sweep
 __all__ = [
     "BagError",
     "BagWriter",
+    "PointSets",
     "PoseTrack",
     "RosScan",
     "detection_markers",
@@ -52,6 +53,7 @@ __all__ = [
     "laserscan_arrays",
     "make_msg",
     "open_reader",
+    "read_pose_arrays",
     "read_poses",
     "read_scans",
     "stamp_ns",
@@ -62,6 +64,7 @@ _INSTALL_HINT = "reading and writing ROS bags needs the 'ros' extra: pip install
 SCAN_TYPE = "sensor_msgs/msg/LaserScan"
 ODOM_TYPE = "nav_msgs/msg/Odometry"
 TF_TYPE = "tf2_msgs/msg/TFMessage"
+POSE_ARRAY_TYPE = "geometry_msgs/msg/PoseArray"
 STORAGES = ("mcap", "sqlite3", "ros1")
 #: the housing radius drawn for a detection marker, m (the paper's RPLIDAR A1)
 HOUSING_RADIUS = 0.035
@@ -293,6 +296,40 @@ def read_poses(bag, topic: str, child_frame: str | None = None) -> PoseTrack:
     a = np.asarray(rows, dtype=np.float64)
     stamps = np.asarray([r[0] for r in rows], dtype=np.int64)
     return PoseTrack(stamps, a[:, 1:3], a[:, 3], str(frame))
+
+
+@dataclass(frozen=True, eq=False)
+class PointSets:
+    """Sets of world points over time (e.g. every kin's true position): ``stamps_ns`` (m,) sorted and
+    ``points[j]`` (k_j, 2) at ``stamps_ns[j]``."""
+
+    stamps_ns: np.ndarray
+    points: list
+
+    def nearest(self, t_ns: int) -> np.ndarray:
+        """The point set with the stamp nearest to ``t_ns``."""
+        j = int(np.argmin(np.abs(self.stamps_ns - np.int64(t_ns))))
+        return self.points[j]
+
+
+def read_pose_arrays(bag, topic: str) -> PointSets:
+    """The positions of every ``geometry_msgs/PoseArray`` on ``topic`` (e.g. ground-truth kin poses).
+
+    Raises :class:`BagError` if the topic is missing, of another type, or empty.
+    """
+    with open_reader(bag) as reader:
+        conns = _connections(reader, bag, topic, (POSE_ARRAY_TYPE,))
+        rows = [
+            (
+                stamp_ns(m.header.stamp),
+                np.array([[p.position.x, p.position.y] for p in m.poses]).reshape(-1, 2),
+            )
+            for _, _, m in _messages(reader, bag, conns)
+        ]
+    if not rows:
+        raise BagError(f"{bag}: {topic} is empty")
+    rows.sort(key=lambda r: r[0])
+    return PointSets(np.array([r[0] for r in rows], dtype=np.int64), [r[1] for r in rows])
 
 
 def detections_to_records(

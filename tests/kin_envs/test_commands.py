@@ -54,17 +54,8 @@ def test_detect_jsonl_matches_the_detector_on_the_bag(swarm_bag, tmp_path):
     from detectors.ros import read_scans
 
     out = tmp_path / "d.jsonl"
-    argv = [
-        "detect",
-        str(swarm_bag),
-        "--topic",
-        "/robot_1/scan",
-        "--odom",
-        "/robot_1/odom",
-        "--out",
-        str(out),
-    ]
-    assert main([*argv, "--quiet"]) == 0
+    argv = ["detect", str(swarm_bag), "--topic", "/robot_1/scan", "--odom", "/robot_1/odom"]
+    assert main([*argv, "--out", str(out), "--truth", "/ground_truth/kin", "--quiet"]) == 0
     rows = [json.loads(line) for line in out.read_text().splitlines()]
     scans = list(read_scans(swarm_bag, "/robot_1/scan"))
     assert len(rows) == len(scans) == 5
@@ -79,6 +70,8 @@ def test_detect_jsonl_matches_the_detector_on_the_bag(swarm_bag, tmp_path):
             c, si = np.cos(p["yaw"]), np.sin(p["yaw"])
             assert d["wx"] == pytest.approx(p["x"] + c * d["x"] - si * d["y"])
             assert d["wy"] == pytest.approx(p["y"] + si * d["x"] + c * d["y"])
+            # no obstacles, no noise: every detection is a robot's housing, found to the micrometre
+            assert d["truth_error"] < 1e-5
     assert sum(len(r["detections"]) for r in rows) >= 1  # robots 0 and 2 are in view in this arena
 
 
@@ -142,6 +135,11 @@ def test_detect_learned_runs(swarm_bag, tmp_path):
         ),
         (["--topic", "/robot_0/scan", "--out", "x.txt"], "--out must end in .jsonl or .csv"),
         (["--topic", "/robot_0/scan", "--checkpoint", "x.pt"], "--checkpoint applies to --detector learned"),
+        (["--topic", "/robot_0/scan", "--truth", "/ground_truth/kin"], "--truth needs --odom"),
+        (
+            ["--topic", "/robot_0/scan", "--odom", "/tf", "--truth", "/tf"],
+            "expected geometry_msgs/msg/PoseArray",
+        ),
     ],
 )
 def test_detect_errors(swarm_bag, tmp_path, capsys, extra, message):
