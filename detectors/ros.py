@@ -469,12 +469,16 @@ class BagWriter:
 
         self._tmpdir = tempfile.mkdtemp(prefix=f".{self.path.name}.", dir=self.path.parent)
         tmp = Path(self._tmpdir) / self.path.name
-        if self.storage == "ros1":
-            self._writer = Writer1(tmp)
-        else:
-            plugin = StoragePlugin.MCAP if self.storage == "mcap" else StoragePlugin.SQLITE3
-            self._writer = Writer(tmp, version=9, storage_plugin=plugin)
-        self._writer.open()
+        try:
+            if self.storage == "ros1":
+                self._writer = Writer1(tmp)
+            else:
+                plugin = StoragePlugin.MCAP if self.storage == "mcap" else StoragePlugin.SQLITE3
+                self._writer = Writer(tmp, version=9, storage_plugin=plugin)
+            self._writer.open()
+        except BaseException:
+            shutil.rmtree(self._tmpdir, ignore_errors=True)
+            raise
         return self
 
     def __exit__(self, exc_type, exc, tb) -> None:
