@@ -162,3 +162,18 @@ def test_record_episode_parallel(tmp_path):
         assert len(list(read_scans(tmp_path / "swarm", f"/robot_{i}/scan"))) == 4
     with pytest.raises(TypeError, match="kin_envs env"):
         record_episode(object(), tmp_path / "x")
+
+
+def test_same_seed_same_bag_contents(tmp_path):
+    from detectors.ros import open_reader
+    from kin_envs import aggregation_v0
+
+    def contents(name, seed):
+        env = aggregation_v0.parallel_env(n_robots=3, noise_sigma=0.01)
+        record_episode(env, tmp_path / name, seed=seed, steps=3)
+        with open_reader(tmp_path / name) as r:
+            return [(c.topic, t, bytes(raw)) for c, t, raw in r.messages()]
+
+    a, b, c = contents("a", 5), contents("b", 5), contents("c", 6)
+    assert a == b
+    assert a != c
