@@ -276,10 +276,11 @@ def read_poses(bag, topic: str, child_frame: str | None = None) -> PoseTrack:
         if is_tf and not child_frame:
             raise BagError(f"{bag}: {topic} is a TF topic; name the robot's frame (child_frame_id) to follow")
         want = (child_frame or "").lstrip("/")
-        rows, frame = [], ""
+        rows, frame, seen = [], "", set()
         for _, _, msg in _messages(reader, bag, conns):
             if is_tf:
                 for tr in msg.transforms:
+                    seen.add(tr.child_frame_id)
                     if tr.child_frame_id.lstrip("/") == want:
                         v, q = tr.transform.translation, tr.transform.rotation
                         rows.append((stamp_ns(tr.header.stamp), v.x, v.y, _yaw(q)))
@@ -289,8 +290,12 @@ def read_poses(bag, topic: str, child_frame: str | None = None) -> PoseTrack:
                 rows.append((stamp_ns(msg.header.stamp), p.position.x, p.position.y, _yaw(p.orientation)))
                 frame = msg.header.frame_id
     if not rows:
+        if not is_tf:
+            raise BagError(f"{bag}: {topic} is empty")
+        frames = ", ".join(sorted(seen)) or "none"
         raise BagError(
-            f"{bag}: {topic} has no pose of frame {want!r}" if is_tf else f"{bag}: {topic} is empty"
+            f"{bag}: {topic} has no pose of frame {want!r}; its child frames: {frames} "
+            "(kin-envs detect: choose one with --base-frame)"
         )
     rows.sort(key=lambda r: r[0])
     a = np.asarray(rows, dtype=np.float64)

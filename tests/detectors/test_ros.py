@@ -205,7 +205,7 @@ def test_bag_errors_name_the_problem(tmp_path):
         list(read_scans(path, "/odom"))
     with pytest.raises(BagError, match="TF topic; name the robot's frame"):
         read_poses(path, "/tf")
-    with pytest.raises(BagError, match="no pose of frame 'base_link'"):
+    with pytest.raises(BagError, match="no pose of frame 'base_link'; its child frames: laser"):
         read_poses(path, "/tf", "base_link")
     with pytest.raises(BagError, match="no such bag"):
         list(read_scans(tmp_path / "missing", "/scan"))
