@@ -7,12 +7,15 @@ Per recorded step (stamp = ``world.time`` + ``start_ns``), for every robot ``i``
   -pi (for an even beam count), ``angle_increment`` = +2 pi / n (counter-clockwise), ``angle_max`` =
   pi - 2 pi / n; ``range_min`` / ``range_max`` from the lidar spec; **no return is ``inf``** (the
   simulator's ``range_max`` readings: nothing hit, or a surface closer than ``range_min``);
-* ``/robot_i/odom`` ``nav_msgs/Odometry`` (frame ``world``, child ``robot_i/base_link``; the twist in
-  the child frame) — ground-truth odometry;
+* ``/robot_i/odom`` ``nav_msgs/Odometry``: the robot's **wheel odometry** (``World.odometry``, which
+  drifts; frame ``robot_i/odom`` = the world frame at t = 0, child ``robot_i/base_link``);
+* ``/robot_i/ground_truth`` ``nav_msgs/Odometry``: the true pose (frame ``world``; twists in the child
+  frame);
 * ``/robot_i/kin_detections`` ``visualization_msgs/MarkerArray`` (frame ``robot_i/base_link``) when a
   detector is given;
 
-and once per step: ``/tf`` (``world`` → every ``robot_i/base_link``), ``/ground_truth/kin``
+and once per step: ``/tf`` (REP 105: ``world`` → ``robot_i/odom``, the odometry's drift, and
+``robot_i/odom`` → ``robot_i/base_link``, the odometry), ``/ground_truth/kin``
 ``geometry_msgs/PoseArray`` (every robot's pose, frame ``world``) and ``/ground_truth/kin_markers``
 (the robots' housings as cylinders, a MarkerArray); ``/ground_truth/obstacles`` (a MarkerArray: cylinders
 and polygon edges, frame ``world``) is written at the first step and again only when an obstacle moved.
@@ -31,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from detectors.ros import HOUSING_RADIUS, SCAN_TYPE, BagWriter, detection_markers
+from detectors.ros import HOUSING_RADIUS, ODOM_TYPE, SCAN_TYPE, BagWriter, detection_markers
 from kin_envs.core.world import Scan, World
 
 __all__ = ["WorldRecorder", "record_episode", "rplidar_scan_fields"]
@@ -101,41 +104,35 @@ class WorldRecorder:
         if self.detector is not None:
             results = self.detector.detect_batch(full.ranges, full.angles)
         vel = world.velocities
+        odo, odo_delta = world.odometry, world.odometry_delta
+        dt = world.config.control_dt
         transforms = []
         for i in range(world.n_robots):
-            base = f"robot_{i}/base_link"
+            base, odom_frame = f"robot_{i}/base_link", f"robot_{i}/odom"
             fields = rplidar_scan_fields(full.ranges[i], spec.range_min, spec.range_max)
-            scan_msg = w.laserscan(w.header(base, t), scan_time=world.config.control_dt, **fields)
+            scan_msg = w.laserscan(w.header(base, t), scan_time=dt, **fields)
             w.write(f"/robot_{i}/scan", SCAN_TYPE, t, scan_msg)
             x, y, th = (float(v) for v in poses[i])
             c, s = math.cos(th), math.sin(th)
             vx, vy, om = (float(v) for v in vel[i])
-            twist = w.msg(
-                "geometry_msgs/msg/Twist",
-                linear=w.msg("geometry_msgs/msg/Vector3", x=c * vx + s * vy, y=-s * vx + c * vy, z=0.0),
-                angular=w.msg("geometry_msgs/msg/Vector3", x=0.0, y=0.0, z=om),
+            # ground truth (Gazebo's p3d style): world frame, twist in the robot frame
+            truth = _odometry(w, WORLD_FRAME, base, t, (x, y, th), (c * vx + s * vy, -s * vx + c * vy, om))
+            w.write(f"/robot_{i}/ground_truth", ODOM_TYPE, t, truth)
+            # wheel odometry (drifts): the odom frame is the world frame at t = 0
+            ox, oy, oth = (float(v) for v in odo[i])
+            wheel = _odometry(
+                w, odom_frame, base, t, (ox, oy, oth), tuple(float(v) / dt for v in odo_delta[i])
             )
-            odom = w.msg(
-                "nav_msgs/msg/Odometry",
-                header=w.header(WORLD_FRAME, t),
-                child_frame_id=base,
-                pose=w.msg("geometry_msgs/msg/PoseWithCovariance", pose=_pose(w, x, y, th)),
-                twist=w.msg("geometry_msgs/msg/TwistWithCovariance", twist=twist),
-            )
-            w.write(f"/robot_{i}/odom", "nav_msgs/msg/Odometry", t, odom)
-            q = _quat(w, th)
+            w.write(f"/robot_{i}/odom", ODOM_TYPE, t, wheel)
+            # REP 105: world -> odom (the drift: true pose composed with the inverse odometry) -> base_link
+            dth = th - oth
+            cd, sd = math.cos(dth), math.sin(dth)
             transforms.append(
-                w.msg(
-                    "geometry_msgs/msg/TransformStamped",
-                    header=w.header(WORLD_FRAME, t),
-                    child_frame_id=base,
-                    transform=w.msg(
-                        "geometry_msgs/msg/Transform",
-                        translation=w.msg("geometry_msgs/msg/Vector3", x=x, y=y, z=0.0),
-                        rotation=q,
-                    ),
+                _transform(
+                    w, WORLD_FRAME, odom_frame, t, x - (cd * ox - sd * oy), y - (sd * ox + cd * oy), dth
                 )
             )
+            transforms.append(_transform(w, odom_frame, base, t, ox, oy, oth))
             if self.detector is not None:
                 pts = [(d.x, d.y) for d in results[i].detections]
                 w.write(f"/robot_{i}/kin_detections", _MARKERS, t, detection_markers(w, base, t, pts))
@@ -179,6 +176,36 @@ def _all_rows(world: World, scan: Scan | None) -> Scan:
         robots=full.robots,
         poses=full.poses,
         range_max=full.range_max,
+    )
+
+
+def _odometry(w: BagWriter, frame: str, child: str, t: int, pose, twist):
+    """``nav_msgs/Odometry``: ``pose`` (x, y, yaw) in ``frame``, ``twist`` (vx, vy, omega) in ``child``."""
+    vx, vy, om = twist
+    tw = w.msg(
+        "geometry_msgs/msg/Twist",
+        linear=w.msg("geometry_msgs/msg/Vector3", x=vx, y=vy),
+        angular=w.msg("geometry_msgs/msg/Vector3", z=om),
+    )
+    return w.msg(
+        ODOM_TYPE,
+        header=w.header(frame, t),
+        child_frame_id=child,
+        pose=w.msg("geometry_msgs/msg/PoseWithCovariance", pose=_pose(w, *pose)),
+        twist=w.msg("geometry_msgs/msg/TwistWithCovariance", twist=tw),
+    )
+
+
+def _transform(w: BagWriter, parent: str, child: str, t: int, x: float, y: float, yaw: float):
+    return w.msg(
+        "geometry_msgs/msg/TransformStamped",
+        header=w.header(parent, t),
+        child_frame_id=child,
+        transform=w.msg(
+            "geometry_msgs/msg/Transform",
+            translation=w.msg("geometry_msgs/msg/Vector3", x=x, y=y),
+            rotation=_quat(w, yaw),
+        ),
     )
 
 

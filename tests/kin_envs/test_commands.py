@@ -54,7 +54,7 @@ def test_detect_jsonl_matches_the_detector_on_the_bag(swarm_bag, tmp_path):
     from detectors.ros import read_scans
 
     out = tmp_path / "d.jsonl"
-    argv = ["detect", str(swarm_bag), "--topic", "/robot_1/scan", "--odom", "/robot_1/odom"]
+    argv = ["detect", str(swarm_bag), "--topic", "/robot_1/scan", "--odom", "/robot_1/ground_truth"]
     assert main([*argv, "--out", str(out), "--truth", "/ground_truth/kin", "--quiet"]) == 0
     rows = [json.loads(line) for line in out.read_text().splitlines()]
     scans = list(read_scans(swarm_bag, "/robot_1/scan"))

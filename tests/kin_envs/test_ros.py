@@ -28,7 +28,7 @@ def _record_world_run(path, storage, detector, steps=4):
     with WorldRecorder(path, storage=storage, detector=detector) as rec:
         for k in range(steps + 1):
             scan = world.scan()
-            direct.append((scan, detector.detect_batch(scan.ranges, scan.angles)))
+            direct.append((scan, detector.detect_batch(scan.ranges, scan.angles), world.odometry))
             rec.record(world)
             world.step(commands=_commands(world.n_robots, k))
     return world, direct
@@ -51,7 +51,7 @@ def test_recorded_run_read_back_gives_the_direct_detections(tmp_path, storage, n
     for i in range(world.n_robots):
         scans = list(read_scans(tmp_path / name, f"/robot_{i}/scan"))
         assert len(scans) == len(direct)
-        for s, (scan, results) in zip(scans, direct, strict=True):
+        for s, (scan, results, _) in zip(scans, direct, strict=True):
             # the simulator's beam order and ranges exactly; its 12 m "no return" as inf
             sim = scan.ranges[i].astype(np.float64)
             np.testing.assert_array_equal(s.ranges, np.where(sim >= 12.0, np.inf, sim))
@@ -59,13 +59,25 @@ def test_recorded_run_read_back_gives_the_direct_detections(tmp_path, storage, n
             found = det.detect(s.ranges, s.angles).detections
             _same_detections(found, results[i].detections)
             n_seen += len(found)
-        odom = read_poses(tmp_path / name, f"/robot_{i}/odom")
-        tf = read_poses(tmp_path / name, "/tf", f"robot_{i}/base_link")
-        for s, (scan, _) in zip(scans, direct, strict=True):
-            for track in (odom, tf):
+        bag = tmp_path / name
+        truth = read_poses(bag, f"/robot_{i}/ground_truth")
+        odom, tf_odom = read_poses(bag, f"/robot_{i}/odom"), read_poses(bag, "/tf", f"robot_{i}/base_link")
+        drift = read_poses(bag, "/tf", f"robot_{i}/odom")  # world -> robot_i/odom
+        for s, (scan, _, odometry) in zip(scans, direct, strict=True):
+            for track, want in ((truth, scan.poses[i]), (odom, odometry[i]), (tf_odom, odometry[i])):
                 x, y, yaw = track.at(s.stamp_ns)
-                assert (x, y) == pytest.approx(tuple(scan.poses[i, :2]), abs=1e-9)
-                assert math.cos(yaw - scan.poses[i, 2]) == pytest.approx(1.0, abs=1e-12)
+                assert (x, y) == pytest.approx(tuple(want[:2]), abs=1e-9)
+                assert math.cos(yaw - want[2]) == pytest.approx(1.0, abs=1e-12)
+            # REP 105: world -> odom composed with odom -> base_link is the true pose
+            dx, dy, dth = drift.at(s.stamp_ns)
+            ox, oy, oth = odometry[i]
+            c, si = math.cos(dth), math.sin(dth)
+            assert (dx + c * ox - si * oy, dy + si * ox + c * oy) == pytest.approx(
+                tuple(scan.poses[i, :2]), abs=1e-9
+            )
+            assert math.cos(dth + oth - scan.poses[i, 2]) == pytest.approx(1.0, abs=1e-12)
+    last_scan, _, last_odometry = direct[-1]
+    assert np.abs(last_odometry[:, :2] - last_scan.poses[:, :2]).max() > 1e-6  # the wheel odometry drifts
     assert n_seen >= len(direct)  # the observer sees the kin (and the same-radius cylinder) each step
 
 
@@ -77,7 +89,7 @@ def test_learned_detector_round_trip(tmp_path):
     det = LearnedKinDetector()
     world, direct = _record_world_run(tmp_path / "run", "mcap", det, steps=2)
     for i in range(world.n_robots):
-        for s, (_, results) in zip(read_scans(tmp_path / "run", f"/robot_{i}/scan"), direct, strict=True):
+        for s, (_, results, _) in zip(read_scans(tmp_path / "run", f"/robot_{i}/scan"), direct, strict=True):
             _same_detections(det.detect(s.ranges, s.angles).detections, results[i].detections)
 
 
@@ -104,7 +116,8 @@ def test_recorded_topics_and_markers(tmp_path):
     for i in range(n):
         assert topics[f"/robot_{i}/scan"] == ("sensor_msgs/msg/LaserScan", 2)
         assert topics[f"/robot_{i}/odom"] == ("nav_msgs/msg/Odometry", 2)
-    assert markers == [len(res[0].detections) for _, res in direct]
+        assert topics[f"/robot_{i}/ground_truth"] == ("nav_msgs/msg/Odometry", 2)
+    assert markers == [len(res[0].detections) for _, res, _ in direct]
     assert len(gt[0].poses) == n
     assert gt[0].poses[1].position.x == pytest.approx(direct[0][0].poses[1, 0])
 
