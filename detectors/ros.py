@@ -21,6 +21,8 @@ segment features follow the sweep direction, and its checkpoint was trained on t
   nearest the heading (angle 0); a partial field of view keeps its ends;
 * ``msg_index[i]`` is the message index of detector beam ``i`` (``Detection.first_beam`` etc. refer to
   detector beams; :func:`detections_to_records` maps them back to message indices);
+* a sweep that closes the circle (``angle_max = angle_min + 2 pi``, as some drivers publish) loses the
+  beams that repeat the first directions;
 * no return: ``0.0``, ``inf`` and ``NaN``, and any reading outside ``[range_min, range_max]``,
   becomes ``inf`` (both detectors treat non-finite ranges as no return).
 """
@@ -95,8 +97,9 @@ def laserscan_arrays(
 
     See the module docstring for the mapping. Returns float64 ``ranges`` (no return = ``inf``),
     float64 ``angles`` (rad, robot frame, CCW positive, (-pi, pi], a clockwise sweep) and int
-    ``msg_index`` (detector beam ``i`` is message beam ``msg_index[i]``). Raises ``ValueError`` for
-    fewer than 3 beams, a zero / non-finite increment, or a sweep of a full turn or more.
+    ``msg_index`` (detector beam ``i`` is message beam ``msg_index[i]``). Beams that complete more than
+    one revolution (a driver that repeats the first direction at the end) are left out. Raises
+    ``ValueError`` for fewer than 3 beams or a zero / non-finite increment.
     """
     r = np.asarray(ranges, dtype=np.float64).reshape(-1)
     n = r.shape[0]
@@ -108,17 +111,15 @@ def laserscan_arrays(
             f"LaserScan angle_min / angle_increment must be finite with a non-zero increment, got "
             f"angle_min = {a0}, angle_increment = {inc}"
         )
-    if abs(inc) * (n - 1) >= 2.0 * math.pi:
-        raise ValueError(
-            f"LaserScan sweep of {n} beams x {inc:.6g} rad covers a full turn or more; expected less "
-            "than one revolution"
-        )
+    # some drivers close the circle (angle_max = angle_min + 2 pi): beams that repeat the directions of
+    # the first ones are dropped (msg_index skips them)
+    n_keep = int(np.count_nonzero(np.arange(n) * abs(inc) < 2.0 * math.pi - 0.5 * abs(inc)))
     lo = float(range_min) if math.isfinite(float(range_min)) else 0.0
     hi = float(range_max) if float(range_max) > 0 else math.inf
     bad = ~np.isfinite(r) | (r <= 0.0) | (r < lo) | (r > hi)
     r = np.where(bad, np.inf, r)
     angles = wrap_angle(a0 + np.arange(n) * inc)
-    idx = np.arange(n)
+    idx = np.arange(n_keep)
     if inc > 0:  # counter-clockwise → the project's clockwise sweep
         idx = idx[::-1]
     if is_circular_sweep(angles[idx]):

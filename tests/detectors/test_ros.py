@@ -72,6 +72,16 @@ def test_clockwise_scan_keeps_order_and_partial_fov_keeps_its_ends():
     assert a[0] == pytest.approx(math.radians(135)) and a[-1] == pytest.approx(-math.radians(135))
 
 
+def test_a_sweep_that_closes_the_circle_drops_the_repeated_beams():
+    # 361 beams from -pi to +pi: the last one repeats the first direction
+    inc = float(np.float32(2 * math.pi / 360))
+    r, a, idx = laserscan_arrays(float(np.float32(-math.pi)), inc, np.arange(361.0) + 1.0, 0.0, 1000.0)
+    assert r.shape == (360,) and sorted(idx.tolist()) == list(range(360))
+    # 1.25 turns: only the first turn is kept
+    r, a, idx = laserscan_arrays(0.0, -math.radians(1.0), np.ones(450), 0.0, 12.0)
+    np.testing.assert_array_equal(idx, np.arange(360))
+
+
 def test_no_return_readings_become_inf():
     ranges = np.array([0.0, np.inf, np.nan, 0.1, 0.2, 5.0, 12.5, -np.inf, 1.0], dtype=np.float32)
     r, _, idx = laserscan_arrays(0.0, -0.1, ranges, range_min=0.15, range_max=12.0)
@@ -88,7 +98,6 @@ def test_no_return_readings_become_inf():
         ((0.0, 0.1, [1.0, 1.0]), "at least 3"),
         ((0.0, 0.0, [1.0] * 5), "non-zero increment"),
         ((float("nan"), 0.1, [1.0] * 5), "finite"),
-        ((0.0, math.radians(1.5), [1.0] * 300), "full turn"),
     ],
 )
 def test_bad_scan_fields_raise(args, match):
