@@ -516,14 +516,16 @@ class BagWriter:
         self._writer.write(con, int(t_ns), data)
 
     def laserscan(self, header, angle_min, angle_increment, ranges, range_min, range_max, **fields):
-        """A ``sensor_msgs/LaserScan`` (``angle_max`` from the others; ranges as float32)."""
+        """A ``sensor_msgs/LaserScan`` (``angle_max`` from the others unless given; ranges as float32)."""
         r = np.asarray(ranges, dtype=np.float32)
+        fields.setdefault(
+            "angle_max", float(np.float32(angle_min) + np.float32(angle_increment) * (r.shape[0] - 1))
+        )
         return self.msg(
             SCAN_TYPE,
             header=header,
             angle_min=float(angle_min),
             angle_increment=float(angle_increment),
-            angle_max=float(np.float32(angle_min) + np.float32(angle_increment) * (r.shape[0] - 1)),
             range_min=float(range_min),
             range_max=float(range_max),
             ranges=r,

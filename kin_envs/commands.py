@@ -185,6 +185,7 @@ def _write_marker_scan(mw, topic: str, s, detections) -> None:
         m.ranges,
         m.range_min,
         m.range_max,
+        angle_max=float(m.angle_max),
         time_increment=float(m.time_increment),
         scan_time=float(m.scan_time),
         intensities=m.intensities.astype("float32"),
