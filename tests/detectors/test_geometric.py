@@ -451,7 +451,8 @@ def test_paper_scenario_2_at_half_metre():
 
 def test_preprocess_non_finite_to_max_and_clip():
     d = preprocess(np.array([1.0, np.inf, np.nan, 15.0, 0.0]), d_max=12.0)
-    assert d.tolist() == [1.0, 12.0, 12.0, 12.0, 0.0]
+    # 0.0 is a real RPLIDAR's "no return" (project rule: 0.0, NaN and inf are no return)
+    assert d.tolist() == [1.0, 12.0, 12.0, 12.0, 12.0]
 
 
 def test_noise_filter_removes_single_beam_spike():
