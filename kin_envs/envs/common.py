@@ -177,12 +177,12 @@ class CommonConfig:
         if not (self.detector is None or isinstance(self.detector, str)
                 or callable(getattr(self.detector, "detect", None))):
             raise ValueError(
-                f"{w}: detector must be 'geometric', 'learned', None or an object with a "
+                f"{w}: detector must be 'geometric', 'learned', 'beam', None or an object with a "
                 f"detect(ranges, angles) method, got {self.detector!r}"
             )
-        if isinstance(self.detector, str) and self.detector not in ("geometric", "learned"):
+        if isinstance(self.detector, str) and self.detector not in ("geometric", "learned", "beam"):
             raise ValueError(
-                f"{w}: detector must be 'geometric', 'learned', None or a detector object, "
+                f"{w}: detector must be 'geometric', 'learned', 'beam', None or a detector object, "
                 f"got {self.detector!r}"
             )
 
