@@ -164,9 +164,11 @@ class Detection:
             in (-pi, pi].
         x: forward coordinate of the kin's centre, m.
         y: left coordinate of the kin's centre, m.
-        score: detector-specific quality. Geometric detector: the shape error
-            ``F`` in metres (lower = more circle-like). Learned detectors
-            document their own meaning.
+        score: how kin-like the detection is, higher = more (detections are
+            ranked by it for precision-recall curves). Geometric detector:
+            ``F_threshold / (F_threshold + F)`` from the shape error ``F``
+            (eq. 6), in (0, 1], >= 0.5 exactly when the shape filter passes;
+            learned detector: ``p(kin)``.
         first_beam, last_beam: beam indices bounding the segment (may wrap).
         n_beams: number of beams on the segment.
     """

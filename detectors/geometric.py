@@ -949,8 +949,10 @@ class GeometricKinDetector(KinDetector):
                     ok, reason = _shape_decision(F, p.F_threshold, p.shape_metric)
                     if ok:
                         pos = position_kin(r_c, t_c)
+                        # a ranking score (higher = more kin-like), >= 0.5 exactly when F passes
+                        s = p.F_threshold / (p.F_threshold + F)
                         detections.append(
-                            Detection(pos.range, pos.bearing, pos.x, pos.y, F, first[k], last[k], length[k])
+                            Detection(pos.range, pos.bearing, pos.x, pos.y, s, first[k], last[k], length[k])
                         )
                     if segs is not None:
                         m = {

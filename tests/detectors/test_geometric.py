@@ -91,8 +91,11 @@ def test_kin_is_accepted_at_its_true_position(dist, bearing_deg):
     assert det.range == pytest.approx(dist, abs=1e-6)
     # compare on the circle: at 180 degrees a rounding can land on either side of the cut
     assert abs(math.remainder(det.bearing - math.atan2(cy, cx), 2 * math.pi)) < 1e-6
-    assert det.score == pytest.approx(rep.metrics["F"])
-    assert det.score < 1e-7  # metres, summed over the beams
+    # the score ranks detections: F_threshold / (F_threshold + F), 1 for a perfect circle
+    F, F_th = rep.metrics["F"], GeometricParams().F_threshold
+    assert det.score == pytest.approx(F_th / (F_th + F))
+    assert F < 1e-7  # metres, summed over the beams
+    assert det.score > 0.9999
     assert det.n_beams == rep.segment.n_beams >= 3
     for key in ("d_cest", "omega_min", "omega_max", "F", "r_c", "theta_c"):
         assert key in rep.metrics
