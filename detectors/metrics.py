@@ -306,14 +306,39 @@ def increments(
     dfp = (~di).astype(np.int64)
     if s.shape[0] == 0 or g.shape[0] == 0:
         return dtp, dfp
-    do, go = np.argsort(df, kind="stable"), np.argsort(gf, kind="stable")
-    dfs, gfs = df[do], gf[go]
-    frames = np.intersect1d(dfs, gfs)
-    d_lo, d_hi = np.searchsorted(dfs, frames, "left"), np.searchsorted(dfs, frames, "right")
-    g_lo, g_hi = np.searchsorted(gfs, frames, "left"), np.searchsorted(gfs, frames, "right")
-    for a, b, c, e in zip(d_lo.tolist(), d_hi.tolist(), g_lo.tolist(), g_hi.tolist(), strict=True):
-        di_, gi_ = do[a:b], go[c:e]
-        dtp[di_], dfp[di_] = frame_increments(s[di_], d[di_], g[gi_], gate, gi[gi_], di[di_])
+    # every (detection, object) pair of the same frame within the gate, without a per-frame loop
+    go = np.argsort(gf, kind="stable")
+    gfs = gf[go]
+    lo, hi = np.searchsorted(gfs, df, "left"), np.searchsorted(gfs, df, "right")
+    n_pairs = hi - lo
+    pd = np.repeat(np.arange(df.shape[0]), n_pairs)
+    pg = go[np.repeat(lo - np.cumsum(n_pairs) + n_pairs, n_pairs) + np.arange(int(n_pairs.sum()))]
+    near = np.hypot(*(d[pd] - g[pg]).T) <= gate
+    pd, pg = pd[near], pg[near]
+    if pd.size == 0:
+        return dtp, dfp
+    n_near = np.bincount(pd, minlength=df.shape[0])
+    # frames where a candidate is near two or more objects: re-match (Hungarian) frame by frame
+    hard = np.isin(df, np.unique(df[n_near > 1]))
+    for f in np.unique(df[hard]).tolist():
+        dm, gm = np.flatnonzero(df == f), np.flatnonzero(gf == f)
+        dtp[dm], dfp[dm] = frame_increments(s[dm], d[dm], g[gm], gate, gi[gm], di[dm])
+    # elsewhere every candidate belongs to one object: per object, in order of decreasing score
+    # (ties by input order), the first candidate takes it (a true positive if it is counted) and
+    # each non-ignored candidate after the group's first non-ignored one is a false positive
+    easy = ~hard[pd]
+    cd, cg = pd[easy], pg[easy]
+    if cd.size:
+        order = np.lexsort((cd, -s[cd], cg))
+        cd, cg = cd[order], cg[order]
+        first = np.ones(cd.size, bool)
+        first[1:] = cg[1:] != cg[:-1]
+        dtp[cd] = (first & ~gi[cg]).astype(np.int64)
+        real = (~di[cd]).astype(np.int64)
+        group = np.cumsum(first) - 1
+        start = np.flatnonzero(first)
+        real_before = np.cumsum(real) - real - (np.cumsum(real) - real)[start][group]
+        dfp[cd] = real * (real_before > 0)
     return dtp, dfp
 
 

@@ -160,10 +160,11 @@ def report(res: BenchmarkResults, detectors, conditions, seconds: float) -> str:
                 if ex is None:
                     continue
                 fps = ", ".join(f"{k}: {v}" for k, v in ex["false_positives"].items()) or "none"
+                miss = ", ".join(f"{k}: {v}" for k, v in ex["misses"].items() if v) or "none"
                 out.append(
                     f"- {d}: {ex['n_scans']} scans, {ex['scans_per_second']:.0f} scans/s (warm, shipped "
                     f"operating point); false positives by kind: {fps}; on same-radius cylinders (apart): "
-                    f"{ex['same_radius']}"
+                    f"{ex['same_radius']}; missed kin: {miss}"
                 )
             out.append("")
     return "\n".join(out)

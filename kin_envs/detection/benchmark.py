@@ -53,7 +53,7 @@ import numpy as np
 from scipy import stats
 
 from detectors.base import KinDetector
-from detectors.metrics import frame_increments, match, pr_from_increments
+from detectors.metrics import increments, match, pr_from_increments
 
 from .. import scenes
 from ..core.lidar import HitKind, LidarSpec
@@ -69,6 +69,7 @@ __all__ = [
     "DISTANCE_EDGES",
     "GATE",
     "MIN_BEAMS",
+    "MISS_REASONS",
     "SPLITS",
     "BenchmarkResults",
     "Condition",
@@ -95,7 +96,9 @@ BENCHMARK_SEEDS = range(2_000_000_000, 2_100_000_000)
 MIN_BEAMS = 2
 #: Matching gate on the centre distance, m.
 GATE = 0.10
-DISTANCE_EDGES = (0.3, 1.0, 2.0, 3.0, 5.0)
+#: kin closer than 0.3 m (touching robots) get their own bin: their housing is partly inside the
+#: lidar's 0.15 m minimum range
+DISTANCE_EDGES = (0.0, 0.3, 1.0, 2.0, 3.0, 5.0)
 #: beams on target: 2, 3-4, 5-9, 10-19, 20+
 BEAM_EDGES = (2, 3, 5, 10, 20, 361)
 #: Geometric shape threshold of the permissive run, m: no segment that passes the diameter filter
@@ -616,7 +619,7 @@ class _Frames:
 
 def _frames(samples: Sequence[SplitSample], condition: Condition, cond_index: int) -> _Frames:
     scans, scene_of, row_of = [], [], []
-    kf, kxy, kr, kb = [], [], [], []
+    kf, kxy, kr, kb, krob = [], [], [], [], []
     srb = []
     f = 0
     for i, smp in enumerate(samples):
@@ -641,6 +644,7 @@ def _frames(samples: Sequence[SplitSample], condition: Condition, cond_index: in
                 kxy.append((k.x, k.y))
                 kr.append(k.range)
                 kb.append(k.n_beams)
+                krob.append(k.robot)
         scene_of.extend([i] * n_rows)
         row_of.extend(range(n_rows))
         f += n_rows
@@ -652,6 +656,7 @@ def _frames(samples: Sequence[SplitSample], condition: Condition, cond_index: in
         "range": np.asarray(kr, np.float64),
         "n_beams": nb,
         "care": nb >= MIN_BEAMS,
+        "robot": np.asarray(krob, np.int64),
     }
     return _Frames(
         ranges, scans[0].angles, np.asarray(scene_of), scans, list(samples), np.asarray(row_of),
@@ -670,26 +675,13 @@ def _beam_fraction(mask: np.ndarray, valid: np.ndarray, frame, first, count) -> 
     return np.where(v > 0, m / np.maximum(v, 1), 0.0)
 
 
-def _increments_by_frame(frames_d, score, xy, frames_k, kxy, gt_ignore, det_ignore):
-    """:func:`detectors.metrics.increments` restricted to frames with both detections and kin."""
-    dtp = np.zeros(score.shape[0], np.int64)
-    dfp = (~det_ignore).astype(np.int64)
-    if score.size == 0 or kxy.shape[0] == 0:
-        return dtp, dfp
-    do = np.argsort(frames_d, kind="stable")
-    ko = np.argsort(frames_k, kind="stable")
-    fd, fk = frames_d[do], frames_k[ko]
-    common = np.intersect1d(fd, fk)
-    dl, dh = np.searchsorted(fd, common, "left"), np.searchsorted(fd, common, "right")
-    kl, kh = np.searchsorted(fk, common, "left"), np.searchsorted(fk, common, "right")
-    for a, b, c, e in zip(dl.tolist(), dh.tolist(), kl.tolist(), kh.tolist(), strict=True):
-        di, ki = do[a:b], ko[c:e]
-        dtp[di], dfp[di] = frame_increments(score[di], xy[di], kxy[ki], GATE, gt_ignore[ki], det_ignore[di])
-    return dtp, dfp
+#: Score thresholds the AP intervals are computed at (the point estimate uses every score).
+_CI_LEVELS = 1000
 
 
 def _ap_with_ci(score, dtp, dfp, scene_of_det, n_gt_scene, n_scenes, n_resamples, rng):
-    """AP and its 95 % percentile bootstrap interval over scenes."""
+    """AP and its 95 % percentile bootstrap interval over scenes (the interval from the curve at
+    up to :data:`_CI_LEVELS` score quantiles)."""
     keep = (dtp != 0) | (dfp != 0)
     score, dtp, dfp, sod = score[keep], dtp[keep], dfp[keep], scene_of_det[keep]
     n_gt = float(n_gt_scene.sum())
@@ -699,36 +691,44 @@ def _ap_with_ci(score, dtp, dfp, scene_of_det, n_gt_scene, n_scenes, n_resamples
     ap = curve.ap
     if n_resamples <= 0 or n_scenes < 2:
         return ap, (math.nan, math.nan), curve
-    order = np.argsort(-score, kind="stable")
-    s, a, b, so = score[order], dtp[order].astype(float), dfp[order].astype(float), sod[order]
-    last = np.ones(s.shape[0], bool)
-    last[:-1] = s[1:] != s[:-1]
+    # per scene, cumulative TP / FP at (at most _CI_LEVELS) descending score thresholds: a resample
+    # is then one matrix product with how often each scene was drawn
+    levels = np.unique(score)[::-1]
+    if levels.size > _CI_LEVELS:
+        levels = np.unique(np.quantile(score, np.linspace(0.0, 1.0, _CI_LEVELS)))[::-1]
+    # detection j counts from the first level <= its score on
+    k0 = levels.size - np.searchsorted(levels[::-1], score, side="right")
+    tp_hist = np.zeros((n_scenes, levels.size))
+    fp_hist = np.zeros((n_scenes, levels.size))
+    np.add.at(tp_hist, (sod, k0), dtp)
+    np.add.at(fp_hist, (sod, k0), dfp)
+    tp_cum, fp_cum = np.cumsum(tp_hist, axis=1), np.cumsum(fp_hist, axis=1)
 
     def statistic(idx, axis=-1):
         idx = np.asarray(idx).astype(np.int64)
-        two_d = idx.ndim == 2
+        shape = idx.shape[:-1]
         idx = idx.reshape(-1, idx.shape[-1])
-        out = np.empty(idx.shape[0])
-        for j, row in enumerate(idx):
-            cnt = np.bincount(row, minlength=n_scenes).astype(float)
-            ng = float(cnt @ n_gt_scene)
-            if ng <= 0:
-                out[j] = np.nan
-                continue
-            w = cnt[so]
-            tp, fp = np.cumsum(a * w)[last], np.cumsum(b * w)[last]
-            with np.errstate(invalid="ignore", divide="ignore"):
-                prec = tp / (tp + fp)
-            r = tp / ng
-            ok = np.isfinite(prec)
-            r, prec = r[ok], prec[ok]
-            if r.size == 0:
-                out[j] = 0.0
-                continue
-            r = np.concatenate(([0.0], r))
-            prec = np.concatenate(([prec[0]], prec))
-            out[j] = np.sum(np.diff(r) * 0.5 * (prec[1:] + prec[:-1]))
-        return out if two_d else out[0]
+        m = idx.shape[0]
+        cnt = np.bincount((idx + n_scenes * np.arange(m)[:, None]).ravel(), minlength=m * n_scenes)
+        cnt = cnt.reshape(m, n_scenes).astype(float)
+        # einsum, not a BLAS product: BLAS threads only add contention on a busy machine
+        ng = np.einsum("ij,j->i", cnt, n_gt_scene)
+        tp, fp = np.einsum("ij,jk->ik", cnt, tp_cum), np.einsum("ij,jk->ik", cnt, fp_cum)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            prec = tp / (tp + fp)
+            rec = tp / ng[:, None]
+        # before the first accepted detection precision is undefined: the curve starts at the
+        # first defined point, extended to recall 0 at its precision (as average_precision)
+        defined = np.isfinite(prec)
+        first = np.where(defined.any(axis=1), defined.argmax(axis=1), prec.shape[1] - 1)
+        p0 = np.take_along_axis(prec, first[:, None], axis=1)
+        prec = np.where(defined, prec, p0)
+        rec = np.where(defined, rec, 0.0)
+        r = np.concatenate([np.zeros((m, 1)), rec], axis=1)
+        p = np.concatenate([p0, prec], axis=1)
+        ap = np.sum(np.diff(r, axis=1) * 0.5 * (p[:, 1:] + p[:, :-1]), axis=1)
+        ap = np.where(ng > 0, np.where(defined.any(axis=1), ap, 0.0), np.nan)
+        return ap.reshape(shape)
 
     ci = _bootstrap((np.arange(n_scenes),), statistic, n_resamples, rng)
     return ap, ci, curve
@@ -740,7 +740,7 @@ def _bootstrap(data, statistic, n_resamples, rng) -> tuple[float, float]:
         try:
             res = stats.bootstrap(
                 data, statistic, n_resamples=n_resamples, vectorized=True, paired=len(data) > 1,
-                method="percentile", random_state=rng, batch=200,
+                method="percentile", random_state=rng, batch=50,
             )  # fmt: skip
         except ValueError:
             return (math.nan, math.nan)
@@ -760,6 +760,54 @@ def _ratio_ci(num, den, n_resamples, rng) -> tuple[float, float]:
             return np.where(sd > 0, sn / np.where(sd > 0, sd, 1), np.nan)
 
     return _bootstrap((num, den), statistic, n_resamples, rng)
+
+
+#: Why a counted kin was missed at the operating point (:func:`_miss_reasons`).
+MISS_REASONS = (
+    "below operating point",
+    "merged with another object",
+    "centre off by > gate",
+    "no candidate",
+)
+
+
+def _miss_reasons(fr: _Frames, rk: dict, kin: dict, missed: np.ndarray) -> dict:
+    """Where each missed kin was lost, judged from the permissive run (detector-agnostic):
+
+    * ``below operating point``: a permissive detection matches it (within the gate): the
+      score / threshold rejected it;
+    * ``merged with another object``: a permissive candidate covers its beams, but they are a
+      minority of that segment (merged with a wall, an obstacle or another robot);
+    * ``centre off by > gate``: a candidate whose beams are mostly on it, centred too far away;
+    * ``no candidate``: no permissive detection touches it (e.g. the geometric diameter filter, or
+      fewer beams than the detector's minimum).
+    """
+    out = dict.fromkeys(MISS_REASONS, 0)
+    if missed.size == 0:
+        return out
+    n = fr.ranges.shape[1]
+    order = np.argsort(rk["frame"], kind="stable")
+    fs = rk["frame"][order]
+    for k in missed.tolist():
+        f = int(kin["frame"][k])
+        di = order[np.searchsorted(fs, f, "left") : np.searchsorted(fs, f, "right")]
+        if di.size and (np.hypot(*(rk["xy"][di] - kin["xy"][k]).T) <= GATE).any():
+            out["below operating point"] += 1
+            continue
+        i, r = int(fr.scene_of[f]), int(fr.row_of[f])
+        scan = fr.scans[i]
+        on_kin = (scan.hit_kind[r] == HitKind.ROBOT) & (scan.hit_index[r] == kin["robot"][k]) & fr.valid[f]
+        reason = "no candidate"
+        for j in di.tolist():
+            beams = (rk["first"][j] + np.arange(min(int(rk["n_beams"][j]), n))) % n
+            hits = int(on_kin[beams].sum())
+            if hits:
+                merged = 2 * hits <= int(fr.valid[f, beams].sum())
+                reason = "merged with another object" if merged else "centre off by > gate"
+                if not merged:
+                    break
+        out[reason] += 1
+    return out
 
 
 def _evaluate_condition(
@@ -847,8 +895,8 @@ def _evaluate_condition(
         e = kin_err[counted & kin_hit]
         gt_ignore = ~counted
         det_ignore = (~rk_in) | sr_rk
-        dtp, dfp = _increments_by_frame(
-            rk["frame"], rk["score"], rk["xy"], kin["frame"], kin["xy"], gt_ignore, det_ignore
+        dtp, dfp = increments(
+            rk["score"], rk["frame"], rk["xy"], kin["frame"], kin["xy"], GATE, gt_ignore, det_ignore
         )
         do_ci = n_resamples if kind != "beams" else 0
         ap, ap_ci, curve = _ap_with_ci(
@@ -880,6 +928,7 @@ def _evaluate_condition(
                 "error_p95": float(np.percentile(e, 95)) if e.size else math.nan,
             }
         )
+    misses = _miss_reasons(fr, rk, kin, np.flatnonzero(kin["care"] & ~kin_hit))
     # false positives by source (operating point)
     kinds = Counter()
     n = fr.ranges.shape[1]
@@ -897,6 +946,7 @@ def _evaluate_condition(
         "seconds": seconds,
         "scans_per_second": fr.ranges.shape[0] / seconds if seconds > 0 else math.nan,
         "pr_curve": curves,
+        "misses": misses,
     }
     return rows, extras
 

@@ -8,6 +8,7 @@ import pytest
 from detectors.metrics import (
     average_precision,
     frame_increments,
+    increments,
     match,
     pr_curve,
     pr_from_increments,
@@ -117,3 +118,21 @@ def test_fast_path_agrees_with_rematching():
             m = match(d[order[:k]], g, 0.1, gi, di[order[:k]])
             assert dtp[order[:k]].sum() == m.tp.sum()
             assert dfp[order[:k]].sum() == m.fp.sum()
+
+
+def test_increments_over_frames_agree_with_per_frame_rematching():
+    rng = np.random.default_rng(1)
+    n_frames = 60
+    gf = rng.integers(0, n_frames, 120)
+    g = rng.uniform(0, 2.0, (120, 2))
+    pick = rng.integers(0, 120, 300)
+    df = np.where(rng.random(300) < 0.7, gf[pick], rng.integers(0, n_frames, 300))
+    d = np.where((rng.random(300) < 0.7)[:, None], g[pick], rng.uniform(0, 2, (300, 2)))
+    d = d + rng.normal(0, 0.05, d.shape)
+    s = rng.integers(0, 20, 300).astype(float)
+    gi, di = rng.random(120) < 0.2, rng.random(300) < 0.2
+    dtp, dfp = increments(s, df, d, gf, g, 0.1, gi, di)
+    for f in range(n_frames):
+        dm, gm = df == f, gf == f
+        a, b = frame_increments(s[dm], d[dm], g[gm], 0.1, gi[gm], di[dm])
+        assert dtp[dm].tolist() == a.tolist() and dfp[dm].tolist() == b.tolist()

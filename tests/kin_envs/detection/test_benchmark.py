@@ -216,3 +216,16 @@ def test_run_benchmark_rejects_bad_input():
     with pytest.raises(ValueError, match="detect_batch"):
         B.run_benchmark({"g": object()}, "paper", 1)
     assert GeometricParams().F_threshold < B.PERMISSIVE_F_THRESHOLD
+
+
+def test_bootstrap_ap_interval_brackets_the_point_estimate():
+    rng = np.random.default_rng(0)
+    n_scenes, n = 40, 400
+    scene = rng.integers(0, n_scenes, n)
+    dtp = (rng.random(n) < 0.4).astype(int)
+    dfp = 1 - dtp
+    score = rng.random(n) + 0.5 * dtp  # true positives tend to score higher
+    n_gt = np.bincount(scene[dtp == 1], minlength=n_scenes).astype(float) + 1  # one miss per scene
+    ap, (lo, hi), curve = B._ap_with_ci(score, dtp, dfp, scene, n_gt, n_scenes, 300, rng)
+    assert 0.0 <= lo <= ap <= hi <= 1.0 and hi - lo < 0.3
+    assert ap == pytest.approx(curve.ap)
