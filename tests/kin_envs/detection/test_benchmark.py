@@ -92,6 +92,7 @@ def test_swarm_robots_move_and_cluster():
     moved = np.hypot(*(smp.scan.poses[:, :2] - start).T)
     assert smp.scan.ranges.shape[0] == len(smp.scene.robots) >= 8
     assert np.median(moved) > 0.3  # they drove
+
     # clusters: robots end up much closer to their nearest neighbour than they started
     def nn(p):
         d = np.hypot(p[:, None, 0] - p[None, :, 0], p[:, None, 1] - p[None, :, 1])
