@@ -164,7 +164,8 @@ def report(res: BenchmarkResults, detectors, conditions, seconds: float) -> str:
                 out.append(
                     f"- {d}: {ex['n_scans']} scans, {ex['scans_per_second']:.0f} scans/s (warm, shipped "
                     f"operating point); false positives by kind: {fps}; on same-radius cylinders (apart): "
-                    f"{ex['same_radius']}; missed kin: {miss}"
+                    f"{ex['same_radius']} (of {ex['same_radius_seen']} seen by >= 2 beams); "
+                    f"missed kin: {miss}"
                 )
             out.append("")
     return "\n".join(out)

@@ -614,6 +614,7 @@ class _Frames:
     row_of: np.ndarray  # (F,) row within its scene's scan
     kin: dict  # frame, xy, range, n_beams, care
     same_radius_beam: np.ndarray  # (F, n) valid beam on a same-radius cylinder
+    same_radius_seen: int  # (frame, same-radius cylinder) pairs with >= MIN_BEAMS valid beams
     valid: np.ndarray  # (F, n)
 
 
@@ -621,6 +622,7 @@ def _frames(samples: Sequence[SplitSample], condition: Condition, cond_index: in
     scans, scene_of, row_of = [], [], []
     kf, kxy, kr, kb, krob = [], [], [], [], []
     srb = []
+    seen = 0
     f = 0
     for i, smp in enumerate(samples):
         rng = np.random.default_rng((smp.seed, cond_index))
@@ -637,7 +639,11 @@ def _frames(samples: Sequence[SplitSample], condition: Condition, cond_index: in
         same = np.abs(radius - smp.scene.robot.housing_radius) <= SAME_RADIUS_TOL
         valid = scan.ranges < scan.range_max
         is_cyl = scan.hit_kind == HitKind.CYLINDER
-        srb.append(valid & is_cyl & same[np.where(is_cyl, scan.hit_index, -1)])
+        on_same = valid & is_cyl & same[np.where(is_cyl, scan.hit_index, -1)]
+        srb.append(on_same)
+        rows_, cyl_ = np.nonzero(on_same)
+        _, per_obj = np.unique(rows_ * (len(radius) + 1) + scan.hit_index[rows_, cyl_], return_counts=True)
+        seen += int((per_obj >= MIN_BEAMS).sum())
         for r in range(n_rows):
             for k in kin_truth(scan, r, smp.scene):
                 kf.append(f + r)
@@ -660,7 +666,7 @@ def _frames(samples: Sequence[SplitSample], condition: Condition, cond_index: in
     }
     return _Frames(
         ranges, scans[0].angles, np.asarray(scene_of), scans, list(samples), np.asarray(row_of),
-        kin, np.concatenate(srb), ranges < scans[0].range_max,
+        kin, np.concatenate(srb), seen, ranges < scans[0].range_max,
     )  # fmt: skip
 
 
@@ -942,6 +948,7 @@ def _evaluate_condition(
         "false_positives": dict(sorted(kinds.items(), key=lambda kv: (-kv[1], kv[0]))),
         "same_radius": int(same_radius.sum()),
         "n_scans": int(fr.ranges.shape[0]),
+        "same_radius_seen": fr.same_radius_seen,
         "n_dont_care": int((~kin["care"]).sum()),
         "seconds": seconds,
         "scans_per_second": fr.ranges.shape[0] / seconds if seconds > 0 else math.nan,
@@ -964,8 +971,10 @@ class BenchmarkResults:
             ``n_kin, tp, fp, fn, same_radius, precision, recall, f1`` (+ ``_ci`` 95 % intervals),
             ``ap, ap_ci, peak_f1, error_mean, error_median, error_p95`` (m).
         extras: per ``(detector, split, condition name)``: ``false_positives`` by kind,
-            ``same_radius``, ``n_scans``, ``scans_per_second``, ``pr_curve`` (recall, precision,
-            op = the operating point's recall, precision).
+            ``same_radius`` (detections on same-radius cylinders) and ``same_radius_seen`` (such
+            cylinders seen by >= 2 valid beams, per scan), ``n_scans``, ``n_dont_care``,
+            ``scans_per_second``, ``misses`` (:data:`MISS_REASONS`), ``pr_curve`` (recall,
+            precision, op = the operating point's recall, precision).
         config: version, splits (``SplitSpec.to_dict``), sizes, seeds, gate, rules.
     """
 

@@ -198,6 +198,9 @@ def test_oracle_scores_one_and_a_ranked_false_positive_costs_ap():
     for r in res.select(detector="oracle"):
         if r["n_kin"]:
             assert r["ap"] == 1.0 and r["f1"] == 1.0
+    ex = res.extras[("oracle", "lookalike", "noise 0 %")]
+    assert ex["same_radius"] == 0 < ex["same_radius_seen"]
+    assert sum(ex["misses"].values()) == 0
     (b,) = res.select(detector="noisy", bin="all")
     n_scans = res.extras[("noisy", "lookalike", "noise 0 %")]["n_scans"]
     assert b["fp"] == n_scans and b["recall"] == 1.0
