@@ -39,8 +39,8 @@ from detectors.features import FEATURE_VERSION, FeatureConfig, feature_names
 from detectors.fileio import atomic_write, sha256_file, write_json
 from detectors.samples import CATEGORIES, DATASET_FORMAT, DATASET_FORMAT_VERSION, concat_records
 from kin_envs.cli import parse_json_object, run_main
-from kin_envs.detection.benchmark import check_training_seeds
 from kin_envs.detection.dataset import DatasetConfig, scene_records
+from kin_envs.detection.seeds import check_training_seeds
 from kin_envs.distributed import BACKENDS, imap_seeds
 
 _SHARD = re.compile(r"shard_\d{5}\.npz|\.(shard_\d{5}\.npz|manifest\.json)\..*\.tmp")

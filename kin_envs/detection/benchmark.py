@@ -46,11 +46,10 @@ import sys
 import time
 import warnings
 from collections import Counter
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import stats
 
 from detectors.base import KinDetector
 from detectors.metrics import increments, match, pr_from_increments
@@ -60,6 +59,7 @@ from ..core.lidar import HitKind, LidarSpec
 from ..core.scenes import DetectionSceneConfig, RandomArenaConfig, Robot, Scene
 from ..core.world import Scan, World
 from .evaluation import SAME_RADIUS_TOL, describe_hits, kin_truth, segment_beams
+from .seeds import BENCHMARK_SEEDS, check_training_seeds
 
 __all__ = [
     "BEAM_EDGES",
@@ -90,8 +90,6 @@ __all__ = [
 
 #: Bumped whenever a split, a condition, the ground-truth rule or a metric changes.
 BENCHMARK_VERSION = 1
-#: Seeds reserved for the benchmark; training and validation data must not use them.
-BENCHMARK_SEEDS = range(2_000_000_000, 2_100_000_000)
 #: Valid beams on a kin's housing for it to count as ground truth (1 beam: "don't care").
 MIN_BEAMS = 2
 #: Matching gate on the centre distance, m.
@@ -104,25 +102,6 @@ BEAM_EDGES = (2, 3, 5, 10, 20, 361)
 #: Geometric shape threshold of the permissive run, m: no segment that passes the diameter filter
 #: has a summed residual near 1 km, so every one becomes a ranked candidate.
 PERMISSIVE_F_THRESHOLD = 1e3
-
-
-def check_training_seeds(seeds: Iterable[int] | range, what: str = "training data") -> None:
-    """Raise ``ValueError`` if any seed lies in the benchmark's reserved range :data:`BENCHMARK_SEEDS`."""
-    lo, hi = BENCHMARK_SEEDS.start, BENCHMARK_SEEDS.stop
-    if isinstance(seeds, range):
-        if len(seeds) and min(seeds[0], seeds[-1]) < hi and max(seeds[0], seeds[-1]) >= lo:
-            raise ValueError(
-                f"{what}: seeds {seeds.start}..{seeds.stop - 1} overlap the benchmark's reserved seeds "
-                f"[{lo}, {hi}); use seeds outside that range"
-            )
-        return
-    s = np.asarray(list(seeds) if not isinstance(seeds, np.ndarray) else seeds, dtype=np.int64).reshape(-1)
-    bad = s[(s >= lo) & (s < hi)]
-    if bad.size:
-        raise ValueError(
-            f"{what}: seed {int(bad[0])} is reserved for the benchmark (seeds [{lo}, {hi})); "
-            "use seeds outside that range"
-        )
 
 
 # --------------------------------------------------------------------------- configs
@@ -741,6 +720,8 @@ def _ap_with_ci(score, dtp, dfp, scene_of_det, n_gt_scene, n_scenes, n_resamples
 
 
 def _bootstrap(data, statistic, n_resamples, rng) -> tuple[float, float]:
+    from scipy import stats  # imported here: scipy.stats is slow to import
+
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         try:

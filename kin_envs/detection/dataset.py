@@ -45,7 +45,7 @@ from .. import scenes
 from ..core.lidar import HitKind, LidarSpec
 from ..core.scenes import Box, Cylinder, DetectionSceneConfig, Prism, RandomArenaConfig, Scene
 from ..core.world import World
-from .benchmark import check_training_seeds
+from .seeds import check_training_seeds
 
 __all__ = [
     "CATEGORIES",
