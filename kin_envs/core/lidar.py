@@ -460,7 +460,9 @@ def build_lidar_grid(
     if bounds is not None:
         b = np.asarray(bounds, dtype=np.float64).reshape(4)
         if not (np.all(np.isfinite(b)) and b[0] < b[2] and b[1] < b[3]):
-            raise ValueError(f"build_lidar_grid: bounds must be finite (xmin, ymin, xmax, ymax), got {bounds!r}")
+            raise ValueError(
+                f"build_lidar_grid: bounds must be finite (xmin, ymin, xmax, ymax), got {bounds!r}"
+            )
         box = np.concatenate([box, b[None]])
     if not len(box):
         box = np.zeros((1, 4))
