@@ -419,12 +419,11 @@ def _bin(box, ids, gx, gy, cs, nx, ny, inside_only):
     return start, items, overflow
 
 
-def default_cell_size(extent, n_static: int) -> float:
-    """Grid cell side for an arena of ``extent`` (w, h) m holding ``n_static`` static primitives:
-    about two primitives per cell, clamped to [0.5, 2] m (smaller cells cost more ring steps, larger
-    ones test more primitives behind the first hits)."""
-    area = float(max(extent[0], 0.1) * max(extent[1], 0.1))
-    return float(min(2.0, max(0.5, math.sqrt(2.0 * area / max(n_static, 1)))))
+def default_cell_size(range_max: float) -> float:
+    """Grid cell side for a lidar of reach ``range_max``: ``range_max / 5`` (at least 0.5 m), so a
+    scan visits about 80 cells whatever the arena. Measured on random arenas at 0.7 objects/m^2:
+    1-1.5 m cells spend more on visiting cells than they save, 4 m cells test too many primitives."""
+    return max(0.5, float(range_max) / 5.0)
 
 
 def build_lidar_grid(
@@ -444,7 +443,7 @@ def build_lidar_grid(
         bounds: ``(xmin, ymin, xmax, ymax)`` the grid must cover (e.g. the arena), m; the bounding box
             of the static primitives is always included. Robots outside the grid are scanned by brute
             force and moving primitives outside it are tested by every robot: correct, only slower.
-        cell_size: m; default :func:`default_cell_size`.
+        cell_size: m; default :func:`default_cell_size` of a 12 m lidar.
     """
     circles = np.ascontiguousarray(circles, dtype=np.float64).reshape(-1, 3)
     segments = np.ascontiguousarray(segments, dtype=np.float64).reshape(-1, 4)
@@ -471,7 +470,7 @@ def build_lidar_grid(
     # a little margin: robots and primitives on the bounds are strictly inside
     lo, hi = box[:, :2].min(axis=0) - 1e-3, box[:, 2:].max(axis=0) + 1e-3
     if cell_size is None:
-        cell_size = default_cell_size(hi - lo, len(static_c) + len(static_s))
+        cell_size = default_cell_size(12.0)
     if not (isinstance(cell_size, int | float) and math.isfinite(cell_size) and cell_size > 0):
         raise ValueError(f"build_lidar_grid: cell_size must be a number > 0 m, got {cell_size!r}")
     cs = float(cell_size)
@@ -494,7 +493,7 @@ def build_lidar_grid(
     )
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@numba.njit(cache=True, nogil=True)
 def _cast_lists(
     x0, y0, h, ch, sh, skip, range_max, circles, segments, cos_tab, sin_tab, best_d, best_p,
     c_items, n_ci, s_items, n_si,

@@ -23,7 +23,7 @@ import pymunk
 import pymunk.batch as pmbatch
 
 from kin_envs.core._validate import check_positive
-from kin_envs.core.lidar import HitKind, build_lidar_grid, cast_scan, polygon_edges
+from kin_envs.core.lidar import HitKind, build_lidar_grid, cast_scan, default_cell_size, polygon_edges
 from kin_envs.core.scenes import Robot, Scene
 
 __all__ = ["WorldConfig", "World", "Scan", "Contact", "LIDAR_QUERY_FILTER"]
@@ -54,18 +54,20 @@ class WorldConfig:
             rounded to a whole number of physics steps.
         floor_friction: Coulomb friction coefficient between movable obstacles and the floor.
         iterations: pymunk solver iterations.
-        lidar_grid: index the static geometry in a uniform grid so that a scan only visits what is
-            near the robot (``False``: the brute-force kernel, every primitive for every robot). Both
-            give bit-identical scans; only the speed differs.
-        lidar_cell_size: side of the grid's cells, m (``None``: chosen from the arena's size and
-            primitive count by :func:`~kin_envs.core.lidar.default_cell_size`).
+        lidar_grid: ``True``: index the static geometry in a uniform grid so that a scan only visits
+            the cells within the lidar's reach; ``False``: the brute-force kernel (every primitive for
+            every robot); ``None`` (default): the grid only when the arena is wider and deeper than
+            twice ``range_max`` (in smaller arenas every robot reaches most of the arena and the grid
+            is slower, see the README's Performance section). All give bit-identical scans.
+        lidar_cell_size: side of the grid's cells, m (``None``: ``range_max / 5``, see
+            :func:`~kin_envs.core.lidar.default_cell_size`).
     """
 
     control_dt: float = 0.1
     physics_dt: float = 0.02
     floor_friction: float = 0.5
     iterations: int = 10
-    lidar_grid: bool = True
+    lidar_grid: bool | None = None
     lidar_cell_size: float | None = None
 
     def __post_init__(self) -> None:
@@ -78,8 +80,8 @@ class WorldConfig:
             )
         if self.floor_friction < 0 or self.iterations < 1:
             raise ValueError("WorldConfig: floor_friction must be >= 0 and iterations >= 1")
-        if not isinstance(self.lidar_grid, bool):
-            raise ValueError(f"WorldConfig.lidar_grid must be True or False, got {self.lidar_grid!r}")
+        if not (self.lidar_grid is None or isinstance(self.lidar_grid, bool)):
+            raise ValueError(f"WorldConfig.lidar_grid must be True, False or None, got {self.lidar_grid!r}")
         if self.lidar_cell_size is not None and not (
             isinstance(self.lidar_cell_size, int | float) and 0 < self.lidar_cell_size < math.inf
         ):
@@ -311,7 +313,11 @@ class World:
         # broad phase: static geometry never moves, so it is indexed once here; housings and movable
         # obstacles are re-binned by the kernel on every scan
         self._lidar_grid = None
-        if self.config.lidar_grid:
+        hx, hy = self.scene.arena.half_extents
+        use_grid = self.config.lidar_grid
+        if use_grid is None:
+            use_grid = min(hx, hy) > self.scene.lidar.range_max
+        if use_grid:
             dyn_c = list(range(self.n_robots))
             dyn_s = []
             for _, kind, _, first, count in self._movable:
@@ -319,11 +325,10 @@ class World:
                     dyn_c.append(self.n_robots + first)
                 else:
                     dyn_s.extend(range(first, first + count))
-            hx, hy = self.scene.arena.half_extents
+            cell = self.config.lidar_cell_size or default_cell_size(self.scene.lidar.range_max)
             self._lidar_grid = build_lidar_grid(
-                self._circles, self._segments, dyn_c, dyn_s, bounds=(-hx, -hy, hx, hy),
-                cell_size=self.config.lidar_cell_size,
-            )  # fmt: skip
+                self._circles, self._segments, dyn_c, dyn_s, bounds=(-hx, -hy, hx, hy), cell_size=cell
+            )
 
     def _update_lidar_geometry(self, poses: np.ndarray) -> None:
         self._circles[: self.n_robots, :2] = poses[:, :2]

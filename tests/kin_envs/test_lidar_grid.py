@@ -46,7 +46,7 @@ def _cast_both(origins, headings, circles, segments, grid, spec=None):
 def test_random_arenas_grid_equals_brute_force(n_robots, n_obstacles, size, cell):
     lidar = LidarSpec(noise_sigma=0.01, dropout_prob=0.05)
     scene = scenes.random_arena(n_robots, n_obstacles, seed=n_obstacles, size=size, lidar=lidar)
-    grid = World(scene, seed=3, config=WorldConfig(lidar_cell_size=cell))
+    grid = World(scene, seed=3, config=WorldConfig(lidar_grid=True, lidar_cell_size=cell))
     brute = World(scene, seed=3, config=BRUTE)
     assert grid._lidar_grid is not None and brute._lidar_grid is None
     _assert_same(grid.scan(), brute.scan())  # noise and dropouts drawn identically
@@ -60,7 +60,9 @@ def test_moving_robots_and_movable_obstacles():
         for k, o in enumerate(scene.obstacles)
     )
     scene = scene.replace(obstacles=movable)
-    worlds = [World(scene, seed=0, config=c) for c in (WorldConfig(lidar_cell_size=0.5), BRUTE)]
+    worlds = [
+        World(scene, seed=0, config=c) for c in (WorldConfig(lidar_grid=True, lidar_cell_size=0.5), BRUTE)
+    ]
     rng = np.random.default_rng(0)
     for _ in range(15):
         cmd = np.column_stack([np.full(12, 0.3), rng.uniform(-2, 2, 12)])
@@ -125,6 +127,16 @@ def test_ties_go_to_the_lower_primitive_id():
         grid = build_lidar_grid(circles, segments, bounds=(-4, -4, 4, 4), cell_size=cell)
         _, _, _, prim = _cast_both(np.zeros((1, 2)), np.zeros(1), circles, segments, grid)
         assert prim[0, 270] == 0 and prim[0, 0] == 3  # ids (owner table = primitive id)
+
+
+def test_default_uses_the_grid_only_in_arenas_wider_than_the_lidar_reach():
+    small = World(scenes.random_arena(2, 5, seed=0, size=20.0))
+    large = World(scenes.random_arena(2, 5, seed=0, size=(30.0, 25.0)))
+    assert small._lidar_grid is None
+    assert large._lidar_grid is not None and large._lidar_grid.cell_size == 12.0 / 5
+    assert World(
+        scenes.random_arena(2, 5, seed=0, size=20.0), config=WorldConfig(lidar_grid=True)
+    )._lidar_grid
 
 
 def test_grid_input_errors():
