@@ -58,7 +58,10 @@ def test_lidar_scaling_section(bench, tmp_path):
         assert r["arena_m"] == bench.scaling_arena_side(r["robots"], r["obstacles"]) == 5.0
         assert min(r["grid_scans_per_s"], r["brute_force_scans_per_s"], r["naive_scans_per_s"]) > 0
         assert r["grid_vs_brute_force"] == pytest.approx(r["grid_scans_per_s"] / r["brute_force_scans_per_s"])
-    assert res["lidar_scaling_targets"]["min_grid_vs_naive"] == min(r["grid_vs_naive"] for r in rows)
+        assert r["default"] == "brute force" and r["default_scans_per_s"] == r["brute_force_scans_per_s"]
+    assert res["lidar_scaling_targets"]["min_default_vs_naive"] == pytest.approx(
+        min(r["brute_force_scans_per_s"] / r["naive_scans_per_s"] for r in rows)
+    )
     assert set(res["lidar_scaling_startup"]) == {"grid_first_scan_s", "brute_force_first_scan_s"}
     assert "| grid / brute force |" in (tmp_path / "benchmark.md").read_text()
     assert bench.scaling_arena_side(64, 1000) == pytest.approx((1064 / 0.7) ** 0.5)
