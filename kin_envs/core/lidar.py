@@ -10,7 +10,9 @@ Each primitive carries an *owner* (what a beam that hits it reports: a kind code
 All robots' scans are cast in one call of a numba kernel. For every (robot, primitive) pair the
 kernel computes the angular interval the primitive subtends and tests only the beams inside it, with
 exact ray–circle / ray–segment intersection, so the cost grows with the number of beams that actually
-touch something rather than with ``beams × primitives``.
+touch something rather than with ``beams × primitives``. With a :class:`LidarGrid`
+(:func:`build_lidar_grid`, used by ``World`` in large arenas) a second kernel visits only the grid
+cells within each robot's reach, with bit-identical results (see "broad phase" below).
 
 Angle convention (the paper's, RPLIDAR A1): beam ``i`` points ``i * 360/n_beams`` degrees
 **clockwise** from the robot's heading. :attr:`LidarSpec.angles` gives the same directions in the
@@ -506,7 +508,8 @@ def _cast_lists(
 ):  # fmt: skip
     """:func:`_cast_one`'s loops over the circles ``c_items[:n_ci]`` and the segments
     ``s_items[:n_si]``, without re-initialising ``best_*``; the same arithmetic, except that an
-    equally near hit wins if its primitive id is lower."""
+    equally near hit wins if its primitive id is lower. Called once per ring, not inlined: inlined into
+    the grid kernel it ran ~1.5x slower (measured)."""
     n_beams = best_d.shape[0]
     res = 2.0 * math.pi / n_beams
     n_c = circles.shape[0]
