@@ -85,3 +85,12 @@ def test_lidar_scaling_section(bench, tmp_path):
     assert bench.scaling_arena_side(64, 1000) == pytest.approx((1064 / 0.7) ** 0.5)
     with pytest.raises(SystemExit):
         bench.main(["--scaling-robots", "0", "--out", str(tmp_path)])
+
+
+def test_ros_section(bench, tmp_path):
+    pytest.importorskip("rosbags")
+    res = bench.bench_ros(0.01, steps=3)
+    assert [r["storage"] for r in res] == ["mcap", "sqlite3", "ros1"]
+    for r in res:
+        assert r["record_steps_per_s"] > 0 and r["read_scans_per_s"] > 0 and r["detect_scans_per_s"] > 0
+    assert "| bag | record steps/s" in bench.to_markdown({"ros": res})
