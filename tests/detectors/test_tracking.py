@@ -98,7 +98,7 @@ def test_existence_confirms_and_deletes():
 
 
 def test_score_cue_is_bounded():
-    pr = TrackerParams()
+    pr = TrackerParams(min_score=0.0)
     tr = KinTracker(pr)
     for _ in range(200):
         tr.update([[1.0, 0.0], [1.0, 1.0]], [0.99, 0.01], STILL, DT)
@@ -185,6 +185,16 @@ def test_static_circle_rejected_once_others_move():
     kp = tr.kin_prob()
     assert kp[1] > 0.99  # moved
     assert kp[0] < 0.5  # a circle that stays put while the swarm moves
+
+
+def test_low_scores_are_dropped():
+    tr = KinTracker(TrackerParams(min_score=0.2))
+    arc = 0.035 * np.c_[np.cos(np.linspace(2, 4, 4)), np.sin(np.linspace(2, 4, 4))]
+    xy = np.array([[1.0, 0.0], [2.0, 0.0], [3.0, 0.0]])
+    for _ in range(3):
+        tr.update(xy, [0.1, 0.9, 0.05], STILL, DT, points=[p + arc for p in xy], noise=0.01)
+    (t,) = tr.tracks()
+    assert t.x == pytest.approx(2.0) and t.points.shape == (12, 2)  # its own points only
 
 
 def test_track_arrays_fixed_shape():
