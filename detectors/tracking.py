@@ -28,10 +28,12 @@ absorbs.
 5. *Kin probability*, in log-odds, from three cues (each documented in :class:`TrackerParams`):
 
    a. **detector score**: the frame's candidate score ``s`` (higher = more kin-like, in (0, 1)) adds
-      ``score_weight * (logit(s) - logit(score_prior))``. Frames of a static scene are strongly correlated
-      (the same object seen from almost the same place gives the same evidence), so the weight is < 1 and
-      the score part of the log-odds is clamped to ``±score_clamp``: repeating one ambiguous view cannot
-      make a track certain.
+      ``score_weight * (logit(s) - logit(score_prior))``; or, when the caller passes the detector's own
+      decisions at its operating point (``accepted``), ``accept_llr`` / ``reject_llr``: the detector's
+      operating point is then the calibration (a learned detector's thresholds depend on the noise).
+      Frames of a static scene are strongly correlated (the same object seen from almost the same place
+      gives the same evidence), so the steps are small and their sum is clamped to ``±score_clamp``:
+      repeating one ambiguous view cannot make a track certain.
    b. **accumulated outline**: the candidate's scan points, moved into the odometry frame (ego-motion
       compensated), accumulate (up to ``max_points``, newest kept) with their expected noise
       ``sigma_i = sqrt(shape_sigma**2 + (noise * d_i)**2)`` (``noise``: the frame's relative range noise,
@@ -109,6 +111,9 @@ class TrackerParams:
         kin_prior: prior kin probability of a new track.
         score_prior: the score a candidate carries no evidence at (the detector's operating point).
         score_weight, score_clamp: weight of one frame's score log-odds, and the clamp of their sum.
+        accept_llr, reject_llr: with the detector's own decisions at its operating point (``accepted`` in
+            :meth:`KinTracker.update_batch`), the log-odds a frame adds for an accepted / rejected
+            candidate instead of the score's (detector-agnostic: no score calibration needed).
         shape_delta: RMS deviation of a 7 cm look-alike's outline from the housing circle, m (a hexagon's
             is ~2 mm, a triangle's ~8 mm).
         shape_sigma: per-point noise floor, m; range_noise: relative range noise used when a frame gives
@@ -145,6 +150,8 @@ class TrackerParams:
     score_prior: float = 0.5
     score_weight: float = 0.4
     score_clamp: float = 4.0
+    accept_llr: float = 1.0
+    reject_llr: float = -1.0
     shape_delta: float = 0.002
     shape_sigma: float = 0.0005
     range_noise: float = 0.01
@@ -157,7 +164,7 @@ class TrackerParams:
     max_points: int = 120
     motion_dist: float = 0.1
     motion_gain: float = 6.0
-    static_time: float = 5.0
+    static_time: float = 3.0
     static_penalty: float = -6.0
     kin_threshold: float = 0.5
     min_score: float = 0.1
@@ -378,7 +385,7 @@ class KinTracker:
         self.update_batch(obs, xy, scores, delta, dt, pts, owner, None if noise is None else [noise])
 
     def update_batch(
-        self, obs, xy, scores, odom_delta, dt: float, points=None, owner=None, noise=None
+        self, obs, xy, scores, odom_delta, dt: float, points=None, owner=None, noise=None, accepted=None
     ) -> None:
         """Advance every observer by one frame.
 
@@ -391,6 +398,8 @@ class KinTracker:
             points: optional (P, 2) scan points of the candidates, their observer's robot frame, m ...
             owner: ... (P,) and the candidate each point belongs to.
             noise: optional (n_observers,) relative range noise of each observer's scan.
+            accepted: optional (k,) bool: the detector accepted the candidate at its operating point
+                (then the score cue uses ``accept_llr`` / ``reject_llr``, see :class:`TrackerParams`).
         """
         pr, N = self.params, self.n_observers
         obs = np.asarray(obs).reshape(-1)
@@ -420,6 +429,12 @@ class KinTracker:
         if noise.shape != (N,) or not np.all(np.isfinite(noise) & (noise >= 0)):
             raise ValueError(f"KinTracker: noise must be {N} relative range noises >= 0, got {noise!r}")
         obs = obs.astype(np.int64)
+        if accepted is not None:
+            accepted = np.asarray(accepted, dtype=bool).reshape(-1)
+            if accepted.shape[0] != k:
+                raise ValueError(
+                    f"KinTracker: accepted must have one flag per candidate ({k}), got {accepted.shape}"
+                )
         if k and pr.min_score > 0:
             keep = scores >= pr.min_score
             if not keep.all():
@@ -430,6 +445,7 @@ class KinTracker:
                     points = np.asarray(points, np.float64).reshape(-1, 2)[sel]
                     owner = new[owner[sel]]
                 obs, xy, scores = obs[keep], xy[keep], scores[keep]
+                accepted = None if accepted is None else accepted[keep]
                 k = xy.shape[0]
         # ego-motion: each observer's new pose in its odometry frame
         c, s = np.cos(self.poses[:, 2]), np.sin(self.poses[:, 2])
@@ -454,7 +470,7 @@ class KinTracker:
         born = np.setdiff1d(np.arange(k), ci, assume_unique=True)
         tb = self._birth(z[born], obs[born], rng[born])
         tracks, cands = np.concatenate([ti, tb]), np.concatenate([ci, born])
-        self._score_cue(tracks, scores[cands])
+        self._score_cue(tracks, scores[cands], None if accepted is None else accepted[cands])
         if points is not None and len(tracks):
             self._outline_cue(tracks, cands, points, owner, obs, noise, cos, sin, k)
         self._existence(rows, hit[rows])
@@ -607,11 +623,14 @@ class KinTracker:
         self._anchor_rng[ti] = rng
         return ti
 
-    def _score_cue(self, ti: np.ndarray, scores: np.ndarray) -> None:
+    def _score_cue(self, ti: np.ndarray, scores: np.ndarray, accepted) -> None:
         # (a) the detector's score: correlated frames -> weight < 1, clamped sum
         pr = self.params
-        lo = self._lo_score[ti] + pr.score_weight * (_logit(scores) - _logit(pr.score_prior))
-        self._lo_score[ti] = np.clip(lo, -pr.score_clamp, pr.score_clamp)
+        if accepted is None:
+            step = pr.score_weight * (_logit(scores) - _logit(pr.score_prior))
+        else:
+            step = np.where(accepted, pr.accept_llr, pr.reject_llr)
+        self._lo_score[ti] = np.clip(self._lo_score[ti] + step, -pr.score_clamp, pr.score_clamp)
 
     def _outline_cue(self, ti, ci, points, owner, obs, noise, cos, sin, k) -> None:
         # (b) the accumulated outline relative to the track centre (ego-motion compensated)

@@ -32,7 +32,6 @@ track whose kin probability is at least its ``kin_threshold``.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import time
 from collections import defaultdict
@@ -55,8 +54,10 @@ from .benchmark import (
     GATE,
     MIN_BEAMS,
     SPLITS,
+    Condition,
     LookalikeConfig,
     SwarmConfig,
+    apply_condition,
     lookalike_scene,
     permissive,
     swarm_scene,
@@ -168,6 +169,7 @@ class Episode:
     parked: np.ndarray
     rng: np.random.Generator
     config: SequenceConfig
+    condition: Condition
     _cmd: np.ndarray = field(default=None, repr=False)
     _backoff: np.ndarray = field(default=None, repr=False)
 
@@ -188,21 +190,25 @@ class Episode:
         cmd[self.parked] = 0.0
         w.step(commands=cmd)
 
+    def scan(self):
+        """The observers' scans with the episode's range noise (drawn from the episode's RNG)."""
+        clean = self.world.scan(robots=self.observers, noise=False)
+        return apply_condition(clean, self.condition, self.rng, self.world.scene.lidar)
+
 
 def episode(spec: SequenceSpec, seed: int, noise: float) -> Episode:
     """Episode ``seed`` of ``spec`` with lidar range noise ``noise`` (relative), ready for frame 0."""
     rng = np.random.default_rng(seed)
     if spec.name == "swarm":
-        scene = swarm_scene(rng, spec.scenes).current_scene()
-        observers = np.arange(len(scene.robots))
+        world = swarm_scene(rng, spec.scenes)  # robots already clustered, touching, at walls
+        observers = np.arange(world.n_robots)
     else:
-        scene = lookalike_scene(rng, spec.scenes)
+        world = World(lookalike_scene(rng, spec.scenes), seed=rng)
         observers = np.array([0])
-    scene = scene.replace(lidar=dataclasses.replace(scene.lidar, noise_sigma=float(noise)))
-    world = World(scene, seed=rng)
-    parked = rng.random(len(scene.robots)) < spec.run.parked_prob
-    parked[observers[:1] if spec.name == "lookalike" else []] = False
-    return Episode(world, observers, parked, rng, spec.run)
+    parked = rng.random(world.n_robots) < spec.run.parked_prob
+    if spec.name == "lookalike":
+        parked[0] = False  # the observer always moves
+    return Episode(world, observers, parked, rng, spec.run, Condition(float(noise)))
 
 
 # --------------------------------------------------------------------------- evaluation
@@ -337,20 +343,20 @@ def run_sequences(
                 delta = w.odometry_delta[obs_idx]
             else:
                 delta = np.zeros((len(obs_idx), 3))
-            scan = w.scan(robots=obs_idx)
+            scan = ep.scan()
             t0 = time.perf_counter()
             cand = perm.detect_batch(scan.ranges, scan.angles)
             t_det += time.perf_counter() - t0
-            ob, xy, sc, pts, own = _candidates(cand, scan)
+            single_res = {name: d.detect_batch(scan.ranges, scan.angles) for name, d in singles.items()}
+            ob, xy, sc, pts, own, acc = _candidates(cand, scan, single_res["single"])
             # the scan's own noise estimate, as on a real robot (the tracker's default where it has too few)
             est, count = scan_noise(segment_batch(scan.ranges, scan.angles))
             noise_est = np.where(count >= 5, est, tracker.params.range_noise)
             t0 = time.perf_counter()
-            tracker.update_batch(ob, xy, sc, delta, _FRAME_S, pts, own, noise_est)
+            tracker.update_batch(ob, xy, sc, delta, _FRAME_S, pts, own, noise_est, accepted=acc)
             t_trk += time.perf_counter() - t0
             frames_total += 1
             arrays = tracker.track_arrays(64)
-            single_res = {name: d.detect_batch(scan.ranges, scan.angles) for name, d in singles.items()}
             if record == e_idx:
                 recording.append(
                     {
@@ -440,14 +446,18 @@ def run_sequences(
     return out
 
 
-def _candidates(results, scan):
-    """Flatten one frame's detection results into the tracker's batch arrays (points from the segments)."""
-    ob, xy, sc, pts, own = [], [], [], [], []
+def _candidates(results, scan, operating=None):
+    """Flatten one frame's detection results into the tracker's batch arrays (points from the segments);
+    ``operating``: the same detector's results at its operating point, for the ``accepted`` flags."""
+    ob, xy, sc, pts, own, acc = [], [], [], [], [], []
     n = scan.ranges.shape[1]
     ang = scan.angles
     k = 0
     for row, res in enumerate(results):
         r = scan.ranges[row]
+        taken = (
+            set() if operating is None else {(d.first_beam, d.last_beam) for d in operating[row].detections}
+        )
         for d in res.detections:
             idx = np.arange(d.first_beam, d.first_beam + ((d.last_beam - d.first_beam) % n) + 1) % n
             rr = r[idx].astype(np.float64)
@@ -458,10 +468,13 @@ def _candidates(results, scan):
             ob.append(row)
             xy.append((d.x, d.y))
             sc.append(d.score)
+            acc.append((d.first_beam, d.last_beam) in taken)
             k += 1
+    accepted = None if operating is None else np.array(acc, bool)
     if not k:
-        return np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros(0), np.zeros((0, 2)), np.zeros(0, np.int64)
-    return np.array(ob), np.array(xy), np.array(sc), np.concatenate(pts), np.concatenate(own)
+        empty = np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros(0), np.zeros((0, 2)), np.zeros(0, np.int64)
+        return (*empty, None if operating is None else np.zeros(0, bool))
+    return np.array(ob), np.array(xy), np.array(sc), np.concatenate(pts), np.concatenate(own), accepted
 
 
 def _fp_bin(xy, kin_xy, ob_xy, kin_age, ob_age, frame) -> tuple[int, float]:
