@@ -110,7 +110,7 @@ class SequenceConfig:
         sp = tuple(float(v) for v in self.speed)
         if len(sp) != 2 or not 0 <= sp[0] <= sp[1] <= 0.33:
             raise ValueError(
-                f"SequenceConfig.speed must be (min, max) with 0 <= min <= max <= 0.33 m/s, got {self.speed!r}"
+                f"SequenceConfig.speed must be (min, max), 0 <= min <= max <= 0.33 m/s, got {self.speed!r}"
             )
         object.__setattr__(self, "speed", sp)
         if not (isinstance(self.turn, int | float) and 0 <= self.turn <= 4):
@@ -139,8 +139,9 @@ class SequenceSpec:
             return {f.name: getattr(obj, f.name) for f in fields(obj)}
 
         return {
-            "name": self.name, "scenes": plain(self.scenes), "run": plain(self.run), "first_seed": self.first_seed,
-            "n_episodes": self.n_episodes, "reduced_episodes": self.reduced_episodes, "noise": list(self.noise),
+            "name": self.name, "scenes": plain(self.scenes), "run": plain(self.run),
+            "first_seed": self.first_seed, "n_episodes": self.n_episodes,
+            "reduced_episodes": self.reduced_episodes, "noise": list(self.noise),
         }  # fmt: skip
 
 
@@ -311,6 +312,7 @@ def run_sequences(
 
     perm = permissive(detector)
     singles = {"single": detector, **dict(baselines or {})}
+    t_warm = _warm_up([perm, *singles.values()], tracker_params)
     methods = ["tracker", *singles]
     by_age = {m: [_Counts() for _ in AGE_EDGES] for m in methods}
     by_dist = {m: [_Counts() for _ in DISTANCE_EDGES[:-1]] for m in methods}
@@ -318,7 +320,7 @@ def run_sequences(
     sr_frames = {m: [0, 0] for m in methods}  # [frames checked, frames rejected]
     accs, observers_all = [], []
     t_det = t_trk = 0.0
-    frames_total = 0
+    frames_total = observer_frames = 0
     recording = []
     seeds = spec.seeds(n)
     it = seeds
@@ -356,6 +358,7 @@ def run_sequences(
             tracker.update_batch(ob, xy, sc, delta, _FRAME_S, pts, own, noise_est, accepted=acc)
             t_trk += time.perf_counter() - t0
             frames_total += 1
+            observer_frames += len(obs_idx)
             arrays = tracker.track_arrays(64)
             if record == e_idx:
                 recording.append(
@@ -424,13 +427,17 @@ def run_sequences(
         observers_all.extend(book)
     mot = _mot_summary(mm, accs)
     confirm = [f for b in observers_all for f in b.confirm_frames]
-    minutes = frames_total * _FRAME_S / 60.0 * 1.0
+    minutes = observer_frames * _FRAME_S / 60.0  # of observation, summed over observers
     out = {
-        "split": spec.name, "noise": noise, "episodes": n, "frames": frames_total, "version": SEQUENCE_VERSION,
+        "split": spec.name, "noise": noise, "episodes": n, "frames": frames_total,
+        "observer_frames": observer_frames,
+        "version": SEQUENCE_VERSION,
         "spec": spec.to_dict(),
         "by_age": {m: [c.row() for c in v] for m, v in by_age.items()},
         "by_distance": {m: [c.row() for c in v] for m, v in by_dist.items()},
-        "by_age_distance": {m: {f"{a},{d}": c.row() for (a, d), c in v.items()} for m, v in by_age_dist.items()},
+        "by_age_distance": {
+            m: {f"{a},{d}": c.row() for (a, d), c in v.items()} for m, v in by_age_dist.items()
+        },
         "same_radius_rejected": {m: (v[1] / v[0] if v[0] else math.nan, v[0]) for m, v in sr_frames.items()},
         "confirm_frames": {"median": float(np.median(confirm)) if confirm else math.nan,
                            "mean": float(np.mean(confirm)) if confirm else math.nan, "n": len(confirm)},
@@ -438,12 +445,28 @@ def run_sequences(
             sum(len(b.false_ids - b.true_ids) for b in observers_all) / minutes if minutes else math.nan
         ),
         "mot": mot,
-        "seconds": {"detector_per_frame": t_det / max(frames_total, 1),
+        "seconds": {"warm_up": t_warm, "detector_per_frame": t_det / max(frames_total, 1),
                     "tracker_per_frame": t_trk / max(frames_total, 1)},
     }  # fmt: skip
     if record is not None:
         out["recording"] = recording
     return out
+
+
+def _warm_up(detectors, tracker_params) -> float:
+    """Compile / allocate everything once before timing (numba kernels, torch): seconds taken."""
+    from ..core import scenes
+
+    t0 = time.perf_counter()
+    scan = World(scenes.paper_scenario(1, distance=0.5), seed=0).scan()
+    for d in detectors:
+        d.detect_batch(scan.ranges, scan.angles)
+    tr = KinTracker(tracker_params, n_observers=2)
+    pts = np.array([[1.0, 0.0], [1.01, 0.01], [0.99, -0.01]] * 3)
+    for _ in range(3):
+        tr.update_batch([0, 1, 0], [[1.0, 0.0], [2.0, 0.0], [1.0, 0.5]], [0.9, 0.9, 0.9], np.zeros((2, 3)), 0.1,
+                        pts, np.repeat([0, 1, 2], 3), accepted=[True, True, False])  # fmt: skip
+    return time.perf_counter() - t0
 
 
 def _candidates(results, scan, operating=None):
