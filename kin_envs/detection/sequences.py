@@ -463,9 +463,10 @@ def _warm_up(detectors, tracker_params) -> float:
         d.detect_batch(scan.ranges, scan.angles)
     tr = KinTracker(tracker_params, n_observers=2)
     pts = np.array([[1.0, 0.0], [1.01, 0.01], [0.99, -0.01]] * 3)
+    xy = [[1.0, 0.0], [2.0, 0.0], [1.0, 0.5]]
     for _ in range(3):
-        tr.update_batch([0, 1, 0], [[1.0, 0.0], [2.0, 0.0], [1.0, 0.5]], [0.9, 0.9, 0.9], np.zeros((2, 3)), 0.1,
-                        pts, np.repeat([0, 1, 2], 3), accepted=[True, True, False])  # fmt: skip
+        tr.update_batch([0, 1, 0], xy, [0.9, 0.9, 0.9], np.zeros((2, 3)), 0.1, pts, np.repeat([0, 1, 2], 3),
+                        accepted=[True, True, False])  # fmt: skip
     return time.perf_counter() - t0
 
 
