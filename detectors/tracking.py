@@ -142,7 +142,7 @@ class TrackerParams:
     gate_chi2: float = 9.21
     p_detect: float = 0.8
     clutter_ratio: float = 0.2
-    birth_existence: float = 0.5
+    birth_existence: float = 0.8
     confirm_existence: float = 0.8
     delete_existence: float = 0.1
     max_range: float = 5.0
@@ -157,7 +157,7 @@ class TrackerParams:
     range_noise: float = 0.01
     shape_n_cap: int = 60
     shape_min_points: int = 8
-    shape_clamp: float = 6.0
+    shape_clamp: float = 2.0
     odom_heading_rate: float = 0.045
     odom_position_rate: float = 0.005
     wheel_base: float = 0.16

@@ -78,7 +78,7 @@ def test_crossing_targets_keep_their_identities():
 
 
 def test_existence_confirms_and_deletes():
-    pr = TrackerParams()
+    pr = TrackerParams(birth_existence=0.5)
     tr = KinTracker(pr)
     tr.update([[1.0, 0.0]], [0.5], STILL, DT)
     assert len(tr) == 1 and not tr.tracks()[0].confirmed  # p = birth_existence
@@ -89,6 +89,8 @@ def test_existence_confirms_and_deletes():
         tr.update(np.zeros((0, 2)), [], STILL, DT)
         misses += 1
     assert 3 <= misses <= 6
+    # the default confirms at birth (the candidate's own evidence decides whether it is kin)
+    assert KinTracker().params.birth_existence >= KinTracker().params.confirm_existence
     # beyond max_range nothing is expected: no misses, the track survives
     tr = KinTracker(pr)
     tr.update([[pr.max_range + 1, 0.0]] * 1, [0.5], STILL, DT)
@@ -155,7 +157,7 @@ def test_outline_cue_tells_a_housing_from_a_hexagon(kind, sign):
         tr.update([centre], [0.5], STILL, DT, points=[pts], noise=0.0)
     (t,) = tr.tracks()
     assert t.points.shape[0] >= 60
-    assert sign * tr._lo_shape[tr._rows(0)[0]] > 1.0  # noise-free: decisive either way
+    assert sign * tr._lo_shape[tr._rows(0)[0]] >= TrackerParams().shape_clamp  # noise-free: decisive
     assert (tr.kin_prob()[0] - 0.5) * sign > 0.3
 
 
