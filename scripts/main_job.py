@@ -8,6 +8,9 @@
    with bootstrap intervals, PR curves) at its reduced size (``--full``: the full size) ->
    ``outputs/benchmark_detectors/``. It supersedes the former ``scripts/evaluate_detectors.py`` sweep
    in the main job; that script stays for large seeded sweeps (``--backend ray``).
+3. ``scripts/benchmark_tracking.py``: the sequence benchmark (``swarm`` and ``lookalike`` episodes with
+   moving observers and kin, 0 and 1 % range noise): the multi-frame ``KinTracker`` vs the single-scan
+   detectors, at its reduced size (``--full``: the full size) -> ``outputs/benchmark_tracking/``.
 """
 
 from __future__ import annotations
@@ -45,9 +48,9 @@ def main(argv: list[str] | None = None) -> dict:
     repro_argv = ["--out", str(args.out / "reproduce_paper"), "--noise", "0.005", "0.01"]
     if args.quick:
         repro_argv += ["--repeats", "3", "--draws", "4", "--no-figures"]
-    print("== 1/2 paper reproduction ==", flush=True)
+    print("== 1/3 paper reproduction ==", flush=True)
     results["reproduce_paper"] = _load("reproduce_paper").main(repro_argv)
-    print("== 2/2 detection benchmark: geometric vs learned ==", flush=True)
+    print("== 2/3 detection benchmark: geometric vs learned ==", flush=True)
     bench_argv = ["--detectors", "geometric", "learned", "--out", str(args.out / "benchmark_detectors")]
     if args.full:
         bench_argv.append("--full")
@@ -56,9 +59,17 @@ def main(argv: list[str] | None = None) -> dict:
     if args.quick:
         bench_argv += ["--noise", "0", "0.01", "--resamples", "50", "--no-plots"]
     results["benchmark_detectors"] = _load("benchmark_detectors").main(bench_argv)
+    print("== 3/3 sequence benchmark: tracker vs single scans ==", flush=True)
+    seq_argv = ["--out", str(args.out / "benchmark_tracking"), "--noise", "0", "0.01"]
+    if args.full:
+        seq_argv.append("--full")
+    elif args.quick:
+        seq_argv += ["--episodes", "1", "--splits", "lookalike", "--no-gif"]
+    results["benchmark_tracking"] = _load("benchmark_tracking").main(seq_argv)
     print(f"\nmain job done in {time.perf_counter() - t0:.0f} s. Outputs:")
     print(f"  {args.out / 'reproduce_paper'}/reproduction.md  (tables; figure*.png: the paper's figures)")
     print(f"  {args.out / 'benchmark_detectors'}/results.md   (benchmark: geometric vs learned; pr_*.png)")
+    print(f"  {args.out / 'benchmark_tracking'}/results.md    (tracker vs single scans; png, gif)")
     return results
 
 
