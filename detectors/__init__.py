@@ -9,6 +9,8 @@ labelled data and evaluating against the simulator's ground truth is on the simu
 
 from . import _numba_cache  # noqa: F401  (first: a cache directory before any @njit(cache=True))
 from .base import (
+    STAGES,
+    BatchDetections,
     Detection,
     DetectionResult,
     KinDetector,
@@ -37,6 +39,7 @@ from .geometric import (
     segment,
     shape_error,
 )
+from .tracking import KinTracker, Track, TrackerParams
 
 
 def __getattr__(name: str):
@@ -49,6 +52,8 @@ def __getattr__(name: str):
 
 
 __all__ = [
+    "STAGES",
+    "BatchDetections",
     "CircleFit",
     "LearnedKinDetector",
     "Detection",
@@ -58,8 +63,11 @@ __all__ = [
     "GeometricParams",
     "KinDetector",
     "KinPosition",
+    "KinTracker",
     "Segment",
     "SegmentReport",
+    "Track",
+    "TrackerParams",
     "ShapeCheck",
     "circle_residuals",
     "filter_by_diameter",

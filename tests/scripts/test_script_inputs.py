@@ -54,7 +54,8 @@ def test_train_classifier_noise_edges_out_of_range(tmp_path, capsys):
 def test_sane_noise_levels_are_accepted():
     from kin_envs.cli import MAX_NOISE, noise_level
 
-    assert noise_level("0") == 0.0 and noise_level("0.01") == 0.01 and noise_level(str(MAX_NOISE)) == MAX_NOISE
+    assert noise_level("0") == 0.0 and noise_level("0.01") == 0.01
+    assert noise_level(str(MAX_NOISE)) == MAX_NOISE
 
 
 def _assert_refused(call, capsys, blocked):
@@ -80,7 +81,8 @@ def test_unwritable_json_reproduce_paper(blocked, tmp_path, capsys, monkeypatch)
 def test_unwritable_out_evaluate_detectors(blocked, capsys, monkeypatch):
     mod = load_script("evaluate_detectors")
     monkeypatch.setattr(mod, "map_seeds", _computing)
-    _assert_refused(lambda: mod.main(["--scenes", "2", "--out", str(blocked), "--no-progress"]), capsys, blocked)
+    argv = ["--scenes", "2", "--out", str(blocked), "--no-progress"]
+    _assert_refused(lambda: mod.main(argv), capsys, blocked)
 
 
 def test_unwritable_out_benchmark(blocked, capsys, monkeypatch):
@@ -92,7 +94,8 @@ def test_unwritable_out_benchmark(blocked, capsys, monkeypatch):
 def test_unwritable_out_make_dataset(blocked, capsys, monkeypatch):
     mod = load_script("make_dataset")
     monkeypatch.setattr(mod, "imap_seeds", _computing)
-    _assert_refused(lambda: mod.main(["--out", str(blocked), "--scenes", "2", "--no-progress"]), capsys, blocked)
+    argv = ["--out", str(blocked), "--scenes", "2", "--no-progress"]
+    _assert_refused(lambda: mod.main(argv), capsys, blocked)
 
 
 def test_unwritable_out_train_classifier(blocked, tmp_path, capsys, monkeypatch):
@@ -109,3 +112,25 @@ def test_unwritable_out_evaluate_policies(blocked, capsys, monkeypatch):
     monkeypatch.setattr(mod, "make_env", _computing)
     _assert_refused(lambda: mod.main(["--episodes", "1", "--out", str(blocked), "--no-progress"]), capsys,
                     blocked)  # fmt: skip
+
+
+def test_benchmark_detectors_noise_and_out(blocked, tmp_path, capsys, monkeypatch):
+    mod = load_script("benchmark_detectors")
+    monkeypatch.setattr(mod, "run_benchmark", _computing)
+    with pytest.raises(SystemExit):
+        mod.main(["--noise", "5", "--out", str(tmp_path)])
+    assert "--noise" in capsys.readouterr().err
+    _assert_refused(lambda: mod.main(["--out", str(blocked)]), capsys, blocked)
+
+
+def test_unwritable_out_benchmark_tracking(blocked, capsys, monkeypatch):
+    mod = load_script("benchmark_tracking")
+    monkeypatch.setattr(mod, "run_sequences", _computing)
+    _assert_refused(lambda: mod.main(["--out", str(blocked)]), capsys, blocked)
+
+
+def test_unwritable_out_train_beam_detector(blocked, capsys, monkeypatch):
+    pytest.importorskip("torch")
+    mod = load_script("train_beam_detector")
+    monkeypatch.setattr(mod, "make_data", _computing)
+    _assert_refused(lambda: mod.main(["--out", str(blocked)]), capsys, blocked)
