@@ -188,7 +188,9 @@ def final_evaluation(out: Path) -> dict[str, Any] | None:
 
 
 def write_run(out: Path, run: dict[str, Any]) -> None:
-    (out / "run.json").write_text(json.dumps(run, indent=2, default=str) + "\n")
+    from detectors.fileio import write_json
+
+    write_json(out / "run.json", run, default=str)
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -252,7 +254,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                 tb_log_name=cfg.algo)
     elapsed = time.perf_counter() - t0
     model_path = out / "model.zip"
-    model.save(model_path)
+    from detectors.fileio import atomic_write
+
+    with atomic_write(model_path) as f:  # never half a model under the final name
+        model.save(f)
     env.close()
     run.update(status="done", train_seconds=round(elapsed, 1), timesteps=int(model.num_timesteps),
                model=str(model_path), final_eval=final_evaluation(out))

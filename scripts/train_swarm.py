@@ -24,7 +24,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import inspect
-import json
 import platform
 import sys
 import time
@@ -37,6 +36,7 @@ if str(ROOT) not in sys.path:  # run as a file: make agents / kin_envs importabl
     sys.path.insert(0, str(ROOT))
 
 from agents.hyperparams import hyperparams_for  # noqa: E402
+from detectors.fileio import atomic_write, write_json  # noqa: E402
 from kin_envs import aggregation_v0  # noqa: E402
 from kin_envs.cli import parse_json_object  # noqa: E402
 
@@ -165,7 +165,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                      "torch": torch.__version__},
         "status": "running",
     }
-    (out / "run.json").write_text(json.dumps(run, indent=2) + "\n")
+    write_json(out / "run.json", run)
 
     venv, model = make_model(cfg, tensorboard_log=str(out / "tb"))
 
@@ -189,11 +189,12 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     model.learn(total_timesteps=cfg.total_timesteps, callback=callbacks, tb_log_name="ppo")
     elapsed = time.perf_counter() - t0
     model_path = out / "model.zip"
-    model.save(model_path)
+    with atomic_write(model_path) as f:  # never half a model under the final name
+        model.save(f)
     venv.close()
     run.update(status="done", train_seconds=round(elapsed, 1), timesteps=int(model.num_timesteps),
                model=str(model_path))
-    (out / "run.json").write_text(json.dumps(run, indent=2) + "\n")
+    write_json(out / "run.json", run)
     return {"model": model_path, "run": run, "model_object": model}
 
 

@@ -46,6 +46,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:  # run as a file: make kin_envs importable from the checkout
     sys.path.insert(0, str(ROOT))
 
+from detectors.fileio import write_json  # noqa: E402
 from kin_envs import aggregation_v0  # noqa: E402
 from kin_envs.distributed import ray_session, ship_by_value  # noqa: E402
 
@@ -259,7 +260,7 @@ def main(argv=None) -> dict:
                 "gymnasium": gymnasium.__version__, "pettingzoo": pettingzoo.__version__,
             },
         }  # fmt: skip
-    (out / "run.json").write_text(json.dumps(run, indent=2, default=repr))
+    write_json(out / "run.json", run, default=repr)
     ret = rows[-1]["episode_return_mean"]
     print(
         f"{len(rows)} iterations, {rows[-1]['env_steps']} env steps in {run['seconds']:.1f} s; "
