@@ -1,0 +1,291 @@
+"""Several independent worlds advanced and scanned together (the native vector env's core).
+
+:class:`WorldBatch` ``.step`` and ``.scan`` do exactly what ``World.step`` and ``World.scan`` do
+for each of its worlds (same arithmetic, same RNG draws in the same order, so results are bit-identical),
+but pay Python's per-call overhead once per batch instead of once per world: the drive update of
+all worlds is one set of numpy operations per physics substep, the pymunk calls go straight to
+Chipmunk, contacts are resolved for all worlds at once, and every robot of every world is scanned
+in one call of the raycasting kernel (each robot against its own world's primitives only).
+
+Worlds stay independent objects: any of them can be reset (replaced) between calls.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numba
+import numpy as np
+import pymunk.batch as pmbatch
+from pymunk._chipmunk import lib as _cp
+
+from kin_envs.core.lidar import _beam_tables, _cast_one
+from kin_envs.core.world import Contact, Scan, World
+
+__all__ = ["WorldBatch"]
+
+
+def _key(w: World) -> tuple:
+    return (w.n_robots, w.scene.robot, w.scene.lidar, w.config.physics_dt, w.config.substeps)
+
+
+class WorldBatch:
+    """``K`` independent worlds, stepped and scanned together.
+
+    All worlds must have the same number of robots, robot spec, lidar spec and timestep (the
+    scenes, obstacles and RNGs are each world's own). Replace a world (a new episode) with
+    ``batch[k] = World(...)``.
+
+    Example::
+
+        batch = WorldBatch([World(scenes.random_arena(2, 6, seed=s), seed=s) for s in range(64)])
+        batch.step(np.zeros((64, 2, 2)))      # wheel speeds, rad/s
+        scans, poses = batch.scan([0])        # robot 0 of every world, one kernel call
+    """
+
+    def __init__(self, worlds: Sequence[World]) -> None:
+        self._worlds = list(worlds)
+        if not self._worlds:
+            raise ValueError("WorldBatch: needs at least one world")
+        self._layout_ok = False
+
+    def __len__(self) -> int:
+        return len(self._worlds)
+
+    def __getitem__(self, k: int) -> World:
+        return self._worlds[k]
+
+    def __setitem__(self, k: int, world: World) -> None:
+        if not isinstance(world, World):
+            raise TypeError(f"WorldBatch: expected a World, got {type(world).__name__}")
+        self._worlds[k] = world
+        self._layout_ok = False
+
+    @property
+    def worlds(self) -> tuple[World, ...]:
+        return tuple(self._worlds)
+
+    def _layout(self) -> None:
+        """Per-batch tables, rebuilt whenever a world was replaced."""
+        if self._layout_ok:
+            return
+        ws = self._worlds
+        k0 = _key(ws[0])
+        for j, w in enumerate(ws):
+            if _key(w) != k0:
+                raise ValueError(
+                    f"WorldBatch: world {j} differs from world 0 in robot count, robot spec, lidar "
+                    "spec or timestep; a batch needs them equal"
+                )
+        self.n_robots = ws[0].n_robots
+        self._bodies = [b._body for w in ws for b in w.robot_bodies]
+        self._controls = [c._body for w in ws for c in w._controls]
+        self._spaces = [w.space._space for w in ws]
+        n = self.n_robots
+        # contacts: one owner table of all worlds (pymunk body ids are unique across spaces)
+        ids = np.concatenate([w._owner_ids for w in ws])
+        flags = np.concatenate([w._owner_flag for w in ws])
+        robots = np.concatenate([np.where(w._owner_robot >= 0, w._owner_robot + j * n, -1)
+                                 for j, w in enumerate(ws)])
+        order = np.argsort(ids, kind="stable")
+        self._ids, self._flags, self._owner_robots = ids[order], flags[order], robots[order]
+        # lidar: every world's primitives in one array, each robot casting against its own slice
+        self._movable = any(w._movable for w in ws)
+        c_len = np.array([len(w._circles) for w in ws])
+        s_len = np.array([len(w._segments) for w in ws])
+        p_len = np.array([len(w._prim_kind) for w in ws])
+        self._c_off = np.concatenate([[0], np.cumsum(c_len)[:-1]])
+        self._s_off = np.concatenate([[0], np.cumsum(s_len)[:-1]])
+        self._p_off = np.concatenate([[0], np.cumsum(p_len)[:-1]])
+        self._c_len, self._s_len = c_len, s_len
+        self._circles = np.concatenate([w._circles for w in ws]).reshape(-1, 3)
+        self._segments = np.concatenate([w._segments for w in ws]).reshape(-1, 4)
+        self._prim_kind = np.concatenate([w._prim_kind for w in ws]).astype(np.int8)
+        self._prim_index = np.concatenate([w._prim_index for w in ws]).astype(np.int32)
+        # robot i of world j is circle i of that world's slice
+        self._robot_circle = (self._c_off[:, None] + np.arange(n)[None, :]).reshape(-1)
+        self._scan_cache: tuple | None = None
+        self._layout_ok = True
+
+    # -- physics ----------------------------------------------------------------------------------
+    def step(self, wheel_speeds: np.ndarray) -> None:
+        """``worlds[k].step(wheel_speeds=wheel_speeds[k])`` for every ``k``, batched.
+
+        Args:
+            wheel_speeds: ``(K, n_robots, 2)`` left/right wheel speeds, rad/s.
+        """
+        self._layout()
+        ws, k, n = self._worlds, len(self._worlds), self.n_robots
+        wheels = np.asarray(wheel_speeds, dtype=np.float64)
+        if wheels.shape != (k, n, 2):
+            raise ValueError(f"WorldBatch.step: wheel_speeds must have shape ({k}, {n}, 2), got "
+                             f"{wheels.shape}")
+        if not np.all(np.isfinite(wheels)):
+            bad = np.argwhere(~np.isfinite(wheels))[0]
+            raise ValueError(f"WorldBatch.step: wheel_speeds{bad.tolist()} is "
+                             f"{wheels[tuple(bad)]}; expected finite numbers")
+        w0 = ws[0]
+        # the same elementwise arithmetic as World.step, on all worlds' rows at once
+        flat = wheels.reshape(k * n, 2)
+        limit = w0.scene.robot.max_wheel_speed
+        peak = np.max(np.abs(flat), axis=1, keepdims=True)
+        flat = flat * np.minimum(1.0, limit / np.maximum(peak, 1e-12))
+        commands = w0.wheel_speeds_to_unicycle(flat)
+        for j, w in enumerate(ws):
+            w._commands = commands[j * n : (j + 1) * n].copy()
+        v, omega = commands[:, 0], commands[:, 1]
+        omega_list = omega.tolist()
+        dt, substeps = w0.config.physics_dt, w0.config.substeps
+        bodies, controls, spaces = self._bodies, self._controls, self._spaces
+        get_angle, set_vel, set_avel, space_step = (
+            _cp.cpBodyGetAngle, _cp.cpBodySetVelocity, _cp.cpBodySetAngularVelocity, _cp.cpSpaceStep
+        )
+        for _ in range(substeps):
+            heading = np.array([get_angle(b) for b in bodies])
+            vx = (v * np.cos(heading)).tolist()
+            vy = (v * np.sin(heading)).tolist()
+            for c, x, y, om in zip(controls, vx, vy, omega_list, strict=True):
+                set_vel(c, (x, y))
+                set_avel(c, om)
+            for s in spaces:
+                space_step(s, dt)
+        for w in ws:
+            w.time += substeps * dt
+        self._update_contacts()
+
+    def _update_contacts(self) -> None:
+        """``World._update_contacts`` of every world: arbiters read per world, resolved at once."""
+        pairs = []
+        fields = pmbatch.ArbiterFields.BODY_A_ID | pmbatch.ArbiterFields.BODY_B_ID
+        for w in self._worlds:
+            buf = w._arb_buf
+            buf.clear()
+            pmbatch.get_space_arbiters(w.space, fields, buf)
+            pairs.append(np.frombuffer(buf.int_buf(), dtype=np.uintp))
+        pairs_a = np.concatenate(pairs).reshape(-1, 2)
+        n = self.n_robots
+        contacts = np.zeros(len(self._worlds) * n, dtype=np.int8)
+        if len(pairs_a):
+            ids = self._ids
+            k = np.minimum(np.searchsorted(ids, pairs_a), len(ids) - 1)
+            known = ids[k] == pairs_a
+            flag = np.where(known, self._flags[k], Contact.WALL).astype(np.int8)
+            robot = np.where(known, self._owner_robots[k], -1)
+            for me, other in ((0, 1), (1, 0)):
+                m = robot[:, me] >= 0
+                np.bitwise_or.at(contacts, robot[m, me], flag[m, other])
+        for j, w in enumerate(self._worlds):
+            w.contacts = contacts[j * n : (j + 1) * n].copy()
+
+    # -- state ------------------------------------------------------------------------------------
+    def poses(self) -> np.ndarray:
+        """``(K, n_robots, 3)``: ``worlds[k].poses`` for every ``k`` (theta wrapped), read at once."""
+        self._layout()
+        get_pos, get_angle = _cp.cpBodyGetPosition, _cp.cpBodyGetAngle
+        rows = []
+        for b in self._bodies:
+            p = get_pos(b)
+            rows.append((p.x, p.y, get_angle(b)))
+        out = np.array(rows, dtype=np.float64).reshape(-1, 3)
+        out[:, 2] = np.arctan2(np.sin(out[:, 2]), np.cos(out[:, 2]))
+        return out.reshape(len(self._worlds), self.n_robots, 3)
+
+    # -- sensing ----------------------------------------------------------------------------------
+    def scan(self, robots: Sequence[int] | None = None, noise: bool = True
+             ) -> tuple[list[Scan], np.ndarray]:
+        """``[w.scan(robots, noise) for w in worlds]`` in one call of the raycasting kernel.
+
+        Args:
+            robots: robot indices to scan in every world (``None``: all).
+            noise: apply each world's lidar noise and dropouts, drawn from that world's RNG in the
+                order ``World.scan`` draws them.
+
+        Returns:
+            ``(scans, poses)``: one :class:`Scan` per world (views into shared buffers) and the
+            ``(K, n_robots, 3)`` poses of every robot at the time of the scan.
+        """
+        self._layout()
+        ws, n, k = self._worlds, self.n_robots, len(self._worlds)
+        spec = ws[0].scene.lidar
+        ix = np.arange(n) if robots is None else np.asarray(robots, dtype=np.int64).reshape(-1)
+        if ix.size and (ix.min() < 0 or ix.max() >= n):
+            raise ValueError(f"WorldBatch.scan: robot indices must be in [0, {n}), got {ix.tolist()}")
+        poses = self.poses()
+        if self._movable:  # rare: moved obstacles change their world's primitives
+            for w, p in zip(ws, poses, strict=True):
+                w._update_lidar_geometry(p)
+            self._circles = np.concatenate([w._circles for w in ws]).reshape(-1, 3)
+            self._segments = np.concatenate([w._segments for w in ws]).reshape(-1, 4)
+        else:
+            self._circles[self._robot_circle, :2] = poses.reshape(-1, 3)[:, :2]
+        key = tuple(ix.tolist())
+        if self._scan_cache is None or self._scan_cache[0] != key:
+            m = ix.size
+            world = np.repeat(np.arange(k), m)
+            self._scan_cache = (
+                key, world, np.tile(ix, k), self._c_off[world], self._c_off[world] + self._c_len[world],
+                self._s_off[world], self._s_off[world] + self._s_len[world], self._p_off[world],
+            )
+        _, world, skip, c_lo, c_hi, s_lo, s_hi, p_lo = self._scan_cache
+        origin = poses[:, ix].reshape(-1, 3)
+        rows, nb = origin.shape[0], spec.n_beams
+        ranges = np.empty((rows, nb), np.float32)
+        true = np.empty((rows, nb), np.float32)
+        kind = np.empty((rows, nb), np.int8)
+        index = np.empty((rows, nb), np.int32)
+        _multi_kernel(
+            np.ascontiguousarray(origin[:, 0]), np.ascontiguousarray(origin[:, 1]),
+            np.ascontiguousarray(origin[:, 2]), int(nb), float(spec.range_min),
+            float(spec.range_max), self._circles, c_lo, c_hi, skip, self._segments, s_lo, s_hi,
+            self._prim_kind, self._prim_index, p_lo, ranges, true, kind, index,
+        )  # fmt: skip
+        m = ix.size
+        if noise and (spec.noise_sigma > 0 or spec.dropout_prob > 0):
+            # World.scan's noise; each world draws from its own RNG in the same order
+            hit = np.isfinite(true)
+            per_world = hit.reshape(k, -1).sum(axis=1).tolist()
+            d = true[hit].astype(np.float64)
+            if spec.noise_sigma > 0:
+                z = np.concatenate([w.rng.normal(0.0, 1.0, c) for w, c in zip(ws, per_world, strict=True)])
+                d += z * spec.noise_sigma * d
+            invalid = (d < spec.range_min) | (d > spec.range_max)
+            if spec.dropout_prob > 0:
+                u = np.concatenate([w.rng.random(c) for w, c in zip(ws, per_world, strict=True)])
+                invalid |= u < spec.dropout_prob
+            d[invalid] = spec.range_max
+            ranges[hit] = d
+        scans = [
+            Scan(ranges=ranges[j * m : (j + 1) * m], angles=spec.angles,
+                 hit_kind=kind[j * m : (j + 1) * m], hit_index=index[j * m : (j + 1) * m],
+                 true_ranges=true[j * m : (j + 1) * m], robots=ix, poses=origin[j * m : (j + 1) * m],
+                 range_max=spec.range_max)
+            for j in range(k)
+        ]  # fmt: skip
+        return scans, poses
+
+
+@numba.njit(cache=True, nogil=True)
+def _multi_kernel(ox, oy, heading, n_beams, range_min, range_max, circles, c_lo, c_hi, skip,
+                  segments, s_lo, s_hi, prim_kind, prim_index, p_lo, out_ranges, out_true,
+                  out_kind, out_index):  # fmt: skip
+    """``_scan_kernel`` with per-origin primitive ranges: origin ``n`` sees circles
+    ``c_lo[n]:c_hi[n]`` and segments ``s_lo[n]:s_hi[n]`` (its own world's), and its owner table
+    starts at ``p_lo[n]``."""
+    cos_tab, sin_tab = _beam_tables(n_beams)
+    best_d = np.empty(n_beams)
+    best_p = np.empty(n_beams, dtype=np.int32)
+    for n in range(ox.shape[0]):
+        _cast_one(ox[n], oy[n], heading[n], skip[n], range_max, circles[c_lo[n] : c_hi[n]],
+                  segments[s_lo[n] : s_hi[n]], cos_tab, sin_tab, best_d, best_p)
+        base = p_lo[n]
+        for i in range(n_beams):
+            p = best_p[i] + 1
+            d = best_d[i]
+            out_kind[n, i] = prim_kind[base + p]
+            out_index[n, i] = prim_index[base + p]
+            if p == 0:
+                out_true[n, i] = np.inf
+                out_ranges[n, i] = range_max
+            else:
+                out_true[n, i] = d
+                out_ranges[n, i] = d if d >= range_min else range_max
