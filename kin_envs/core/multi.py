@@ -108,18 +108,22 @@ class WorldBatch:
         self._layout_ok = True
 
     # -- physics ----------------------------------------------------------------------------------
-    def step(self, wheel_speeds: np.ndarray) -> None:
+    def step(self, wheel_speeds: np.ndarray, active: np.ndarray | None = None) -> None:
         """``worlds[k].step(wheel_speeds=wheel_speeds[k])`` for every ``k``, batched.
 
         Args:
             wheel_speeds: ``(K, n_robots, 2)`` left/right wheel speeds, rad/s.
+            active: ``(K,)`` bools, the worlds to step (default all); rows of the others are ignored.
         """
         self._layout()
         ws, k, n = self._worlds, len(self._worlds), self.n_robots
+        sel = self._select(active)
         wheels = np.asarray(wheel_speeds, dtype=np.float64)
         if wheels.shape != (k, n, 2):
             raise ValueError(f"WorldBatch.step: wheel_speeds must have shape ({k}, {n}, 2), got "
                              f"{wheels.shape}")
+        if sel is not None:
+            wheels = np.where(sel[:, None, None], wheels, 0.0)
         if not np.all(np.isfinite(wheels)):
             bad = np.argwhere(~np.isfinite(wheels))[0]
             raise ValueError(f"WorldBatch.step: wheel_speeds{bad.tolist()} is "
@@ -131,12 +135,19 @@ class WorldBatch:
         peak = np.max(np.abs(flat), axis=1, keepdims=True)
         flat = flat * np.minimum(1.0, limit / np.maximum(peak, 1e-12))
         commands = w0.wheel_speeds_to_unicycle(flat)
-        for j, w in enumerate(ws):
-            w._commands = commands[j * n : (j + 1) * n].copy()
+        on = range(k) if sel is None else np.flatnonzero(sel).tolist()
+        for j in on:
+            ws[j]._commands = commands[j * n : (j + 1) * n].copy()
+        bodies, controls, spaces = self._bodies, self._controls, self._spaces
+        if sel is not None:
+            rows = np.repeat(sel, n)
+            commands = commands[rows]
+            bodies = [b for b, r in zip(bodies, rows.tolist(), strict=True) if r]
+            controls = [c for c, r in zip(controls, rows.tolist(), strict=True) if r]
+            spaces = [spaces[j] for j in on]
         v, omega = commands[:, 0], commands[:, 1]
         omega_list = omega.tolist()
         dt, substeps = w0.config.physics_dt, w0.config.substeps
-        bodies, controls, spaces = self._bodies, self._controls, self._spaces
         get_angle, set_vel, set_avel, space_step = (
             _cp.cpBodyGetAngle, _cp.cpBodySetVelocity, _cp.cpBodySetAngularVelocity, _cp.cpSpaceStep
         )
@@ -149,15 +160,23 @@ class WorldBatch:
                 set_avel(c, om)
             for s in spaces:
                 space_step(s, dt)
-        for w in ws:
-            w.time += substeps * dt
-        self._update_contacts()
+        for j in on:
+            ws[j].time += substeps * dt
+        self._update_contacts(on)
 
-    def _update_contacts(self) -> None:
-        """``World._update_contacts`` of every world: arbiters read per world, resolved at once."""
+    def _select(self, active) -> np.ndarray | None:
+        if active is None:
+            return None
+        sel = np.asarray(active, dtype=bool).reshape(-1)
+        if sel.shape != (len(self._worlds),):
+            raise ValueError(f"WorldBatch: active must have shape ({len(self._worlds)},), got {sel.shape}")
+        return None if sel.all() else sel
+
+    def _update_contacts(self, on) -> None:
+        """``World._update_contacts`` of the worlds ``on``: arbiters read per world, resolved at once."""
         pairs = []
         fields = pmbatch.ArbiterFields.BODY_A_ID | pmbatch.ArbiterFields.BODY_B_ID
-        for w in self._worlds:
+        for w in (self._worlds[j] for j in on):
             buf = w._arb_buf
             buf.clear()
             pmbatch.get_space_arbiters(w.space, fields, buf)
@@ -174,8 +193,8 @@ class WorldBatch:
             for me, other in ((0, 1), (1, 0)):
                 m = robot[:, me] >= 0
                 np.bitwise_or.at(contacts, robot[m, me], flag[m, other])
-        for j, w in enumerate(self._worlds):
-            w.contacts = contacts[j * n : (j + 1) * n].copy()
+        for j in on:
+            self._worlds[j].contacts = contacts[j * n : (j + 1) * n].copy()
 
     # -- state ------------------------------------------------------------------------------------
     def poses(self) -> np.ndarray:
@@ -191,14 +210,15 @@ class WorldBatch:
         return out.reshape(len(self._worlds), self.n_robots, 3)
 
     # -- sensing ----------------------------------------------------------------------------------
-    def scan(self, robots: Sequence[int] | None = None, noise: bool = True
-             ) -> tuple[list[Scan], np.ndarray]:
+    def scan(self, robots: Sequence[int] | None = None, noise: bool = True,
+             active: np.ndarray | None = None) -> tuple[list[Scan | None], np.ndarray]:
         """``[w.scan(robots, noise) for w in worlds]`` in one call of the raycasting kernel.
 
         Args:
             robots: robot indices to scan in every world (``None``: all).
             noise: apply each world's lidar noise and dropouts, drawn from that world's RNG in the
                 order ``World.scan`` draws them.
+            active: ``(K,)`` bools, the worlds to scan (default all; others give ``None``).
 
         Returns:
             ``(scans, poses)``: one :class:`Scan` per world (views into shared buffers) and the
@@ -206,6 +226,8 @@ class WorldBatch:
         """
         self._layout()
         ws, n, k = self._worlds, self.n_robots, len(self._worlds)
+        sel = self._select(active)
+        on = list(range(k)) if sel is None else np.flatnonzero(sel).tolist()
         spec = ws[0].scene.lidar
         ix = np.arange(n) if robots is None else np.asarray(robots, dtype=np.int64).reshape(-1)
         if ix.size and (ix.min() < 0 or ix.max() >= n):
@@ -213,7 +235,7 @@ class WorldBatch:
         poses = self.poses()
         if self._movable:  # rare: moved obstacles change their world's primitives
             for w, p in zip(ws, poses, strict=True):
-                w._update_lidar_geometry(p)
+                w._update_lidar_geometry(p)  # (inactive worlds too: it draws no random numbers)
             self._circles = np.concatenate([w._circles for w in ws]).reshape(-1, 3)
             self._segments = np.concatenate([w._segments for w in ws]).reshape(-1, 4)
         else:
@@ -228,6 +250,11 @@ class WorldBatch:
             )
         _, world, skip, c_lo, c_hi, s_lo, s_hi, p_lo = self._scan_cache
         origin = poses[:, ix].reshape(-1, 3)
+        if sel is not None:
+            rows_on = np.repeat(sel, ix.size)
+            skip, c_lo, c_hi, s_lo, s_hi, p_lo, origin = (
+                a[rows_on] for a in (skip, c_lo, c_hi, s_lo, s_hi, p_lo, origin)
+            )
         rows, nb = origin.shape[0], spec.n_beams
         ranges = np.empty((rows, nb), np.float32)
         true = np.empty((rows, nb), np.float32)
@@ -243,24 +270,24 @@ class WorldBatch:
         if noise and (spec.noise_sigma > 0 or spec.dropout_prob > 0):
             # World.scan's noise; each world draws from its own RNG in the same order
             hit = np.isfinite(true)
-            per_world = hit.reshape(k, -1).sum(axis=1).tolist()
+            per_world = hit.reshape(len(on), -1).sum(axis=1).tolist()
             d = true[hit].astype(np.float64)
             if spec.noise_sigma > 0:
-                z = np.concatenate([w.rng.normal(0.0, 1.0, c) for w, c in zip(ws, per_world, strict=True)])
+                z = np.concatenate([ws[j].rng.normal(0.0, 1.0, c)
+                                    for j, c in zip(on, per_world, strict=True)])
                 d += z * spec.noise_sigma * d
             invalid = (d < spec.range_min) | (d > spec.range_max)
             if spec.dropout_prob > 0:
-                u = np.concatenate([w.rng.random(c) for w, c in zip(ws, per_world, strict=True)])
+                u = np.concatenate([ws[j].rng.random(c) for j, c in zip(on, per_world, strict=True)])
                 invalid |= u < spec.dropout_prob
             d[invalid] = spec.range_max
             ranges[hit] = d
-        scans = [
-            Scan(ranges=ranges[j * m : (j + 1) * m], angles=spec.angles,
-                 hit_kind=kind[j * m : (j + 1) * m], hit_index=index[j * m : (j + 1) * m],
-                 true_ranges=true[j * m : (j + 1) * m], robots=ix, poses=origin[j * m : (j + 1) * m],
-                 range_max=spec.range_max)
-            for j in range(k)
-        ]  # fmt: skip
+        scans: list[Scan | None] = [None] * k
+        for r, j in enumerate(on):
+            sl = slice(r * m, (r + 1) * m)
+            scans[j] = Scan(ranges=ranges[sl], angles=spec.angles, hit_kind=kind[sl],
+                            hit_index=index[sl], true_ranges=true[sl], robots=ix, poses=origin[sl],
+                            range_max=spec.range_max)
         return scans, poses
 
 
