@@ -224,6 +224,22 @@ class WorldBatch:
             ``(scans, poses)``: one :class:`Scan` per world (views into shared buffers) and the
             ``(K, n_robots, 3)`` poses of every robot at the time of the scan.
         """
+        combined, poses, on = self.scan_combined(robots, noise, active)
+        m = combined.robots.size // max(len(on), 1)
+        scans: list[Scan | None] = [None] * len(self._worlds)
+        for r, j in enumerate(on):
+            sl = slice(r * m, (r + 1) * m)
+            scans[j] = Scan(ranges=combined.ranges[sl], angles=combined.angles,
+                            hit_kind=combined.hit_kind[sl], hit_index=combined.hit_index[sl],
+                            true_ranges=combined.true_ranges[sl], robots=combined.robots[sl],
+                            poses=combined.poses[sl], range_max=combined.range_max)
+        return scans, poses
+
+    def scan_combined(self, robots: Sequence[int] | None = None, noise: bool = True,
+                      active: np.ndarray | None = None) -> tuple[Scan, np.ndarray, list[int]]:
+        """:meth:`scan` as one :class:`Scan` whose rows are the scanned robots of the active worlds
+        in order (``robots`` per world; ``hit_index`` and ``robots`` are indices within each
+        world), the ``(K, n_robots, 3)`` poses and the list of active worlds."""
         self._layout()
         ws, n, k = self._worlds, self.n_robots, len(self._worlds)
         sel = self._select(active)
@@ -282,13 +298,10 @@ class WorldBatch:
                 invalid |= u < spec.dropout_prob
             d[invalid] = spec.range_max
             ranges[hit] = d
-        scans: list[Scan | None] = [None] * k
-        for r, j in enumerate(on):
-            sl = slice(r * m, (r + 1) * m)
-            scans[j] = Scan(ranges=ranges[sl], angles=spec.angles, hit_kind=kind[sl],
-                            hit_index=index[sl], true_ranges=true[sl], robots=ix, poses=origin[sl],
-                            range_max=spec.range_max)
-        return scans, poses
+        combined = Scan(ranges=ranges, angles=spec.angles, hit_kind=kind, hit_index=index,
+                        true_ranges=true, robots=np.tile(ix, len(on)), poses=origin,
+                        range_max=spec.range_max)
+        return combined, poses, on
 
 
 @numba.njit(cache=True, nogil=True)

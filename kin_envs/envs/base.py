@@ -68,7 +68,12 @@ class SingleRobotEnv(gym.Env):
         self._last_scan: Scan | None = None
         self._last_detections = None
         self._wheels: np.ndarray | None = None
+        self._current_poses: np.ndarray | None = None
         self._steps = 0
+
+    def _poses(self) -> np.ndarray:
+        """``world.poses`` now (read once per step; the vector env sets it from its batch read)."""
+        return self._current_poses
 
     # -- hooks for subclasses -----------------------------------------------------------------
     def _make_scene(self, rng: np.random.Generator) -> Scene:
@@ -100,8 +105,8 @@ class SingleRobotEnv(gym.Env):
         self.world = World(scene, seed=self.np_random, config=self._world_config)
         self._steps = 0
         scan = self.world.scan(self._scan_robots())
+        poses = self._current_poses = self.world.poses
         self._after_reset(scan)
-        poses = self.world.poses
         dets = self._detect(scan, poses)
         frame = self._sense(scan, dets)
         obs = self._obs.reset(frame)[0]
@@ -119,7 +124,7 @@ class SingleRobotEnv(gym.Env):
         self._wheel_speeds(action)  # checks reset() was called
         self.world.step(wheel_speeds=self._wheels)
         scan = self.world.scan(self._scan_robots())
-        poses = self.world.poses
+        poses = self._current_poses = self.world.poses
         dets = self._detect(scan, poses)
         obs, reward, terminated, truncated, info = self._finish_step(self._sense(scan, dets))
         info.update(self._kin_info(scan, dets, poses))

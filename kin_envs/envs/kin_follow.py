@@ -160,7 +160,7 @@ class KinFollowEnv(SingleRobotEnv):
         return wheels / spec.max_wheel_speed
 
     def _distance(self) -> float:
-        p = self.world.poses
+        p = self._poses()
         return float(math.hypot(p[1, 0] - p[0, 0], p[1, 1] - p[0, 1]))
 
     def _zero_terms(self) -> dict[str, float]:

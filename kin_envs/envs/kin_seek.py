@@ -203,7 +203,7 @@ class KinSeekEnv(SingleRobotEnv):
         return scene
 
     def _kin_distance(self) -> float:
-        p = self.world.poses
+        p = self._poses()
         return float(math.hypot(p[1, 0] - p[0, 0], p[1, 1] - p[0, 1]))
 
     def _after_reset(self, scan: Scan) -> None:

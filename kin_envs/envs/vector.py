@@ -167,9 +167,7 @@ class KinVectorEnv(VectorEnv):
         active = ~self._autoreset
         on = np.flatnonzero(active).tolist()
         envs = self.envs
-        wheels = np.zeros((k, n, 2))
-        for i in on:  # per-env checks and the scripted robots' commands (their own RNG draws)
-            wheels[i] = envs[i]._wheel_speeds(acts[i])
+        wheels = self._wheel_speeds(acts, on)
         rewards = np.zeros(k, dtype=np.float64)
         terminations = np.zeros(k, dtype=np.bool_)
         truncations = np.zeros(k, dtype=np.bool_)
@@ -177,9 +175,9 @@ class KinVectorEnv(VectorEnv):
         kin: dict[str, tuple[dict[str, np.ndarray], np.ndarray]] = {}
         if on:
             self._batch.step(wheels, active=None if not resets else active)
-            scans, poses = self._batch.scan(envs[0]._scan_robots(),
-                                            active=None if not resets else active)
-            frames, kin = self._sense(on, scans, poses)
+            combined, poses, _ = self._batch.scan_combined(
+                envs[0]._scan_robots(), active=None if not resets else active)
+            frames, kin = self._sense(on, combined, poses)
             for r, i in enumerate(on):
                 obs, rew, term, trunc, info = envs[i]._finish_step(frames[r : r + 1])
                 self._observations[i] = obs
@@ -195,17 +193,46 @@ class KinVectorEnv(VectorEnv):
         self._autoreset = terminations | truncations
         return self._observations.copy(), rewards, terminations, truncations, info
 
-    def _sense(self, on: list[int], scans: list[Scan | None], poses: np.ndarray):
+    def _wheel_speeds(self, acts: np.ndarray, on: list[int]) -> np.ndarray:
+        """``(K, n_robots, 2)`` wheel speeds, rad/s (rows of resetting sub-envs zero): what each
+        sub-env's ``_wheel_speeds`` gives, with the learners' actions checked all at once."""
+        k, n, envs = self.num_envs, self._n_robots, self.envs
+        where = f"{self.config.env_id} vector env"
+        adapter = envs[0]._actions
+        if adapter.action_type == "continuous":
+            try:
+                a = np.asarray(acts, dtype=np.float64)
+            except (TypeError, ValueError) as e:
+                raise ValueError(f"{where}: actions must be numbers, shape ({k}, 2)") from e
+            if a.shape != (k, 2):
+                raise ValueError(f"{where}: actions must have shape ({k}, 2), got {a.shape}")
+            bad = ~np.isfinite(a[on]).all(axis=1)
+            if bad.any():
+                i = on[int(np.flatnonzero(bad)[0])]
+                raise ValueError(f"{where}: actions[{i}] must be finite numbers, got {a[i].tolist()}")
+            learner = np.clip(a, -1.0, 1.0)
+        else:
+            learner = np.zeros((k, 2))
+            for i in on:
+                learner[i] = adapter.one(acts[i], f"actions[{i}]")
+        wheels = np.zeros((k, n, 2))
+        wheels[:, 0] = learner
+        if type(envs[0])._other_wheels is not SingleRobotEnv._other_wheels:
+            for i in on:  # scripted robots: per sub-env (their own scans and RNG draws)
+                wheels[i, 1:] = envs[i]._other_wheels(envs[i]._last_scan)
+        wheels *= envs[0].world.scene.robot.max_wheel_speed
+        return wheels
+
+    def _sense(self, on: list[int], combined: Scan, poses: np.ndarray):
         """Detector, kin truth and observation frames of the stepped sub-envs, all at once."""
         k_on, n = len(on), self._n_robots
-        learner = [scans[i] for i in on]
-        m = learner[0].ranges.shape[0]  # rows scanned per world (the learner's is row 0)
-        ranges = np.stack([s.ranges[0] for s in learner]) if m > 1 else np.concatenate(
-            [s.ranges for s in learner])
+        m = combined.ranges.shape[0] // k_on  # rows scanned per world (the learner's is row 0)
+        learner = slice(None, None, m)
+        ranges = combined.ranges[learner]
         flat_poses = poses[on].reshape(-1, 3)  # (k_on * n, 3): robot r of stepped env e at e*n + r
         world_of_robot = np.repeat(np.arange(k_on), n)
         observers = np.arange(k_on) * n
-        angles = learner[0].angles
+        angles = combined.angles
         dets = None
         if self.detector is not None:
             row, cols = detect_rows(self.detector, ranges, angles, observers, flat_poses,
@@ -215,11 +242,10 @@ class KinVectorEnv(VectorEnv):
             dets = (row, cols)
         # kin truth of all learners in one call: a virtual scan whose robot indices are global
         stacked = Scan(
-            ranges=ranges, angles=angles,
-            hit_kind=np.stack([s.hit_kind[0] for s in learner]),
-            hit_index=np.stack([s.hit_index[0] for s in learner]) + observers[:, None].astype(np.int32),
-            true_ranges=np.stack([s.true_ranges[0] for s in learner]), robots=observers,
-            poses=flat_poses[observers], range_max=learner[0].range_max,
+            ranges=ranges, angles=angles, hit_kind=combined.hit_kind[learner],
+            hit_index=combined.hit_index[learner] + observers[:, None].astype(np.int32),
+            true_ranges=combined.true_ranges[learner], robots=observers,
+            poses=combined.poses[learner], range_max=combined.range_max,
         )  # fmt: skip
         t_row, t_cols = kin_truth_rows(stacked, flat_poses)
         t_cols["index"] = t_cols["index"] - t_row * n
@@ -231,7 +257,13 @@ class KinVectorEnv(VectorEnv):
         keep = self.render_mode is not None
         for r, i in enumerate(on):
             env = self.envs[i]
-            env._last_scan = scans[i]
+            sl = slice(r * m, (r + 1) * m)
+            env._last_scan = Scan(
+                ranges=combined.ranges[sl], angles=angles, hit_kind=combined.hit_kind[sl],
+                hit_index=combined.hit_index[sl], true_ranges=combined.true_ranges[sl],
+                robots=combined.robots[sl], poses=combined.poses[sl], range_max=combined.range_max,
+            )  # fmt: skip
+            env._current_poses = poses[i]
             if keep and dets is not None:
                 sel = dets[0] == r
                 env._last_detections = (np.zeros(int(sel.sum()), dtype=np.int64),
