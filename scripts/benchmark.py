@@ -8,6 +8,9 @@ Sections (``--sections``, comma separated; default all available):
 * ``detector``: scans/s of the geometric detector (paper scenes, cluttered random arena).
 * ``envs``: env steps/s for KinSeek and aggregation with 8, 64, 256 robots, with/without detector.
 * ``learned``: batched scans/s of the learned detector (needs the ``train`` extra).
+* ``vecenv``: env-steps/s of ``KinSeek-v1``'s native vector env (``gym.make_vec``, K sub-envs,
+  ``--vec-envs``) against Gymnasium's ``SyncVectorEnv`` over K envs, same run, per detector
+  (``--vec-detectors``).
 
 Writes ``benchmark.json`` and ``benchmark.md`` (plus the command and config) to ``--out``.
 Never assert wall-clock times in tests; this script is where speed targets are checked.
@@ -175,7 +178,39 @@ def bench_learned(min_time: float) -> list[dict]:
     return [{"scene": "random_arena_64_robots_50_obstacles", "batch": ranges.shape[0], "scans_per_s": r}]
 
 
-SECTIONS = {"lidar": bench_lidar, "detector": bench_detector, "envs": bench_envs, "learned": bench_learned}
+def bench_vecenv(min_time: float, num_envs: int = 64, detectors=("none", "geometric")) -> list[dict]:
+    """Native vector env vs SyncVectorEnv, K sub-envs each, constant random actions, autoresets
+    included; env-steps/s = K x vector steps/s."""
+    import gymnasium as gym
+
+    import kin_envs  # noqa: F401  (registers the ids)
+
+    rows = []
+    for det in detectors:
+        rates = {}
+        for mode in ("vector_entry_point", "sync"):
+            env = gym.make_vec("kin_envs/KinSeek-v1", num_envs=num_envs, vectorization_mode=mode,
+                               detector=None if det == "none" else det)
+            env.reset(seed=0)
+            env.action_space.seed(0)
+            actions = env.action_space.sample()
+            rates[mode] = rate(lambda env=env, a=actions: env.step(a), min_time) * num_envs
+            env.close()
+        row = {"env": "KinSeek-v1", "num_envs": num_envs, "detector": det,
+               "native_env_steps_per_s": rates["vector_entry_point"],
+               "sync_env_steps_per_s": rates["sync"],
+               "ratio": rates["vector_entry_point"] / rates["sync"]}
+        rows.append(row)
+        print(f"  KinSeek-v1 x{num_envs} detector={det:9s} native {row['native_env_steps_per_s']:8.0f} "
+              f"env-steps/s, SyncVectorEnv {row['sync_env_steps_per_s']:7.0f}: {row['ratio']:.1f}x",
+              flush=True)
+    return rows
+
+
+SECTIONS = {
+    "lidar": bench_lidar, "detector": bench_detector, "envs": bench_envs, "learned": bench_learned,
+    "vecenv": bench_vecenv,
+}
 
 
 def to_markdown(results: dict) -> str:
@@ -211,6 +246,17 @@ def to_markdown(results: dict) -> str:
     if results.get("learned"):
         lines += ["| learned detector | batch | scans/s |", "|---|---:|---:|"]
         lines += [f"| {r['scene']} | {r['batch']} | {r['scans_per_s']:,.0f} |" for r in results["learned"]]
+        lines.append("")
+    if results.get("vecenv"):
+        lines += [
+            "| env | sub-envs | detector | native vector env, env-steps/s | SyncVectorEnv | ratio |",
+            "|---|---:|---|---:|---:|---:|",
+        ]
+        lines += [
+            f"| {r['env']} | {r['num_envs']} | {r['detector']} | {r['native_env_steps_per_s']:,.0f} | "
+            f"{r['sync_env_steps_per_s']:,.0f} | {r['ratio']:.1f}x |"
+            for r in results["vecenv"]
+        ]
     return "\n".join(lines) + "\n"
 
 
@@ -219,6 +265,9 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--sections", default=",".join(SECTIONS), help="comma-separated: " + ", ".join(SECTIONS))
     p.add_argument("--min-time", type=float, default=1.5, help="seconds of timing per measurement")
     p.add_argument("--robots", type=int, nargs="+", default=[1, 8, 64, 256], help="lidar: robot counts")
+    p.add_argument("--vec-envs", type=int, default=64, help="vecenv: number of sub-envs K")
+    p.add_argument("--vec-detectors", nargs="+", default=["none", "geometric"],
+                   choices=["none", "geometric", "learned"], help="vecenv: detectors to time")
     p.add_argument("--out", type=Path, default=Path("outputs/benchmark"))
     args = p.parse_args(argv)
     sections = [s.strip() for s in args.sections.split(",") if s.strip()]
@@ -227,21 +276,28 @@ def main(argv: list[str] | None = None) -> dict:
         p.error(f"unknown section(s) {unknown}; expected some of {sorted(SECTIONS)}")
     if args.min_time <= 0 or min(args.robots) < 1:
         p.error("--min-time must be > 0 and --robots >= 1")
+    if args.vec_envs < 1:
+        p.error(f"--vec-envs must be >= 1, got {args.vec_envs}")
     results: dict = {
         "config": {
             "command": " ".join([sys.executable, *sys.argv]),
             "sections": sections,
             "min_time": args.min_time,
             "robots": args.robots,
+            "vec_envs": args.vec_envs,
+            "vec_detectors": args.vec_detectors,
             "python": platform.python_version(),
             "machine": platform.machine(),
         }
     }
     for s in sections:
         print(f"[{s}]", flush=True)
-        results[s] = (
-            SECTIONS[s](args.min_time, robots=args.robots) if s == "lidar" else SECTIONS[s](args.min_time)
-        )
+        if s == "lidar":
+            results[s] = SECTIONS[s](args.min_time, robots=args.robots)
+        elif s == "vecenv":
+            results[s] = SECTIONS[s](args.min_time, args.vec_envs, args.vec_detectors)
+        else:
+            results[s] = SECTIONS[s](args.min_time)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "benchmark.json").write_text(json.dumps(results, indent=2))
     md = to_markdown(results)
