@@ -146,18 +146,29 @@ class WorldBatch:
             controls = [c for c, r in zip(controls, rows.tolist(), strict=True) if r]
             spaces = [spaces[j] for j in on]
         v, omega = commands[:, 0], commands[:, 1]
-        omega_list = omega.tolist()
         dt, substeps = w0.config.physics_dt, w0.config.substeps
         get_angle, set_vel, set_avel, space_step = (
             _cp.cpBodyGetAngle, _cp.cpBodySetVelocity, _cp.cpBodySetAngularVelocity, _cp.cpSpaceStep
         )
-        for _ in range(substeps):
-            heading = np.array([get_angle(b) for b in bodies])
-            vx = (v * np.cos(heading)).tolist()
-            vy = (v * np.sin(heading)).tolist()
-            for c, x, y, om in zip(controls, vx, vy, omega_list, strict=True):
+        # The yaw rate is constant over a control step: set it once (World.step rewrites the same
+        # value every substep, a no-op for a kinematic body). A robot commanded to stand still
+        # (v = 0) gets its zero velocity once too; only moving robots need their heading re-read.
+        for c, om in zip(controls, omega.tolist(), strict=True):
+            set_avel(c, om)
+        moving = np.flatnonzero(v != 0.0).tolist()
+        still = [controls[i] for i in np.flatnonzero(v == 0.0).tolist()]
+        m_bodies = [bodies[i] for i in moving]
+        m_controls = [controls[i] for i in moving]
+        m_v = v[moving]
+        for sub in range(substeps):
+            if sub == 0:
+                for c in still:
+                    set_vel(c, (0.0, 0.0))
+            heading = np.array([get_angle(b) for b in m_bodies])
+            vx = (m_v * np.cos(heading)).tolist()
+            vy = (m_v * np.sin(heading)).tolist()
+            for c, x, y in zip(m_controls, vx, vy, strict=True):
                 set_vel(c, (x, y))
-                set_avel(c, om)
             for s in spaces:
                 space_step(s, dt)
         for j in on:

@@ -255,15 +255,20 @@ class KinVectorEnv(VectorEnv):
             kin["kin_detections"] = pad_rows(*dets, k_on, self.config.max_detections)
         # what each sub-env keeps of this step (for the scripted kin and rendering)
         keep = self.render_mode is not None
+        # a sub-env's own scan is read only by scripted robots (KinFollow's kin) and rendering
+        need_scan = keep or type(self.envs[0])._other_wheels is not SingleRobotEnv._other_wheels
         for r, i in enumerate(on):
             env = self.envs[i]
+            env._current_poses = poses[i]
+            if not need_scan:
+                env._last_scan = None
+                continue
             sl = slice(r * m, (r + 1) * m)
             env._last_scan = Scan(
                 ranges=combined.ranges[sl], angles=angles, hit_kind=combined.hit_kind[sl],
                 hit_index=combined.hit_index[sl], true_ranges=combined.true_ranges[sl],
                 robots=combined.robots[sl], poses=combined.poses[sl], range_max=combined.range_max,
             )  # fmt: skip
-            env._current_poses = poses[i]
             if keep and dets is not None:
                 sel = dets[0] == r
                 env._last_detections = (np.zeros(int(sel.sum()), dtype=np.int64),

@@ -43,6 +43,8 @@ def test_batch_is_bit_identical_to_separate_worlds():
     for t in range(120):
         # mostly forward at full speed: collisions with everything
         wheels = rng.uniform(4.0, 12.0, (k, 3, 2)) * rng.choice([1, -1], (k, 3, 1))
+        wheels[:, 1] *= rng.random((k, 1)) < 0.5  # robot 1 often stands still, as a KinSeek kin
+        wheels[:, 2, 1] = -wheels[:, 2, 0] * (t % 3 == 0)  # robot 2 sometimes turns in place
         for w, x in zip(single, wheels, strict=True):
             w.step(wheel_speeds=x)
         batch.step(wheels)
