@@ -20,13 +20,40 @@ import pymunk.batch as pmbatch
 from pymunk._chipmunk import lib as _cp
 
 from kin_envs.core.lidar import _beam_tables, _cast_one
+from kin_envs.core.odometry import Odometry
 from kin_envs.core.world import Contact, Scan, World
 
 __all__ = ["WorldBatch"]
 
 
 def _key(w: World) -> tuple:
-    return (w.n_robots, w.scene.robot, w.scene.lidar, w.config.physics_dt, w.config.substeps)
+    return (w.n_robots, w.scene.robot, w.scene.lidar, w.config.physics_dt, w.config.substeps,
+            w.config.odometry)
+
+
+class _StackedRNG:
+    """Draws ``normal(loc, scale, (K * n, ...))`` as the concatenation of K worlds' own draws of
+    ``(n, ...)``, so that one :class:`Odometry` over all worlds' robots consumes every world's
+    stream exactly as that world's own odometry would."""
+
+    def __init__(self, rngs: list[np.random.Generator]) -> None:
+        self.rngs = rngs
+
+    def normal(self, loc: float, scale: float, size: tuple[int, ...]) -> np.ndarray:
+        size = (size[0] // len(self.rngs), *size[1:])
+        return np.concatenate([r.normal(loc, scale, size) for r in self.rngs])
+
+
+def _stacked_odometry(odos: list[Odometry]) -> Odometry:
+    """One :class:`Odometry` whose robots are all of ``odos``' robots, in order."""
+    o = Odometry.__new__(Odometry)
+    o.spec, o.wheel_base = odos[0].spec, odos[0].wheel_base
+    o.rng = _StackedRNG([x.rng for x in odos])
+    o.pose = np.concatenate([x.pose for x in odos])
+    o.scale = np.concatenate([x.scale for x in odos])
+    o._step_start = np.concatenate([x._step_start for x in odos])
+    o.delta = np.concatenate([x.delta for x in odos])
+    return o
 
 
 class WorldBatch:
@@ -152,25 +179,39 @@ class WorldBatch:
         )
         # The yaw rate is constant over a control step: set it once (World.step rewrites the same
         # value every substep, a no-op for a kinematic body). A robot commanded to stand still
-        # (v = 0) gets its zero velocity once too; only moving robots need their heading re-read.
+        # (v = 0) gets its zero velocity once too.
         for c, om in zip(controls, omega.tolist(), strict=True):
             set_avel(c, om)
         moving = np.flatnonzero(v != 0.0).tolist()
         still = [controls[i] for i in np.flatnonzero(v == 0.0).tolist()]
-        m_bodies = [bodies[i] for i in moving]
         m_controls = [controls[i] for i in moving]
         m_v = v[moving]
+        # wheel odometry of every world's robots in one Odometry (World.step: begin, integrate the
+        # achieved motion each substep before the drive update, end)
+        odo = _stacked_odometry([ws[j]._odometry for j in on])
+        odo.begin_step()
+        get_vel, get_avel = _cp.cpBodyGetVelocity, _cp.cpBodyGetAngularVelocity
         for sub in range(substeps):
             if sub == 0:
                 for c in still:
                     set_vel(c, (0.0, 0.0))
-            heading = np.array([get_angle(b) for b in m_bodies])
-            vx = (m_v * np.cos(heading)).tolist()
-            vy = (m_v * np.sin(heading)).tolist()
-            for c, x, y in zip(m_controls, vx, vy, strict=True):
+            heading = np.array([get_angle(b) for b in bodies])
+            vel = [get_vel(b) for b in bodies]
+            vx = np.array([q.x for q in vel])
+            vy = np.array([q.y for q in vel])
+            w = np.array([get_avel(b) for b in bodies])
+            odo.integrate(vx * np.cos(heading) + vy * np.sin(heading), w, dt)
+            h = heading[moving]
+            cx = (m_v * np.cos(h)).tolist()
+            cy = (m_v * np.sin(h)).tolist()
+            for c, x, y in zip(m_controls, cx, cy, strict=True):
                 set_vel(c, (x, y))
             for s in spaces:
                 space_step(s, dt)
+        odo.end_step()
+        for r, j in enumerate(on):
+            o, sl = ws[j]._odometry, slice(r * n, (r + 1) * n)
+            o.pose, o._step_start, o.delta = odo.pose[sl].copy(), odo._step_start[sl].copy(), odo.delta[sl].copy()
         for j in on:
             ws[j].time += substeps * dt
         self._update_contacts(on)

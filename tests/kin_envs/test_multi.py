@@ -31,6 +31,8 @@ def assert_same(single: list[World], batch: WorldBatch, robots, active=None) -> 
         assert np.array_equal(w.contacts, batch[j].contacts)
         assert np.array_equal(w.commands, batch[j].commands)
         assert w.time == batch[j].time
+        assert np.array_equal(w.odometry, batch[j].odometry)
+        assert np.array_equal(w.odometry_delta, batch[j].odometry_delta)
         for f in FIELDS:
             assert np.array_equal(getattr(ref, f), getattr(scans[j], f)), f
 
