@@ -38,10 +38,21 @@ class _StackedRNG:
 
     def __init__(self, rngs: list[np.random.Generator]) -> None:
         self.rngs = rngs
+        self._ahead: list[np.ndarray] = []
+
+    def prefetch(self, calls: int, size: tuple[int, ...]) -> None:
+        """Draw the standard normals of the next ``calls`` calls of ``normal(0, 1, size)`` now, one
+        draw per world (a generator fills a larger request with the same stream, in order)."""
+        per = (size[0] // len(self.rngs), *size[1:])
+        blocks = [r.normal(0.0, 1.0, (calls, *per)) for r in self.rngs]
+        stacked = np.concatenate(blocks, axis=1)
+        self._ahead = [stacked[c] for c in range(calls)][::-1]
 
     def normal(self, loc: float, scale: float, size: tuple[int, ...]) -> np.ndarray:
-        size = (size[0] // len(self.rngs), *size[1:])
-        return np.concatenate([r.normal(loc, scale, size) for r in self.rngs])
+        if self._ahead and (loc, scale) == (0.0, 1.0) and self._ahead[-1].shape == tuple(size):
+            return self._ahead.pop()
+        per = (size[0] // len(self.rngs), *size[1:])
+        return np.concatenate([r.normal(loc, scale, per) for r in self.rngs])
 
 
 def _stacked_odometry(odos: list[Odometry]) -> Odometry:
@@ -189,6 +200,8 @@ class WorldBatch:
         # wheel odometry of every world's robots in one Odometry (World.step: begin, integrate the
         # achieved motion each substep before the drive update, end)
         odo = _stacked_odometry([ws[j]._odometry for j in on])
+        if odo.spec.noise_k > 0:  # Odometry.integrate draws normal(0, 1, (robots, 2)) per substep
+            odo.rng.prefetch(substeps, (len(bodies), 2))
         odo.begin_step()
         get_vel, get_avel = _cp.cpBodyGetVelocity, _cp.cpBodyGetAngularVelocity
         for sub in range(substeps):
@@ -196,11 +209,9 @@ class WorldBatch:
                 for c in still:
                     set_vel(c, (0.0, 0.0))
             heading = np.array([get_angle(b) for b in bodies])
-            vel = [get_vel(b) for b in bodies]
-            vx = np.array([q.x for q in vel])
-            vy = np.array([q.y for q in vel])
+            vel = np.array([(q.x, q.y) for q in map(get_vel, bodies)])
             w = np.array([get_avel(b) for b in bodies])
-            odo.integrate(vx * np.cos(heading) + vy * np.sin(heading), w, dt)
+            odo.integrate(vel[:, 0] * np.cos(heading) + vel[:, 1] * np.sin(heading), w, dt)
             h = heading[moving]
             cx = (m_v * np.cos(h)).tolist()
             cy = (m_v * np.sin(h)).tolist()
@@ -209,6 +220,8 @@ class WorldBatch:
             for s in spaces:
                 space_step(s, dt)
         odo.end_step()
+        if odo.rng._ahead:
+            raise RuntimeError("WorldBatch: odometry noise draws out of step with Odometry.integrate")
         for r, j in enumerate(on):
             o, sl = ws[j]._odometry, slice(r * n, (r + 1) * n)
             o.pose, o._step_start, o.delta = odo.pose[sl].copy(), odo._step_start[sl].copy(), odo.delta[sl].copy()
