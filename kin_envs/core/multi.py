@@ -224,7 +224,8 @@ class WorldBatch:
             raise RuntimeError("WorldBatch: odometry noise draws out of step with Odometry.integrate")
         for r, j in enumerate(on):
             o, sl = ws[j]._odometry, slice(r * n, (r + 1) * n)
-            o.pose, o._step_start, o.delta = odo.pose[sl].copy(), odo._step_start[sl].copy(), odo.delta[sl].copy()
+            o.pose, o._step_start = odo.pose[sl].copy(), odo._step_start[sl].copy()
+            o.delta = odo.delta[sl].copy()
         for j in on:
             ws[j].time += substeps * dt
         self._update_contacts(on)

@@ -1,4 +1,4 @@
-"""``aggregation_v1`` (and ``aggregation_v0``): a PettingZoo swarm in which robots gather into clusters using lidar only."""
+"""``aggregation_v1`` (and ``_v0``): a PettingZoo swarm in which robots gather into clusters using lidar."""
 
 from __future__ import annotations
 

@@ -156,7 +156,7 @@ class KinVectorEnv(VectorEnv):
     def step(self, actions):
         if self._batch is None:
             raise RuntimeError(f"{self.config.env_id} vector env: call reset() before step()")
-        k, n = self.num_envs, self._n_robots
+        k = self.num_envs
         acts = np.asarray(actions)
         if acts.shape[:1] != (k,):
             raise ValueError(
