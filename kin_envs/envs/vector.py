@@ -77,6 +77,7 @@ class KinVectorEnv(VectorEnv):
     }
 
     def __init__(self, num_envs: int = 1, render_mode: str | None = None, **kwargs: Any) -> None:
+        self.envs: list[SingleRobotEnv] = []  # so that close() works if a check below raises
         where = self.env_class.config_class.env_id
         if not isinstance(num_envs, int | np.integer) or isinstance(num_envs, bool) or num_envs < 1:
             raise ValueError(f"{where} vector env: num_envs must be an integer >= 1, got {num_envs!r}")
