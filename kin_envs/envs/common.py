@@ -244,9 +244,15 @@ def detection_arrays(detector, ranges: np.ndarray, angles: np.ndarray) -> tuple[
 
     The one place where the envs read a detector's output: ``table`` holds
     :data:`DETECTION_FIELDS` ``[:8]`` (range .. n_beams) of each detection as float64, ``row`` the
-    scan row it came from, in the detector's order. (When the detectors return a compact array
-    result, this function reads it directly.)
+    scan row it came from, in the detector's order. A detector with ``detect_arrays`` (a compact
+    array result: ``scan``, ``range``, ``bearing``, ``x``, ``y``, ``score``, ``first_beam``,
+    ``last_beam``, ``n_beams_on``) is read without building per-detection objects.
     """
+    if callable(getattr(detector, "detect_arrays", None)):
+        b = detector.detect_arrays(ranges, angles)
+        tab = np.stack([b.range, b.bearing, b.x, b.y, b.score, b.first_beam, b.last_beam,
+                        b.n_beams_on], axis=1).astype(np.float64).reshape(-1, 8)
+        return np.asarray(b.scan, dtype=np.int64), tab
     if len(ranges) == 1 or not callable(getattr(detector, "detect_batch", None)):
         results = [detector.detect(r, angles) for r in ranges]
     else:

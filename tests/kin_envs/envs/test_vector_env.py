@@ -175,3 +175,28 @@ def test_render_rgb_array():
         frames = env.render()
     assert len(frames) == 2 and frames[0].shape[2] == 3
     env.close()
+
+
+def test_detection_glue_reads_a_compact_array_result():
+    """``detection_arrays`` (the env's one reader of detector output) takes a ``detect_arrays``
+    result as it takes ``DetectionResult`` objects."""
+    import types
+
+    from detectors import GeometricKinDetector
+    from kin_envs import World, scenes
+    from kin_envs.envs.common import detection_arrays
+
+    det = GeometricKinDetector(reports=False)
+
+    class ArrayDetector:
+        def detect_arrays(self, ranges, angles):
+            rows = [(b, d) for b, r in enumerate(det.detect_batch(ranges, angles)) for d in r.detections]
+            col = {f: np.array([getattr(d, f) for _, d in rows])
+                   for f in ("range", "bearing", "x", "y", "score", "first_beam", "last_beam", "n_beams")}
+            col["n_beams_on"] = col.pop("n_beams")
+            return types.SimpleNamespace(scan=np.array([b for b, _ in rows], dtype=np.int64), **col)
+
+    scan = World(scenes.random_arena(16, 10, seed=1), seed=0).scan()
+    row_a, tab_a = detection_arrays(det, scan.ranges, scan.angles)
+    row_b, tab_b = detection_arrays(ArrayDetector(), scan.ranges, scan.angles)
+    assert len(row_a) > 5 and np.array_equal(row_a, row_b) and np.array_equal(tab_a, tab_b)
