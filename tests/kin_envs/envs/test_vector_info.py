@@ -182,3 +182,16 @@ def test_rllib_two_envs_per_env_runner_with_detector(mode):
     runner = result[ENV_RUNNER_RESULTS]
     assert runner[NUM_ENV_STEPS_SAMPLED_LIFETIME] >= 300
     assert runner["num_episodes_lifetime"] >= 2  # episodes of 40 steps ended inside the runner
+
+
+def test_aggregation_v1_passes_pettingzoo_api_tests():
+    from pettingzoo.test import api_test, parallel_api_test
+
+    par = aggregation_v1.parallel_env(n_robots=4, max_cycles=30)
+    assert par.metadata["name"] == "aggregation_v1"
+    parallel_api_test(par, num_cycles=40)
+    api_test(aggregation_v1.env(n_robots=4, max_cycles=30), num_cycles=40)
+    with pytest.raises(RuntimeError, match="aggregation_v1: call reset"):
+        aggregation_v1.parallel_env(n_robots=3).step({})
+    with pytest.raises(RuntimeError, match="aggregation_v0: call reset"):
+        aggregation_v0.parallel_env(n_robots=3).step({})
