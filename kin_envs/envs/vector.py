@@ -133,6 +133,8 @@ class KinVectorEnv(VectorEnv):
                 f"least one True, got {mask!r}"
             )
         ids = np.flatnonzero(mask).tolist()
+        if self._batch is None and len(ids) < k:
+            raise ValueError("reset: the first reset must reset every sub-env (no reset_mask)")
         infos = []
         for i in ids:
             obs, info = self.envs[i].reset(seed=seeds[i], options=options or None)

@@ -107,6 +107,8 @@ def test_next_step_autoreset_ignores_the_action_and_returns_the_reset():
 
 def test_reset_mask_and_seeds():
     env = KinSeekVectorEnv(num_envs=3, detector=None)
+    with pytest.raises(ValueError, match="first reset must reset every sub-env"):
+        env.reset(options={"reset_mask": np.array([True, False, False])})
     a, _ = env.reset(seed=[7, 8, 9])
     b, _ = env.reset(seed=7)  # int: sub-env i gets seed + i
     assert np.array_equal(a, b)
