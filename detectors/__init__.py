@@ -7,6 +7,7 @@ labelled data and evaluating against the simulator's ground truth is on the simu
 (:mod:`kin_envs.detection`).
 """
 
+from . import _numba_cache  # noqa: F401  (first: a cache directory before any @njit(cache=True))
 from .base import (
     Detection,
     DetectionResult,

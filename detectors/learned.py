@@ -20,6 +20,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import gc
+import hashlib
 import itertools
 import json
 import math
@@ -50,6 +51,7 @@ from .features import (
     segment_batch,
     segment_features,
 )
+from .fileio import atomic_write
 from .geometric import fit_circles, is_circular_sweep, position_kin
 
 __all__ = [
@@ -160,6 +162,32 @@ def _plain(obj):
     return json.loads(json.dumps(obj, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
 
 
+def weights_digest(state_dict: dict, normalisation: dict) -> str:
+    """SHA-256 over every parameter (name, dtype, shape, bytes) and the normalisation statistics: what
+    decides the detections. Stored in the checkpoint and checked on load (a flipped bit is refused)."""
+    h = hashlib.sha256()
+    for name in sorted(state_dict):
+        t = state_dict[name].detach().cpu().contiguous()
+        h.update(f"{name}|{t.dtype}|{tuple(t.shape)}|".encode())
+        h.update(t.numpy().tobytes())
+    for name in sorted(normalisation):
+        h.update(f"{name}|".encode())
+        h.update(np.asarray(normalisation[name], dtype=np.float64).tobytes())
+    return h.hexdigest()
+
+
+def _check_device(device) -> torch.device:
+    try:
+        dev = torch.device(device)
+    except (RuntimeError, TypeError, ValueError) as e:
+        raise ValueError(f"device must be a torch device such as 'cpu' or 'cuda', got {device!r}") from e
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise ValueError(f"device={device!r}: this torch build or machine has no CUDA device; use 'cpu'")
+    if dev.type not in ("cpu", "cuda"):
+        raise ValueError(f"device must be 'cpu' or 'cuda', got {device!r}")
+    return dev
+
+
 def save_checkpoint(
     path,
     model: SegmentNet,
@@ -186,24 +214,31 @@ def save_checkpoint(
             f"{len(names)}"
         )
     path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"save_checkpoint: {path} is a directory; expected a file path (e.g. {path}/m.pt)")
     path.parent.mkdir(parents=True, exist_ok=True)
-    torch.save(
-        {
+    state = {k: v.detach().cpu().clone() for k, v in model.state_dict().items()}
+    bad = [k for k, v in state.items() if v.is_floating_point() and not bool(torch.isfinite(v).all())]
+    if bad:
+        raise ValueError(f"save_checkpoint: parameter(s) {bad} hold NaN or inf; refusing to write {path}")
+    nrm = model.normalisation()
+    payload = {
             "format": CHECKPOINT_FORMAT,
             "format_version": CHECKPOINT_FORMAT_VERSION,
             "feature_version": FEATURE_VERSION,
             "feature_config": feature_config.to_dict(),
             "feature_names": names,
             "model_config": model.config.to_dict(),
-            "state_dict": {k: v.detach().cpu().clone() for k, v in model.state_dict().items()},
-            "normalisation": model.normalisation(),
+            "state_dict": state,
+            "normalisation": nrm,
+            "weights_sha256": weights_digest(state, nrm),
             "positioning": positioning,
             "angular_resolution": float(angular_resolution),
             "thresholds": thresholds,
             "info": _plain(info or {}),
-        },
-        path,
-    )
+    }
+    with atomic_write(path) as f:  # a crash or Ctrl-C never leaves half a checkpoint under the name
+        torch.save(payload, f)
     return path
 
 
@@ -236,10 +271,13 @@ def load_checkpoint(path=None, device="cpu") -> tuple[SegmentNet, dict]:
     ``FEATURE_VERSION``, or if the weights do not fit the stated input size.
     """
     path = Path(DEFAULT_CHECKPOINT if path is None else path)
+    dev = _check_device(device)
     expected = (
         f"expected a learned kin detector checkpoint written by scripts/train_classifier.py "
         f"(format {CHECKPOINT_FORMAT!r}, feature version {FEATURE_VERSION})"
     )
+    if path.is_dir():
+        raise ValueError(f"learned detector checkpoint {path} is a directory, not a file; {expected}")
     if not path.is_file():
         raise FileNotFoundError(f"learned detector checkpoint {path} does not exist; {expected}")
     try:
@@ -271,14 +309,17 @@ def load_checkpoint(path=None, device="cpu") -> tuple[SegmentNet, dict]:
                 f"the model takes {mc.n_features} input features but feature version {FEATURE_VERSION} with "
                 f"{fc} gives {len(names)}"
             )
+        nrm = ck["normalisation"]
         model = SegmentNet(mc)
         model.load_state_dict(ck["state_dict"])
-        nrm = ck["normalisation"]
+        _check_weights(ck["state_dict"], nrm, ck.get("weights_sha256"))
         model.set_normalisation(nrm["x_mean"], nrm["x_std"], nrm["t_mean"], nrm["t_std"])
         if ck.get("positioning") not in POSITIONING:
             raise ValueError(f"positioning {ck.get('positioning')!r} is not one of {POSITIONING}")
         res = float(ck["angular_resolution"])
         thresholds = check_thresholds(ck.get("thresholds"))
+    except _CorruptWeights as e:
+        raise ValueError(f"{path}: corrupt checkpoint: {e}; refusing to load it") from e
     except (KeyError, TypeError, ValueError, RuntimeError) as e:
         raise ValueError(f"{path}: inconsistent checkpoint ({type(e).__name__}: {e}); {expected}") from e
     ck["feature_config"] = fc
@@ -286,7 +327,28 @@ def load_checkpoint(path=None, device="cpu") -> tuple[SegmentNet, dict]:
     ck["angular_resolution"] = res
     ck["thresholds"] = thresholds
     ck["path"] = str(path)
-    return model.to(device).eval(), ck
+    return model.to(dev).eval(), ck
+
+
+class _CorruptWeights(ValueError):
+    pass
+
+
+def _check_weights(state: dict, nrm: dict, digest: str | None) -> None:
+    """Non-finite parameters or statistics, or weights that do not match the stored checksum, raise.
+
+    Checkpoints written before the checksum existed carry none; they are only checked for
+    non-finite values."""
+    for k, v in state.items():
+        if not isinstance(v, torch.Tensor):
+            raise _CorruptWeights(f"parameter {k!r} is a {type(v).__name__}, not a tensor")
+        if v.is_floating_point() and not bool(torch.isfinite(v).all()):
+            raise _CorruptWeights(f"parameter {k!r} holds NaN or inf")
+    for k, v in nrm.items():
+        if not np.all(np.isfinite(np.asarray(v, dtype=np.float64))):
+            raise _CorruptWeights(f"normalisation statistic {k!r} holds NaN or inf")
+    if digest is not None and weights_digest(state, nrm) != digest:
+        raise _CorruptWeights("the weights do not match their stored SHA-256 (the file is corrupt)")
 
 
 # --------------------------------------------------------------------------- detector

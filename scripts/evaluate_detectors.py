@@ -542,8 +542,10 @@ def _plain(o):
 
 
 if __name__ == "__main__":
+    from kin_envs.cli import run_main
+
     try:
-        main()
+        run_main(main, bad_input=())
     # bad input, Ray not installed, no cluster at --address: a message, not a traceback
     except (ValueError, ImportError, ConnectionError) as e:
         sys.exit(f"evaluate_detectors: error: {e}")
