@@ -19,9 +19,10 @@ import numpy as np
 import pymunk.batch as pmbatch
 from pymunk._chipmunk import lib as _cp
 
+from kin_envs.core.interrupts import atomic
 from kin_envs.core.lidar import _beam_tables, _cast_one
 from kin_envs.core.odometry import Odometry
-from kin_envs.core.world import Contact, Scan, World
+from kin_envs.core.world import _COMMAND_CAP, Contact, Scan, World, _buffers
 
 __all__ = ["WorldBatch"]
 
@@ -169,13 +170,24 @@ class WorldBatch:
         w0 = ws[0]
         # the same elementwise arithmetic as World.step, on all worlds' rows at once
         flat = wheels.reshape(k * n, 2)
+        peak = np.max(np.abs(flat), axis=1, keepdims=True)
+        if np.any(peak > _COMMAND_CAP):  # World._check_commands: no overflow for huge values
+            flat = flat * np.minimum(1.0, _COMMAND_CAP / peak)
         limit = w0.scene.robot.max_wheel_speed
         peak = np.max(np.abs(flat), axis=1, keepdims=True)
         flat = flat * np.minimum(1.0, limit / np.maximum(peak, 1e-12))
         commands = w0.wheel_speeds_to_unicycle(flat)
         on = range(k) if sel is None else np.flatnonzero(sel).tolist()
+        with atomic():  # as World.step: Ctrl-C takes effect between steps, never inside one
+            self._advance(commands, on, sel)
+
+    def _advance(self, commands: np.ndarray, on, sel) -> None:
+        """World._advance of the worlds ``on`` with their ``(K * n, 2)`` rows of ``commands``."""
+        ws, n, w0 = self._worlds, self.n_robots, self._worlds[0]
         for j in on:
-            ws[j]._commands = commands[j * n : (j + 1) * n].copy()
+            applied = commands[j * n : (j + 1) * n].copy()
+            ws[j]._commands = applied
+            ws[j]._history.append(applied)  # World copies replay it
         bodies, controls, spaces = self._bodies, self._controls, self._spaces
         if sel is not None:
             rows = np.repeat(sel, n)
@@ -242,11 +254,11 @@ class WorldBatch:
         """``World._update_contacts`` of the worlds ``on``: arbiters read per world, resolved at once."""
         pairs = []
         fields = pmbatch.ArbiterFields.BODY_A_ID | pmbatch.ArbiterFields.BODY_B_ID
+        buf = _buffers()[2]  # the thread's arbiter buffer, shared by all worlds: copy each read
         for w in (self._worlds[j] for j in on):
-            buf = w._arb_buf
             buf.clear()
             pmbatch.get_space_arbiters(w.space, fields, buf)
-            pairs.append(np.frombuffer(buf.int_buf(), dtype=np.uintp))
+            pairs.append(np.frombuffer(buf.int_buf(), dtype=np.uintp).copy())
         pairs_a = np.concatenate(pairs).reshape(-1, 2)
         n = self.n_robots
         contacts = np.zeros(len(self._worlds) * n, dtype=np.int8)
