@@ -4,6 +4,8 @@ also when worlds are replaced or only some are active."""
 
 from __future__ import annotations
 
+import pickle
+
 import numpy as np
 import pytest
 
@@ -56,6 +58,9 @@ def test_batch_is_bit_identical_to_separate_worlds():
         assert_same(single, batch, [0, 2] if t % 2 else None)
         contacts += sum(int(np.count_nonzero(w.contacts)) for w in single)
     assert contacts > 20
+    # a copy of a batch-stepped world replays the same history (World copies)
+    copy = pickle.loads(pickle.dumps(batch[0]))
+    assert np.array_equal(copy.poses, single[0].poses)
 
 
 def test_only_active_worlds_move_and_draw_noise():
