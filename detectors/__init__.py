@@ -9,6 +9,8 @@ labelled data and evaluating against the simulator's ground truth is on the simu
 
 from . import _numba_cache  # noqa: F401  (first: a cache directory before any @njit(cache=True))
 from .base import (
+    STAGES,
+    BatchDetections,
     Detection,
     DetectionResult,
     KinDetector,
@@ -49,6 +51,8 @@ def __getattr__(name: str):
 
 
 __all__ = [
+    "STAGES",
+    "BatchDetections",
     "CircleFit",
     "LearnedKinDetector",
     "Detection",
