@@ -55,8 +55,9 @@ def test_same_trajectories_as_separate_envs_across_autoresets(env_id):
         {"obs_detections": "topk", "frame_stack": 2},
         {"obs_detections": "mask", "action_type": "discrete"},
         {"detector": None},
+        {"detector": "learned", "obs_detections": "topk"},
     ],
-    ids=["topk-stack", "mask-discrete", "nodet"],
+    ids=["topk-stack", "mask-discrete", "nodet", "learned"],
 )
 def test_same_trajectories_variants(kwargs):
     assert_same_as_sync(SEEK, 3, 30, **{**QUICK, **kwargs})
