@@ -14,6 +14,9 @@ Sections (``--sections``, comma separated; default all available):
 * ``vecenv``: env-steps/s of ``KinSeek-v1``'s native vector env (``gym.make_vec``, K sub-envs,
   ``--vec-envs``) against Gymnasium's ``SyncVectorEnv`` over K envs, same run, per detector
   (``--vec-detectors``).
+* ``ros``: recording an 8-robot World run to a bag (steps/s, against the same run unrecorded) and
+  reading its scans back (scans/s, against running the geometric detector on them), per bag format
+  (needs the ``ros`` extra).
 
 Writes ``benchmark.json`` and ``benchmark.md`` (plus the command and config) to ``--out``.
 Never assert wall-clock times in tests; this script is where speed targets are checked.
@@ -304,8 +307,76 @@ def bench_vecenv(min_time: float, num_envs: int = 64, detectors=("none", "geomet
     return rows
 
 
+def bench_ros(min_time: float, steps: int = 100) -> list[dict]:
+    try:
+        from detectors.ros import read_scans
+        from kin_envs.ros import WorldRecorder
+    except ImportError as e:  # pragma: no cover - without the extra
+        print(f"  ros: skipped ({e})")
+        return []
+    import tempfile
+
+    from detectors import GeometricKinDetector
+
+    scene = scenes.random_arena(8, 20, seed=3)
+    cmds = np.tile([0.1, 0.5], (8, 1))
+
+    def run(rec=None, n=steps):
+        world = World(scene, seed=0)
+        t0 = time.perf_counter()
+        for _ in range(n):
+            world.step(commands=cmds)
+            scan = world.scan()
+            if rec is not None:
+                rec.record(world, scan)
+        return time.perf_counter() - t0
+
+    det = GeometricKinDetector()
+    base = steps / min(run() for _ in range(3))
+    out = []
+    with tempfile.TemporaryDirectory() as d:
+        for storage, name in (("mcap", "m"), ("sqlite3", "s"), ("ros1", "r.bag")):
+            path = Path(d) / name
+            with WorldRecorder(Path(d) / ("warm" + name), storage=storage) as rec:
+                run(rec, 5)  # warm-up: imports, serialiser compilation
+            with WorldRecorder(path, storage=storage) as rec:
+                rec_rate = steps / run(rec)
+            t0 = time.perf_counter()
+            it = read_scans(path, "/robot_0/scan")
+            first = next(it)  # opening parses every connection's message definition
+            t_open = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            scans = [first, *it]
+            read_rate = (len(scans) - 1) / (time.perf_counter() - t0)
+            def detect_all(s=scans):
+                return [det.detect(x.ranges, x.angles) for x in s]
+
+            det_rate = len(scans) * rate(detect_all, min_time)
+            print(
+                f"  {storage:7s}: record {rec_rate:7.1f} steps/s (unrecorded {base:7.1f}), open "
+                f"{t_open:.2f} s, read {read_rate:7.0f} scans/s (geometric detector {det_rate:7.0f} scans/s)"
+            )
+            out.append(
+                {
+                    "storage": storage,
+                    "robots": 8,
+                    "steps": steps,
+                    "record_steps_per_s": rec_rate,
+                    "unrecorded_steps_per_s": base,
+                    "open_s": t_open,
+                    "read_scans_per_s": read_rate,
+                    "detect_scans_per_s": det_rate,
+                }
+            )
+    return out
+
+
 SECTIONS = {
-    "lidar": bench_lidar, "detector": bench_detector, "envs": bench_envs, "memory": bench_memory,
+    "lidar": bench_lidar,
+    "detector": bench_detector,
+    "envs": bench_envs,
+    "memory": bench_memory,
+    "ros": bench_ros,
     "vecenv": bench_vecenv,
 }
 
@@ -368,6 +439,17 @@ def to_markdown(results: dict) -> str:
             f"| {r['robots']} | {r['steps']} | {r['rss_warm_mb']:.0f} | {r['rss_end_mb']:.0f} | "
             f"{r['growth_mb']:+.1f} | {r['peak_rss_mb']:.0f} |"
             for r in results["memory"]
+        ]
+        lines.append("")
+    if results.get("ros"):
+        lines += [
+            "| bag | record steps/s (8 robots) | unrecorded | open, s | read scans/s | geometric scans/s |",
+            "|---|---:|---:|---:|---:|---:|",
+        ]
+        lines += [
+            f"| {r['storage']} | {r['record_steps_per_s']:,.1f} | {r['unrecorded_steps_per_s']:,.1f} | "
+            f"{r['open_s']:.2f} | {r['read_scans_per_s']:,.0f} | {r['detect_scans_per_s']:,.0f} |"
+            for r in results["ros"]
         ]
         lines.append("")
     if results.get("vecenv"):

@@ -73,3 +73,12 @@ def test_bad_arguments(bench, tmp_path):
         bench.main(["--sections", "gpu", "--out", str(tmp_path)])
     with pytest.raises(SystemExit):
         bench.main(["--min-time", "0", "--out", str(tmp_path)])
+
+
+def test_ros_section(bench, tmp_path):
+    pytest.importorskip("rosbags")
+    res = bench.bench_ros(0.01, steps=3)
+    assert [r["storage"] for r in res] == ["mcap", "sqlite3", "ros1"]
+    for r in res:
+        assert r["record_steps_per_s"] > 0 and r["read_scans_per_s"] > 0 and r["detect_scans_per_s"] > 0
+    assert "| bag | record steps/s" in bench.to_markdown({"ros": res})
