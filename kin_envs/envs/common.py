@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -251,13 +252,17 @@ def detection_arrays(detector, ranges: np.ndarray, angles: np.ndarray) -> tuple[
     :data:`DETECTION_FIELDS` ``[:8]`` (range .. n_beams) of each detection as float64, ``row`` the
     scan row it came from, in the detector's order. A detector with ``detect_arrays`` (a compact
     array result: ``scan``, ``range``, ``bearing``, ``x``, ``y``, ``score``, ``first_beam``,
-    ``last_beam``, ``n_beams_on``) is read without building per-detection objects.
+    ``last_beam``, ``n_beams_on``, as attributes of ``detectors.BatchDetections`` or as a dict
+    with ``n_beams``) is read without building per-detection objects.
     """
     if callable(getattr(detector, "detect_arrays", None)):
         b = detector.detect_arrays(ranges, angles)
-        tab = np.stack([b.range, b.bearing, b.x, b.y, b.score, b.first_beam, b.last_beam,
-                        b.n_beams_on], axis=1).astype(np.float64).reshape(-1, 8)
-        return np.asarray(b.scan, dtype=np.int64), tab
+        # detectors.BatchDetections (attributes, ``n_beams_on``) or a plain dict of columns
+        get = b.__getitem__ if isinstance(b, Mapping) else lambda k: getattr(b, k)
+        beams = get("n_beams") if isinstance(b, Mapping) else b.n_beams_on
+        tab = np.stack([get("range"), get("bearing"), get("x"), get("y"), get("score"),
+                        get("first_beam"), get("last_beam"), beams], axis=1)
+        return np.asarray(get("scan"), dtype=np.int64), tab.astype(np.float64).reshape(-1, 8)
     if len(ranges) == 1 or not callable(getattr(detector, "detect_batch", None)):
         results = [detector.detect(r, angles) for r in ranges]
     else:

@@ -199,7 +199,14 @@ def test_detection_glue_reads_a_compact_array_result():
             col["n_beams_on"] = col.pop("n_beams")
             return types.SimpleNamespace(scan=np.array([b for b, _ in rows], dtype=np.int64), **col)
 
+    class DictDetector(ArrayDetector):  # the beam detector's form: a dict with "n_beams"
+        def detect_arrays(self, ranges, angles):
+            cols = dict(vars(super().detect_arrays(ranges, angles)))
+            cols["n_beams"] = cols.pop("n_beams_on")
+            return cols
+
     scan = World(scenes.random_arena(16, 10, seed=1), seed=0).scan()
     row_a, tab_a = detection_arrays(det, scan.ranges, scan.angles)
-    row_b, tab_b = detection_arrays(ArrayDetector(), scan.ranges, scan.angles)
-    assert len(row_a) > 5 and np.array_equal(row_a, row_b) and np.array_equal(tab_a, tab_b)
+    for stub in (ArrayDetector(), DictDetector()):
+        row_b, tab_b = detection_arrays(stub, scan.ranges, scan.angles)
+        assert len(row_a) > 5 and np.array_equal(row_a, row_b) and np.array_equal(tab_a, tab_b)
