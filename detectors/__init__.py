@@ -39,6 +39,7 @@ from .geometric import (
     segment,
     shape_error,
 )
+from .tracking import KinTracker, Track, TrackerParams
 
 
 def __getattr__(name: str):
@@ -62,8 +63,11 @@ __all__ = [
     "GeometricParams",
     "KinDetector",
     "KinPosition",
+    "KinTracker",
     "Segment",
     "SegmentReport",
+    "Track",
+    "TrackerParams",
     "ShapeCheck",
     "circle_residuals",
     "filter_by_diameter",

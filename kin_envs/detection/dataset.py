@@ -45,6 +45,7 @@ from .. import scenes
 from ..core.lidar import HitKind, LidarSpec
 from ..core.scenes import Box, Cylinder, DetectionSceneConfig, Prism, RandomArenaConfig, Scene
 from ..core.world import World
+from .seeds import check_training_seeds
 from .swarm_scenes import SwarmSceneConfig, swarm_world
 
 __all__ = [
@@ -159,12 +160,16 @@ def make_scene(seed: int, config: DatasetConfig | None = None, noise: float | No
 
     One generator, ``numpy.random.default_rng(seed)``, draws the scene type, its parameters, the
     scene itself, the observers, and is then handed to the :class:`~kin_envs.World` for the lidar
-    noise. ``noise`` overrides the drawn noise level (evaluation sweeps at fixed noise).
+    noise. ``noise`` overrides the drawn noise level (evaluation sweeps at fixed noise). Seeds
+    reserved for the benchmark (:data:`kin_envs.detection.benchmark.BENCHMARK_SEEDS`) raise
+    ``ValueError``.
     ``info``: ``family`` (0 detection scene, 1 random arena, 3 swarm scene), ``open`` (no boundary
     wall), ``noise``, ``dropout``, ``observers``, and for swarm scenes ``world`` (the driven world:
     its robots have moved away from ``scene``'s poses).
     """
     c = config or DatasetConfig()
+    # training and validation data never use the benchmark's reserved seeds
+    check_training_seeds([seed], "kin_envs.detection.dataset.make_scene")
     rng = np.random.default_rng(seed)
     detection = bool(rng.random() < c.detection_prob)
     sigma = 0.0 if rng.random() < c.zero_noise_prob else float(rng.uniform(*c.noise))
