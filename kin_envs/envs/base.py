@@ -49,6 +49,7 @@ class SingleRobotEnv(gym.Env):
         where = self.config.env_id
         self.render_mode = check_render_mode(render_mode, self.metadata["render_modes"], where)
         self.detector = resolve_detector(self.config.detector, where)
+        self.tracker = self.config.make_tracker()
         self._lidar = self.config.lidar_spec()
         self._world_config = WorldConfig(control_dt=self.config.control_dt)
         self.layout = ObservationLayout(
@@ -108,6 +109,9 @@ class SingleRobotEnv(gym.Env):
         poses = self._current_poses = self.world.poses
         self._after_reset(scan)
         dets = self._detect(scan, poses)
+        if self.tracker is not None:
+            self.tracker.reset()
+            self._track(scan, dets, np.zeros(3))
         frame = self._sense(scan, dets)
         obs = self._obs.reset(frame)[0]
         info = self._kin_info(scan, dets, poses)
@@ -126,6 +130,8 @@ class SingleRobotEnv(gym.Env):
         scan = self.world.scan(self._scan_robots())
         poses = self._current_poses = self.world.poses
         dets = self._detect(scan, poses)
+        if self.tracker is not None:
+            self._track(scan, dets, self.world.odometry_delta[LEARNER])
         obs, reward, terminated, truncated, info = self._finish_step(self._sense(scan, dets))
         info.update(self._kin_info(scan, dets, poses))
         return obs, reward, terminated, truncated, info
@@ -147,10 +153,47 @@ class SingleRobotEnv(gym.Env):
             return None
         return detect_rows(self.detector, scan.ranges[:1], scan.angles, scan.robots[:1], poses)
 
+    def _track(self, scan: Scan, dets, odom_delta: np.ndarray) -> None:
+        """Advance the tracker with this frame's detections (all accepted: the detector's operating
+        point), their segments' scan points and the learner's odometry increment."""
+        row, cols = dets if dets is not None else (np.zeros(0, np.int64), None)
+        n = scan.ranges.shape[1]
+        r = scan.ranges[0].astype(np.float64)
+        xy, pts, own = np.zeros((0, 2)), [np.zeros((0, 2))], [np.zeros(0, np.int64)]
+        if row.size:
+            xy = np.c_[cols["x"], cols["y"]]
+            for k, (a, b) in enumerate(zip(cols["first_beam"], cols["last_beam"], strict=True)):
+                idx = np.arange(a, a + (b - a) % n + 1) % n
+                ok = r[idx] < scan.range_max
+                pts.append(np.c_[r[idx][ok] * np.cos(scan.angles[idx][ok]),
+                                 r[idx][ok] * np.sin(scan.angles[idx][ok])])  # fmt: skip
+                own.append(np.full(int(ok.sum()), k))
+        scores = np.zeros(0) if not row.size else cols["score"]
+        self.tracker.update_batch(np.zeros(row.size, np.int64), xy, scores, odom_delta[None, :],
+                                  self.world.config.control_dt, np.concatenate(pts), np.concatenate(own),
+                                  accepted=np.ones(row.size, bool))  # fmt: skip
+
+    def _track_rows(self):
+        """The tracker's confirmed kin tracks as detection rows (for ``obs_tracks``)."""
+        a = self.tracker.track_arrays(self.config.max_tracks)
+        t = a["tracks"][0][a["mask"][0]]
+        kin = (t[:, 8] > 0) & (t[:, 6] >= self.tracker.params.kin_threshold)
+        t = t[kin][np.argsort(np.hypot(t[kin, 1], t[kin, 2]), kind="stable")]
+        m = t.shape[0]
+        cols = {"range": np.hypot(t[:, 1], t[:, 2]).astype(np.float64),
+                "bearing": np.arctan2(t[:, 2], t[:, 1]).astype(np.float64),
+                "x": t[:, 1].astype(np.float64), "y": t[:, 2].astype(np.float64),
+                "score": t[:, 6].astype(np.float64), "first_beam": np.full(m, -1, np.int64),
+                "last_beam": np.full(m, -1, np.int64), "n_beams": np.zeros(m, np.int64),
+                "kin_index": np.full(m, -1, np.int64)}  # fmt: skip
+        return np.zeros(m, np.int64), cols
+
     def _sense(self, scan: Scan, dets) -> np.ndarray:
         """Phase 2: remember the scan and detections; the learner's observation frame ``(1, d)``."""
         self._last_scan = scan
         self._last_detections = dets
+        if self.config.obs_tracks:
+            return self._obs.frame(scan.ranges[:1], self._track_rows())
         return self._obs.frame(scan.ranges[:1], dets)
 
     def _finish_step(self, frame: np.ndarray):
@@ -179,6 +222,13 @@ class SingleRobotEnv(gym.Env):
             cols, count = pad_rows(dets[0], dets[1], 1, self.config.max_detections)
             info["kin_detections"] = {k: v[0] for k, v in cols.items()}
             info["kin_detections_count"] = int(count[0])
+        if self.tracker is not None:
+            from detectors.tracking import TRACK_FIELDS
+
+            a = self.tracker.track_arrays(self.config.max_tracks)
+            info["kin_tracks"] = {name: a["tracks"][0][:, j].astype(np.float64)
+                                  for j, name in enumerate(TRACK_FIELDS)}  # fmt: skip
+            info["kin_tracks_count"] = int(a["count"][0])
         return info
 
     def render(self):
@@ -192,13 +242,16 @@ class SingleRobotEnv(gym.Env):
             raise RuntimeError(f"{self.config.env_id}: call reset() before render()")
         from kin_envs.envs.rendering import Renderer
 
-        if self._renderer is None or (
-            self._renderer.scene.arena != self.world.scene.arena
-        ):
+        if self._renderer is None or (self._renderer.scene.arena != self.world.scene.arena):
             if self._renderer is not None:
                 self._renderer.close()
-            self._renderer = Renderer(self.world.scene, self.render_mode, self.config.render_size,
-                                      self.metadata["render_fps"], title=self.config.env_id)
+            self._renderer = Renderer(
+                self.world.scene,
+                self.render_mode,
+                self.config.render_size,
+                self.metadata["render_fps"],
+                title=self.config.env_id,
+            )
         elif self._renderer.scene is not self.world.scene:
             self._renderer.set_scene(self.world.scene)
         beams, dets = [], []
@@ -207,7 +260,10 @@ class SingleRobotEnv(gym.Env):
             beams.append((scan.poses[0], scan.ranges[0], scan.angles, scan.range_max))
             if self._last_detections is not None:
                 dets.append((scan.poses[0], split_rows(*self._last_detections, 1)[0]))
-        return self._renderer.render(self.world, self.roles, beams, dets)
+        tracks = []
+        if self.tracker is not None and scan is not None:
+            tracks.append((scan.poses[0], self._track_rows()[1]))
+        return self._renderer.render(self.world, self.roles, beams, dets, tracks)
 
     def close(self) -> None:
         if self._renderer is not None:
@@ -220,7 +276,12 @@ def _rows(scan: Scan, k: int) -> Scan:
     if scan.ranges.shape[0] == k:
         return scan
     return Scan(
-        ranges=scan.ranges[:k], angles=scan.angles, hit_kind=scan.hit_kind[:k],
-        hit_index=scan.hit_index[:k], true_ranges=scan.true_ranges[:k], robots=scan.robots[:k],
-        poses=scan.poses[:k], range_max=scan.range_max,
+        ranges=scan.ranges[:k],
+        angles=scan.angles,
+        hit_kind=scan.hit_kind[:k],
+        hit_index=scan.hit_index[:k],
+        true_ranges=scan.true_ranges[:k],
+        robots=scan.robots[:k],
+        poses=scan.poses[:k],
+        range_max=scan.range_max,
     )

@@ -138,6 +138,13 @@ class CommonConfig:
         control_dt: seconds per step (the world's ``WorldConfig.control_dt``).
         render_size: longer side of rendered frames, pixels.
         render_beams: draw the lidar beams (and detections) of the observed robot.
+        tracker: multi-frame kin tracking of the detections (:class:`detectors.KinTracker`, fed with
+            the detector's operating-point detections and the robot's wheel odometry): ``None``/
+            ``False`` (off), ``True`` (default parameters) or a dict of ``detectors.TrackerParams``
+            fields. Adds ``info["kin_tracks"]``. Needs a detector.
+        max_tracks: slots of ``info["kin_tracks"]`` (fixed-shape info).
+        obs_tracks: fill the observation's detection channel from the tracker's confirmed kin tracks
+            (their centre; score = kin probability) instead of the frame's raw detections.
     """
 
     env_id: ClassVar[str] = "kin_envs"
@@ -153,6 +160,9 @@ class CommonConfig:
     control_dt: float = 0.1
     render_size: int = 512
     render_beams: bool = True
+    tracker: Any = None
+    max_tracks: int = 16
+    obs_tracks: bool = False
 
     def __post_init__(self) -> None:
         w = self.env_id
@@ -170,20 +180,17 @@ class CommonConfig:
         elif mode is False:
             mode = None
         if mode is not None and mode not in OBS_DETECTION_MODES:
-            raise ValueError(
-                f"{w}: obs_detections must be None, False, True, 'topk' or 'mask', got {mode!r}"
-            )
+            raise ValueError(f"{w}: obs_detections must be None, False, True, 'topk' or 'mask', got {mode!r}")
         object.__setattr__(self, "obs_detections", mode)
         if self.action_type not in ACTION_TYPES:
-            raise ValueError(
-                f"{w}: action_type must be one of {ACTION_TYPES}, got {self.action_type!r}"
-            )
+            raise ValueError(f"{w}: action_type must be one of {ACTION_TYPES}, got {self.action_type!r}")
         if mode is not None and self.detector is None:
-            raise ValueError(
-                f"{w}: obs_detections={mode!r} needs a detector, but detector=None"
-            )
-        if not (self.detector is None or isinstance(self.detector, str)
-                or callable(getattr(self.detector, "detect", None))):
+            raise ValueError(f"{w}: obs_detections={mode!r} needs a detector, but detector=None")
+        if not (
+            self.detector is None
+            or isinstance(self.detector, str)
+            or callable(getattr(self.detector, "detect", None))
+        ):
             raise ValueError(
                 f"{w}: detector must be 'geometric', 'learned', 'beam', None or an object with a "
                 f"detect(ranges, angles) method, got {self.detector!r}"
@@ -193,6 +200,30 @@ class CommonConfig:
                 f"{w}: detector must be 'geometric', 'learned', 'beam', None or a detector object, "
                 f"got {self.detector!r}"
             )
+
+        check_int(w, "max_tracks", self.max_tracks, 1, 1024)
+        check_bool(w, "obs_tracks", self.obs_tracks)
+        if self.tracker is False:
+            object.__setattr__(self, "tracker", None)
+        if self.tracker is not None:
+            if self.tracker is not True and not isinstance(self.tracker, dict):
+                raise ValueError(
+                    f"{w}: tracker must be None, False, True or a dict of detectors.TrackerParams "
+                    f"fields, got {self.tracker!r}"
+                )
+            if self.detector is None:
+                raise ValueError(f"{w}: tracker={self.tracker!r} needs a detector, but detector=None")
+        if self.obs_tracks and (self.tracker is None or mode is None):
+            raise ValueError(f"{w}: obs_tracks=True needs tracker=True and obs_detections ('topk' or 'mask')")
+
+    def make_tracker(self, n_observers: int = 1):
+        """The configured :class:`detectors.KinTracker` (imported lazily), or ``None``."""
+        if self.tracker is None:
+            return None
+        from detectors.tracking import KinTracker, TrackerParams
+
+        params = TrackerParams() if self.tracker is True else TrackerParams.from_dict(self.tracker)
+        return KinTracker(params, n_observers=n_observers)
 
     def lidar_spec(self) -> LidarSpec:
         return LidarSpec(noise_sigma=float(self.noise_sigma), dropout_prob=float(self.dropout_prob))
@@ -260,8 +291,19 @@ def detection_arrays(detector, ranges: np.ndarray, angles: np.ndarray) -> tuple[
         # detectors.BatchDetections (attributes, ``n_beams_on``) or a plain dict of columns
         get = b.__getitem__ if isinstance(b, Mapping) else lambda k: getattr(b, k)
         beams = get("n_beams") if isinstance(b, Mapping) else b.n_beams_on
-        tab = np.stack([get("range"), get("bearing"), get("x"), get("y"), get("score"),
-                        get("first_beam"), get("last_beam"), beams], axis=1)
+        tab = np.stack(
+            [
+                get("range"),
+                get("bearing"),
+                get("x"),
+                get("y"),
+                get("score"),
+                get("first_beam"),
+                get("last_beam"),
+                beams,
+            ],
+            axis=1,
+        )
         return np.asarray(get("scan"), dtype=np.int64), tab.astype(np.float64).reshape(-1, 8)
     if len(ranges) == 1 or not callable(getattr(detector, "detect_batch", None)):
         results = [detector.detect(r, angles) for r in ranges]
@@ -271,8 +313,7 @@ def detection_arrays(detector, ranges: np.ndarray, angles: np.ndarray) -> tuple[
     for b, res in enumerate(results):
         for d in res.detections:
             owner.append(b)
-            rows.append((d.range, d.bearing, d.x, d.y, d.score, d.first_beam, d.last_beam,
-                         d.n_beams))
+            rows.append((d.range, d.bearing, d.x, d.y, d.score, d.first_beam, d.last_beam, d.n_beams))
     return np.asarray(owner, dtype=np.int64), np.array(rows, dtype=np.float64).reshape(-1, 8)
 
 
@@ -369,13 +410,17 @@ def kin_truth_rows(scan, poses: np.ndarray) -> tuple[np.ndarray, dict[str, np.nd
     rng = np.sqrt(dx * dx + dy * dy)
     # nearest first within each row; one argsort of a composite key beats lexsort here
     order = np.argsort(rows * (2.0 * scan.range_max + 1.0) + rng, kind="stable")
-    rows, idx, n_beams, rng, dx, dy, c, s = (
-        a[order] for a in (rows, idx, n_beams, rng, dx, dy, c, s)
-    )
+    rows, idx, n_beams, rng, dx, dy, c, s = (a[order] for a in (rows, idx, n_beams, rng, dx, dy, c, s))
     x, y = c * dx + s * dy, c * dy - s * dx
     bearing = np.arctan2(y, x)
-    cols = {"index": idx.astype(np.int64), "range": rng, "bearing": bearing, "x": x, "y": y,
-            "n_beams": n_beams.astype(np.int64)}
+    cols = {
+        "index": idx.astype(np.int64),
+        "range": rng,
+        "bearing": bearing,
+        "x": x,
+        "y": y,
+        "n_beams": n_beams.astype(np.int64),
+    }
     return rows, cols
 
 
@@ -522,8 +567,7 @@ class ActionAdapter:
             a = np.asarray(action, dtype=np.float64)
         except (TypeError, ValueError) as e:
             raise ValueError(
-                f"{self.where}: {who} must be 2 numbers (left, right wheel speed in [-1, 1]), "
-                f"got {action!r}"
+                f"{self.where}: {who} must be 2 numbers (left, right wheel speed in [-1, 1]), got {action!r}"
             ) from e
         if a.shape != (2,):
             raise ValueError(

@@ -170,6 +170,11 @@ class KinSeekEnv(SingleRobotEnv):
     * ``render_mode`` (None, ``"rgb_array"``, ``"human"``), ``render_size`` (512 px),
       ``render_beams`` (True: the learner's beams and detections, green = real kin, red = false).
 
+    Multi-frame tracking (opt-in): ``tracker=True`` or a dict of ``detectors.TrackerParams`` fields adds
+    ``info["kin_tracks"]`` (``max_tracks`` = 16 padded slots of ``detectors.tracking.TRACK_FIELDS``, robot
+    frame) and ``info["kin_tracks_count"]``; ``obs_tracks=True`` fills the observation's detection channel
+    from the confirmed kin tracks instead of the raw detections (needs ``obs_detections``).
+
     ## Version History
 
     * v1: fixed-shape info (padded ``kin_truth`` / ``kin_detections`` slots with

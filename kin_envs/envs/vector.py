@@ -89,13 +89,19 @@ class KinVectorEnv(VectorEnv):
         if "detector" in kwargs or first.detector is not None:
             # one detector object for all sub-envs (a learned model is loaded once)
             kwargs = {**kwargs, "detector": first.detector}
-        self.envs = [first] + [self.env_class(render_mode=render_mode, **kwargs)
-                               for _ in range(int(num_envs) - 1)]
+        self.envs = [first] + [
+            self.env_class(render_mode=render_mode, **kwargs) for _ in range(int(num_envs) - 1)
+        ]
         self.num_envs = int(num_envs)
         self.render_mode = render_mode
         self.detector = first.detector
         self.layout = first.layout
         self.config = first.config
+        if self.config.tracker is not None:
+            raise ValueError(
+                f"{self.config.env_id}: tracker= is not supported by the native vector env yet; use "
+                "gymnasium.make_vec(..., vectorization_mode='sync') (or 'async') with tracker="
+            )
         self.single_observation_space = first.observation_space
         self.single_action_space = first.action_space
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
@@ -126,8 +132,9 @@ class KinVectorEnv(VectorEnv):
         mask = options.pop("reset_mask", None)
         if mask is None:
             mask = np.ones(k, dtype=np.bool_)
-        elif not (isinstance(mask, np.ndarray) and mask.dtype == np.bool_ and mask.shape == (k,)
-                  and mask.any()):
+        elif not (
+            isinstance(mask, np.ndarray) and mask.dtype == np.bool_ and mask.shape == (k,) and mask.any()
+        ):
             raise ValueError(
                 f"reset: options['reset_mask'] must be a numpy bool array of shape ({k},) with at "
                 f"least one True, got {mask!r}"
@@ -179,7 +186,8 @@ class KinVectorEnv(VectorEnv):
         if on:
             self._batch.step(wheels, active=None if not resets else active)
             combined, poses, _ = self._batch.scan_combined(
-                envs[0]._scan_robots(), active=None if not resets else active)
+                envs[0]._scan_robots(), active=None if not resets else active
+            )
             frames, kin = self._sense(on, combined, poses)
             for r, i in enumerate(on):
                 obs, rew, term, trunc, info = envs[i]._finish_step(frames[r : r + 1])
@@ -238,8 +246,9 @@ class KinVectorEnv(VectorEnv):
         angles = combined.angles
         dets = None
         if self.detector is not None:
-            row, cols = detect_rows(self.detector, ranges, angles, observers, flat_poses,
-                                    robot_world=world_of_robot)
+            row, cols = detect_rows(
+                self.detector, ranges, angles, observers, flat_poses, robot_world=world_of_robot
+            )
             ki = cols["kin_index"]
             cols["kin_index"] = np.where(ki >= 0, ki - row * n, -1)
             dets = (row, cols)
@@ -274,8 +283,10 @@ class KinVectorEnv(VectorEnv):
             )  # fmt: skip
             if keep and dets is not None:
                 sel = dets[0] == r
-                env._last_detections = (np.zeros(int(sel.sum()), dtype=np.int64),
-                                        {f: c[sel] for f, c in dets[1].items()})
+                env._last_detections = (
+                    np.zeros(int(sel.sum()), dtype=np.int64),
+                    {f: c[sel] for f, c in dets[1].items()},
+                )
             else:
                 env._last_detections = None
         return frames, kin
@@ -284,16 +295,23 @@ class KinVectorEnv(VectorEnv):
         """The stacked info, equal to ``SyncVectorEnv``'s: kin entries written as (K, slots)
         arrays, the few scalar task entries stacked per key."""
         k = self.num_envs
-        rest = [{key: v for key, v in d.items() if key not in _KIN_KEYS
-                 and key not in ("kin_truth_count", "kin_detections_count")} for d in per_env]
+        rest = [
+            {
+                key: v
+                for key, v in d.items()
+                if key not in _KIN_KEYS and key not in ("kin_truth_count", "kin_detections_count")
+            }
+            for d in per_env
+        ]
         info = stack_infos(rest)
         ones = np.ones(k, dtype=np.bool_)
         layout = [("kin_truth", KIN_TRUTH_FIELDS, self._truth_slots)]
         if self.detector is not None:
             layout.append(("kin_detections", DETECTION_FIELDS, self.config.max_detections))
         for key, fields, slots in layout:
-            cols = {f: np.empty((k, slots), dtype=np.int64 if f in INT_FIELDS else np.float64)
-                    for f in fields}
+            cols = {
+                f: np.empty((k, slots), dtype=np.int64 if f in INT_FIELDS else np.float64) for f in fields
+            }
             count = np.zeros(k, dtype=np.int64)
             if on:
                 kc, kn = kin[key]
