@@ -110,7 +110,11 @@ def test_resets_do_not_grow_native_memory():
         [sys.executable, "-c", code], capture_output=True, text=True, timeout=900, check=True
     )
     per_reset = float(out.stdout.split()[-1])
-    assert per_reset * 2000 < 5e6, f"RSS grows {per_reset / 1e3:.2f} kB per world reset (budget 2.5 kB)"
+    # the fitted slope of 400 resets scatters from 0.9 to 2.9 kB per reset between runs (one ~1 MB
+    # jump of the allocator moves it), so the reduced run's budget is 5 kB: still less than half the
+    # old leak (11.5 kB); the full soak keeps the 2.5 kB (5 MB per 2,000 resets)
+    budget = 2.5e3 if n >= 2000 else 5e3
+    assert per_reset < budget, f"RSS grows {per_reset / 1e3:.2f} kB per reset (budget {budget / 1e3} kB)"
 
 
 @pytest.mark.parametrize("huge", [1e308, -1e308, 1.7e308, 1e20])
