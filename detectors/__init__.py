@@ -5,9 +5,18 @@ pymunk). ``import detectors`` stays light (numpy/scipy/numba): ``LearnedKinDetec
 on first access. The dataset format and category names are in :mod:`detectors.samples`; generating
 labelled data and evaluating against the simulator's ground truth is on the simulator side
 (:mod:`kin_envs.detection`).
+
+It reports through the ``detectors`` logger (``logging``; silent unless the application configures it).
 """
 
-from .base import (
+import logging
+
+# kin-envs' marker: ``import kin_envs`` and ``detectors.base`` check for it, since an unrelated
+# distribution named ``detectors`` exists and would shadow or overwrite this file (kin_envs._toplevel)
+__kin_envs_package__ = True
+logging.getLogger(__name__).addHandler(logging.NullHandler())
+
+from .base import (  # noqa: E402
     Detection,
     DetectionResult,
     KinDetector,
@@ -17,7 +26,7 @@ from .base import (
     validate_scan,
     wrap_angle,
 )
-from .geometric import (
+from .geometric import (  # noqa: E402
     CircleFit,
     DiameterCheck,
     GeometricKinDetector,
