@@ -200,15 +200,17 @@ def _script_path(script: str | None) -> str | None:
         return str(p)
 
 
-def write_run_info(out_dir, *, config: Any, seed: Any = None, argv: list[str] | None = None,
-                   script: str | None = None, filename: str = "run.json", **fields: Any) -> dict:
+def write_run_info(out_dir, args: argparse.Namespace | dict | None = None, *, config: Any = None,
+                   seed: Any = None, argv: list[str] | None = None, script: str | None = None,
+                   filename: str = "run.json", **fields: Any) -> dict:
     """Write ``out_dir/filename`` (default ``run.json``) atomically and return what was written.
 
-    Keys: ``script``, ``command`` (``sys.argv`` when ``argv`` is ``None``, else the script and
-    ``argv``: the call of ``main(argv)``), ``cwd``, ``seed``, ``config``, ``versions``
-    (:func:`package_versions`), ``git_commit`` (``-dirty`` when the checkout has changes; ``None``
-    outside a checkout), ``time`` (UTC), then ``fields`` as given (e.g. results or timings). Values
-    go through :func:`to_plain`. A script may call it again (e.g. ``status="done"``) to replace it.
+    Keys: ``script``; ``command`` (``sys.argv`` when ``argv`` is ``None``, else the script and
+    ``argv``: the call ``main(argv)``); ``cwd``; ``args`` (the parsed command line); ``config`` (the
+    resolved configuration, e.g. a dataclass); ``seed``; ``versions`` (:func:`package_versions`);
+    ``git_commit`` (``-dirty`` when the checkout has changes; ``None`` outside a checkout); ``time``
+    (UTC); then ``fields`` as given (results, timings, status). Values go through :func:`to_plain`.
+    Call it again (e.g. with ``status="done"``) to replace the file.
     """
     out_dir = Path(out_dir)
     script = _script_path(script)
@@ -220,8 +222,9 @@ def write_run_info(out_dir, *, config: Any, seed: Any = None, argv: list[str] | 
         "script": script,
         "command": command,
         "cwd": os.getcwd(),
-        "seed": seed,
+        "args": vars(args) if isinstance(args, argparse.Namespace) else args,
         "config": config,
+        "seed": seed,
         "versions": package_versions(),
         "git_commit": _git_commit(),
         "time": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),

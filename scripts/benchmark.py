@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from kin_envs import World, scenes
+from kin_envs.cli import add_logging_args, setup_logging, write_run_info
 from kin_envs.core.world import LIDAR_QUERY_FILTER
 
 
@@ -219,8 +220,11 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--sections", default=",".join(SECTIONS), help="comma-separated: " + ", ".join(SECTIONS))
     p.add_argument("--min-time", type=float, default=1.5, help="seconds of timing per measurement")
     p.add_argument("--robots", type=int, nargs="+", default=[1, 8, 64, 256], help="lidar: robot counts")
-    p.add_argument("--out", type=Path, default=Path("outputs/benchmark"))
+    p.add_argument("--out", type=Path, default=Path("outputs/benchmark"),
+                   help="output directory (default: %(default)s)")
+    add_logging_args(p)
     args = p.parse_args(argv)
+    setup_logging(args)
     sections = [s.strip() for s in args.sections.split(",") if s.strip()]
     unknown = sorted(set(sections) - set(SECTIONS))
     if unknown:
@@ -244,6 +248,7 @@ def main(argv: list[str] | None = None) -> dict:
         )
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "benchmark.json").write_text(json.dumps(results, indent=2))
+    write_run_info(args.out, args, config=results["config"], argv=argv, script=__file__)
     md = to_markdown(results)
     (args.out / "benchmark.md").write_text(md)
     print("\n" + md)

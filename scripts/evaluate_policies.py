@@ -31,7 +31,6 @@ import argparse
 import csv
 import json
 import math
-import platform
 import sys
 from pathlib import Path
 from typing import Any
@@ -40,7 +39,6 @@ import numpy as np
 from scipy import stats
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
-from tqdm import tqdm
 
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:  # run as a file: make agents / kin_envs importable from the checkout
@@ -59,11 +57,14 @@ from agents import (  # noqa: E402
     run_parallel_episode,
 )
 from kin_envs import aggregation_v0  # noqa: E402
+from kin_envs.cli import add_logging_args, script_logger, setup_logging, write_run_info  # noqa: E402
+from kin_envs.cli import progress as tqdm  # noqa: E402
 
 SWARM_ID = "aggregation_v0"
 BUILTIN = {"random": RandomPolicy, "wander": Wanderer, "scripted": KinSeeker, "aggregator": Aggregator}
 DEFAULT_POLICIES = {"single": ["random", "scripted"], "swarm": ["random", "wander", "aggregator"]}
 DEFAULT_SWARM_KWARGS = {"obs_detections": "topk"}
+log = script_logger(__file__)
 
 
 # --- statistics ---------------------------------------------------------------------------------
@@ -280,7 +281,11 @@ def load_curve(model_path: Path) -> dict[str, np.ndarray] | None:
 def plot_curves(curves: dict[str, dict], path: Path) -> bool:
     if not curves:
         return False
-    import matplotlib
+    try:
+        import matplotlib
+    except ImportError:  # the viz extra: the tables do not need it
+        log.warning("no learning_curve.png: matplotlib is not installed (pip install kin-envs[viz])")
+        return False
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -319,15 +324,18 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--max-cycles", type=int, default=None, help="swarm episode length (default: the env's)")
     p.add_argument("--link-radius", type=float, default=0.5, help="swarm: cluster link radius, m")
     p.add_argument("--metric-cycles", type=int, default=50, help="swarm: average metrics over the last N")
-    p.add_argument("--out", type=Path, default=Path("outputs/evaluate_policies"))
-    p.add_argument("--torch-threads", type=int, default=1)
-    p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--out", type=Path, default=Path("outputs/evaluate_policies"),
+                   help="output directory (default: %(default)s)")
+    p.add_argument("--torch-threads", type=int, default=1, help="torch threads for the SB3 models")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars, no table on stdout")
+    add_logging_args(p)
     return p.parse_args(argv)
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Evaluate; returns ``{"results": {policy: metrics}, "markdown": table, "out": dir}``."""
     args = parse_args(argv)
+    setup_logging(args)
     swarm = args.env == SWARM_ID
     if args.env_kwargs:
         base_kwargs = json.loads(args.env_kwargs)
@@ -393,13 +401,11 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     (out / "results.json").write_text(json.dumps({"env": args.env, "results": results}, indent=1,
                                                  default=float) + "\n")
     plotted = plot_curves(curves, out / "learning_curve.png")
-    run = {"script": "scripts/evaluate_policies.py",
-           "command": ([sys.executable, *sys.argv] if argv is None
-                       else ["scripts/evaluate_policies.py", *argv]),
-           "args": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()},
-           "env_kwargs": used_kwargs, "seeds": [int(seeds[0]), int(seeds[-1])],
-           "models": {n: str(p) for n, p in models}, "python": platform.python_version()}
-    (out / "run.json").write_text(json.dumps(run, indent=2) + "\n")
+    write_run_info(out, args, config={"env": args.env, "episodes": episodes}, seed=args.first_seed,
+                   argv=argv, script=__file__,
+                   env_kwargs=used_kwargs, seeds=[int(seeds[0]), int(seeds[-1])],
+                   models={n: str(p) for n, p in models})
+    log.info("wrote %s", ", ".join(str(out / f) for f in ("results.md", "results.json", "run.json")))
     if progress:
         print(md)
     return {"results": results, "markdown": md, "out": out,

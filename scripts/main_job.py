@@ -17,6 +17,10 @@ import time
 from pathlib import Path
 
 SCRIPTS = Path(__file__).resolve().parent
+if str(SCRIPTS.parent) not in sys.path:  # run as a file: make kin_envs importable from the checkout
+    sys.path.insert(0, str(SCRIPTS.parent))
+
+from kin_envs.cli import add_logging_args, setup_logging, write_run_info  # noqa: E402
 
 
 def _load(name: str):
@@ -32,16 +36,22 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--out", type=Path, default=Path("outputs"), help="parent output directory")
     p.add_argument("--scenes", type=int, default=None, help="evaluation sweep size (default: the script's)")
     p.add_argument("--quick", action="store_true", help="tiny sizes, for smoke tests")
+    add_logging_args(p)
     args = p.parse_args(argv)
+    setup_logging(args)
+    args.out.mkdir(parents=True, exist_ok=True)
+    write_run_info(args.out, args, argv=argv, script=__file__)
     results = {}
     t0 = time.perf_counter()
     repro_argv = ["--out", str(args.out / "reproduce_paper"), "--noise", "0.005", "0.01"]
+    verbosity = ["--verbose"] if args.verbose else ["--quiet"] if args.quiet else []
+    repro_argv += verbosity
     if args.quick:
         repro_argv += ["--repeats", "3", "--draws", "4", "--no-figures"]
     print("== 1/2 paper reproduction ==", flush=True)
     results["reproduce_paper"] = _load("reproduce_paper").main(repro_argv)
     print("== 2/2 detector comparison: geometric vs learned ==", flush=True)
-    eval_argv = ["--detectors", "geometric", "learned", "--out", str(args.out / "evaluation")]
+    eval_argv = ["--detectors", "geometric", "learned", "--out", str(args.out / "evaluation"), *verbosity]
     if args.scenes is not None or args.quick:
         eval_argv += ["--scenes", str(args.scenes if args.scenes is not None else 4)]
     results["evaluate_detectors"] = _load("evaluate_detectors").main(eval_argv)

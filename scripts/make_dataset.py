@@ -33,7 +33,7 @@ import numpy as np
 
 from detectors.features import FEATURE_VERSION, FeatureConfig, feature_names
 from detectors.samples import CATEGORIES, DATASET_FORMAT, DATASET_FORMAT_VERSION, concat_records
-from kin_envs.cli import parse_json_object
+from kin_envs.cli import add_logging_args, parse_json_object, script_logger, setup_logging, write_run_info
 from kin_envs.detection.dataset import DatasetConfig, scene_records
 from kin_envs.distributed import BACKENDS, imap_seeds
 
@@ -62,7 +62,9 @@ def main(argv=None) -> dict:
     ap.add_argument("--backend", choices=BACKENDS, default="local", help="scenes here or as Ray tasks")
     ap.add_argument("--address", default=None, help="ray: join this cluster (e.g. auto, host:6379)")
     ap.add_argument("--num-cpus", type=int, default=None, help="ray: CPUs of a local Ray (default: all)")
+    add_logging_args(ap)
     args = ap.parse_args(argv)
+    setup_logging(args)
     if args.scenes < 1 or args.shard_scenes < 1 or args.first_seed < 0:
         ap.error("--scenes and --shard-scenes must be >= 1 and --first-seed >= 0")
     if args.backend == "local" and (args.address is not None or args.num_cpus is not None):
@@ -75,6 +77,8 @@ def main(argv=None) -> dict:
     except ValueError as e:
         ap.error(str(e))
     args.out.mkdir(parents=True, exist_ok=True)
+    write_run_info(args.out, args, config={"dataset": cfg, "features": fcfg}, seed=args.first_seed, argv=argv,
+                   script=__file__)
     t0 = time.perf_counter()
     shards, seg_parts, obj_parts = [], [], []
     label_counts = np.zeros(2, np.int64)
@@ -143,7 +147,7 @@ def main(argv=None) -> dict:
         "numpy": np.__version__,
     }
     (args.out / "manifest.json").write_text(json.dumps(manifest, indent=2))
-    print(
+    script_logger(__file__).info(
         f"{n_seg} segments ({label_counts[1]} kin, {n_same} same-radius cylinder) from {args.scenes} scenes "
         f"in {seconds:.1f} s -> {args.out}"
     )
