@@ -23,6 +23,7 @@ from kin_envs.core.lidar import HitKind, LidarSpec  # noqa: E402
 from kin_envs.core.scenes import RobotSpec, Scene  # noqa: E402
 from kin_envs.core.world import Contact, Scan, World, WorldConfig  # noqa: E402
 from kin_envs.envs import register_envs as _register_envs  # noqa: E402
+from kin_envs.envs.recording import record_episode  # noqa: E402
 
 _register_envs()
 
@@ -37,5 +38,6 @@ __all__ = [
     "World",
     "WorldConfig",
     "aggregation_v0",
+    "record_episode",
     "scenes",
 ]
