@@ -105,3 +105,19 @@ def test_scripts_write_run_json_through_the_shared_helper():
         assert '"run.json").write_text' not in text, script
         if "run.json" in text:
             assert "write_run_info(" in text, script
+
+
+def test_scripts_skip_figures_without_matplotlib(tmp_path, monkeypatch):
+    # a .[distributed] (or core) install has no matplotlib: tables and JSON, a warning, no crash
+    from tests.scripts.helpers import load_script
+
+    monkeypatch.setitem(sys.modules, "matplotlib", None)  # import matplotlib -> ImportError
+    ev = load_script("evaluate_detectors")
+    res = ev.main(["--scenes", "1", "--noise", "0", "--detectors", "geometric", "--out", str(tmp_path / "ev"),
+                   "--no-progress", "--quiet"])
+    assert res["results"]["figures"] == [] and (tmp_path / "ev" / "results.md").is_file()
+    assert not list((tmp_path / "ev").glob("*.png"))
+    rp = load_script("reproduce_paper")
+    res = rp.main(["--distances", "0.5", "--draws", "0", "--repeats", "1", "--out", str(tmp_path / "rp"),
+                   "--quiet"])
+    assert res["figures"] == [] and (tmp_path / "rp" / "reproduction.md").is_file()
