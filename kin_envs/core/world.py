@@ -22,8 +22,9 @@ import numpy as np
 import pymunk
 import pymunk.batch as pmbatch
 
-from kin_envs.core._validate import check_positive
+from kin_envs.core._validate import check_positive, dataclass_from_dict
 from kin_envs.core.lidar import HitKind, cast_scan, polygon_edges
+from kin_envs.core.odometry import Odometry, OdometrySpec
 from kin_envs.core.scenes import Robot, Scene
 
 __all__ = ["WorldConfig", "World", "Scan", "Contact", "LIDAR_QUERY_FILTER"]
@@ -54,12 +55,15 @@ class WorldConfig:
             rounded to a whole number of physics steps.
         floor_friction: Coulomb friction coefficient between movable obstacles and the floor.
         iterations: pymunk solver iterations.
+        odometry: the robots' wheel-odometry error model (:class:`~kin_envs.core.odometry.OdometrySpec`;
+            ``OdometrySpec.exact()`` for none).
     """
 
     control_dt: float = 0.1
     physics_dt: float = 0.02
     floor_friction: float = 0.5
     iterations: int = 10
+    odometry: OdometrySpec = OdometrySpec()
 
     def __post_init__(self) -> None:
         check_positive("WorldConfig", control_dt=self.control_dt, physics_dt=self.physics_dt)
@@ -71,6 +75,11 @@ class WorldConfig:
             )
         if self.floor_friction < 0 or self.iterations < 1:
             raise ValueError("WorldConfig: floor_friction must be >= 0 and iterations >= 1")
+        if isinstance(self.odometry, dict):
+            spec = dataclass_from_dict(OdometrySpec, self.odometry, "WorldConfig")
+            object.__setattr__(self, "odometry", spec)
+        if not isinstance(self.odometry, OdometrySpec):
+            raise TypeError(f"WorldConfig.odometry must be an OdometrySpec, got {self.odometry!r}")
 
     @property
     def substeps(self) -> int:
@@ -161,6 +170,10 @@ class World:
         )
         self._build_contact_lookup()
         self.contacts = np.zeros(self.n_robots, dtype=np.int8)
+        # odometry draws from a child stream: its noise never shifts the lidar noise of the same seed
+        self._odometry = Odometry(
+            self.poses, self.scene.robot.wheel_base, self.config.odometry, self.rng.spawn(1)[0]
+        )
 
     # -- construction -----------------------------------------------------------------------------
     def _build_space(self) -> None:
@@ -416,21 +429,41 @@ class World:
         dt = self.config.physics_dt
         v, omega = self._commands[:, 0], self._commands[:, 1]
         buf, rs, cs = self._batch_buf, self._slots("_robot_slots", self._robot_ids), self._control_slots
+        odom = self._odometry
+        odom.begin_step()
         for _ in range(self.config.substeps):
             # one batched read and write per substep instead of ~3 pymunk attribute calls per robot
             buf.clear()
             pmbatch.get_space_bodies(self.space, self._DRIVE_GET, buf)
             rows = np.frombuffer(buf.float_buf(), dtype=np.float64).reshape(-1, 4)  # angle, vx, vy, w
-            vel = rows[:, 1:].copy()
             heading = rows[rs, 0]
+            # pymunk moves bodies with the velocity they have now (positions are integrated first in a
+            # step), so this is the motion the wheel encoders are about to measure
+            r = rows[rs]
+            odom.integrate(r[:, 1] * np.cos(heading) + r[:, 2] * np.sin(heading), r[:, 3], dt)
+            vel = rows[:, 1:].copy()
             vel[cs, 0] = v * np.cos(heading)
             vel[cs, 1] = v * np.sin(heading)
             vel[cs, 2] = omega
             self._set_buf.set_float_buf(vel)
             pmbatch.set_space_bodies(self.space, self._DRIVE_SET, self._set_buf)
             self.space.step(dt)
+        odom.end_step()
         self.time += self.config.substeps * dt
         self._update_contacts()
+
+    @property
+    def odometry(self) -> np.ndarray:
+        """``(n_robots, 3)`` each robot's wheel-odometry pose ``x, y, theta`` (m, rad): the world frame at
+        t = 0, then integrated achieved wheel travel with the :class:`WorldConfig` ``odometry`` error model
+        (drifts from :attr:`poses`; see :mod:`kin_envs.core.odometry`)."""
+        return self._odometry.pose.copy()
+
+    @property
+    def odometry_delta(self) -> np.ndarray:
+        """``(n_robots, 3)`` the last :meth:`step`'s odometry increment ``dx, dy, dtheta`` in each robot's
+        frame at the start of the step (x forward, y left, CCW positive): what a tracker is given."""
+        return self._odometry.delta.copy()
 
     @property
     def commands(self) -> np.ndarray:

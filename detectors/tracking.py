@@ -1,0 +1,768 @@
+"""Multi-frame kin tracking: per-frame candidates + odometry -> tracks with a kin probability.
+
+Simulator-free, like every detector: it takes what a real robot has — per-frame kin candidates (positions
+and scores from any :class:`~detectors.base.KinDetector`, optionally the scan points of each candidate's
+segment) and wheel-odometry increments — so it runs on recorded data as well as in the simulator.
+
+**Frames.** Tracks live in the observer's *odometry frame*: the frame the robot's odometry integrates in
+(its pose at the first frame is the origin). Each :meth:`KinTracker.update` gets the odometry increment
+``(dx, dy, dtheta)`` since the previous frame, in the robot frame at the previous frame (x forward, y left,
+CCW positive); candidates are given in the current robot frame (x forward, y left, m). Odometry drift
+makes the odometry frame slide slowly against the world, which the constant-velocity model's process noise
+absorbs.
+
+**Per frame** (:meth:`KinTracker.update`):
+
+1. *Predict* every track with a constant-velocity Kalman filter (state ``x, y, vx, vy``; white-noise
+   acceleration ``process_accel``).
+2. *Associate* candidates to tracks: Mahalanobis distance under the predicted innovation covariance,
+   gated at ``gate_chi2`` (chi-square, 2 dof), solved jointly with the Hungarian method
+   (:func:`scipy.optimize.linear_sum_assignment`).
+3. *Update* matched tracks (Kalman update with an isotropic measurement noise
+   ``meas_sigma + meas_sigma_rel * range``); unmatched candidates start tentative tracks; unmatched tracks
+   that should have been seen (within ``max_range``) count a miss.
+4. *Existence* probability: Bayes with a detection probability ``p_detect`` and a clutter ratio
+   ``clutter_ratio`` (hit: ``p <- p / (p + (1 - p) * clutter_ratio)``; miss: ``p <- p (1 - P_D) /
+   (1 - p P_D)``). A track is *confirmed* once its existence reaches ``confirm_existence`` and deleted when
+   it falls below ``delete_existence``.
+5. *Kin probability*, in log-odds, from three cues (each documented in :class:`TrackerParams`):
+
+   a. **detector score**: the frame's candidate score ``s`` (higher = more kin-like, in (0, 1)) adds
+      ``score_weight * (logit(s) - logit(score_prior))``. Frames of a static scene are strongly correlated
+      (the same object seen from almost the same place gives the same evidence), so the weight is < 1 and
+      the score part of the log-odds is clamped to ``±score_clamp``: repeating one ambiguous view cannot
+      make a track certain.
+   b. **accumulated outline**: the candidate's scan points, moved into the odometry frame (ego-motion
+      compensated), accumulate (up to ``max_points``, newest kept) with their expected noise
+      ``sigma_i = sqrt(shape_sigma**2 + (noise * d_i)**2)`` (``noise``: the frame's relative range noise,
+      estimated from the scan itself by :func:`detectors.features.scan_noise` in
+      :meth:`KinTracker.update_from_result`). A circle of the housing radius ``r`` is fitted to all of
+      them (Gauss-Newton on the centre, radius fixed, warm-started at the last fit). As the observer
+      moves and turns, the beams sample the outline far more densely than one scan does: a housing stays
+      on its circle, a 7 cm prism does not. The cue is the Gaussian log-likelihood ratio of the residuals
+      ``e_i`` between "on the circle" (``e_i ~ N(0, sigma_i^2)``, ``sigma_i`` grown by the odometry's
+      random-walk error since the point was seen, ``odom_heading_rate``) and "off it by a look-alike's typical
+      deviation ``shape_delta``" (``N(0, sigma_i^2 + shape_delta^2)``), summed over the points, scaled
+      down to at most ``shape_n_cap`` points' worth (neighbouring points are not independent) and clamped
+      to ``±shape_clamp``. It replaces (is not added to) the previous frame's shape cue: the outline is
+      one growing piece of evidence. With noise much larger than ``shape_delta`` it is honestly ~0. Once
+      a track has moved its points no longer share one frame, so its shape cue is frozen (the motion cue
+      has decided it anyway).
+   c. **motion**: static obstacles do not move in the odometry frame. A track whose filtered position has
+      left the place where it was first seen by more than ``motion_dist`` (and by more than 3 standard
+      deviations of the two positions' uncertainty plus the odometry drift since, which slides static
+      objects through the odometry frame) has *moved*: it gets ``motion_gain``, strong evidence
+      for a kin (only pushed movable obstacles also move). Displacement from an anchor rather than the
+      filtered speed, because a slowly wandering kin's speed estimate stays within its own noise for many
+      frames, while its displacement grows. Conversely, a track seen for longer than ``static_time``
+      without ever moving, while some other track of the same observer *has* moved (so the swarm around
+      it is active), gets ``static_penalty``: a circle that stays put among moving kin is more likely a
+      same-radius cylinder than a parked kin (set 0 where kin often park).
+
+   ``kin_prob = sigmoid(prior + score part + shape part + motion part)``.
+
+Tracks are plain arrays inside (the hot path); :meth:`KinTracker.tracks` builds :class:`Track` objects and
+:meth:`KinTracker.track_arrays` fixed-shape padded arrays (for vector envs) on demand.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field, fields
+
+import numba
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from .base import DetectionResult, wrap_angle
+from .features import scan_noise, segment_batch
+
+__all__ = ["TrackerParams", "Track", "KinTracker", "TRACK_FIELDS", "fit_known_circle"]
+
+#: Columns of :meth:`KinTracker.track_arrays`' ``tracks`` array.
+TRACK_FIELDS = ("id", "x", "y", "vx", "vy", "existence", "kin_prob", "frames_seen", "confirmed", "age")
+
+
+def _logit(p):
+    p = np.clip(p, 1e-6, 1 - 1e-6)
+    return np.log(p / (1 - p))
+
+
+@dataclass(frozen=True)
+class TrackerParams:
+    """Parameters of :class:`KinTracker` (SI units; see the module docstring for how each enters).
+
+    Attributes:
+        r: radius of the kin's lidar housing, m (the outline cue's circle).
+        process_accel: constant-velocity model's white acceleration noise, m/s^2.
+        meas_sigma, meas_sigma_rel: candidate position noise ``meas_sigma + meas_sigma_rel * range``, m.
+        init_speed_sigma: initial velocity uncertainty of a new track, m/s.
+        gate_chi2: association gate on the squared Mahalanobis distance (9.21: 99 %, 2 dof).
+        p_detect: probability that an existing object in range yields a candidate in a frame.
+        clutter_ratio: how likely a hit is under "no object" relative to "object" (existence update).
+        birth_existence: existence probability of a new track.
+        confirm_existence, delete_existence: confirm / delete thresholds of the existence probability.
+        max_range: m; a track beyond it is not expected to be seen (no miss counted).
+        kin_prior: prior kin probability of a new track.
+        score_prior: the score a candidate carries no evidence at (the detector's operating point).
+        score_weight, score_clamp: weight of one frame's score log-odds, and the clamp of their sum.
+        shape_delta: RMS deviation of a 7 cm look-alike's outline from the housing circle, m (a hexagon's
+            is ~2 mm, a triangle's ~8 mm).
+        shape_sigma: per-point noise floor, m; range_noise: relative range noise used when a frame gives
+            none.
+        shape_n_cap, shape_min_points, shape_clamp: the outline cue's point cap, minimum points, clamp.
+        odom_heading_rate, odom_position_rate: the odometry's random-walk heading (rad/sqrt(m)) and position
+            (m/sqrt(m)) error per metre of wheel travel; a point seen ``L`` m of travel ago has drifted by
+            ``sqrt(L) * (odom_heading_rate * range + odom_position_rate)``. Defaults match
+            ``kin_envs``' default odometry model (noise_k = 0.005 m^1/2, wheel base 0.16 m).
+        wheel_base: m, turns the odometry's dtheta into wheel travel for the odometer.
+        max_points: accumulated outline points kept per track (newest).
+        motion_dist, motion_gain: the motion cue (m; log-odds once moved).
+        static_time, static_penalty: a track seen this long (s) without moving, while another track has
+            moved, gets this log-odds.
+        kin_threshold: a confirmed track with ``kin_prob >= kin_threshold`` is reported as kin.
+    """
+
+    r: float = 0.035
+    process_accel: float = 0.5
+    meas_sigma: float = 0.01
+    meas_sigma_rel: float = 0.01
+    init_speed_sigma: float = 0.3
+    gate_chi2: float = 9.21
+    p_detect: float = 0.8
+    clutter_ratio: float = 0.2
+    birth_existence: float = 0.5
+    confirm_existence: float = 0.8
+    delete_existence: float = 0.1
+    max_range: float = 5.0
+    kin_prior: float = 0.5
+    score_prior: float = 0.5
+    score_weight: float = 0.4
+    score_clamp: float = 4.0
+    shape_delta: float = 0.002
+    shape_sigma: float = 0.0005
+    range_noise: float = 0.01
+    shape_n_cap: int = 60
+    shape_min_points: int = 8
+    shape_clamp: float = 6.0
+    odom_heading_rate: float = 0.045
+    odom_position_rate: float = 0.005
+    wheel_base: float = 0.16
+    max_points: int = 120
+    motion_dist: float = 0.1
+    motion_gain: float = 6.0
+    static_time: float = 5.0
+    static_penalty: float = -6.0
+    kin_threshold: float = 0.5
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+                raise ValueError(f"TrackerParams.{f.name} must be a finite number, got {v!r}")
+        for name in ("r", "meas_sigma", "init_speed_sigma", "gate_chi2", "max_range", "shape_sigma",
+                     "shape_delta", "wheel_base"):  # fmt: skip
+            if getattr(self, name) <= 0:
+                raise ValueError(f"TrackerParams.{name} must be > 0, got {getattr(self, name)!r}")
+        for name in ("odom_heading_rate", "odom_position_rate"):  # 0: exact odometry
+            if getattr(self, name) < 0:
+                raise ValueError(f"TrackerParams.{name} must be >= 0, got {getattr(self, name)!r}")
+        for name in ("p_detect", "birth_existence", "confirm_existence", "delete_existence", "kin_prior",
+                     "score_prior", "kin_threshold"):  # fmt: skip
+            if not 0 < getattr(self, name) < 1:
+                raise ValueError(f"TrackerParams.{name} must be in (0, 1), got {getattr(self, name)!r}")
+        if not self.delete_existence < self.birth_existence <= self.confirm_existence:
+            raise ValueError("TrackerParams: need delete_existence < birth_existence <= confirm_existence")
+        for name in ("shape_n_cap", "shape_min_points", "max_points"):
+            if int(getattr(self, name)) != getattr(self, name) or getattr(self, name) < 1:
+                raise ValueError(
+                    f"TrackerParams.{name} must be a positive integer, got {getattr(self, name)!r}"
+                )
+
+    @classmethod
+    def from_dict(cls, d) -> TrackerParams:
+        names = {f.name for f in fields(cls)}
+        if not isinstance(d, dict) or set(d) - names:
+            bad = sorted(set(d) - names) if isinstance(d, dict) else d
+            raise ValueError(f"TrackerParams: unknown key(s) {bad}; expected a subset of {sorted(names)}")
+        return cls(**d)
+
+
+@dataclass(frozen=True, eq=False)
+class Track:
+    """One track, in the observer's odometry frame (m, m/s).
+
+    Attributes:
+        id: unique within the tracker (never reused).
+        x, y: filtered position; vx, vy: filtered velocity.
+        covariance: (4, 4) state covariance of ``x, y, vx, vy``.
+        existence: probability that the object exists.
+        kin_prob: probability that it is a kin.
+        frames_seen: frames with an associated candidate.
+        age: frames since the track started.
+        confirmed: existence has reached ``confirm_existence``.
+        moved: the motion cue has fired (the track left where it was first seen).
+        points: (m, 2) accumulated outline points (odometry frame) relative to the track's centre.
+    """
+
+    id: int
+    x: float
+    y: float
+    vx: float
+    vy: float
+    covariance: np.ndarray
+    existence: float
+    kin_prob: float
+    frames_seen: int
+    age: int
+    confirmed: bool
+    moved: bool
+    points: np.ndarray = field(repr=False)
+
+    @property
+    def is_kin(self) -> bool:
+        return self.confirmed and self.kin_prob >= 0.5
+
+
+def fit_known_circle(points: np.ndarray, r: float, centre0=(0.0, 0.0), iterations: int = 8, weights=None):
+    """Least-squares centre of a circle of known radius ``r`` through ``points`` (m, 2).
+
+    Minimises ``sum_i w_i (|p_i - c| - r)^2`` over ``c`` (``weights`` default 1) by Gauss-Newton from
+    ``centre0``. Returns ``(centre (2,), residuals (m,))``.
+    """
+    p = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 2)
+    w = np.ones(p.shape[0]) if weights is None else np.ascontiguousarray(weights, dtype=np.float64)
+    c = np.array(centre0, dtype=np.float64)
+    e = np.empty(p.shape[0])
+    _fit_known_circle(p, w, float(r), c, int(iterations), e)
+    return c, e
+
+
+@numba.njit(cache=True, nogil=True)
+def _fit_known_circle(p, w, r, c, iterations, e):
+    """Weighted Gauss-Newton on the centre ``c`` (in place, 2x2 normal equations solved in closed form);
+    writes the residuals ``|p_i - c| - r`` into ``e``."""
+    m = p.shape[0]
+    for _ in range(iterations):
+        a00 = a01 = a11 = g0 = g1 = 0.0
+        for i in range(m):
+            dx, dy = p[i, 0] - c[0], p[i, 1] - c[1]
+            d = max(math.sqrt(dx * dx + dy * dy), 1e-12)
+            jx, jy = -dx / d, -dy / d  # d e_i / d c
+            ei = d - r
+            a00 += w[i] * jx * jx
+            a01 += w[i] * jx * jy
+            a11 += w[i] * jy * jy
+            g0 += w[i] * jx * ei
+            g1 += w[i] * jy * ei
+        det = a00 * a11 - a01 * a01
+        if det <= 1e-12 * (a00 + a11) ** 2:  # points on a line through c: no unique step
+            break
+        s0 = -(a11 * g0 - a01 * g1) / det
+        s1 = -(a00 * g1 - a01 * g0) / det
+        c[0] += s0
+        c[1] += s1
+        if s0 * s0 + s1 * s1 < 1e-18:
+            break
+    for i in range(m):
+        e[i] = math.sqrt((p[i, 0] - c[0]) ** 2 + (p[i, 1] - c[1]) ** 2) - r
+
+
+class KinTracker:
+    """Kin tracks of ``n_observers`` robots at once, from their candidates and odometry (module docstring).
+
+    Batch-first: every observer's tracks live in one set of arrays (a row per track slot, its observer in
+    ``obs``), and one :meth:`update_batch` call advances all observers by one frame with array operations
+    and one compiled kernel for the outline cue; the Hungarian solver runs only for the observers whose
+    gates are ambiguous. :meth:`update` is the one-observer form.
+
+    Example::
+
+        tracker = KinTracker()
+        for ranges, odom_delta in frames:               # (n,) m; (dx, dy, dtheta) since the last frame
+            result = detector.detect(ranges, angles)    # any KinDetector, ideally a permissive one
+            tracker.update_from_result(result, ranges, angles, odom_delta, dt=0.1)
+            kin = [t for t in tracker.tracks() if t.is_kin]
+    """
+
+    _FIELDS = ("_id", "_obs", "_x", "_P", "_exist", "_lo_score", "_lo_shape", "_lo_motion", "_seen", "_age",
+               "_static_t", "_moved", "_confirmed", "_anchor", "_anchor_var", "_alive", "_pts", "_npts",
+               "_head", "_fit_c", "_anchor_odo", "_anchor_rng")  # fmt: skip
+
+    def __init__(self, params: TrackerParams | None = None, n_observers: int = 1) -> None:
+        if isinstance(n_observers, bool) or not isinstance(n_observers, int | np.integer) or n_observers < 1:
+            raise ValueError(f"KinTracker: n_observers must be a positive integer, got {n_observers!r}")
+        self.params = params or TrackerParams()
+        if not isinstance(self.params, TrackerParams):
+            raise TypeError(f"KinTracker: params must be a TrackerParams, got {type(self.params).__name__}")
+        self.n_observers = int(n_observers)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget every track; each observer's odometry frame restarts at its current pose."""
+        self.poses = np.zeros((self.n_observers, 3))  # each observer in its own odometry frame
+        self.time = 0.0
+        self._next_id = 0
+        cap, m = 8 * self.n_observers, int(self.params.max_points)
+        self._id = np.zeros(cap, np.int64)
+        self._obs = np.zeros(cap, np.int64)
+        self._x = np.zeros((cap, 4))
+        self._P = np.zeros((cap, 4, 4))
+        self._exist = np.zeros(cap)
+        self._lo_score = np.zeros(cap)
+        self._lo_shape = np.zeros(cap)
+        self._lo_motion = np.zeros(cap)
+        self._seen = np.zeros(cap, np.int64)
+        self._age = np.zeros(cap, np.int64)
+        self._static_t = np.zeros(cap)
+        self._moved = np.zeros(cap, bool)
+        self._confirmed = np.zeros(cap, bool)
+        self._anchor = np.zeros((cap, 2))  # where the track was first seen, odometry frame
+        self._anchor_var = np.zeros(cap)
+        self._anchor_odo = np.zeros(cap)  # the observer's odometer and the range when first seen
+        self._anchor_rng = np.zeros(cap)
+        self._alive = np.zeros(cap, bool)
+        # outline points, a ring: odometry-frame x, y; sensor sigma; range when seen; observer's odometer then
+        self._pts = np.zeros((cap, m, 5))
+        self.odometer = np.zeros(self.n_observers)  # wheel travel so far, m (ages ego-motion errors)
+        self._npts = np.zeros(cap, np.int64)
+        self._head = np.zeros(cap, np.int64)
+        self._fit_c = np.zeros((cap, 2))  # the outline fit's centre, odometry frame (warm start)
+
+    @property
+    def pose(self) -> np.ndarray:
+        """Observer 0's pose in its odometry frame (the one-observer form)."""
+        return self.poses[0]
+
+    # -- the frame update --------------------------------------------------------------------------
+    def update(
+        self, xy, scores, odom_delta, dt: float, points: Sequence[np.ndarray] | None = None, noise=None
+    ) -> None:
+        """Advance one frame of a one-observer tracker.
+
+        Args:
+            xy: (k, 2) candidate centres in the current robot frame (x forward, y left), m.
+            scores: (k,) candidate scores in [0, 1] (higher = more kin-like).
+            odom_delta: (3,) odometry increment since the previous frame, robot frame at the previous
+                frame (dx, dy m; dtheta rad CCW).
+            dt: s since the previous frame (> 0).
+            points: optional k arrays (m_i, 2) of each candidate's scan points, robot frame, m.
+            noise: the frame's relative range noise (0.01 = 1 % of the distance); default
+                ``params.range_noise``.
+        """
+        if self.n_observers != 1:
+            raise ValueError(f"KinTracker.update is the one-observer form; this tracker has "
+                             f"{self.n_observers} observers: use update_batch")  # fmt: skip
+        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        pts = owner = None
+        if points is not None:
+            if len(points) != xy.shape[0]:
+                raise ValueError(
+                    f"KinTracker.update: points must hold one array per candidate ({xy.shape[0]})"
+                )
+            arrs = [np.asarray(p, np.float64).reshape(-1, 2) for p in points]
+            pts = np.concatenate(arrs) if arrs else np.zeros((0, 2))
+            owner = np.repeat(np.arange(len(arrs)), [a.shape[0] for a in arrs])
+        delta = np.asarray(odom_delta, np.float64).reshape(1, -1)
+        obs = np.zeros(xy.shape[0], np.int64)
+        self.update_batch(obs, xy, scores, delta, dt, pts, owner, None if noise is None else [noise])
+
+    def update_batch(
+        self, obs, xy, scores, odom_delta, dt: float, points=None, owner=None, noise=None
+    ) -> None:
+        """Advance every observer by one frame.
+
+        Args:
+            obs: (k,) observer of each candidate, in [0, n_observers).
+            xy: (k, 2) candidate centres in their observer's current robot frame (x forward, y left), m.
+            scores: (k,) candidate scores in [0, 1] (higher = more kin-like).
+            odom_delta: (n_observers, 3) each observer's odometry increment since the previous frame.
+            dt: s since the previous frame (> 0).
+            points: optional (P, 2) scan points of the candidates, their observer's robot frame, m ...
+            owner: ... (P,) and the candidate each point belongs to.
+            noise: optional (n_observers,) relative range noise of each observer's scan.
+        """
+        pr, N = self.params, self.n_observers
+        obs = np.asarray(obs).reshape(-1)
+        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        scores = np.asarray(scores, dtype=np.float64).reshape(-1)
+        delta = np.asarray(odom_delta, dtype=np.float64)
+        k = xy.shape[0]
+        if delta.shape != (N, 3) or not np.all(np.isfinite(delta)):
+            raise ValueError(
+                f"KinTracker: odom_delta must be ({N}, 3) finite numbers (dx, dy, dtheta per observer), "
+                f"got {np.shape(odom_delta)} {odom_delta!r}"
+            )
+        if not (isinstance(dt, int | float) and math.isfinite(dt) and dt > 0):
+            raise ValueError(f"KinTracker: dt must be a positive number of seconds, got {dt!r}")
+        if (
+            scores.shape[0] != k
+            or obs.shape[0] != k
+            or not (np.all(np.isfinite(xy)) and np.all(np.isfinite(scores)))
+        ):
+            raise ValueError(
+                f"KinTracker: obs (k,), xy (k, 2) and scores (k,) must be finite and of one length, got "
+                f"{obs.shape}, {xy.shape} and {scores.shape}"
+            )
+        if k and (not np.issubdtype(obs.dtype, np.integer) or obs.min() < 0 or obs.max() >= N):
+            raise ValueError(f"KinTracker: obs must be observer indices in [0, {N}), got {obs!r}")
+        noise = np.full(N, pr.range_noise) if noise is None else np.asarray(noise, np.float64).reshape(-1)
+        if noise.shape != (N,) or not np.all(np.isfinite(noise) & (noise >= 0)):
+            raise ValueError(f"KinTracker: noise must be {N} relative range noises >= 0, got {noise!r}")
+        obs = obs.astype(np.int64)
+        # ego-motion: each observer's new pose in its odometry frame
+        c, s = np.cos(self.poses[:, 2]), np.sin(self.poses[:, 2])
+        self.poses = np.c_[
+            self.poses[:, 0] + c * delta[:, 0] - s * delta[:, 1],
+            self.poses[:, 1] + s * delta[:, 0] + c * delta[:, 1],
+            wrap_angle(self.poses[:, 2] + delta[:, 2]),
+        ]
+        self.time += dt
+        # each wheel's travel: ego-motion errors grow with it (the odometry error model's random walk)
+        half_turn = 0.5 * self.params.wheel_base * np.abs(delta[:, 2])
+        self.odometer += np.hypot(delta[:, 0], delta[:, 1]) + half_turn
+        cos, sin = np.cos(self.poses[:, 2]), np.sin(self.poses[:, 2])
+        z = self._to_odom(xy, obs, cos, sin)  # candidates in their observer's odometry frame
+        rng = np.hypot(xy[:, 0], xy[:, 1])
+        rows = np.flatnonzero(self._alive)
+        self._predict(rows, dt)
+        ti, ci = self._associate(rows, z, obs, rng)
+        hit = np.zeros(self._alive.shape[0], bool)
+        hit[ti] = True
+        self._kalman_update(ti, z[ci], rng[ci])
+        born = np.setdiff1d(np.arange(k), ci, assume_unique=True)
+        tb = self._birth(z[born], obs[born], rng[born])
+        tracks, cands = np.concatenate([ti, tb]), np.concatenate([ci, born])
+        self._score_cue(tracks, scores[cands])
+        if points is not None and len(tracks):
+            self._outline_cue(tracks, cands, points, owner, obs, noise, cos, sin, k)
+        self._existence(rows, hit[rows])
+        rows = np.flatnonzero(self._alive)
+        self._motion(rows, dt)
+        self._age[rows] += 1
+        self._alive[rows] = self._exist[rows] >= pr.delete_existence
+
+    def update_from_result(self, result: DetectionResult, ranges, angles, odom_delta, dt: float) -> None:
+        """:meth:`update` from a detector's :class:`DetectionResult` on scan ``(ranges, angles)``: each
+        detection's segment beams (``first_beam``..``last_beam``, wrapping) give its outline points, and the
+        scan's own noise estimate (:func:`detectors.features.scan_noise`) the outline cue's noise."""
+        ranges = np.asarray(ranges, dtype=np.float64)
+        angles = np.asarray(angles, dtype=np.float64)
+        n = ranges.shape[0]
+        dets = result.detections
+        xy = np.array([[d.x, d.y] for d in dets]).reshape(-1, 2)
+        scores = np.array([d.score for d in dets])
+        pts = []
+        for d in dets:
+            idx = np.arange(d.first_beam, d.first_beam + ((d.last_beam - d.first_beam) % n) + 1) % n
+            r = ranges[idx]
+            ok = np.isfinite(r) & (r > 0)
+            pts.append(np.stack([r[ok] * np.cos(angles[idx][ok]), r[ok] * np.sin(angles[idx][ok])], axis=1))
+        noise, count = scan_noise(segment_batch(ranges[None], angles))
+        self.update(xy, scores, odom_delta, dt, pts, noise=float(noise[0]) if count[0] >= 5 else None)
+
+    # -- steps ----------------------------------------------------------------------------------------
+    def _to_odom(self, xy, obs, cos, sin) -> np.ndarray:
+        c, s = cos[obs], sin[obs]
+        return np.c_[c * xy[:, 0] - s * xy[:, 1], s * xy[:, 0] + c * xy[:, 1]] + self.poses[obs, :2]
+
+    def _predict(self, rows: np.ndarray, dt: float) -> None:
+        if not rows.size:
+            return
+        F = np.eye(4)
+        F[0, 2] = F[1, 3] = dt
+        q = self.params.process_accel**2
+        Q1 = q * np.array([[dt**4 / 4, dt**3 / 2], [dt**3 / 2, dt**2]])
+        Q = np.zeros((4, 4))
+        Q[np.ix_([0, 2], [0, 2])] = Q1
+        Q[np.ix_([1, 3], [1, 3])] = Q1
+        self._x[rows] = self._x[rows] @ F.T
+        self._P[rows] = F @ self._P[rows] @ F.T + Q
+
+    def _meas_var(self, rng: np.ndarray) -> np.ndarray:
+        return (self.params.meas_sigma + self.params.meas_sigma_rel * rng) ** 2
+
+    def _associate(self, rows, z, obs, rng) -> tuple[np.ndarray, np.ndarray]:
+        """(track rows, candidate indices) of each observer's jointly optimal gated assignment."""
+        none = np.zeros(0, np.int64)
+        if not rows.size or not z.shape[0]:
+            return none, none
+        # every (track, candidate) pair of the same observer
+        order = np.argsort(self._obs[rows], kind="stable")
+        trk = rows[order]
+        n_t = np.bincount(self._obs[trk], minlength=self.n_observers)
+        start = np.cumsum(n_t) - n_t
+        per_c = n_t[obs]
+        if not per_c.sum():
+            return none, none
+        cand = np.repeat(np.arange(z.shape[0]), per_c)
+        within = np.arange(cand.size) - np.repeat(np.cumsum(per_c) - per_c, per_c)
+        tr = trk[start[obs[cand]] + within]
+        S = self._P[tr, :2, :2] + np.eye(2) * self._meas_var(rng[cand])[:, None, None]
+        d = z[cand] - self._x[tr, :2]
+        det = S[:, 0, 0] * S[:, 1, 1] - S[:, 0, 1] * S[:, 1, 0]
+        m2 = (
+            S[:, 1, 1] * d[:, 0] ** 2 - 2 * S[:, 0, 1] * d[:, 0] * d[:, 1] + S[:, 0, 0] * d[:, 1] ** 2
+        ) / det
+        ok = m2 <= self.params.gate_chi2
+        tr, cand, m2 = tr[ok], cand[ok], m2[ok]
+        if not tr.size:
+            return none, none
+        # a pair whose track and candidate are in no other gate is forced; the rest is solved per observer
+        cap = self._alive.shape[0]
+        forced = (np.bincount(tr, minlength=cap)[tr] == 1) & (
+            np.bincount(cand, minlength=z.shape[0])[cand] == 1
+        )
+        ti, ci = [tr[forced]], [cand[forced]]
+        amb = ~forced
+        for o in np.unique(obs[cand[amb]]):
+            sel = amb & (obs[cand] == o)
+            ut, t_inv = np.unique(tr[sel], return_inverse=True)
+            uc, c_inv = np.unique(cand[sel], return_inverse=True)
+            cost = np.full((ut.size, uc.size), 1e6)
+            cost[t_inv, c_inv] = m2[sel]
+            r, c = linear_sum_assignment(cost)
+            keep = cost[r, c] < 1e6
+            ti.append(ut[r[keep]])
+            ci.append(uc[c[keep]])
+        return np.concatenate(ti).astype(np.int64), np.concatenate(ci).astype(np.int64)
+
+    def _kalman_update(self, ti: np.ndarray, z: np.ndarray, rng: np.ndarray) -> None:
+        """Batched Kalman update of tracks ``ti`` with candidates ``z`` (Joseph form)."""
+        if not ti.size:
+            return
+        x, P = self._x[ti], self._P[ti]
+        Rm = np.eye(2) * self._meas_var(rng)[:, None, None]  # (m, 2, 2)
+        S = P[:, :2, :2] + Rm
+        K = P[:, :, :2] @ np.linalg.inv(S)  # (m, 4, 2)
+        x += np.einsum("mij,mj->mi", K, z - x[:, :2])
+        IKH = np.broadcast_to(np.eye(4), P.shape).copy()
+        IKH[:, :, :2] -= K
+        self._P[ti] = IKH @ P @ IKH.transpose(0, 2, 1) + K @ Rm @ K.transpose(0, 2, 1)
+        self._x[ti] = x
+        self._seen[ti] += 1
+
+    def _grow(self, need: int) -> None:
+        cap = self._alive.shape[0]
+        while cap < need:
+            cap *= 2
+        for name in self._FIELDS:
+            a = getattr(self, name)
+            b = np.zeros((cap, *a.shape[1:]), a.dtype)
+            b[: a.shape[0]] = a
+            setattr(self, name, b)
+
+    def _birth(self, z: np.ndarray, obs: np.ndarray, rng: np.ndarray) -> np.ndarray:
+        """Start tentative tracks at candidates ``z`` (k, 2) of observers ``obs``; returns their rows."""
+        k, pr = z.shape[0], self.params
+        free = np.flatnonzero(~self._alive)
+        if free.size < k:
+            self._grow(self._alive.shape[0] + k)
+            free = np.flatnonzero(~self._alive)
+        ti = free[:k]
+        self._alive[ti] = True
+        self._id[ti] = np.arange(self._next_id, self._next_id + k)
+        self._next_id += k
+        self._obs[ti] = obs
+        var = self._meas_var(rng)
+        self._x[ti] = np.c_[z, np.zeros((k, 2))]
+        self._P[ti] = 0.0
+        self._P[ti, 0, 0] = self._P[ti, 1, 1] = var
+        self._P[ti, 2, 2] = self._P[ti, 3, 3] = pr.init_speed_sigma**2
+        self._exist[ti] = pr.birth_existence
+        self._lo_score[ti] = self._lo_shape[ti] = self._lo_motion[ti] = 0.0
+        self._seen[ti] = 1
+        self._age[ti] = 0
+        self._static_t[ti] = 0.0
+        self._moved[ti] = False
+        self._confirmed[ti] = pr.birth_existence >= pr.confirm_existence
+        self._npts[ti] = self._head[ti] = 0
+        # the housing's centre is r behind the visible arc's middle, seen from the observer
+        away = z - self.poses[obs, :2]
+        self._fit_c[ti] = z + away / np.maximum(np.hypot(away[:, 0], away[:, 1]), 1e-9)[:, None] * pr.r * 0.5
+        self._anchor[ti] = z
+        self._anchor_var[ti] = var
+        self._anchor_odo[ti] = self.odometer[obs]
+        self._anchor_rng[ti] = rng
+        return ti
+
+    def _score_cue(self, ti: np.ndarray, scores: np.ndarray) -> None:
+        # (a) the detector's score: correlated frames -> weight < 1, clamped sum
+        pr = self.params
+        lo = self._lo_score[ti] + pr.score_weight * (_logit(scores) - _logit(pr.score_prior))
+        self._lo_score[ti] = np.clip(lo, -pr.score_clamp, pr.score_clamp)
+
+    def _outline_cue(self, ti, ci, points, owner, obs, noise, cos, sin, k) -> None:
+        # (b) the accumulated outline relative to the track centre (ego-motion compensated)
+        pr = self.params
+        pts = np.asarray(points, np.float64).reshape(-1, 2)
+        owner = np.asarray(owner).reshape(-1).astype(np.int64)
+        if owner.shape[0] != pts.shape[0] or (owner.size and (owner.min() < 0 or owner.max() >= k)):
+            raise ValueError(
+                f"KinTracker: owner must give each of the {pts.shape[0]} points a candidate in [0, {k})"
+            )
+        if not np.all(np.isfinite(pts)):
+            raise ValueError("KinTracker: points must be finite")
+        order = np.argsort(owner, kind="stable")
+        pts, owner = pts[order], owner[order]
+        po = obs[owner]
+        d = np.hypot(pts[:, 0], pts[:, 1])
+        sig = np.sqrt(pr.shape_sigma**2 + (noise[po] * d) ** 2)
+        odom = self._to_odom(pts, po, cos, sin)
+        cstart = np.searchsorted(owner, np.arange(k + 1))
+        _outline_kernel(
+            ti, ci, np.ascontiguousarray(odom), sig, d, cstart, self._obs, self.odometer, self._moved,
+            self._pts, self._npts, self._head, self._fit_c, self._lo_shape, pr.r, pr.shape_delta**2,
+            float(pr.shape_n_cap), int(pr.shape_min_points), pr.shape_clamp, pr.odom_heading_rate**2,
+            pr.odom_position_rate**2,
+        )  # fmt: skip
+
+    def _existence(self, rows: np.ndarray, hit: np.ndarray) -> None:
+        pr = self.params
+        p = self._exist[rows]
+        in_range = np.hypot(*(self._x[rows, :2] - self.poses[self._obs[rows], :2]).T) <= pr.max_range
+        p_hit = p / (p + (1 - p) * pr.clutter_ratio)
+        p_miss = p * (1 - pr.p_detect) / (1 - p * pr.p_detect)
+        self._exist[rows] = np.where(hit, p_hit, np.where(in_range, p_miss, p))
+        alive = np.flatnonzero(self._alive)
+        self._confirmed[alive] |= self._exist[alive] >= pr.confirm_existence
+
+    def _motion(self, rows: np.ndarray, dt: float) -> None:
+        pr = self.params
+        if not rows.size:
+            return
+        disp = np.hypot(*(self._x[rows, :2] - self._anchor[rows]).T)
+        # odometry drift makes static objects slide in the odometry frame: allow for it
+        aged = self.odometer[self._obs[rows]] - self._anchor_odo[rows]
+        drift = aged * (pr.odom_heading_rate**2 * self._anchor_rng[rows] ** 2 + pr.odom_position_rate**2)
+        var = self._anchor_var[rows] + 0.5 * (self._P[rows, 0, 0] + self._P[rows, 1, 1]) + drift
+        moving = (disp > pr.motion_dist) & (disp > 3.0 * np.sqrt(var)) & (self._seen[rows] > 2)
+        self._moved[rows] |= moving
+        self._lo_motion[rows] = np.where(self._moved[rows], pr.motion_gain, 0.0)
+        self._static_t[rows] += dt
+
+    # -- outputs -----------------------------------------------------------------------------------------
+    def _rows(self, observer: int | None) -> np.ndarray:
+        rows = np.flatnonzero(self._alive)
+        if observer is not None:
+            if not 0 <= int(observer) < self.n_observers:
+                raise ValueError(f"KinTracker: observer must be in [0, {self.n_observers}), got {observer!r}")
+            rows = rows[self._obs[rows] == int(observer)]
+        return rows[np.argsort(self._id[rows], kind="stable")]
+
+    def _kin_prob(self, rows: np.ndarray) -> np.ndarray:
+        pr = self.params
+        # some track of the same observer moved: the swarm around it is active
+        active = np.bincount(self._obs[rows][self._moved[rows]], minlength=self.n_observers) > 0
+        idle = active[self._obs[rows]] & ~self._moved[rows] & (self._static_t[rows] >= pr.static_time)
+        lo = (_logit(pr.kin_prior) + self._lo_score[rows] + self._lo_shape[rows] + self._lo_motion[rows]
+              + np.where(idle, pr.static_penalty, 0.0))  # fmt: skip
+        return 1.0 / (1.0 + np.exp(-lo))
+
+    def kin_prob(self, observer: int | None = 0) -> np.ndarray:
+        """Kin probability of ``observer``'s tracks (all observers' for ``None``), in track-id order."""
+        return self._kin_prob(self._rows(observer))
+
+    def __len__(self) -> int:
+        return int(self._alive.sum())
+
+    def tracks(self, observer: int | None = 0) -> list[Track]:
+        """``observer``'s tracks (all for ``None``) as :class:`Track` objects, id order, built on demand."""
+        rows = self._rows(observer)
+        kp = self._kin_prob(rows)
+        out = []
+        for i, p in zip(rows.tolist(), kp.tolist(), strict=True):
+            m = int(self._npts[i])
+            out.append(Track(
+                id=int(self._id[i]), x=float(self._x[i, 0]), y=float(self._x[i, 1]), vx=float(self._x[i, 2]),
+                vy=float(self._x[i, 3]), covariance=self._P[i].copy(), existence=float(self._exist[i]),
+                kin_prob=p, frames_seen=int(self._seen[i]), age=int(self._age[i]),
+                confirmed=bool(self._confirmed[i]), moved=bool(self._moved[i]),
+                points=self._pts[i, :m, :2] - self._x[i, :2],
+            ))  # fmt: skip
+        return out
+
+    def in_robot_frame(self, observer: int = 0) -> np.ndarray:
+        """(n_tracks, 2) ``observer``'s track positions in its current robot frame (x forward, y left), m."""
+        rows = self._rows(observer)
+        pose = self.poses[observer]
+        c, s = math.cos(pose[2]), math.sin(pose[2])
+        return (self._x[rows, :2] - pose[:2]) @ np.array([[c, -s], [s, c]])
+
+    def track_arrays(self, max_tracks: int) -> dict[str, np.ndarray]:
+        """Fixed-shape view for vector envs: ``tracks`` (n_observers, max_tracks, len(TRACK_FIELDS)) float32,
+        zero-padded (columns :data:`TRACK_FIELDS`; positions and velocities in each observer's current robot
+        frame), ``mask`` (n_observers, max_tracks) bool and ``count`` (n_observers,). Per observer, confirmed
+        tracks come first, then by kin probability, when there are more than ``max_tracks``."""
+        N = self.n_observers
+        out = np.zeros((N, max_tracks, len(TRACK_FIELDS)), np.float32)
+        mask = np.zeros((N, max_tracks), bool)
+        rows = np.flatnonzero(self._alive)
+        if rows.size:
+            kp = self._kin_prob(rows)
+            o = self._obs[rows]
+            order = np.lexsort((self._id[rows], -(kp + self._confirmed[rows]), o))
+            rows, kp, o = rows[order], kp[order], o[order]
+            n_o = np.bincount(o, minlength=N)
+            rank = np.arange(rows.size) - np.repeat(np.cumsum(n_o) - n_o, n_o)
+            keep = rank < max_tracks
+            rows, kp, o, rank = rows[keep], kp[keep], o[keep], rank[keep]
+            pose = self.poses[o]
+            c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
+            d = self._x[rows, :2] - pose[:, :2]
+            v = self._x[rows, 2:]
+            cols = np.stack(
+                [self._id[rows], c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1],
+                 c * v[:, 0] + s * v[:, 1], -s * v[:, 0] + c * v[:, 1], self._exist[rows], kp,
+                 self._seen[rows], self._confirmed[rows], self._age[rows]], axis=1,
+            )  # fmt: skip
+            out[o, rank] = cols
+            mask[o, rank] = True
+        count = mask.sum(axis=1).astype(np.int64)
+        return {"tracks": out, "mask": mask, "count": count}
+
+
+@numba.njit(cache=True, nogil=True)
+def _outline_kernel(ti, ci, pts, sig, dist, cstart, obs, odometer, moved, buf, npts, head, fit_c, lo_shape,
+                    r, delta2, n_cap, min_points, clamp, head_rate2, pos_rate2):  # fmt: skip
+    """Append each updated track's candidate points (odometry frame) to its ring buffer, then refit its
+    outline (warm-started at the last fit's centre) and set its shape cue. A track that has moved keeps
+    its last shape cue: its points no longer share one frame, and the motion cue has decided it anyway."""
+    m_max = buf.shape[1]
+    e, var, wgt = np.empty(m_max), np.empty(m_max), np.empty(m_max)
+    for j in range(ti.shape[0]):
+        t, c = ti[j], ci[j]
+        a, b = cstart[c], cstart[c + 1]
+        if b == a or moved[t]:
+            continue
+        for p in range(a, b):
+            h = head[t]
+            buf[t, h, 0] = pts[p, 0]
+            buf[t, h, 1] = pts[p, 1]
+            buf[t, h, 2] = sig[p]
+            buf[t, h, 3] = dist[p]
+            buf[t, h, 4] = odometer[obs[t]]
+            head[t] = (h + 1) % m_max
+            if npts[t] < m_max:
+                npts[t] += 1
+        m = npts[t]
+        if m < min_points:
+            continue
+        acc = buf[t, :m]
+        odo = odometer[obs[t]]
+        for i in range(m):
+            # sensor noise plus the ego-motion error accumulated since the point was seen: heading drift
+            # moves it sideways in proportion to its range
+            aged = odo - acc[i, 4]
+            var[i] = acc[i, 2] * acc[i, 2] + aged * (head_rate2 * acc[i, 3] * acc[i, 3] + pos_rate2)
+            wgt[i] = 1.0 / var[i]
+        cen = fit_c[t]
+        _fit_known_circle(acc[:, :2], wgt[:m], r, cen, 4, e[:m])
+        llr = 0.0
+        for i in range(m):
+            v0 = var[i]
+            v1 = v0 + delta2
+            llr += 0.5 * math.log(v1 / v0) - 0.5 * e[i] * e[i] * (1.0 / v0 - 1.0 / v1)
+        llr *= min(1.0, n_cap / m)
+        lo_shape[t] = min(max(llr, -clamp), clamp)

@@ -1,0 +1,246 @@
+"""detectors.tracking: the Kalman filter against filterpy, association and existence on hand-made sequences
+with known answers, the three kin cues, fixed-shape output, bad input."""
+
+import math
+
+import numpy as np
+import pytest
+
+from detectors.tracking import TRACK_FIELDS, KinTracker, TrackerParams, fit_known_circle
+
+DT = 0.1
+STILL = (0.0, 0.0, 0.0)
+
+
+def _robot_frame(obs_pose, xy):
+    """World points ``xy`` (k, 2) seen from an observer at ``obs_pose`` (x, y, theta)."""
+    c, s = math.cos(obs_pose[2]), math.sin(obs_pose[2])
+    d = np.asarray(xy, float) - obs_pose[:2]
+    return np.c_[c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]]
+
+
+def test_kalman_matches_filterpy():
+    from filterpy.common import Q_discrete_white_noise
+    from filterpy.kalman import KalmanFilter
+
+    pr = TrackerParams(meas_sigma_rel=0.0, meas_sigma=0.02, process_accel=0.7, init_speed_sigma=0.3)
+    tr = KinTracker(pr)
+    rng = np.random.default_rng(0)
+    truth = np.array([1.0, 0.5]) + np.arange(30)[:, None] * DT * np.array([0.2, -0.1])
+    meas = truth + rng.normal(0, 0.02, truth.shape)
+    kf = KalmanFilter(dim_x=4, dim_z=2)
+    kf.x = np.array([meas[0, 0], 0.0, meas[0, 1], 0.0])  # filterpy order: x, vx, y, vy
+    kf.P = np.diag([0.02**2, 0.3**2, 0.02**2, 0.3**2])
+    kf.F = np.array([[1, DT, 0, 0], [0, 1, 0, 0], [0, 0, 1, DT], [0, 0, 0, 1]], float)
+    kf.H = np.array([[1, 0, 0, 0], [0, 0, 1, 0]], float)
+    kf.R = np.eye(2) * 0.02**2
+    kf.Q = Q_discrete_white_noise(dim=2, dt=DT, var=0.7**2, block_size=2)
+    tr.update(meas[:1], [0.9], STILL, DT)
+    for z in meas[1:]:
+        kf.predict()
+        kf.update(z)
+        tr.update(z[None], [0.9], STILL, DT)
+        (t,) = tr.tracks()
+        np.testing.assert_allclose([t.x, t.vx, t.y, t.vy], kf.x, atol=1e-9)
+        np.testing.assert_allclose(t.covariance[np.ix_([0, 2, 1, 3], [0, 2, 1, 3])], kf.P, atol=1e-12)
+
+
+def test_static_objects_seen_by_a_moving_observer_keep_their_tracks():
+    # the observer drives an arc; two posts stay put in the world; odometry is exact here
+    posts = np.array([[1.5, 0.3], [1.0, -0.8]])
+    tr, pose = KinTracker(), np.zeros(3)
+    v, w = 0.2, 0.3
+    for k in range(40):
+        delta = STILL if k == 0 else (v * DT, 0.0, w * DT)
+        if k:  # drive forward, then turn: the increment in the robot frame at the previous frame
+            c, s = math.cos(pose[2]), math.sin(pose[2])
+            pose = np.array([pose[0] + c * v * DT, pose[1] + s * v * DT, pose[2] + w * DT])
+        tr.update(_robot_frame(pose, posts), [0.6, 0.6], delta, DT)
+    tracks = tr.tracks()
+    assert [t.id for t in tracks] == [0, 1] and all(t.confirmed for t in tracks)
+    # tracks live in the odometry frame, here the world frame (the first frame had no increment)
+    np.testing.assert_allclose([[t.x, t.y] for t in tracks], posts, atol=1e-6)
+    np.testing.assert_allclose(tr.in_robot_frame(), _robot_frame(pose, posts), atol=1e-6)
+    assert not any(t.moved for t in tracks)  # static: no motion cue
+
+
+def test_crossing_targets_keep_their_identities():
+    tr = KinTracker()
+    for k in range(40):  # two robots cross at 0.2 m/s, 0.5 m apart at the closest
+        a = np.array([-1.0 + 0.2 * k * DT, 0.25]) + [2.0, 0.0]
+        b = np.array([1.0 - 0.2 * k * DT, -0.25]) + [2.0, 0.0]
+        tr.update(np.array([a, b]), [0.7, 0.7], STILL, DT)
+    t0, t1 = tr.tracks()
+    assert (t0.id, t1.id) == (0, 1)
+    assert t0.vx > 0.15 and t1.vx < -0.15  # each kept its own motion through the crossing
+    assert t0.moved and t1.moved
+    assert tr.kin_prob().min() > 0.99  # both moved: the motion cue
+
+
+def test_existence_confirms_and_deletes():
+    pr = TrackerParams()
+    tr = KinTracker(pr)
+    tr.update([[1.0, 0.0]], [0.5], STILL, DT)
+    assert len(tr) == 1 and not tr.tracks()[0].confirmed  # p = birth_existence
+    tr.update([[1.0, 0.0]], [0.5], STILL, DT)
+    assert tr.tracks()[0].confirmed  # 0.5 / (0.5 + 0.5 * 0.2) = 0.83 >= 0.8
+    misses = 0
+    while len(tr):
+        tr.update(np.zeros((0, 2)), [], STILL, DT)
+        misses += 1
+    assert 3 <= misses <= 6
+    # beyond max_range nothing is expected: no misses, the track survives
+    tr = KinTracker(pr)
+    tr.update([[pr.max_range + 1, 0.0]] * 1, [0.5], STILL, DT)
+    for _ in range(20):
+        tr.update(np.zeros((0, 2)), [], STILL, DT)
+    assert len(tr) == 1
+
+
+def test_score_cue_is_bounded():
+    pr = TrackerParams()
+    tr = KinTracker(pr)
+    for _ in range(200):
+        tr.update([[1.0, 0.0], [1.0, 1.0]], [0.99, 0.01], STILL, DT)
+    kp = tr.kin_prob()
+    lim = 1 / (1 + math.exp(-pr.score_clamp))
+    assert kp[0] == pytest.approx(lim) and kp[1] == pytest.approx(1 - lim)
+
+
+def _outline(kind: str, centre, observer, n_views: int, r=0.035, noise=0.0, seed=0):
+    """Points on a circle of radius r or a hexagon of circumradius r, as beams from several views."""
+    rng = np.random.default_rng(seed)
+    views = []
+    for k in range(n_views):
+        ang = np.linspace(-1, 1, 5) * 0.03 + math.atan2(centre[1] - observer[1], centre[0] - observer[0])
+        ang = ang + k * 0.0025  # the beam pattern slides over the object as the observer turns
+        pts = []
+        for a in ang:
+            d = np.array([math.cos(a), math.sin(a)])
+            if kind == "circle":
+                oc = observer - centre
+                b = oc @ d
+                disc = b * b - (oc @ oc - r * r)
+                if disc < 0:
+                    continue
+                t = -b - math.sqrt(disc)
+            else:
+                t = math.inf
+                verts = [
+                    centre + r * np.array([math.cos(q), math.sin(q)])
+                    for q in np.arange(6) * math.pi / 3 + 0.3
+                ]
+                for i in range(6):
+                    p0, p1 = verts[i], verts[(i + 1) % 6]
+                    e = p1 - p0
+                    m = np.array([d, -e]).T
+                    if abs(np.linalg.det(m)) < 1e-12:
+                        continue
+                    tt, u = np.linalg.solve(m, p0 - observer)
+                    if tt > 0 and 0 <= u <= 1:
+                        t = min(t, tt)
+                if not math.isfinite(t):
+                    continue
+            t *= 1 + noise * rng.normal()
+            pts.append(observer + t * d)
+        views.append(np.array(pts))
+    return views
+
+
+@pytest.mark.parametrize("kind,sign", [("circle", 1), ("hexagon", -1)])
+def test_outline_cue_tells_a_housing_from_a_hexagon(kind, sign):
+    centre = np.array([0.8, 0.0])
+    tr = KinTracker()
+    for pts in _outline(kind, centre, np.zeros(2), 20):
+        tr.update([centre], [0.5], STILL, DT, points=[pts], noise=0.0)
+    (t,) = tr.tracks()
+    assert t.points.shape[0] >= 60
+    assert sign * tr._lo_shape[tr._rows(0)[0]] > 1.0  # noise-free: decisive either way
+    assert (tr.kin_prob()[0] - 0.5) * sign > 0.3
+
+
+def test_outline_cue_is_honest_under_noise():
+    centre = np.array([0.8, 0.0])
+    tr = KinTracker()
+    for pts in _outline("hexagon", centre, np.zeros(2), 20, noise=0.02):
+        tr.update([centre], [0.5], STILL, DT, points=[pts], noise=0.02)
+    assert abs(tr._lo_shape[tr._rows(0)[0]]) < 1.0  # 1.6 cm of noise hides a 2 mm deviation
+
+
+def test_fit_known_circle_recovers_the_centre():
+    rng = np.random.default_rng(1)
+    a = rng.uniform(2.0, 4.0, 30)
+    pts = np.c_[0.3 + 0.035 * np.cos(a), -0.2 + 0.035 * np.sin(a)]
+    c, e = fit_known_circle(pts, 0.035, centre0=(0.28, -0.21))
+    np.testing.assert_allclose(c, [0.3, -0.2], atol=1e-9)
+    assert np.abs(e).max() < 1e-9
+
+
+def test_static_circle_rejected_once_others_move():
+    pr = TrackerParams()
+    tr = KinTracker(pr)
+    steps = int(pr.static_time / DT) + 5
+    for k in range(steps):
+        tr.update([[1.0, 0.0], [1.5, -0.5 + 0.02 * k]], [0.8, 0.8], STILL, DT)
+    kp = tr.kin_prob()
+    assert kp[1] > 0.99  # moved
+    assert kp[0] < 0.5  # a circle that stays put while the swarm moves
+
+
+def test_track_arrays_fixed_shape():
+    tr = KinTracker()
+    for k in range(5):
+        out = tr.track_arrays(4)
+        assert out["tracks"].shape == (1, 4, len(TRACK_FIELDS)) and out["mask"].shape == (1, 4)
+        assert int(out["count"][0]) == min(len(tr), 4) == out["mask"].sum()
+        tr.update(np.array([[1.0 + 0.3 * j, 0.2 * j] for j in range(k + 1)]), np.full(k + 1, 0.6), STILL, DT)
+    assert tr.track_arrays(4)["mask"].all()
+
+
+def test_batch_equals_separate_trackers():
+    """One tracker over 3 observers gives each observer exactly the tracks of its own tracker."""
+    rng = np.random.default_rng(3)
+    bank, single = KinTracker(n_observers=3), [KinTracker() for _ in range(3)]
+    objs = rng.uniform(-2, 2, (3, 5, 2))
+    for _ in range(25):
+        obs, xy, sc, pts, own, delta = [], [], [], [], [], rng.normal(0, 0.02, (3, 3))
+        for o in range(3):
+            keep = rng.random(5) < 0.8
+            z = objs[o][keep] + rng.normal(0, 0.005, (keep.sum(), 2))
+            s = rng.uniform(0.2, 0.9, keep.sum())
+            p = [zz + 0.035 * np.c_[np.cos(np.linspace(2, 4, 4)), np.sin(np.linspace(2, 4, 4))] for zz in z]
+            single[o].update(z, s, delta[o], DT, points=p, noise=0.005)
+            own += [np.full(4, len(xy) + i) for i in range(len(z))]
+            obs += [o] * len(z)
+            xy += list(z)
+            sc += list(s)
+            pts += p
+        bank.update_batch(np.array(obs), np.array(xy), np.array(sc), delta, DT,
+                          np.concatenate(pts), np.concatenate(own), noise=np.full(3, 0.005))  # fmt: skip
+    for o in range(3):
+        a, b = bank.tracks(o), single[o].tracks()
+        assert len(a) == len(b) > 0
+        for ta, tb in zip(a, b, strict=True):
+            fa = [ta.x, ta.y, ta.vx, ta.vy, ta.kin_prob, ta.existence]
+            np.testing.assert_allclose(fa, [tb.x, tb.y, tb.vx, tb.vy, tb.kin_prob, tb.existence], atol=1e-9)
+            assert ta.points.shape == tb.points.shape
+
+
+def test_bad_input():
+    tr = KinTracker()
+    with pytest.raises(ValueError, match="odom_delta"):
+        tr.update([[1.0, 0.0]], [0.5], (0.0, float("nan"), 0.0), DT)
+    with pytest.raises(ValueError, match="dt"):
+        tr.update([[1.0, 0.0]], [0.5], STILL, 0.0)
+    with pytest.raises(ValueError, match="one length"):
+        tr.update([[1.0, 0.0]], [0.5, 0.5], STILL, DT)
+    with pytest.raises(ValueError, match="points"):
+        tr.update([[1.0, 0.0]], [0.5], STILL, DT, points=[])
+    with pytest.raises(ValueError, match="n_observers"):
+        KinTracker(n_observers=0)
+    with pytest.raises(ValueError, match="obs must be observer indices"):
+        KinTracker(n_observers=2).update_batch([2], [[1.0, 0.0]], [0.5], np.zeros((2, 3)), DT)
+    with pytest.raises(ValueError, match="p_detect"):
+        TrackerParams(p_detect=1.5)
+    with pytest.raises(ValueError, match="unknown key"):
+        TrackerParams.from_dict({"bogus": 1})
