@@ -64,7 +64,7 @@ _KIN, _SAME = CATEGORIES.index("kin"), CATEGORIES.index("same_radius_cylinder")
 #: the shipped model; the folder is written only with --replace-shipped (torch-free: no detectors.learned)
 SHIPPED_DIR = Path(detectors.__file__).resolve().parent / "checkpoints"
 SHIPPED_CHECKPOINT = SHIPPED_DIR / "learned_default.pt"
-log = script_logger(__file__)
+logger = script_logger(__file__)
 
 
 def checkpoint_path(out: Path, checkpoint: Path | None, replace_shipped: bool) -> Path:
@@ -674,13 +674,13 @@ def main(argv=None) -> dict:
     sidecar = {"checkpoint": str(ckpt), "feature_config": fcfg.to_dict(), **info}
     ckpt.with_suffix(".json").write_text(json.dumps(sidecar, indent=2))
     (args.out / "config.json").write_text(json.dumps(sidecar, indent=2))
-    log.info(
+    logger.info(
         f"checkpoint {ckpt} ({ckpt.stat().st_size / 1e3:.0f} kB), positioning {positioning}; "
         f"validation kin F1 {val['kin']['f1']:.3f}; training {train_seconds:.0f} s"
     )
     if ev is not None:
         t = ev["targets"]
-        log.info(
+        logger.info(
             f"held-out 1 % noise, 0.3-2 m: learned F1 {t['learned_f1_1pct_noise_0.3_2m']['f1']:.3f}, "
             f"geometric {t['geometric_f1_1pct_noise_0.3_2m']['f1']:.3f}; "
             f"learned {t['learned_scans_per_s']:.0f} scans/s"
