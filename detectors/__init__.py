@@ -16,7 +16,10 @@ import logging
 __kin_envs_package__ = True
 logging.getLogger(__name__).addHandler(logging.NullHandler())
 
+from . import _numba_cache  # noqa: E402,F401  (first: a cache directory before any @njit(cache=True))
 from .base import (  # noqa: E402
+    STAGES,
+    BatchDetections,
     Detection,
     DetectionResult,
     KinDetector,
@@ -57,6 +60,8 @@ def __getattr__(name: str):
 
 
 __all__ = [
+    "STAGES",
+    "BatchDetections",
     "CircleFit",
     "LearnedKinDetector",
     "Detection",

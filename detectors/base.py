@@ -2,9 +2,10 @@
 
 Scan convention (project-wide): a scan is ``ranges`` (n_beams,) in metres and
 ``angles`` (n_beams,) in radians, in the observer's frame, counter-clockwise
-positive, 0 = robot heading, wrapped to (-pi, pi]. Non-finite ranges mean
-"no return" and are legal input; what a detector does with them is its own
-business (the geometric detector maps them to the maximum range, paper 4.1).
+positive, 0 = robot heading, wrapped to (-pi, pi]. 0.0, NaN and inf mean
+"no return" (a real RPLIDAR reports 0.0 or inf for an invalid reading) and are
+legal input: both detectors map them to the maximum range (paper 4.1), and
+such beams never affect the other scans of a batch. Negative ranges are errors.
 
 Nothing in this module is specific to the geometric (paper) detector, so a
 learned detector can implement :class:`KinDetector` and reuse
@@ -16,7 +17,7 @@ from __future__ import annotations
 import math
 import sys
 from abc import ABC, abstractmethod
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -41,11 +42,15 @@ def _check_package() -> None:
 _check_package()
 
 __all__ = [
+    "STAGES",
+    "BatchDetections",
     "Detection",
     "DetectionResult",
     "KinDetector",
+    "LazyBatchReports",
     "Segment",
     "SegmentReport",
+    "segments_from_arrays",
     "validate_scan",
     "wrap_angle",
 ]
@@ -184,9 +189,11 @@ class Detection:
             in (-pi, pi].
         x: forward coordinate of the kin's centre, m.
         y: left coordinate of the kin's centre, m.
-        score: detector-specific quality. Geometric detector: the shape error
-            ``F`` in metres (lower = more circle-like). Learned detectors
-            document their own meaning.
+        score: how kin-like the segment is, higher = more kin-like, in [0, 1].
+            Geometric detector: ``F_threshold / (F_threshold + F)`` with ``F``
+            the shape error (eq. 6), so ``score >= 0.5`` exactly when the shape
+            filter passes (``F`` itself is in the segment's report). Learned
+            detector: ``p(kin)``.
         first_beam, last_beam: beam indices bounding the segment (may wrap).
         n_beams: number of beams on the segment.
     """
@@ -225,16 +232,224 @@ class SegmentReport:
         return self.stage == "accepted"
 
 
-@dataclass(frozen=True, eq=False)
 class DetectionResult:
-    """Detections of one scan plus one report per segment (in scan order)."""
+    """Detections of one scan plus one report per segment (in scan order).
 
-    detections: list[Detection]
-    reports: list[SegmentReport]
+    ``DetectionResult(detections, reports)``. The built-in detectors build ``reports`` lazily: the
+    readable :class:`SegmentReport` objects of a whole batch are made on the first access to any
+    scan's ``reports`` (an env that reads only ``detections`` never pays for them).
+    """
+
+    __slots__ = ("_lazy", "_reports", "detections")
+
+    def __init__(self, detections: list[Detection], reports: list[SegmentReport] | None = None) -> None:
+        self.detections = detections
+        self._reports = [] if reports is None else reports
+        self._lazy = None
+
+    @classmethod
+    def lazy(cls, detections: list[Detection], build: Callable[[], list[list[SegmentReport]]], b: int):
+        """Scan ``b``'s result whose reports are ``build()[b]``, ``build`` called at most once per
+        batch (it must cache its result)."""
+        res = cls(detections)
+        res._reports = None
+        res._lazy = (build, b)
+        return res
+
+    @property
+    def reports(self) -> list[SegmentReport]:
+        if self._reports is None:
+            build, b = self._lazy
+            self._reports = build()[b]
+            self._lazy = None
+        return self._reports
+
+    def __repr__(self) -> str:
+        n = "?" if self._reports is None else len(self._reports)
+        return f"DetectionResult(detections={self.detections!r}, reports=<{n} reports>)"
+
+
+class LazyBatchReports:
+    """Builds the per-scan report lists of a batch once, on the first call (see
+    :meth:`DetectionResult.lazy`)."""
+
+    __slots__ = ("_build", "_value")
+
+    def __init__(self, build: Callable[[], list[list[SegmentReport]]]) -> None:
+        self._build = build
+        self._value = None
+
+    def __call__(self) -> list[list[SegmentReport]]:
+        if self._value is None:
+            self._value = self._build()
+            self._build = None
+        return self._value
+
+
+#: ``SegmentReport.stage`` of each :attr:`BatchDetections.seg_stage` code: accepted, rejected by the
+#: geometric detector's diameter filter, too few points for its circle fit, its shape filter, or
+#: rejected by the learned classifier.
+STAGES = ("accepted", "diameter", "too_few_points", "shape", "learned")
+
+
+@dataclass(frozen=True, eq=False)
+class BatchDetections:
+    """Detections and per-segment decisions of ``B`` scans as flat arrays (``detect_arrays``).
+
+    Detections (``D`` of them, scan 0's first, each scan's in segment order; the same values as the
+    :class:`Detection` objects ``detect_batch`` returns):
+
+    Attributes:
+        n_scans: ``B``.
+        n_beams: beams per scan.
+        scan: ``(D,)`` int64 scan row of each detection.
+        range, bearing, x, y: ``(D,)`` float64 kin centre in the observer frame (m, rad, m, m).
+        score: ``(D,)`` float64, higher = more kin-like (see :attr:`Detection.score`).
+        first_beam, last_beam, n_beams_on: ``(D,)`` int64 beams bounding the segment (may wrap) and
+            its number of beams.
+        segment: ``(D,)`` int64 index of the detection's segment in the ``seg_*`` arrays.
+        seg_scan, seg_first, seg_count: ``(S,)`` int64 scan row, first beam, number of beams of
+            every segment (scan order).
+        seg_prev, seg_next: ``(S,)`` int64 beam just outside the segment (-1 = none).
+        seg_prev_nearer, seg_next_nearer: ``(S,)`` bool, as :class:`Segment`.
+        seg_stage: ``(S,)`` int8 stage code, an index into :data:`STAGES`.
+        seg_values: the stage numbers, name -> ``(S,)`` float64 (NaN where a stage did not run),
+            keyed as the reports' ``metrics``.
+    """
+
+    n_scans: int
+    n_beams: int
+    scan: np.ndarray
+    range: np.ndarray
+    bearing: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    score: np.ndarray
+    first_beam: np.ndarray
+    last_beam: np.ndarray
+    n_beams_on: np.ndarray
+    segment: np.ndarray
+    seg_scan: np.ndarray
+    seg_first: np.ndarray
+    seg_count: np.ndarray
+    seg_prev: np.ndarray
+    seg_next: np.ndarray
+    seg_prev_nearer: np.ndarray
+    seg_next_nearer: np.ndarray
+    seg_stage: np.ndarray
+    seg_values: Mapping[str, np.ndarray]
+
+    @property
+    def n_detections(self) -> int:
+        return int(self.scan.shape[0])
+
+    @property
+    def n_segments(self) -> int:
+        return int(self.seg_scan.shape[0])
+
+    def counts(self) -> np.ndarray:
+        """``(B,)`` number of detections in each scan."""
+        return np.bincount(self.scan, minlength=self.n_scans)
+
+    def offsets(self) -> np.ndarray:
+        """``(B + 1,)``: scan ``b``'s detections are rows ``offsets[b]:offsets[b + 1]``."""
+        return np.searchsorted(self.scan, np.arange(self.n_scans + 1))
+
+    def padded(self, k: int) -> dict[str, np.ndarray]:
+        """Fixed-shape view for vector envs: ``(B, k)`` slots per field, in each scan's order.
+
+        Returns ``range``, ``bearing``, ``x``, ``y``, ``score`` (float64, NaN in empty slots),
+        ``first_beam``, ``last_beam``, ``n_beams`` (int64, -1 in empty slots), ``mask`` ``(B, k)``
+        bool and ``count`` ``(B,)`` (detections in the scan, which may exceed ``k``: the first ``k``
+        are kept).
+        """
+        if isinstance(k, bool) or not isinstance(k, int | np.integer) or k < 0:
+            raise ValueError(f"padded: k must be an integer >= 0 (slots per scan), got {k!r}")
+        k = int(k)
+        off = self.offsets()
+        slot = np.arange(self.n_detections) - off[self.scan]
+        keep = slot < k
+        rows, cols = self.scan[keep], slot[keep]
+        out: dict[str, np.ndarray] = {}
+        for name in ("range", "bearing", "x", "y", "score"):
+            a = np.full((self.n_scans, k), np.nan)
+            a[rows, cols] = getattr(self, name)[keep]
+            out[name] = a
+        for name, src in (
+            ("first_beam", "first_beam"),
+            ("last_beam", "last_beam"),
+            ("n_beams", "n_beams_on"),
+        ):
+            a = np.full((self.n_scans, k), -1, dtype=np.int64)
+            a[rows, cols] = getattr(self, src)[keep]
+            out[name] = a
+        mask = np.zeros((self.n_scans, k), dtype=bool)
+        mask[rows, cols] = True
+        out["mask"] = mask
+        out["count"] = np.diff(off)
+        return out
+
+    def detections(self, b: int | None = None) -> list[Detection] | list[list[Detection]]:
+        """:class:`Detection` objects of scan ``b``, or per scan for all (``b=None``)."""
+        cols = (
+            self.range.tolist(),
+            self.bearing.tolist(),
+            self.x.tolist(),
+            self.y.tolist(),
+            self.score.tolist(),
+            self.first_beam.tolist(),
+            self.last_beam.tolist(),
+            self.n_beams_on.tolist(),
+        )
+        dets = list(map(Detection, *cols))
+        off = self.offsets().tolist()
+        if b is not None:
+            return dets[off[b] : off[b + 1]]
+        return [dets[off[i] : off[i + 1]] for i in range(self.n_scans)]
+
+    def segments(self) -> list[Segment]:
+        """Every segment as a :class:`Segment` (flat, in ``seg_*`` order)."""
+        return segments_from_arrays(
+            self.n_beams,
+            self.seg_first,
+            self.seg_count,
+            self.seg_prev,
+            self.seg_next,
+            self.seg_prev_nearer,
+            self.seg_next_nearer,
+        )
+
+
+def segments_from_arrays(n_beams, first, count, prev, nxt, prev_nearer, next_nearer) -> list[Segment]:
+    """:class:`Segment` objects from flat segment arrays (``-1`` = no outside beam)."""
+    last = (first + count - 1) % n_beams
+    starts = np.cumsum(count) - count
+    seg_id = np.repeat(np.arange(first.shape[0]), count)
+    beams = np.arange(seg_id.shape[0]) + (first - starts)[seg_id]
+    beams %= n_beams
+    return [
+        Segment(f, la, beams[o : o + k], p if p >= 0 else None, q if q >= 0 else None, pn, qn)
+        for f, la, o, k, p, q, pn, qn in zip(
+            first.tolist(),
+            last.tolist(),
+            starts.tolist(),
+            count.tolist(),
+            prev.tolist(),
+            nxt.tolist(),
+            prev_nearer.tolist(),
+            next_nearer.tolist(),
+            strict=True,
+        )
+    ]
 
 
 class KinDetector(ABC):
-    """Interface shared by the geometric and learned kin detectors."""
+    """Interface shared by the geometric and learned kin detectors.
+
+    Both built-in detectors also have ``detect_arrays(ranges (B, n), angles (n,))`` returning a
+    :class:`BatchDetections` (no per-object Python); ``detect_batch`` and ``detect`` are built from
+    it.
+    """
 
     @abstractmethod
     def detect(self, ranges, angles) -> DetectionResult:

@@ -29,16 +29,16 @@ Everything is vectorised over all segments of all scans of a batch.
 from __future__ import annotations
 
 import dataclasses
-import itertools
+import functools
 import math
-import operator
 from dataclasses import dataclass
 
 import numba
 import numpy as np
 
-from .base import Segment, wrap_angle
-from .geometric import is_circular_sweep, preprocess, segment
+from . import _kernels as _k
+from .base import Segment, segments_from_arrays, wrap_angle
+from .geometric import is_circular_sweep
 
 __all__ = [
     "FEATURE_VERSION",
@@ -155,11 +155,15 @@ _GEOMETRIC_NAMES = (
 
 def feature_names(config: FeatureConfig | None = None) -> list[str]:
     """Names of the feature vector's entries, in order (for ``config``)."""
-    c = config or FeatureConfig()
+    return list(_feature_names(config or FeatureConfig()))
+
+
+@functools.lru_cache(maxsize=16)
+def _feature_names(c: FeatureConfig) -> tuple[str, ...]:
     names = [f"u{k}" for k in range(c.n_points)] + [f"v{k}" for k in range(c.n_points)]
     names += [f"ctx_prev{j}" for j in range(1, c.n_context + 1)]
     names += [f"ctx_next{j}" for j in range(1, c.n_context + 1)]
-    return names + list(_GEOMETRIC_NAMES) + [f"e{k}" for k in range(c.n_points)]
+    return tuple(names + list(_GEOMETRIC_NAMES) + [f"e{k}" for k in range(c.n_points)])
 
 
 @dataclass(frozen=True, eq=False)
@@ -170,18 +174,18 @@ class SegmentBatch:
         ranges: ``(B, n)`` pre-processed ranges (finite, ``<= d_max``), m.
         angles: ``(n,)`` beam angles, rad.
         circular: the beams cover a full turn.
-        segments: per scan, the :class:`~detectors.base.Segment` list from
-            :func:`detectors.geometric.segment`.
         scan: ``(S,)`` scan row of each segment (segments of scan 0 first, in scan order).
         first, count: ``(S,)`` first beam and number of beams.
         prev_beam, next_beam: ``(S,)`` beam just outside (``-1`` = none).
         prev_nearer, next_nearer: ``(S,)`` bool, as :class:`~detectors.base.Segment`.
+
+    :attr:`segments` (per scan, the :class:`~detectors.base.Segment` list that
+    :func:`detectors.geometric.segment` gives) is built from the arrays on first access.
     """
 
     ranges: np.ndarray
     angles: np.ndarray
     circular: bool
-    segments: list[list[Segment]]
     scan: np.ndarray
     first: np.ndarray
     count: np.ndarray
@@ -194,20 +198,29 @@ class SegmentBatch:
     def n_segments(self) -> int:
         return int(self.scan.shape[0])
 
+    @functools.cached_property
+    def segments(self) -> list[list[Segment]]:
+        flat = segments_from_arrays(
+            self.angles.shape[0],
+            self.first,
+            self.count,
+            self.prev_beam,
+            self.next_beam,
+            self.prev_nearer,
+            self.next_nearer,
+        )
+        bounds = np.searchsorted(self.scan, np.arange(self.ranges.shape[0] + 1)).tolist()
+        return [flat[bounds[b] : bounds[b + 1]] for b in range(self.ranges.shape[0])]
+
     def flat_segments(self) -> list[Segment]:
         return [s for segs in self.segments for s in segs]
 
 
-_SEG_FIELDS = operator.attrgetter(
-    "first_beam", "last_beam", "prev_beam", "next_beam", "prev_nearer", "next_nearer", "beams"
-)
-
-
 def segment_batch(ranges, angles, config: FeatureConfig | None = None, circular: bool | None = None):
-    """Pre-process and segment ``B`` scans with the geometric detector's own stages 1-2.
+    """Pre-process and segment ``B`` scans with the geometric detector's own stages 1-2 (compiled).
 
     Args:
-        ranges: ``(B, n)`` raw ranges, m (non-finite = no return). Not validated here.
+        ranges: ``(B, n)`` raw ranges, m (0.0, NaN, inf = no return). Not validated here.
         angles: ``(n,)`` beam angles, rad.
         config: supplies ``d_th`` and ``d_max``.
         circular: whether the scan is a full turn (default: :func:`is_circular_sweep`).
@@ -220,31 +233,20 @@ def segment_batch(ranges, angles, config: FeatureConfig | None = None, circular:
             f"segment_batch: expected ranges (B, n) and angles (n,), got {r.shape} and {a.shape}"
         )
     circ = is_circular_sweep(a) if circular is None else bool(circular)
-    d = np.empty_like(r)
-    segs = []
-    for b in range(r.shape[0]):
-        d[b] = preprocess(r[b], c.d_max, False, circ)
-        segs.append(segment(d[b], d_th=c.d_th, d_max=c.d_max, circular=circ))
-    scan = np.repeat(np.arange(len(segs), dtype=np.int64), [len(ss) for ss in segs])
-    # one pass over the Segment objects (their attributes are what the batch is built from)
-    cols = list(zip(*map(_SEG_FIELDS, itertools.chain.from_iterable(segs)), strict=True))
-    if not cols:
-        cols = [()] * 7
-    first, last, prev, nxt, p_near, n_near, _ = cols
-    n = a.shape[0]
-    first = np.array(first, dtype=np.int64)
+    d = np.empty(r.shape)
+    _k.preprocess_rows(np.ascontiguousarray(r), float(c.d_max), float(c.d_th), circ, False, d)
+    scan, first, count, prev, nxt, p_near, n_near = _k.segment_arrays(d, float(c.d_th), float(c.d_max), circ)
     return SegmentBatch(
         ranges=d,
         angles=a,
         circular=circ,
-        segments=segs,
         scan=scan,
         first=first,
-        count=(np.array(last, dtype=np.int64) - first) % n + 1,
-        prev_beam=np.array([-1 if v is None else v for v in prev], dtype=np.int64),
-        next_beam=np.array([-1 if v is None else v for v in nxt], dtype=np.int64),
-        prev_nearer=np.array(p_near, dtype=bool),
-        next_nearer=np.array(n_near, dtype=bool),
+        count=count,
+        prev_beam=prev,
+        next_beam=nxt,
+        prev_nearer=p_near,
+        next_nearer=n_near,
     )
 
 
@@ -600,7 +602,7 @@ def segment_features(batch: SegmentBatch, config: FeatureConfig | None = None) -
     """The feature vectors of every segment in ``batch`` (see the module docstring)."""
     c = config or FeatureConfig()
     n_seg = batch.n_segments
-    n_feat = len(feature_names(c))
+    n_feat = len(_feature_names(c))
     x = np.empty((n_seg, n_feat), dtype=np.float32)
     frames = np.empty((n_seg, 4))
     fit_centre = np.empty((n_seg, 2))

@@ -34,6 +34,7 @@ def atomic_write(path, mode: str = "wb") -> Iterator[IO[Any]]:
         raise FileNotFoundError(f"{path.parent}: output directory does not exist")
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
+        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; the final file gets the usual mode
         with os.fdopen(fd, mode, **({"encoding": "utf-8"} if mode == "w" else {})) as f:
             yield f
             f.flush()
@@ -43,6 +44,12 @@ def atomic_write(path, mode: str = "wb") -> Iterator[IO[Any]]:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
         raise
+
+
+def _umask() -> int:
+    mask = os.umask(0o022)  # read it (there is no getter) and restore it at once
+    os.umask(mask)
+    return mask
 
 
 def write_json(path, obj, **dump_kwargs) -> None:

@@ -15,7 +15,9 @@ Pipeline, one public function per stage so each can be inspected alone:
 
 :class:`GeometricKinDetector` chains them, running segmentation and the
 diameter filter vectorised over all segments of a scan and the circle fits of
-all candidates together (plain-Python LM for a few, vectorised LM for many).
+all candidates together. :meth:`GeometricKinDetector.detect_arrays` runs all
+stages of a batch of scans in compiled code (:mod:`detectors._kernels`) and
+returns flat arrays; the Python result objects are built from them on demand.
 
 Conventions: ranges in metres, angles in radians in the observer frame,
 counter-clockwise positive, 0 = heading (x forward, y left). Beam order is
@@ -32,10 +34,13 @@ from typing import Literal, NamedTuple
 
 import numpy as np
 
+from . import _kernels as _k
 from .base import (
-    Detection,
+    STAGES,
+    BatchDetections,
     DetectionResult,
     KinDetector,
+    LazyBatchReports,
     Segment,
     SegmentReport,
     validate_batch,
@@ -177,8 +182,9 @@ def preprocess(
 ) -> np.ndarray:
     """Paper 4.1: clean a scan's ranges (m) before segmentation.
 
-    Non-finite readings (inf = no return, NaN = failed reading) become
-    ``d_max``; readings above ``d_max`` are clipped to it. Everything at
+    Readings of 0.0 (the RPLIDAR's invalid reading) or below, and non-finite
+    ones (inf = no return, NaN = failed reading) become ``d_max``; readings
+    above ``d_max`` are clipped to it. Everything at
     ``d_max`` is then ignored by :func:`segment`.
 
     If ``noise_filter``, isolated beams - ones that jump away from *both*
@@ -193,7 +199,9 @@ def preprocess(
     Returns a new float64 (n_beams,) array.
     """
     r = np.asarray(ranges, dtype=np.float64)
-    d = np.where(np.isfinite(r), r, d_max)
+    # a real RPLIDAR reports 0.0 for an invalid reading: no return, like NaN and inf
+    with np.errstate(invalid="ignore"):
+        d = np.where(np.isfinite(r) & (r > 0.0), r, d_max)
     np.minimum(d, d_max, out=d)
     if noise_filter:
         if circular:
@@ -834,163 +842,168 @@ class GeometricKinDetector(KinDetector):
     segment with the stage that rejected it (``"diameter"``,
     ``"too_few_points"``, ``"shape"``) or ``"accepted"``, and the stage numbers
     (``d_cest``, ``omega_min``, ``omega_max``, ``F``, ``r_c``, ``theta_c``).
-    ``detect_batch`` runs one circle fit for all scans.
+    ``Detection.score`` is ``F_threshold / (F_threshold + F)``: higher = more
+    circle-like, ``>= 0.5`` exactly when the shape filter passes.
+
+    :meth:`detect_arrays` is the fast path: every stage of every scan of a batch
+    runs in compiled code and the result is a :class:`BatchDetections` of flat
+    arrays; :meth:`detect_batch` / :meth:`detect` build the Python objects from
+    it, and :meth:`results` turns any :class:`BatchDetections` of this detector
+    into them (reports included) on demand.
 
     Args:
         params: detector parameters (paper defaults).
-        reports: build the per-segment reports. Cluttered scans have ~100
-            segments (mostly 1-2 beam fragments), and building their Python
-            report objects costs more than the detection itself; pass False
-            when only ``detections`` are needed (``reports`` is then empty).
+        reports: build the per-segment reports in ``detect`` / ``detect_batch``.
+            Cluttered scans have ~100 segments (mostly 1-2 beam fragments), and
+            their Python report objects cost far more than the detection
+            itself; pass False when only ``detections`` are needed
+            (``reports`` is then empty).
 
-    Segmentation and the diameter filter run vectorised over all segments
-    of a scan; the same stages are available one segment at a time as
+    The same stages are available one segment at a time, in numpy, as
     :func:`segment`, :func:`filter_by_diameter` and :func:`filter_by_shape`.
     """
 
     def __init__(self, params: GeometricParams | None = None, *, reports: bool = True) -> None:
         self.params = GeometricParams() if params is None else params
+        if not isinstance(self.params, GeometricParams):
+            raise TypeError(f"params must be a GeometricParams, got {type(self.params).__name__}")
         self.reports = bool(reports)
         self._angles_key: np.ndarray | None = None
         self._circular = True
         self._sweep = -1.0
 
-    def _check(self, ranges, angles) -> tuple[np.ndarray, np.ndarray]:
-        # Validating the sweep costs as much as detecting in a small scan, so
-        # the last beam layout seen is remembered; ranges are always checked.
-        a = np.asarray(angles, dtype=np.float64)
+    def _check_batch(self, ranges, angles) -> tuple[np.ndarray, np.ndarray]:
+        rb, a = validate_batch(ranges, angles)
+        # Validating the sweep costs as much as detecting a small scan, so the
+        # last beam layout seen is remembered; ranges are always checked.
         key = self._angles_key
-        if key is not None and key.shape == a.shape and np.array_equal(key, a):
-            r = np.asarray(ranges, dtype=np.float64)
-            if r.shape != a.shape or (r < 0.0).any():
-                validate_scan(r, a)  # raises with the full message
-            return r, a
-        r, a = validate_scan(ranges, a)
-        self._circular = is_circular_sweep(a)
-        self._sweep = _sweep_sign(a)
-        self._angles_key = a.copy()
-        return r, a
+        if key is None or key.shape != a.shape or not np.array_equal(key, a):
+            validate_scan(np.zeros(a.shape), a)
+            self._circular = is_circular_sweep(a)
+            self._sweep = _sweep_sign(a)
+            self._angles_key = a.copy()
+        _check_negative_rows(rb, a)
+        return rb, a
 
-    def _stages_1_to_3(self, r: np.ndarray, a: np.ndarray):
-        p = self.params
-        d = preprocess(r, p.d_max, p.noise_filter, self._circular, p.d_th)
-        runs = _runs(d, p.d_th, p.d_max, self._circular)
-        if runs.first.shape[0] == 0:
-            return d, a, runs, None, np.zeros(0, dtype=bool)
-        diam = _diameters(d, a, runs, p.r, p.occlusion_unbounded, self._sweep)
-        cand = diam.passed & (runs.length >= p.min_points)
-        return d, a, runs, diam, cand
+    def detect_arrays(self, ranges, angles) -> BatchDetections:
+        """Detect kins in ``B`` scans (``ranges`` (B, n) m, shared ``angles`` (n,) rad) → arrays.
 
-    def _fit(self, staged) -> list[tuple[float, float, float]]:
-        """(r_c, theta_c, sum |e_i|) for every candidate of every staged scan, in order."""
+        0.0, NaN and inf readings are no return; a negative range raises ``ValueError`` naming
+        its scan row and beam.
+        """
+        rb, a = self._check_batch(ranges, angles)
+        rb, a = np.ascontiguousarray(rb), np.ascontiguousarray(a)  # one compiled signature
         p = self.params
-        n_cand = sum(int(c.sum()) for *_, c in staged)
-        if n_cand == 0:
-            return []
-        if n_cand < _VECTORISE_MIN_SEGMENTS:
-            fits = []
-            for d, a, runs, diam, cand in staged:
-                for k in np.flatnonzero(cand).tolist():
-                    b = runs.beams[runs.offsets[k] : runs.offsets[k] + runs.length[k]]
-                    rc, tc, _, _, sabs = _lm_scalar(
-                        d[b].tolist(),
-                        a[b].tolist(),
-                        p.r,
-                        float(diam.d_cest[k]),  # eq. 7 is eq. 2
-                        float(a[diam.min_beam[k]]),
-                        p.lm_max_iter,
-                        _LM_XTOL,
-                    )
-                    fits.append((rc, tc, sabs))
-            return fits
-        ri, ti, counts, rc0, tc0 = [], [], [], [], []
-        for d, a, runs, diam, cand in staged:
-            if not cand.any():
-                continue
-            b = runs.beams[cand[runs.seg_id]]
-            ri.append(d[b])
-            ti.append(a[b])
-            counts.append(runs.length[cand])
-            rc0.append(diam.d_cest[cand])
-            tc0.append(a[diam.min_beam[cand]])
-        counts = np.concatenate(counts)
-        rc, tc, e, _, _ = fit_circles(
-            np.concatenate(ri),
-            np.concatenate(ti),
-            counts,
-            p.r,
-            np.concatenate(rc0),
-            np.concatenate(tc0),
-            max_iter=p.lm_max_iter,
+        d = np.empty(rb.shape)
+        d_max, d_th = float(p.d_max), float(p.d_th)  # ints would compile another signature
+        _k.preprocess_rows(rb, d_max, d_th, self._circular, p.noise_filter, d)
+        seg = _k.segment_arrays(d, d_th, d_max, self._circular)
+        S = seg[0].shape[0]
+        stage = np.empty(S, dtype=np.int8)
+        min_beam = np.empty(S, dtype=np.int64)
+        vals = {k: np.empty(S) for k in ("d_cest", "omega_min", "omega_max", "F", "r_c", "theta_c")}
+        _k.geometric_segments(
+            d,
+            a,
+            self._sweep,
+            *seg,
+            float(p.r),
+            float(p.F_threshold),
+            p.shape_metric == "mean",
+            p.occlusion_unbounded,
+            p.min_points,
+            p.lm_max_iter,
+            _LM_XTOL,
+            _LM_LAMBDA0,
+            _LM_LAMBDA_MAX,
+            stage,
+            min_beam,
+            *vals.values(),
         )
-        sums = np.add.reduceat(np.abs(e), np.cumsum(counts) - counts)
-        return list(zip(rc.tolist(), tc.tolist(), sums.tolist(), strict=True))
+        idx = np.flatnonzero(stage == _k.ACCEPTED)
+        rc, bearing, F = vals["r_c"][idx], vals["theta_c"][idx], vals["F"][idx]
+        first, count = seg[1][idx], seg[2][idx]
+        n = a.shape[0]
+        return BatchDetections(
+            n_scans=rb.shape[0],
+            n_beams=n,
+            scan=seg[0][idx],
+            range=rc,
+            bearing=bearing,
+            x=rc * np.cos(bearing),
+            y=rc * np.sin(bearing),
+            score=p.F_threshold / (p.F_threshold + F),
+            first_beam=first,
+            last_beam=(first + count - 1) % n,
+            n_beams_on=count,
+            segment=idx,
+            seg_scan=seg[0],
+            seg_first=seg[1],
+            seg_count=seg[2],
+            seg_prev=seg[3],
+            seg_next=seg[4],
+            seg_prev_nearer=seg[5],
+            seg_next_nearer=seg[6],
+            seg_stage=stage,
+            seg_values=vals,
+        )
 
-    def _results(self, staged, fits) -> list[DetectionResult]:
+    def results(self, arrays: BatchDetections, reports: bool | None = None) -> list[DetectionResult]:
+        """:class:`DetectionResult` per scan of ``arrays`` (from :meth:`detect_arrays`), with
+        readable per-segment reports if ``reports`` (default: this detector's ``reports``), built
+        on first access."""
+        reports = self.reports if reports is None else bool(reports)
+        dets = arrays.detections()
+        if not reports:
+            return [DetectionResult(ds, []) for ds in dets]
+        build = LazyBatchReports(lambda: self.segment_reports(arrays))
+        return [DetectionResult.lazy(ds, build, b) for b, ds in enumerate(dets)]
+
+    def segment_reports(self, arrays: BatchDetections) -> list[list[SegmentReport]]:
+        """The readable :class:`SegmentReport` of every segment of ``arrays``, per scan: stage,
+        reason string and the stage numbers."""
         p = self.params
         diameter = 2.0 * p.r
-        out = []
-        j = 0
-        for _, _, runs, diam, cand in staged:
-            detections: list[Detection] = []
-            reports: list[SegmentReport] = []
-            if diam is None:
-                out.append(DetectionResult(detections, reports))
-                continue
-            first, last, length = runs.first.tolist(), runs.last.tolist(), runs.length.tolist()
-            segs = _segments_from_runs(runs) if self.reports else None
-            cols = (diam.d_cest.tolist(), diam.omega_min.tolist(), diam.omega_max.tolist())
-            passed, too_wide = diam.passed.tolist(), diam.too_wide.tolist()
-            for k, is_cand in enumerate(cand.tolist()):
-                if is_cand:
-                    r_c, t_c, sabs = fits[j]
-                    j += 1
-                    F = sabs if p.shape_metric == "sum" else sabs / length[k]
-                    ok, reason = _shape_decision(F, p.F_threshold, p.shape_metric)
-                    if ok:
-                        pos = position_kin(r_c, t_c)
-                        detections.append(
-                            Detection(pos.range, pos.bearing, pos.x, pos.y, F, first[k], last[k], length[k])
-                        )
-                    if segs is not None:
-                        m = {
-                            "d_cest": cols[0][k],
-                            "omega_min": cols[1][k],
-                            "omega_max": cols[2][k],
-                            "F": F,
-                            "r_c": r_c,
-                            "theta_c": wrap_angle(t_c),
-                        }
-                        reports.append(SegmentReport(segs[k], "accepted" if ok else "shape", reason, m))
-                elif segs is not None:
-                    m = {"d_cest": cols[0][k], "omega_min": cols[1][k], "omega_max": cols[2][k]}
-                    if passed[k]:
-                        stage = "too_few_points"
-                        reason = f"{length[k]} beams < min_points={p.min_points} for the circle fit"
-                    else:
-                        stage = "diameter"
-                        reason = _diameter_reason(
-                            False, too_wide[k], m["omega_min"], m["omega_max"], diameter
-                        )
-                    reports.append(SegmentReport(segs[k], stage, reason, m))
-            out.append(DetectionResult(detections, reports))
-        return out
+        v = {k: a.tolist() for k, a in arrays.seg_values.items()}
+        reps = []
+        for k, (sg, code, n) in enumerate(
+            zip(arrays.segments(), arrays.seg_stage.tolist(), arrays.seg_count.tolist(), strict=True)
+        ):
+            m = {"d_cest": v["d_cest"][k], "omega_min": v["omega_min"][k], "omega_max": v["omega_max"][k]}
+            if code in (_k.ACCEPTED, _k.SHAPE):
+                m.update(F=v["F"][k], r_c=v["r_c"][k], theta_c=v["theta_c"][k])
+                reason = _shape_decision(m["F"], p.F_threshold, p.shape_metric)[1]
+            elif code == _k.TOO_FEW_POINTS:
+                reason = f"{n} beams < min_points={p.min_points} for the circle fit"
+            else:
+                reason = _diameter_reason(
+                    False, m["omega_min"] > diameter, m["omega_min"], m["omega_max"], diameter
+                )
+            reps.append(SegmentReport(sg, STAGES[code], reason, m))
+        bounds = np.searchsorted(arrays.seg_scan, np.arange(arrays.n_scans + 1)).tolist()
+        return [reps[bounds[b] : bounds[b + 1]] for b in range(arrays.n_scans)]
 
     def detect(self, ranges, angles) -> DetectionResult:
         """Detect kins in one scan (``ranges`` (n,) m, ``angles`` (n,) rad)."""
-        r, a = self._check(ranges, angles)
-        staged = [self._stages_1_to_3(r, a)]
-        return self._results(staged, self._fit(staged))[0]
+        r = np.asarray(ranges, dtype=np.float64)
+        a = np.asarray(angles, dtype=np.float64)
+        if r.ndim != 1 or a.ndim != 1 or r.shape != a.shape or (r < 0.0).any():
+            validate_scan(r, a)  # raises with the full message
+        return self.results(self.detect_arrays(r[None, :], a))[0]
 
     def detect_batch(self, ranges, angles) -> list[DetectionResult]:
-        """Detect kins in ``B`` scans (``ranges`` (B, n) m, shared ``angles`` (n,) rad).
+        """Detect kins in ``B`` scans (``ranges`` (B, n) m, shared ``angles`` (n,) rad): the
+        objects of :meth:`detect_arrays`, one :class:`DetectionResult` per scan, same as
+        :meth:`detect` per row."""
+        return self.results(self.detect_arrays(ranges, angles))
 
-        Same results as calling :meth:`detect` per row, but the circle fits of
-        all scans run together (vectorised when there are many).
-        """
-        rb, a = validate_batch(ranges, angles)
-        staged = []
-        for row in rb:
-            r, a = self._check(row, a)
-            staged.append(self._stages_1_to_3(r, a))
-        return self._results(staged, self._fit(staged))
+
+def _check_negative_rows(rb: np.ndarray, a: np.ndarray) -> None:
+    """Raise ``ValueError`` naming the first scan row with a negative range (NaN passes)."""
+    bad = rb < 0.0
+    if bad.any():
+        b = int(np.flatnonzero(bad.any(axis=1))[0])
+        try:
+            validate_scan(rb[b], a)
+        except ValueError as e:
+            raise ValueError(f"ranges[{b}]: {e}") from None

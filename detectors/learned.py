@@ -1,16 +1,18 @@
-"""Learned lidar kin detector: the paper's segmentation, a small torch network as the classifier.
+"""Learned lidar kin detector: the paper's segmentation, a small network as the classifier.
 
 Pipeline (same interface and output types as :class:`detectors.GeometricKinDetector`):
 
-1. pre-processing and segmentation: the geometric detector's own :func:`detectors.geometric.preprocess`
-   and :func:`detectors.geometric.segment` (paper 4.1-4.2), so both detectors see the same segments;
+1. pre-processing and segmentation: the geometric detector's own stages (paper 4.1-4.2, the compiled
+   kernels behind its ``detect_arrays``, equal to :func:`detectors.geometric.preprocess` and
+   :func:`detectors.geometric.segment`), so both detectors see the same segments;
 2. one feature vector per segment (:mod:`detectors.features`, ``FEATURE_VERSION``);
 3. **classification** (replaces the paper's diameter and shape filters, 4.3): an MLP gives
-   ``p(kin)`` for every segment of every scan of a batch in one forward pass;
+   ``p(kin)`` for every segment of every scan of a batch in one pass (the checkpoint's weights in a
+   compiled kernel by default, or its torch module);
 4. **positioning** (4.4): the same network regresses the kin's centre in the segment's local frame
    (``positioning="regression"``), or the geometric detector's circle fit is used
-   (``positioning="fit"``: :func:`detectors.geometric.fit_circles` from the eq. 7 start, then
-   :func:`detectors.geometric.position_kin`). The checkpoint names the better one on held-out data.
+   (``positioning="fit"``: the Levenberg-Marquardt fit of :func:`detectors.geometric.fit_circle` from
+   the eq. 7 start). The checkpoint names the better one on held-out data.
 
 This is the only module of ``detectors`` that imports torch.
 """
@@ -20,7 +22,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import gc
-import itertools
+import hashlib
 import json
 import math
 import time
@@ -31,10 +33,13 @@ import numpy as np
 import torch
 from torch import nn
 
+from . import _kernels as _k
 from .base import (
-    Detection,
+    STAGES,
+    BatchDetections,
     DetectionResult,
     KinDetector,
+    LazyBatchReports,
     SegmentReport,
     validate_batch,
     validate_scan,
@@ -50,7 +55,8 @@ from .features import (
     segment_batch,
     segment_features,
 )
-from .geometric import fit_circles, is_circular_sweep, position_kin
+from .fileio import atomic_write
+from .geometric import _LM_LAMBDA0, _LM_LAMBDA_MAX, _LM_XTOL, is_circular_sweep
 
 __all__ = [
     "CHECKPOINT_FORMAT",
@@ -71,8 +77,8 @@ CHECKPOINT_FORMAT_VERSION = 1
 #: The shipped model (trained by ``scripts/train_classifier.py``; see ``learned_default.json``).
 DEFAULT_CHECKPOINT = Path(__file__).resolve().parent / "checkpoints" / "learned_default.pt"
 POSITIONING = ("regression", "fit")
+INFERENCE = ("torch", "numba")
 _CHUNK = 4096  # segments per forward chunk
-_STAGES = ("learned", "accepted")  # SegmentReport.stage of a rejected / accepted segment
 
 
 # --------------------------------------------------------------------------- model
@@ -160,6 +166,32 @@ def _plain(obj):
     return json.loads(json.dumps(obj, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
 
 
+def weights_digest(state_dict: dict, normalisation: dict) -> str:
+    """SHA-256 over every parameter (name, dtype, shape, bytes) and the normalisation statistics: what
+    decides the detections. Stored in the checkpoint and checked on load (a flipped bit is refused)."""
+    h = hashlib.sha256()
+    for name in sorted(state_dict):
+        t = state_dict[name].detach().cpu().contiguous()
+        h.update(f"{name}|{t.dtype}|{tuple(t.shape)}|".encode())
+        h.update(t.numpy().tobytes())
+    for name in sorted(normalisation):
+        h.update(f"{name}|".encode())
+        h.update(np.asarray(normalisation[name], dtype=np.float64).tobytes())
+    return h.hexdigest()
+
+
+def _check_device(device) -> torch.device:
+    try:
+        dev = torch.device(device)
+    except (RuntimeError, TypeError, ValueError) as e:
+        raise ValueError(f"device must be a torch device such as 'cpu' or 'cuda', got {device!r}") from e
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise ValueError(f"device={device!r}: this torch build or machine has no CUDA device; use 'cpu'")
+    if dev.type not in ("cpu", "cuda"):
+        raise ValueError(f"device must be 'cpu' or 'cuda', got {device!r}")
+    return dev
+
+
 def save_checkpoint(
     path,
     model: SegmentNet,
@@ -186,24 +218,31 @@ def save_checkpoint(
             f"{len(names)}"
         )
     path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"save_checkpoint: {path} is a directory; expected a file path (e.g. {path}/m.pt)")
     path.parent.mkdir(parents=True, exist_ok=True)
-    torch.save(
-        {
+    state = {k: v.detach().cpu().clone() for k, v in model.state_dict().items()}
+    bad = [k for k, v in state.items() if v.is_floating_point() and not bool(torch.isfinite(v).all())]
+    if bad:
+        raise ValueError(f"save_checkpoint: parameter(s) {bad} hold NaN or inf; refusing to write {path}")
+    nrm = model.normalisation()
+    payload = {
             "format": CHECKPOINT_FORMAT,
             "format_version": CHECKPOINT_FORMAT_VERSION,
             "feature_version": FEATURE_VERSION,
             "feature_config": feature_config.to_dict(),
             "feature_names": names,
             "model_config": model.config.to_dict(),
-            "state_dict": {k: v.detach().cpu().clone() for k, v in model.state_dict().items()},
-            "normalisation": model.normalisation(),
+            "state_dict": state,
+            "normalisation": nrm,
+            "weights_sha256": weights_digest(state, nrm),
             "positioning": positioning,
             "angular_resolution": float(angular_resolution),
             "thresholds": thresholds,
             "info": _plain(info or {}),
-        },
-        path,
-    )
+    }
+    with atomic_write(path) as f:  # a crash or Ctrl-C never leaves half a checkpoint under the name
+        torch.save(payload, f)
     return path
 
 
@@ -236,10 +275,13 @@ def load_checkpoint(path=None, device="cpu") -> tuple[SegmentNet, dict]:
     ``FEATURE_VERSION``, or if the weights do not fit the stated input size.
     """
     path = Path(DEFAULT_CHECKPOINT if path is None else path)
+    dev = _check_device(device)
     expected = (
         f"expected a learned kin detector checkpoint written by scripts/train_classifier.py "
         f"(format {CHECKPOINT_FORMAT!r}, feature version {FEATURE_VERSION})"
     )
+    if path.is_dir():
+        raise ValueError(f"learned detector checkpoint {path} is a directory, not a file; {expected}")
     if not path.is_file():
         raise FileNotFoundError(f"learned detector checkpoint {path} does not exist; {expected}")
     try:
@@ -271,14 +313,17 @@ def load_checkpoint(path=None, device="cpu") -> tuple[SegmentNet, dict]:
                 f"the model takes {mc.n_features} input features but feature version {FEATURE_VERSION} with "
                 f"{fc} gives {len(names)}"
             )
+        nrm = ck["normalisation"]
         model = SegmentNet(mc)
         model.load_state_dict(ck["state_dict"])
-        nrm = ck["normalisation"]
+        _check_weights(ck["state_dict"], nrm, ck.get("weights_sha256"))
         model.set_normalisation(nrm["x_mean"], nrm["x_std"], nrm["t_mean"], nrm["t_std"])
         if ck.get("positioning") not in POSITIONING:
             raise ValueError(f"positioning {ck.get('positioning')!r} is not one of {POSITIONING}")
         res = float(ck["angular_resolution"])
         thresholds = check_thresholds(ck.get("thresholds"))
+    except _CorruptWeights as e:
+        raise ValueError(f"{path}: corrupt checkpoint: {e}; refusing to load it") from e
     except (KeyError, TypeError, ValueError, RuntimeError) as e:
         raise ValueError(f"{path}: inconsistent checkpoint ({type(e).__name__}: {e}); {expected}") from e
     ck["feature_config"] = fc
@@ -286,7 +331,28 @@ def load_checkpoint(path=None, device="cpu") -> tuple[SegmentNet, dict]:
     ck["angular_resolution"] = res
     ck["thresholds"] = thresholds
     ck["path"] = str(path)
-    return model.to(device).eval(), ck
+    return model.to(dev).eval(), ck
+
+
+class _CorruptWeights(ValueError):
+    pass
+
+
+def _check_weights(state: dict, nrm: dict, digest: str | None) -> None:
+    """Non-finite parameters or statistics, or weights that do not match the stored checksum, raise.
+
+    Checkpoints written before the checksum existed carry none; they are only checked for
+    non-finite values."""
+    for k, v in state.items():
+        if not isinstance(v, torch.Tensor):
+            raise _CorruptWeights(f"parameter {k!r} is a {type(v).__name__}, not a tensor")
+        if v.is_floating_point() and not bool(torch.isfinite(v).all()):
+            raise _CorruptWeights(f"parameter {k!r} holds NaN or inf")
+    for k, v in nrm.items():
+        if not np.all(np.isfinite(np.asarray(v, dtype=np.float64))):
+            raise _CorruptWeights(f"normalisation statistic {k!r} holds NaN or inf")
+    if digest is not None and weights_digest(state, nrm) != digest:
+        raise _CorruptWeights("the weights do not match their stored SHA-256 (the file is corrupt)")
 
 
 # --------------------------------------------------------------------------- detector
@@ -320,13 +386,19 @@ class LearnedKinDetector(KinDetector):
             (:func:`detectors.features.scan_noise`; 0.5 if the checkpoint has none).
         device: torch device for the forward pass (``"cpu"``).
         positioning: ``"regression"`` or ``"fit"``; default: the checkpoint's choice.
-        reports: build one :class:`SegmentReport` per segment (pass False when only detections
-            are needed, e.g. in environments; ``reports`` is then empty).
+        reports: build one :class:`SegmentReport` per segment in ``detect`` / ``detect_batch``
+            (pass False when only detections are needed; ``reports`` is then empty).
+        inference: ``"torch"`` (default: the checkpoint's module, run on ``torch_threads`` threads
+            inside each call, the caller's torch setting restored afterwards) or ``"numba"`` (the
+            exported weights in a compiled float32 kernel; CPU only).
+        torch_threads: torch intra-op threads during inference (``"torch"``).
 
     ``Detection.score`` is ``p(kin)`` (higher = more kin-like). Each :class:`SegmentReport` has
     stage ``"accepted"`` or ``"learned"`` (rejected by the classifier) and ``metrics["p_kin"]``.
-    The forward pass uses torch's current thread setting; on a busy machine call
-    ``torch.set_num_threads(1)`` (the network is tiny; more threads only add contention).
+    :meth:`detect_arrays` returns a :class:`~detectors.base.BatchDetections` of flat arrays
+    (``seg_values``: ``p_kin``, ``threshold``); ``detect_batch`` / ``detect`` build objects from it.
+    The speed does not depend on the caller's torch settings: inference runs on
+    ``torch_threads`` (1) threads and restores the caller's count afterwards.
     """
 
     def __init__(
@@ -337,7 +409,15 @@ class LearnedKinDetector(KinDetector):
         *,
         positioning: str | None = None,
         reports: bool = True,
+        inference: str = "numba",
+        torch_threads: int = 1,
     ) -> None:
+        if inference not in INFERENCE:
+            raise ValueError(f"LearnedKinDetector: inference must be one of {INFERENCE}, got {inference!r}")
+        if isinstance(torch_threads, bool) or not isinstance(torch_threads, int) or torch_threads < 1:
+            raise ValueError(
+                f"LearnedKinDetector: torch_threads must be an integer >= 1, got {torch_threads!r}"
+            )
         if threshold is not None and (
             isinstance(threshold, bool)
             or not isinstance(threshold, int | float)
@@ -362,6 +442,14 @@ class LearnedKinDetector(KinDetector):
             raise ValueError(f"LearnedKinDetector: positioning must be one of {POSITIONING}, got {pos!r}")
         self.positioning = pos
         self.reports = bool(reports)
+        self.inference = inference
+        self.torch_threads = torch_threads
+        if inference == "numba":
+            if self.device.type != "cpu":
+                raise ValueError(
+                    f"LearnedKinDetector: inference='numba' runs on the CPU, got device {device!r}"
+                )
+            self._numba_weights = _export_weights(self.model)
         self._angles_key: np.ndarray | None = None
         self._circular = True
 
@@ -416,52 +504,133 @@ class LearnedKinDetector(KinDetector):
         sigma = np.exp(feats.x[:, self._noise_col].astype(np.float64)) - 1e-4
         return self._noise_thresholds[np.searchsorted(self._noise_edges, sigma, side="right")]
 
-    def _predict(self, ranges, angles):
+    def _forward(self, x: np.ndarray) -> np.ndarray:
+        """``(S, 3)`` float64 network outputs for ``(S, F)`` float32 features."""
+        if self.inference == "numba":
+            out = np.empty((x.shape[0], 3), dtype=np.float32)
+            _k.mlp_forward(np.ascontiguousarray(x), *self._numba_weights, out)
+            return out.astype(np.float64)
+        with torch.inference_mode(), _torch_threads(self.torch_threads):
+            xt = torch.from_numpy(x).to(self.device)
+            # row chunks keep the activations in cache (2x faster than one 26k-row chain)
+            return torch.cat([self.model(c) for c in xt.split(_CHUNK)]).cpu().numpy().astype(np.float64)
+
+    def _predict(self, ranges, angles, all_centres: bool = True):
         rb, a = self._check(ranges, angles)
         batch = segment_batch(rb, a, self.feature_config, circular=self._circular)
         feats = segment_features(batch, self.feature_config)
         if batch.n_segments == 0:
             return batch, feats, np.zeros(0), np.zeros((0, 2)), np.zeros(0)
-        with torch.inference_mode():
-            x = torch.from_numpy(feats.x).to(self.device)
-            # one batched pass over every segment, in row chunks that keep the activations in cache
-            # (2x faster than a single 26k-row matmul chain on one core)
-            out = torch.cat([self.model(c) for c in x.split(_CHUNK)]).cpu().numpy().astype(np.float64)
+        out = self._forward(feats.x)
         p = 1.0 / (1.0 + np.exp(-out[:, 0]))
         thr = self.segment_thresholds(feats)
+        acc = p >= thr
         if self.positioning == "regression":
             nrm = self.checkpoint["normalisation"]
             uv = np.asarray(nrm["t_mean"]) + np.asarray(nrm["t_std"]) * out[:, 1:3]
-            centres = local_to_observer(feats.frames, uv)
+            if all_centres:
+                centres = local_to_observer(feats.frames, uv)
+            else:  # only the accepted segments' centres are used: NaN elsewhere
+                centres = np.full((batch.n_segments, 2), np.nan)
+                centres[acc] = local_to_observer(feats.frames[acc], uv[acc])
         else:
-            centres = self._fit_centres(batch, feats, p >= thr)
+            centres = self._fit_centres(batch, acc)
         return batch, feats, p, centres, thr
 
-    def _fit_centres(self, batch: SegmentBatch, feats: SegmentFeatures, which: np.ndarray) -> np.ndarray:
+    def _fit_centres(self, batch: SegmentBatch, which: np.ndarray) -> np.ndarray:
         """Geometric stage 4 for the segments ``which``: LM circle fit from eq. 7, else NaN.
 
         One-beam segments have no fit; their centre is eq. 7's (``min(d_i) + r`` along the beam).
         """
-        r = self.feature_config.r
-        n = batch.angles.shape[0]
         centres = np.full((batch.n_segments, 2), np.nan)
-        idx = np.flatnonzero(which)
-        if idx.size == 0:
-            return centres
-        cnt = batch.count[idx]
-        beams = np.concatenate([(batch.first[i] + np.arange(c)) % n for i, c in zip(idx, cnt, strict=True)])
-        rows = np.repeat(batch.scan[idx], cnt)
-        mb = feats.min_beam[idx]
-        d_min = batch.ranges[batch.scan[idx], mb]
-        rc, tc, _, _, _ = fit_circles(
-            batch.ranges[rows, beams], batch.angles[beams], cnt, r, d_min + r, batch.angles[mb]
+        _k.fit_centres(
+            batch.ranges,
+            np.ascontiguousarray(batch.angles),
+            batch.scan,
+            batch.first,
+            batch.count,
+            np.flatnonzero(which),
+            float(self.feature_config.r),
+            200,
+            _LM_XTOL,
+            _LM_LAMBDA0,
+            _LM_LAMBDA_MAX,
+            centres,
         )
-        one = cnt < 2
-        rc[one], tc[one] = d_min[one] + r, batch.angles[mb[one]]
-        for k, i in enumerate(idx.tolist()):
-            pos = position_kin(float(rc[k]), float(tc[k]))
-            centres[i] = pos.x, pos.y
         return centres
+
+    def detect_arrays(self, ranges, angles) -> BatchDetections:
+        """Detect kins in ``B`` scans (``ranges`` (B, n) m, shared ``angles`` (n,) rad) → arrays.
+
+        The segments of all scans go through the network in one pass. 0.0, NaN and inf readings
+        are no return; a negative range raises ``ValueError`` naming its scan row and beam.
+        ``seg_values`` holds ``p_kin`` and ``threshold`` for every segment.
+        """
+        batch, _, p, centres, thr = self._predict(ranges, angles, all_centres=False)
+        acc = p >= thr
+        idx = np.flatnonzero(acc)
+        xs, ys = centres[idx, 0], centres[idx, 1]
+        first, count = batch.first[idx], batch.count[idx]
+        n = batch.angles.shape[0]
+        return BatchDetections(
+            n_scans=batch.ranges.shape[0],
+            n_beams=n,
+            scan=batch.scan[idx],
+            range=np.hypot(xs, ys),
+            bearing=wrap_angle(np.arctan2(ys, xs)),
+            x=xs,
+            y=ys,
+            score=p[idx],
+            first_beam=first,
+            last_beam=(first + count - 1) % n,
+            n_beams_on=count,
+            segment=idx,
+            seg_scan=batch.scan,
+            seg_first=batch.first,
+            seg_count=batch.count,
+            seg_prev=batch.prev_beam,
+            seg_next=batch.next_beam,
+            seg_prev_nearer=batch.prev_nearer,
+            seg_next_nearer=batch.next_nearer,
+            seg_stage=np.where(acc, _k.ACCEPTED, _k.LEARNED).astype(np.int8),
+            seg_values={"p_kin": p, "threshold": np.asarray(thr, dtype=np.float64)},
+        )
+
+    def results(self, arrays: BatchDetections, reports: bool | None = None) -> list[DetectionResult]:
+        """:class:`DetectionResult` per scan of ``arrays`` (from :meth:`detect_arrays`), with
+        per-segment reports if ``reports`` (default: this detector's ``reports``), built on first
+        access."""
+        reports = self.reports if reports is None else bool(reports)
+        dets = arrays.detections()
+        if not reports:
+            return [DetectionResult(ds, []) for ds in dets]
+        build = LazyBatchReports(lambda: self.segment_reports(arrays))
+        return [DetectionResult.lazy(ds, build, b) for b, ds in enumerate(dets)]
+
+    def segment_reports(self, arrays: BatchDetections) -> list[list[SegmentReport]]:
+        """The :class:`SegmentReport` of every segment of ``arrays``, per scan (stage ``"accepted"``
+        or ``"learned"``, ``metrics`` ``p_kin`` and ``threshold``)."""
+        with _gc_paused():
+            p, thr = arrays.seg_values["p_kin"], arrays.seg_values["threshold"]
+            accl = (arrays.seg_stage == _k.ACCEPTED).tolist()
+            # the numbers are in metrics["p_kin"]; two shared reason strings keep ~100 reports per
+            # cluttered scan cheap
+            why = {
+                t: (f"p(kin) < threshold {t:g}", f"p(kin) >= threshold {t:g}")
+                for t in np.unique(thr).tolist()
+            }
+            tl = thr.tolist()
+            reps = list(
+                map(
+                    SegmentReport,
+                    arrays.segments(),
+                    [STAGES[_k.ACCEPTED] if a else STAGES[_k.LEARNED] for a in accl],
+                    [why[t][a] for t, a in zip(tl, accl, strict=True)],
+                    [{"p_kin": v, "threshold": t} for v, t in zip(p.tolist(), tl, strict=True)],
+                )
+            )
+            bounds = np.searchsorted(arrays.seg_scan, np.arange(arrays.n_scans + 1)).tolist()
+            return [reps[bounds[b] : bounds[b + 1]] for b in range(arrays.n_scans)]
 
     def detect(self, ranges, angles) -> DetectionResult:
         """Detect kins in one scan: ``ranges`` (n,) m, ``angles`` (n,) rad."""
@@ -469,64 +638,48 @@ class LearnedKinDetector(KinDetector):
         if r.ndim != 1:
             raise ValueError(f"ranges must be a 1-D array (n_beams,), got shape {r.shape}")
         a = np.asarray(angles, dtype=np.float64)
-        if a.ndim != 1 or a.shape != r.shape:
+        if a.ndim != 1 or a.shape != r.shape or (r < 0.0).any():
             validate_scan(r, a)  # raises with the full message
         return self.detect_batch(r[None, :], a)[0]
 
     def detect_batch(self, ranges, angles) -> list[DetectionResult]:
-        """Detect kins in ``B`` scans (``ranges`` (B, n) m, shared ``angles`` (n,) rad): the segments of
-        all scans go through the network in one forward pass."""
-        with _gc_paused():
-            return self._detect_batch(ranges, angles)
+        """Detect kins in ``B`` scans (``ranges`` (B, n) m, shared ``angles`` (n,) rad): the objects of
+        :meth:`detect_arrays`, one :class:`DetectionResult` per scan."""
+        return self.results(self.detect_arrays(ranges, angles))
 
-    def _detect_batch(self, ranges, angles) -> list[DetectionResult]:
-        batch, _, p, centres, thr = self._predict(ranges, angles)
-        n_scans = batch.ranges.shape[0]
-        acc = p >= thr
-        out = []
-        bounds = np.searchsorted(batch.scan, np.arange(n_scans + 1)).tolist()
-        acc_idx = np.flatnonzero(acc)
-        xs, ys = centres[acc_idx, 0], centres[acc_idx, 1]
-        rng = np.hypot(xs, ys)
-        brg = wrap_angle(np.arctan2(ys, xs))
-        n_b = batch.angles.shape[0]
-        first, count = batch.first[acc_idx], batch.count[acc_idx]
-        dets_all = list(
-            map(
-                Detection,
-                rng.tolist(),
-                brg.tolist(),
-                xs.tolist(),
-                ys.tolist(),
-                p[acc_idx].tolist(),
-                first.tolist(),
-                ((first + count - 1) % n_b).tolist(),
-                count.tolist(),
-            )
-        )
-        det_bounds = np.searchsorted(batch.scan[acc_idx], np.arange(n_scans + 1)).tolist()
-        if self.reports:
-            # the numbers are in metrics["p_kin"]; two shared reason strings keep ~100 reports per
-            # cluttered scan cheap
-            why = {
-                t: (f"p(kin) < threshold {t:g}", f"p(kin) >= threshold {t:g}")
-                for t in np.unique(thr).tolist()
-            }
-            pl, accl, tl = p.tolist(), acc.tolist(), thr.tolist()
-            reps = list(
-                map(
-                    SegmentReport,
-                    itertools.chain.from_iterable(batch.segments),
-                    [_STAGES[a] for a in accl],
-                    [why[t][a] for t, a in zip(tl, accl, strict=True)],
-                    [{"p_kin": v, "threshold": t} for v, t in zip(pl, tl, strict=True)],
-                )
-            )
-        for b in range(n_scans):
-            dets = dets_all[det_bounds[b] : det_bounds[b + 1]]
-            reports = reps[bounds[b] : bounds[b + 1]] if self.reports else []
-            out.append(DetectionResult(dets, reports))
-        return out
+
+def _export_weights(model: SegmentNet) -> tuple:
+    """The network as arguments of :func:`detectors._kernels.mlp_forward`: ``(mean, std, weights,
+    biases, sizes)``, float32, the layers' ``(out, in)`` matrices zero-padded into one array (head
+    last)."""
+    linears = [m for m in model.body if isinstance(m, nn.Linear)] + [model.head]
+    sizes = np.array([linears[0].in_features] + [lin.out_features for lin in linears], dtype=np.int64)
+    w = int(sizes.max())
+    weights = np.zeros((len(linears), w, w), dtype=np.float32)
+    biases = np.zeros((len(linears), w), dtype=np.float32)
+    for i, lin in enumerate(linears):
+        weights[i, : lin.out_features, : lin.in_features] = lin.weight.detach().cpu().numpy()
+        biases[i, : lin.out_features] = lin.bias.detach().cpu().numpy()
+    mean = model.x_mean.detach().cpu().numpy().astype(np.float32)
+    std = model.x_std.detach().cpu().numpy().astype(np.float32)
+    return mean, std, weights, biases, sizes
+
+
+@contextlib.contextmanager
+def _torch_threads(n: int):
+    """Run torch ops on ``n`` intra-op threads, restoring the caller's setting afterwards.
+
+    The network is tiny: on a busy machine each extra thread only adds contention (2 threads on a
+    shared 2-core machine made a forward pass 10-30x slower than 1).
+    """
+    prev = torch.get_num_threads()
+    if prev != n:
+        torch.set_num_threads(n)
+    try:
+        yield
+    finally:
+        if prev != n:
+            torch.set_num_threads(prev)
 
 
 # --------------------------------------------------------------------------- training

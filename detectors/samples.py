@@ -8,11 +8,14 @@ the learned detector's training code reads these samples, never a world.
 from __future__ import annotations
 
 import json
+import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
 
 from .features import FEATURE_VERSION, FeatureConfig, feature_names
+from .fileio import sha256_file
 
 __all__ = [
     "CATEGORIES",
@@ -40,7 +43,8 @@ CATEGORIES: tuple[str, ...] = (
 )
 _CAT = {name: k for k, name in enumerate(CATEGORIES)}
 DATASET_FORMAT = "kin-envs/segment-dataset"
-DATASET_FORMAT_VERSION = 1
+#: 2: the manifest lists every shard's segment / object counts and SHA-256 (checked on load).
+DATASET_FORMAT_VERSION = 2
 
 def category_code(name: str) -> int:
     """Index of ``name`` in :data:`CATEGORIES` (``ValueError`` for an unknown name)."""
@@ -64,7 +68,9 @@ def load_dataset(path, feature_config: FeatureConfig | None = None) -> tuple[dic
 
     Returns ``(segments, objects, manifest)`` with every shard concatenated. Raises
     ``FileNotFoundError`` for a missing directory / manifest / shard and ``ValueError`` for a
-    manifest of another format, another ``FEATURE_VERSION`` or (if given) another feature config.
+    manifest of another format or version, another ``FEATURE_VERSION`` or (if given) another feature
+    config, and for a shard whose checksum or counts differ from the manifest's or that cannot be
+    read (the message names the shard).
     """
     root = Path(path)
     mpath = root / "manifest.json"
@@ -76,6 +82,11 @@ def load_dataset(path, feature_config: FeatureConfig | None = None) -> tuple[dic
         raise ValueError(f"{mpath}: not a readable JSON manifest ({e})") from e
     if not isinstance(manifest, dict) or manifest.get("format") != DATASET_FORMAT:
         raise ValueError(f"{mpath}: not a {DATASET_FORMAT!r} manifest")
+    if manifest.get("format_version") != DATASET_FORMAT_VERSION:
+        raise ValueError(
+            f"{mpath}: dataset format version {manifest.get('format_version')!r} is not "
+            f"{DATASET_FORMAT_VERSION} (shard checksums); regenerate it with scripts/make_dataset.py"
+        )
     if manifest.get("feature_version") != FEATURE_VERSION:
         raise ValueError(
             f"{mpath}: dataset has feature version {manifest.get('feature_version')!r}, this code computes "
@@ -91,7 +102,20 @@ def load_dataset(path, feature_config: FeatureConfig | None = None) -> tuple[dic
         f = root / shard["file"]
         if not f.is_file():
             raise FileNotFoundError(f"{f}: dataset shard listed in {mpath} is missing")
-        with np.load(f) as z:
-            segs.append({k[4:]: z[k] for k in z.files if k.startswith("seg_")})
-            objs.append({k[4:]: z[k] for k in z.files if k.startswith("obj_")})
+        if sha256_file(f) != shard.get("sha256"):
+            raise ValueError(f"{f}: dataset shard does not match its SHA-256 in {mpath} (corrupt, replaced)")
+        try:
+            with np.load(f) as z:
+                s = {k[4:]: z[k] for k in z.files if k.startswith("seg_")}
+                o = {k[4:]: z[k] for k in z.files if k.startswith("obj_")}
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as e:
+            raise ValueError(f"{f}: unreadable dataset shard ({type(e).__name__}: {e})") from e
+        counts = (len(next(iter(s.values()), [])), len(next(iter(o.values()), [])))
+        if counts != (shard.get("n_segments"), shard.get("n_objects")):
+            raise ValueError(
+                f"{f}: shard holds {counts[0]} segments and {counts[1]} objects, {mpath} says "
+                f"{shard.get('n_segments')} and {shard.get('n_objects')}"
+            )
+        segs.append(s)
+        objs.append(o)
     return concat_records(segs), concat_records(objs), manifest

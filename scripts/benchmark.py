@@ -5,9 +5,15 @@ Sections (``--sections``, comma separated; default all available):
 * ``lidar``: scans/s of the vectorised raycaster (one scan = one robot's 360 beams) for
   N = 1, 8, 64, 256 robots with 50 obstacles in a 10 x 10 m arena, against a naive loop of pymunk
   ``segment_query_first`` per beam on the same world; and physics steps/s.
-* ``detector``: scans/s of the geometric detector (paper scenes, cluttered random arena).
-* ``envs``: env steps/s for KinSeek and aggregation with 8, 64, 256 robots, with/without detector.
-* ``learned``: batched scans/s of the learned detector (needs the ``train`` extra).
+* ``detector``: scans/s of the geometric and learned detectors batched on one core (all 64 scans of
+  a dense arena per call), array path vs objects vs the previous implementation, warm; start-up
+  (incl. numba compilation) on its own line.
+* ``envs``: env steps/s for KinSeek and aggregation_v0 (16, 64, 256 robots) with the detector off,
+  geometric and learned, as a user gets them (no thread settings), and the ratio to detector off.
+* ``memory``: RSS of a 256-robot swarm with the learned detector over ``--memory-steps`` steps.
+* ``ros``: recording an 8-robot World run to a bag (steps/s, against the same run unrecorded) and
+  reading its scans back (scans/s, against running the geometric detector on them), per bag format
+  (needs the ``ros`` extra).
 
 Writes ``benchmark.json`` and ``benchmark.md`` (plus the command and config) to ``--out``.
 Never assert wall-clock times in tests; this script is where speed targets are checked.
@@ -18,6 +24,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import platform
 import sys
 import time
@@ -92,47 +99,113 @@ def bench_lidar(min_time: float, robots=(1, 8, 64, 256)) -> list[dict]:
     return rows
 
 
+def _reference_detectors():
+    """The pre-array-first implementations (tests/detectors/reference_detectors.py), or None
+    outside a clone."""
+    root = Path(__file__).resolve().parents[1]
+    if not (root / "tests" / "detectors" / "reference_detectors.py").is_file():
+        return None
+    if str(root) not in sys.path:
+        sys.path.insert(0, str(root))
+    from tests.detectors import reference_detectors
+
+    return reference_detectors
+
+
+def dense_arena_scans(n_robots: int = 64, n_obstacles: int = 50, noise: float = 0.01):
+    """Every robot's scan in a dense random arena (10 x 10 m), 1 % range noise: ``(ranges, angles)``."""
+    from kin_envs.core.lidar import LidarSpec
+
+    scene = scenes.random_arena(n_robots, n_obstacles, seed=1).replace(lidar=LidarSpec(noise_sigma=noise))
+    scan = World(scene, seed=0).scan()
+    return np.ascontiguousarray(scan.ranges, dtype=np.float64), scan.angles
+
+
 def bench_detector(min_time: float) -> list[dict]:
+    """Batched detection on one core: every scan of the dense 64-robot arena in one call.
+
+    Rows: each detector's array path (``detect_arrays``), its objects (``detect_batch`` without
+    and with per-segment reports) and the previous implementation (same run), plus a single scan
+    per call (what a single-agent env does). Start-up (construction + first call: numba compiles
+    on the first run after an install, later runs load its cache) is timed apart.
+    """
+    from detectors import GeometricKinDetector
+
+    ref = _reference_detectors()
+    ranges, angles = dense_arena_scans()
+    n = ranges.shape[0]
+    variants: dict[str, Callable[[], object]] = {"geometric": GeometricKinDetector}
     try:
-        from detectors import GeometricKinDetector
-    except ImportError as e:  # pragma: no cover - before the detector exists
-        print(f"  detector: skipped ({e})")
-        return []
-    dets = {"with reports": GeometricKinDetector(), "detections only": GeometricKinDetector(reports=False)}
+        from detectors.learned import LearnedKinDetector
+
+        variants["learned (torch, 1 thread)"] = lambda: LearnedKinDetector(inference="torch")
+        variants["learned (numba)"] = lambda: LearnedKinDetector(inference="numba")
+    except ImportError as e:
+        print(f"  learned detector skipped ({e})")
     rows = []
-    cases = {
-        f"paper_scenario_{'I' * k}_{d}m": scenes.paper_scenario(k, distance=d)
-        for k in (1, 2)
-        for d in scenes.PAPER_DISTANCES
-    }
-    cases["random_arena_64_robots_50_obstacles"] = scenes.random_arena(64, 50, seed=1)
-    for name, scene in cases.items():
-        scan = World(scene, seed=0).scan()
-        ranges = scan.ranges.astype(np.float64)
-        row = {"scene": name}
-        for mode, det in dets.items():
-            r = rate(lambda d=det, rr=ranges, aa=scan.angles: d.detect_batch(rr, aa), min_time) * len(ranges)
-            row[mode] = r
+    for name, make in variants.items():
+        t0 = time.perf_counter()
+        det = make()
+        det.detect_arrays(ranges[:1], angles)
+        startup = time.perf_counter() - t0
+        row = {"detector": name, "scans": n, "startup_s": startup}
+        row["arrays"] = rate(lambda d=det: d.detect_arrays(ranges, angles), min_time) * n
+        det.reports = False
+        row["objects"] = rate(lambda d=det: d.detect_batch(ranges, angles), min_time) * n
+        det.reports = True  # reports are built on first access: read them all
+        row["objects_reports"] = (
+            rate(lambda d=det: [r.reports for r in d.detect_batch(ranges, angles)], min_time) * n
+        )
+        row["single_scan"] = rate(lambda d=det: d.detect_arrays(ranges[:1], angles), min_time)
+        row["old"] = math.nan
+        if ref is not None and name == "geometric":
+            old = ref.ReferenceGeometricKinDetector(reports=False)
+            row["old"] = rate(lambda d=old: d.detect_batch(ranges, angles), min_time) * n
+        elif ref is not None and name.startswith("learned (torch"):
+            row["old"] = rate(lambda d=det: ref.reference_learned_predict(d, ranges, angles), min_time) * n
+        row["speed_up"] = row["arrays"] / row["old"]
         rows.append(row)
         print(
-            f"  detector {name:40s} {row['with reports']:9.0f} scans/s with reports, "
-            f"{row['detections only']:9.0f} detections only",
+            f"  {name:26s} {row['arrays']:9.0f} scans/s arrays, {row['objects']:9.0f} objects, "
+            f"{row['objects_reports']:8.0f} with reports, old {row['old']:7.0f} (x{row['speed_up']:.1f}); "
+            f"single scan {row['single_scan']:7.0f}/s; start-up {startup:.2f} s",
             flush=True,
         )
     return rows
 
 
-def bench_envs(min_time: float) -> list[dict]:
+def _agg_rate(n: int, detector, min_time: float) -> float:
+    from kin_envs import aggregation_v0
+
+    penv = aggregation_v0.parallel_env(n_robots=n, detector=detector, noise_sigma=0.01)
+    penv.reset(seed=0)
+    acts = {a: penv.action_space(a).sample() for a in penv.agents}
+
+    def step_agg(penv=penv, acts=acts):
+        _, _, _, trunc, _ = penv.step(acts)
+        if any(trunc.values()):
+            penv.reset()
+
+    return rate(step_agg, min_time)
+
+
+def bench_envs(min_time: float, robots=(16, 64, 256)) -> list[dict]:
+    """Env steps/s with the detector off / geometric / learned, as a user gets them: no thread
+    settings by the caller (torch left at its default), 1 % range noise."""
     try:
         import gymnasium as gym
-
-        from kin_envs import aggregation_v0
     except ImportError as e:  # pragma: no cover - before the envs exist
         print(f"  envs: skipped ({e})")
         return []
+    try:
+        import detectors.learned  # noqa: F401
+
+        dets = (None, "geometric", "learned")
+    except ImportError:
+        dets = (None, "geometric")
     rows = []
-    for detector in (None, "geometric"):
-        env = gym.make("kin_envs/KinSeek-v0", detector=detector)
+    for detector in dets:
+        env = gym.make("kin_envs/KinSeek-v0", detector=detector, noise_sigma=0.01)
         env.reset(seed=0)
 
         def step_seek(env=env):
@@ -143,40 +216,137 @@ def bench_envs(min_time: float) -> list[dict]:
         r = rate(step_seek, min_time)
         rows.append({"env": "KinSeek-v0", "robots": 1, "detector": str(detector), "steps_per_s": r})
         print(f"  KinSeek-v0 detector={detector!s:9s} {r:8.1f} steps/s", flush=True)
-        for n in (8, 64, 256):
-            penv = aggregation_v0.parallel_env(n_robots=n, detector=detector)
-            penv.reset(seed=0)
-            acts = {a: penv.action_space(a).sample() for a in penv.agents}
-
-            def step_agg(penv=penv, acts=acts):
-                _, _, _, trunc, _ = penv.step(acts)
-                if any(trunc.values()):
-                    penv.reset()
-
-            r = rate(step_agg, min_time)
+        for n in robots:
+            r = _agg_rate(n, detector, min_time)
             rows.append({"env": "aggregation_v0", "robots": n, "detector": str(detector), "steps_per_s": r})
             print(f"  aggregation_v0 N={n:3d} detector={detector!s:9s} {r:8.1f} steps/s", flush=True)
+    off = {(r["env"], r["robots"]): r["steps_per_s"] for r in rows if r["detector"] == "None"}
+    for r in rows:
+        r["of_detector_off"] = r["steps_per_s"] / off[(r["env"], r["robots"])]
     return rows
 
 
-def bench_learned(min_time: float) -> list[dict]:
+def _rss_mb() -> float:
+    with open("/proc/self/statm") as f:
+        return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
+
+
+def bench_memory(min_time: float, steps: int = 1000, n_robots: int = 256) -> list[dict]:
+    """Resident memory over ``steps`` steps of a 256-robot swarm with the learned detector (1 %
+    noise): RSS after 10 % of the steps (warm) and at the end, and the process's peak RSS."""
+    import resource
+
+    from kin_envs import aggregation_v0
+
     try:
-        from detectors.learned import LearnedKinDetector
+        import detectors.learned  # noqa: F401
     except ImportError as e:
-        print(f"  learned: skipped ({e})")
+        print(f"  memory: skipped ({e})")
         return []
-    import torch
+    penv = aggregation_v0.parallel_env(n_robots=n_robots, detector="learned", noise_sigma=0.01)
+    penv.reset(seed=0)
+    rng = np.random.default_rng(0)
+    warm_at = max(1, steps // 10)
+    rss_warm = math.nan
+    t0 = time.perf_counter()
+    for t in range(1, steps + 1):
+        acts = {a: rng.uniform(-1, 1, penv.action_space(a).shape).astype(np.float32) for a in penv.agents}
+        _, _, _, trunc, _ = penv.step(acts)
+        if any(trunc.values()):
+            penv.reset()
+        if t == warm_at:
+            rss_warm = _rss_mb()
+    seconds = time.perf_counter() - t0
+    row = {
+        "robots": n_robots,
+        "steps": steps,
+        "rss_warm_mb": rss_warm,
+        "rss_end_mb": _rss_mb(),
+        # ru_maxrss is in KiB on Linux
+        "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+        "steps_per_s": steps / seconds,
+    }
+    row["growth_mb"] = row["rss_end_mb"] - row["rss_warm_mb"]
+    print(
+        f"  memory N={n_robots} learned, {steps} steps: RSS {rss_warm:.0f} MB after {warm_at} steps, "
+        f"{row['rss_end_mb']:.0f} MB at the end (growth {row['growth_mb']:+.1f} MB), "
+        f"peak {row['peak_rss_mb']:.0f} MB",
+        flush=True,
+    )
+    return [row]
 
-    torch.set_num_threads(1)
-    det = LearnedKinDetector()
-    scan = World(scenes.random_arena(64, 50, seed=1), seed=0).scan()
-    ranges = np.tile(scan.ranges.astype(np.float64), (4, 1))
-    r = rate(lambda: det.detect_batch(ranges, scan.angles), min_time) * ranges.shape[0]
-    print(f"  learned detector, batch of {ranges.shape[0]} cluttered scans: {r:9.0f} scans/s")
-    return [{"scene": "random_arena_64_robots_50_obstacles", "batch": ranges.shape[0], "scans_per_s": r}]
+
+def bench_ros(min_time: float, steps: int = 100) -> list[dict]:
+    try:
+        from detectors.ros import read_scans
+        from kin_envs.ros import WorldRecorder
+    except ImportError as e:  # pragma: no cover - without the extra
+        print(f"  ros: skipped ({e})")
+        return []
+    import tempfile
+
+    from detectors import GeometricKinDetector
+
+    scene = scenes.random_arena(8, 20, seed=3)
+    cmds = np.tile([0.1, 0.5], (8, 1))
+
+    def run(rec=None, n=steps):
+        world = World(scene, seed=0)
+        t0 = time.perf_counter()
+        for _ in range(n):
+            world.step(commands=cmds)
+            scan = world.scan()
+            if rec is not None:
+                rec.record(world, scan)
+        return time.perf_counter() - t0
+
+    det = GeometricKinDetector()
+    base = steps / min(run() for _ in range(3))
+    out = []
+    with tempfile.TemporaryDirectory() as d:
+        for storage, name in (("mcap", "m"), ("sqlite3", "s"), ("ros1", "r.bag")):
+            path = Path(d) / name
+            with WorldRecorder(Path(d) / ("warm" + name), storage=storage) as rec:
+                run(rec, 5)  # warm-up: imports, serialiser compilation
+            with WorldRecorder(path, storage=storage) as rec:
+                rec_rate = steps / run(rec)
+            t0 = time.perf_counter()
+            it = read_scans(path, "/robot_0/scan")
+            first = next(it)  # opening parses every connection's message definition
+            t_open = time.perf_counter() - t0
+            t0 = time.perf_counter()
+            scans = [first, *it]
+            read_rate = (len(scans) - 1) / (time.perf_counter() - t0)
+            def detect_all(s=scans):
+                return [det.detect(x.ranges, x.angles) for x in s]
+
+            det_rate = len(scans) * rate(detect_all, min_time)
+            print(
+                f"  {storage:7s}: record {rec_rate:7.1f} steps/s (unrecorded {base:7.1f}), open "
+                f"{t_open:.2f} s, read {read_rate:7.0f} scans/s (geometric detector {det_rate:7.0f} scans/s)"
+            )
+            out.append(
+                {
+                    "storage": storage,
+                    "robots": 8,
+                    "steps": steps,
+                    "record_steps_per_s": rec_rate,
+                    "unrecorded_steps_per_s": base,
+                    "open_s": t_open,
+                    "read_scans_per_s": read_rate,
+                    "detect_scans_per_s": det_rate,
+                }
+            )
+    return out
 
 
-SECTIONS = {"lidar": bench_lidar, "detector": bench_detector, "envs": bench_envs, "learned": bench_learned}
+SECTIONS = {
+    "lidar": bench_lidar,
+    "detector": bench_detector,
+    "envs": bench_envs,
+    "memory": bench_memory,
+    "ros": bench_ros,
+}
 
 
 def to_markdown(results: dict) -> str:
@@ -193,25 +363,62 @@ def to_markdown(results: dict) -> str:
         ]
         lines.append("")
     if results.get("detector"):
+        n = results["detector"][0]["scans"]
         lines += [
-            "| scene | geometric scans/s, with per-segment reports | detections only |",
-            "|---|---:|---:|",
+            f"Detectors, {n} scans of a dense arena (64 robots, 50 obstacles, 1 % noise) per call, "
+            "one core, warm:",
+            "",
+            "| detector | scans/s detect_arrays | detect_batch (objects) | with reports | previous "
+            "implementation | speed-up | single scan calls/s |",
+            "|---|---:|---:|---:|---:|---:|---:|",
         ]
         lines += [
-            f"| {r['scene']} | {r['with reports']:,.0f} | {r['detections only']:,.0f} |"
+            f"| {r['detector']} | {r['arrays']:,.0f} | {r['objects']:,.0f} | {r['objects_reports']:,.0f} | "
+            + (f"{r['old']:,.0f} | {r['speed_up']:.1f}x" if math.isfinite(r["old"]) else "— | —")
+            + f" | {r['single_scan']:,.0f} |"
             for r in results["detector"]
         ]
-        lines.append("")
-    if results.get("envs"):
-        lines += ["| env | robots | detector | steps/s |", "|---|---:|---|---:|"]
         lines += [
-            f"| {r['env']} | {r['robots']} | {r['detector']} | {r['steps_per_s']:,.1f} |"
+            "",
+            "Start-up (construction + first call; numba compiles on the first run after an install): "
+            + ", ".join(f"{r['detector']} {r['startup_s']:.2f} s" for r in results["detector"]),
+            "",
+        ]
+    if results.get("envs"):
+        lines += [
+            "Env steps/s as a user gets them (no thread settings), 1 % noise:",
+            "",
+            "| env | robots | detector | steps/s | of detector off |",
+            "|---|---:|---|---:|---:|",
+        ]
+        lines += [
+            f"| {r['env']} | {r['robots']} | {r['detector']} | {r['steps_per_s']:,.1f} | "
+            f"{r['of_detector_off']:.0%} |"
             for r in results["envs"]
         ]
         lines.append("")
-    if results.get("learned"):
-        lines += ["| learned detector | batch | scans/s |", "|---|---:|---:|"]
-        lines += [f"| {r['scene']} | {r['batch']} | {r['scans_per_s']:,.0f} |" for r in results["learned"]]
+    if results.get("memory"):
+        lines += [
+            "| memory: robots, learned detector | steps | RSS warm (MB) | RSS end (MB) | growth (MB) | "
+            "peak RSS (MB) |",
+            "|---:|---:|---:|---:|---:|---:|",
+        ]
+        lines += [
+            f"| {r['robots']} | {r['steps']} | {r['rss_warm_mb']:.0f} | {r['rss_end_mb']:.0f} | "
+            f"{r['growth_mb']:+.1f} | {r['peak_rss_mb']:.0f} |"
+            for r in results["memory"]
+        ]
+        lines.append("")
+    if results.get("ros"):
+        lines += [
+            "| bag | record steps/s (8 robots) | unrecorded | open, s | read scans/s | geometric scans/s |",
+            "|---|---:|---:|---:|---:|---:|",
+        ]
+        lines += [
+            f"| {r['storage']} | {r['record_steps_per_s']:,.1f} | {r['unrecorded_steps_per_s']:,.1f} | "
+            f"{r['open_s']:.2f} | {r['read_scans_per_s']:,.0f} | {r['detect_scans_per_s']:,.0f} |"
+            for r in results["ros"]
+        ]
     return "\n".join(lines) + "\n"
 
 
@@ -220,8 +427,14 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--sections", default=",".join(SECTIONS), help="comma-separated: " + ", ".join(SECTIONS))
     p.add_argument("--min-time", type=float, default=1.5, help="seconds of timing per measurement")
     p.add_argument("--robots", type=int, nargs="+", default=[1, 8, 64, 256], help="lidar: robot counts")
-    p.add_argument("--out", type=Path, default=Path("outputs/benchmark"),
-                   help="output directory (default: %(default)s)")
+    p.add_argument(
+        "--env-robots", type=int, nargs="+", default=[16, 64, 256], help="envs: aggregation_v0 robot counts"
+    )
+    p.add_argument(
+        "--memory-steps", type=int, default=1000, help="memory: steps of the 256-robot learned-detector swarm"
+    )
+    p.add_argument("--memory-robots", type=int, default=256, help="memory: robots in the swarm")
+    p.add_argument("--out", type=Path, default=Path("outputs/benchmark"), help="output directory")
     add_logging_args(p)
     args = p.parse_args(argv)
     setup_logging(args)
@@ -229,23 +442,33 @@ def main(argv: list[str] | None = None) -> dict:
     unknown = sorted(set(sections) - set(SECTIONS))
     if unknown:
         p.error(f"unknown section(s) {unknown}; expected some of {sorted(SECTIONS)}")
-    if args.min_time <= 0 or min(args.robots) < 1:
-        p.error("--min-time must be > 0 and --robots >= 1")
+    if args.min_time <= 0 or min(args.robots) < 1 or min(args.env_robots) < 2 or args.memory_steps < 1:
+        p.error("--min-time must be > 0, --robots >= 1, --env-robots >= 2 and --memory-steps >= 1")
+    if not 2 <= args.memory_robots <= 256:
+        p.error(f"--memory-robots must be in 2..256, got {args.memory_robots}")
     results: dict = {
         "config": {
             "command": " ".join([sys.executable, *sys.argv]),
             "sections": sections,
             "min_time": args.min_time,
             "robots": args.robots,
+            "env_robots": args.env_robots,
+            "memory_steps": args.memory_steps,
+            "memory_robots": args.memory_robots,
             "python": platform.python_version(),
             "machine": platform.machine(),
         }
     }
     for s in sections:
         print(f"[{s}]", flush=True)
-        results[s] = (
-            SECTIONS[s](args.min_time, robots=args.robots) if s == "lidar" else SECTIONS[s](args.min_time)
-        )
+        if s == "lidar":
+            results[s] = SECTIONS[s](args.min_time, robots=args.robots)
+        elif s == "envs":
+            results[s] = SECTIONS[s](args.min_time, robots=args.env_robots)
+        elif s == "memory":
+            results[s] = SECTIONS[s](args.min_time, steps=args.memory_steps, n_robots=args.memory_robots)
+        else:
+            results[s] = SECTIONS[s](args.min_time)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "benchmark.json").write_text(json.dumps(results, indent=2))
     write_run_info(args.out, args, config=results["config"], argv=argv, script=__file__)
@@ -257,4 +480,6 @@ def main(argv: list[str] | None = None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    from kin_envs.cli import run_main
+
+    run_main(main)

@@ -16,6 +16,8 @@ paper's two scenarios at 0.5, 0.8 and 1.2 m.
 
 Writes to ``--out``: ``results.md`` (tables), ``results.json``, ``f1_vs_distance.png``,
 ``centre_error_vs_distance.png`` and ``run.json`` (command, configuration, seeds, timings).
+Detectors are timed warm: each is built and called once before the sweep, and that start-up time
+(construction + first call, incl. numba compilation) is reported on its own line.
 
 The work unit is one scene (build, scan at every noise level, detect, score: :func:`scene_unit`),
 run by :func:`kin_envs.distributed.map_seeds` in this process (``--backend local``) or as Ray
@@ -134,11 +136,31 @@ class Sweep:
     torch_threads: int
 
 
+def warm_up(detector: KinDetector) -> float:
+    """Seconds of ``detector``'s first ``detect_batch`` (numba compilation or loading its cache,
+    first torch call), on one noise-free paper scan: the sweep then times warm detection only."""
+    scan = World(scenes.paper_scenario(2, distance=0.8)).scan(robots=[0])
+    t0 = time.perf_counter()
+    detector.detect_batch(scan.ranges.astype(np.float64), scan.angles)
+    return time.perf_counter() - t0
+
+
+def build_detectors(names, torch_threads: int = 1) -> tuple[dict[str, KinDetector], dict[str, float]]:
+    """Build and warm up the detectors: ``({name: detector}, {name: start-up seconds})``, start-up
+    being construction (checkpoint loading) plus the first call (:func:`warm_up`)."""
+    detectors, startup = {}, {}
+    for name in names:
+        t0 = time.perf_counter()
+        detectors[name] = resolve_detector(name)
+        built = time.perf_counter() - t0
+        if "torch" in sys.modules:
+            sys.modules["torch"].set_num_threads(torch_threads)
+        startup[name] = built + warm_up(detectors[name])
+    return detectors, startup
+
+
 def _build_detectors(sweep: Sweep) -> dict[str, KinDetector]:
-    detectors = {name: resolve_detector(name) for name in sweep.detectors}
-    if "torch" in sys.modules:
-        sys.modules["torch"].set_num_threads(sweep.torch_threads)
-    return detectors
+    return build_detectors(sweep.detectors, sweep.torch_threads)[0]
 
 
 def scene_unit(i: int, sweep: Sweep) -> tuple[dict[str, Evaluation], float]:
@@ -286,6 +308,13 @@ def markdown(evals: dict[str, Evaluation], dist_edges, noise_levels, paper: list
     lines += ["| detector | scans | seconds | scans/s |", "|---|---:|---:|---:|"]
     for name, ev in evals.items():
         lines.append(f"| {name} | {ev.n_scans} | {ev.seconds:.2f} | {ev.scans_per_second:.0f} |")
+    startup = info.get("startup_seconds", {})
+    if startup:
+        lines += [
+            "",
+            "Detectors timed warm. Start-up, apart (construction + first call, incl. numba compilation "
+            "or loading its cache): " + ", ".join(f"{n} {s:.2f} s" for n, s in startup.items()) + ".",
+        ]
     lines += ["", "## Paper scenarios (noise-free)", ""]
     lines += ["| detector | scenario | distance | kin detected | false positives |", "|---|---|---:|---|---|"]
     for row in paper:
@@ -430,9 +459,10 @@ def main(argv: list[str] | None = None) -> dict:
         )
     noise_levels = sorted(set(args.noise))
     config = _load_config(args.scene_config)
-    detectors = {name: resolve_detector(name) for name in args.detectors}  # fail before the sweep
-    if "torch" in sys.modules:
-        sys.modules["torch"].set_num_threads(args.torch_threads)
+    # fail before the sweep; warm, so that the sweep's timings leave compilation out
+    detectors, startup = build_detectors(args.detectors, args.torch_threads)
+    for name, sec in startup.items():
+        print(f"{name}: start-up (construction + first call, incl. numba compilation) {sec:.2f} s")
     out: Path = args.out
     out.mkdir(parents=True, exist_ok=True)
     sweep = Sweep(
@@ -475,6 +505,7 @@ def main(argv: list[str] | None = None) -> dict:
         "gate": args.gate,
         "separate": args.separate_same_radius,
         "config": dataclasses.asdict(config),
+        "startup_seconds": startup,
     }
     md = markdown(evals, dist_edges, noise_levels, paper_rows, info)
     (out / "results.md").write_text(md)
@@ -486,6 +517,7 @@ def main(argv: list[str] | None = None) -> dict:
                 "scans": ev.n_scans,
                 "seconds": ev.seconds,
                 "scans_per_second": ev.scans_per_second,
+                "startup_seconds": startup[name],
                 "per_noise": {str(nz): ev.select(noise=nz).metrics().as_dict() for nz in noise_levels},
                 "per_noise_excluding_same_radius": {
                     str(nz): ev.select(noise=nz).metrics(True).as_dict() for nz in noise_levels
@@ -546,8 +578,10 @@ def _plain(o):
 
 
 if __name__ == "__main__":
+    from kin_envs.cli import run_main
+
     try:
-        main()
+        run_main(main, bad_input=())
     # bad input, Ray not installed, no cluster at --address: a message, not a traceback
     except (ValueError, ImportError, ConnectionError) as e:
         sys.exit(f"evaluate_detectors: error: {e}")

@@ -8,7 +8,10 @@ truth (rule and fields: ``kin_envs/detection/dataset.py``). Scene ``i`` uses see
 
 Writes to ``--out``: ``shard_XXXXX.npz`` (compressed; ``seg_*`` per-segment and ``obj_*`` per-visible-
 object columns) and ``manifest.json`` (format, feature version and config, dataset config, seeds,
-counts per class and category, timing, command line).
+counts per class and category, every shard's counts and SHA-256, timing, command line). Every file is
+written atomically and the manifest last: a directory without a manifest is an unfinished run, and
+``load_dataset`` checks each shard against it. A non-empty ``--out`` is refused unless ``--overwrite``,
+which first deletes the old manifest and shards.
 
 Each scene is one work unit of :func:`kin_envs.distributed.imap_seeds`: run here (``--backend
 local``) or as Ray tasks (``--backend ray``, a local Ray with ``--num-cpus`` workers or the cluster
@@ -23,8 +26,9 @@ Example::
 from __future__ import annotations
 
 import argparse
-import json
+import os
 import platform
+import re
 import sys
 import time
 from pathlib import Path
@@ -32,10 +36,20 @@ from pathlib import Path
 import numpy as np
 
 from detectors.features import FEATURE_VERSION, FeatureConfig, feature_names
+from detectors.fileio import atomic_write, sha256_file, write_json
 from detectors.samples import CATEGORIES, DATASET_FORMAT, DATASET_FORMAT_VERSION, concat_records
-from kin_envs.cli import add_logging_args, parse_json_object, script_logger, setup_logging, write_run_info
+from kin_envs.cli import (
+    add_logging_args,
+    parse_json_object,
+    run_main,
+    script_logger,
+    setup_logging,
+    write_run_info,
+)
 from kin_envs.detection.dataset import DatasetConfig, scene_records
 from kin_envs.distributed import BACKENDS, imap_seeds
+
+_SHARD = re.compile(r"shard_\d{5}\.npz|\.(shard_\d{5}\.npz|manifest\.json)\..*\.tmp")
 
 
 def scene_unit(seed: int, cfg: DatasetConfig, fcfg: FeatureConfig) -> tuple[dict, dict]:
@@ -44,10 +58,37 @@ def scene_unit(seed: int, cfg: DatasetConfig, fcfg: FeatureConfig) -> tuple[dict
     return segs, objs
 
 
-def write_shard(path: Path, segs: dict, objs: dict) -> None:
-    np.savez_compressed(
-        path, **{f"seg_{k}": v for k, v in segs.items()}, **{f"obj_{k}": v for k, v in objs.items()}
-    )
+def write_shard(path: Path, segs: dict, objs: dict) -> str:
+    """Write one shard atomically; returns its SHA-256."""
+    with atomic_write(path) as f:
+        np.savez_compressed(
+            f, **{f"seg_{k}": v for k, v in segs.items()}, **{f"obj_{k}": v for k, v in objs.items()}
+        )
+    return sha256_file(path)
+
+
+def prepare_out_dir(out: Path, overwrite: bool) -> str | None:
+    """Create ``out`` or, with ``overwrite``, clear a previous dataset from it; returns an error or
+    ``None``. The manifest goes first, so an interrupted rerun never leaves an old manifest beside
+    new shards."""
+    if out.exists() and not out.is_dir():
+        return f"--out {out} is a file, not a directory"
+    out.mkdir(parents=True, exist_ok=True)
+    if not os.access(out, os.W_OK):
+        return f"--out {out} is not writable"
+    entries = list(out.iterdir())
+    if not entries:
+        return None
+    if not overwrite:
+        return f"--out {out} is not empty; pass --overwrite to replace the dataset in it"
+    ours = [p for p in entries if p.name in ("manifest.json", "run.json") or _SHARD.fullmatch(p.name)]
+    other = sorted(p.name for p in entries if p not in ours)
+    if other:
+        return f"--out {out} holds files that are not a dataset's ({other[:5]}); not deleting them"
+    (out / "manifest.json").unlink(missing_ok=True)
+    for p in ours:
+        p.unlink(missing_ok=True)
+    return None
 
 
 def main(argv=None) -> dict:
@@ -59,6 +100,8 @@ def main(argv=None) -> dict:
     ap.add_argument("--config", default=None, help="DatasetConfig overrides: JSON object or file")
     ap.add_argument("--feature-config", default=None, help="FeatureConfig overrides: JSON object or file")
     ap.add_argument("--no-progress", action="store_true", help="no progress bar")
+    ap.add_argument("--overwrite", action="store_true",
+                    help="replace the dataset in a non-empty --out (deletes its manifest, then shards)")
     ap.add_argument("--backend", choices=BACKENDS, default="local", help="scenes here or as Ray tasks")
     ap.add_argument("--address", default=None, help="ray: join this cluster (e.g. auto, host:6379)")
     ap.add_argument("--num-cpus", type=int, default=None, help="ray: CPUs of a local Ray (default: all)")
@@ -76,7 +119,9 @@ def main(argv=None) -> dict:
         fcfg = FeatureConfig.from_dict(parse_json_object(args.feature_config, "--feature-config") or {})
     except ValueError as e:
         ap.error(str(e))
-    args.out.mkdir(parents=True, exist_ok=True)
+    problem = prepare_out_dir(args.out, args.overwrite)
+    if problem:
+        ap.error(problem)
     write_run_info(args.out, args, config={"dataset": cfg, "features": fcfg}, seed=args.first_seed, argv=argv,
                    script=__file__)
     t0 = time.perf_counter()
@@ -89,7 +134,7 @@ def main(argv=None) -> dict:
         nonlocal seg_parts, obj_parts, n_seg, n_obj
         segs, objs = concat_records(seg_parts), concat_records(obj_parts)
         name = f"shard_{len(shards):05d}.npz"
-        write_shard(args.out / name, segs, objs)
+        digest = write_shard(args.out / name, segs, objs)
         m = int(segs["label"].shape[0])
         shards.append(
             {
@@ -98,6 +143,7 @@ def main(argv=None) -> dict:
                 "n_scenes": n_scenes,
                 "n_segments": m,
                 "n_objects": int(objs["row"].shape[0]),
+                "sha256": digest,
             }
         )
         n_seg += m
@@ -146,7 +192,7 @@ def main(argv=None) -> dict:
         "python": platform.python_version(),
         "numpy": np.__version__,
     }
-    (args.out / "manifest.json").write_text(json.dumps(manifest, indent=2))
+    write_json(args.out / "manifest.json", manifest)  # last: it vouches for the shards above
     script_logger(__file__).info(
         f"{n_seg} segments ({label_counts[1]} kin, {n_same} same-radius cylinder) from {args.scenes} scenes "
         f"in {seconds:.1f} s -> {args.out}"
@@ -155,4 +201,4 @@ def main(argv=None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    run_main(main)

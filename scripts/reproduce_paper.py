@@ -712,4 +712,6 @@ LAYOUT_RULE = (
 
 
 if __name__ == "__main__":
-    main()
+    from kin_envs.cli import run_main
+
+    run_main(main)

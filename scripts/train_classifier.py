@@ -695,4 +695,6 @@ def _feature_config(manifest: dict):
 
 
 if __name__ == "__main__":
-    main()
+    from kin_envs.cli import run_main
+
+    run_main(main)

@@ -1,10 +1,24 @@
-"""Small helpers that turn plain dicts into validated frozen dataclasses."""
+"""Small helpers that turn plain dicts into validated frozen dataclasses and check field values.
+
+Every check names the class and field. A value of the wrong *type* raises :class:`FieldTypeError`,
+which is both a ``TypeError`` (Python's convention) and a ``ValueError`` (the project's: bad input is
+a ``ValueError``), so callers catching either see it.
+"""
 
 from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 from typing import Any
+
+#: Largest magnitude accepted for a length, coordinate or mass (SI units). Far beyond any arena, and
+#: small enough that products of a few such values never overflow float64 inside pymunk.
+MAX_MAGNITUDE = 1e6
+
+
+class FieldTypeError(TypeError, ValueError):
+    """A config field or argument has the wrong type."""
 
 
 def dataclass_from_dict(cls: type, d: Any, where: str) -> Any:
@@ -12,9 +26,9 @@ def dataclass_from_dict(cls: type, d: Any, where: str) -> Any:
     if isinstance(d, cls):
         return d
     if not isinstance(d, dict):
-        raise ValueError(f"{where}: expected a dict for {cls.__name__}, got {type(d).__name__}")
+        raise FieldTypeError(f"{where}: expected a dict for {cls.__name__}, got {type(d).__name__}")
     names = {f.name for f in dataclasses.fields(cls)}
-    unknown = sorted(set(d) - names)
+    unknown = sorted(set(d) - names, key=repr)
     if unknown:
         raise ValueError(
             f"{where}: unknown key(s) {unknown} for {cls.__name__}; expected a subset of {sorted(names)}"
@@ -22,14 +36,43 @@ def dataclass_from_dict(cls: type, d: Any, where: str) -> Any:
     return cls(**d)
 
 
+def _is_real(v: Any) -> bool:
+    return isinstance(v, numbers.Real) and not isinstance(v, bool) and type(v).__name__ != "bool_"
+
+
+def check_number(
+    where: str, name: str, v: Any, lo: float = -MAX_MAGNITUDE, hi: float = MAX_MAGNITUDE,
+    *, lo_open: bool = False, integer: bool = False,
+) -> None:
+    """``v`` must be a real number (an integer if ``integer``) in ``[lo, hi]`` (``(lo, hi]`` if
+    ``lo_open``); raises :class:`FieldTypeError` for a wrong type, ``ValueError`` for a bad value."""
+    kind = "an integer" if integer else "a finite number"
+    if not _is_real(v) or (integer and not isinstance(v, numbers.Integral)):
+        raise FieldTypeError(f"{where}: {name} must be {kind}, got {type(v).__name__} {v!r}")
+    f = float(v)
+    if not math.isfinite(f) or not ((f > lo) if lo_open else (f >= lo)) or f > hi:
+        if lo_open:
+            bounds = f"> {lo:g} and <= {hi:g}"
+        elif hi == math.inf or hi >= 1e300:
+            bounds = f">= {lo:g}"
+        else:
+            bounds = f"in [{lo:g}, {hi:g}]"
+        what = f"{kind} " if integer or not math.isfinite(f) else ""
+        raise ValueError(f"{where}: {name} must be {what}{bounds}, got {v!r}")
+
+
+def check_bool(where: str, name: str, v: Any) -> None:
+    if not isinstance(v, bool) and type(v).__name__ != "bool_":
+        raise FieldTypeError(f"{where}: {name} must be True or False, got {type(v).__name__} {v!r}")
+
+
 def check_finite(where: str, **values: float) -> None:
+    """Each value is a real number with ``|v| <= MAX_MAGNITUDE``."""
     for name, v in values.items():
-        if not isinstance(v, int | float) or not math.isfinite(v):
-            raise ValueError(f"{where}: {name} must be a finite number, got {v!r}")
+        check_number(where, name, v)
 
 
 def check_positive(where: str, **values: float) -> None:
-    check_finite(where, **values)
+    """Each value is a real number in ``(0, MAX_MAGNITUDE]``."""
     for name, v in values.items():
-        if v <= 0:
-            raise ValueError(f"{where}: {name} must be > 0, got {v!r}")
+        check_number(where, name, v, 0.0, lo_open=True)

@@ -28,6 +28,10 @@ from functools import cached_property
 import numba
 import numpy as np
 
+from detectors._numba_cache import ensure_cache_dir
+
+ensure_cache_dir(__file__.rsplit('/', 1)[0])  # before the @njit(cache=True) below: read-only installs
+
 __all__ = ["HitKind", "LidarSpec", "cast_scan", "scan_shapes", "polygon_edges"]
 
 
@@ -66,18 +70,20 @@ class LidarSpec:
     dropout_prob: float = 0.0
 
     def __post_init__(self) -> None:
-        if not (isinstance(self.n_beams, int | np.integer) and self.n_beams >= 3):
-            raise ValueError(f"LidarSpec.n_beams must be an integer >= 3, got {self.n_beams!r}")
-        if not (math.isfinite(self.range_min) and self.range_min >= 0):
-            raise ValueError(f"LidarSpec.range_min must be finite and >= 0 m, got {self.range_min!r}")
-        if not (math.isfinite(self.range_max) and self.range_max > self.range_min):
+        from kin_envs.core._validate import check_number
+
+        w = "LidarSpec"
+        # 100k beams is far past any real 2D lidar; the bound keeps the (n_robots, n_beams) arrays sane
+        check_number(w, "n_beams", self.n_beams, 3, 100_000, integer=True)
+        check_number(w, "range_min", self.range_min, 0.0, 1e4)
+        check_number(w, "range_max", self.range_max, 0.0, 1e4, lo_open=True)
+        if not self.range_max > self.range_min:
             raise ValueError(
-                f"LidarSpec.range_max must be finite and > range_min={self.range_min} m, "
-                f"got {self.range_max!r}"
+                f"LidarSpec.range_max must be > range_min={self.range_min} m, got {self.range_max!r}"
             )
-        if not (math.isfinite(self.noise_sigma) and self.noise_sigma >= 0):
-            raise ValueError(f"LidarSpec.noise_sigma must be >= 0 (relative), got {self.noise_sigma!r}")
-        if not (0.0 <= self.dropout_prob < 1.0):
+        check_number(w, "noise_sigma", self.noise_sigma, 0.0, 1.0)
+        check_number(w, "dropout_prob", self.dropout_prob, 0.0, 1.0)
+        if self.dropout_prob >= 1.0:
             raise ValueError(f"LidarSpec.dropout_prob must be in [0, 1), got {self.dropout_prob!r}")
 
     @property

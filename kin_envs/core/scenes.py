@@ -23,7 +23,15 @@ from typing import Any, ClassVar
 import numpy as np
 import pymunk
 
-from kin_envs.core._validate import check_finite, check_positive, dataclass_from_dict
+from kin_envs.core._validate import (
+    MAX_MAGNITUDE,
+    FieldTypeError,
+    check_bool,
+    check_finite,
+    check_number,
+    check_positive,
+    dataclass_from_dict,
+)
 from kin_envs.core.lidar import HitKind, LidarSpec
 
 __all__ = [
@@ -102,6 +110,7 @@ class Arena:
 
     def __post_init__(self) -> None:
         check_positive("Arena", width=self.width, height=self.height)
+        check_bool("Arena", "walls", self.walls)
 
     @property
     def half_extents(self) -> tuple[float, float]:
@@ -155,6 +164,7 @@ class _Obstacle:
     def _check_common(self) -> None:
         check_finite(self.kind, x=self.x, y=self.y, theta=getattr(self, "theta", 0.0))  # type: ignore[attr-defined]
         check_positive(self.kind, mass=self.mass)  # type: ignore[attr-defined]
+        check_bool(self.kind, "movable", self.movable)  # type: ignore[attr-defined]
 
 
 @dataclass(frozen=True)
@@ -221,8 +231,9 @@ class Prism(_Obstacle):
 
     def __post_init__(self) -> None:
         self._check_common()
-        if not isinstance(self.sides, int | np.integer) or self.sides < 3:
-            raise ValueError(f"prism: sides must be an integer >= 3, got {self.sides!r}")
+        check_number("prism", "sides", self.sides, 3, math.inf, integer=True)
+        if self.sides > 64:
+            raise ValueError(f"prism: sides must be <= 64, got {self.sides!r}")
         check_positive("prism", width=self.width)
 
     def footprint(self):
@@ -247,8 +258,11 @@ class Polygon(_Obstacle):
 
     def __post_init__(self) -> None:
         self._check_common()
-        v = np.asarray(self.vertices, dtype=float)
-        if v.ndim != 2 or v.shape[1] != 2 or len(v) < 3 or not np.all(np.isfinite(v)):
+        try:
+            v = np.asarray(self.vertices, dtype=float)
+        except (TypeError, ValueError) as e:
+            raise ValueError(f"polygon: vertices must be (x, y) number pairs, got {self.vertices!r}") from e
+        if v.ndim != 2 or v.shape[1] != 2 or len(v) < 3 or not np.all(np.abs(v) <= MAX_MAGNITUDE):
             raise ValueError(f"polygon: vertices must be >= 3 finite (x, y) pairs, got {self.vertices!r}")
         object.__setattr__(self, "vertices", tuple((float(a), float(b)) for a, b in v))
         e = np.roll(v, -1, axis=0) - v
@@ -280,6 +294,7 @@ class Wall(_Obstacle):
     def __post_init__(self) -> None:
         check_finite("wall", x1=self.x1, y1=self.y1, x2=self.x2, y2=self.y2)
         check_positive("wall", thickness=self.thickness, mass=self.mass)
+        check_bool("wall", "movable", self.movable)
         if math.hypot(self.x2 - self.x1, self.y2 - self.y1) <= 0:
             raise ValueError(f"wall: endpoints must differ, got ({self.x1}, {self.y1}) twice")
 
@@ -383,8 +398,16 @@ class Scene:
     name: str = ""
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "robots", tuple(self.robots))
-        object.__setattr__(self, "obstacles", tuple(self.obstacles))
+        for name, cls in (("arena", Arena), ("robot", RobotSpec), ("lidar", LidarSpec), ("name", str)):
+            if not isinstance(getattr(self, name), cls):
+                raise FieldTypeError(
+                    f"scene.{name}: expected {cls.__name__}, got {type(getattr(self, name)).__name__}"
+                )
+        for name in ("robots", "obstacles"):
+            value = getattr(self, name)
+            if isinstance(value, str | bytes | dict) or not hasattr(value, "__iter__"):
+                raise FieldTypeError(f"scene.{name}: expected a sequence, got {type(value).__name__}")
+            object.__setattr__(self, name, tuple(value))
         for i, r in enumerate(self.robots):
             if not isinstance(r, Robot):
                 raise ValueError(f"scene.robots[{i}]: expected a Robot, got {type(r).__name__}")

@@ -16,18 +16,37 @@ only lidar queries see it.
 from __future__ import annotations
 
 import math
+import threading
 from dataclasses import dataclass, field
 
 import numpy as np
 import pymunk
 import pymunk.batch as pmbatch
 
-from kin_envs.core._validate import check_positive, dataclass_from_dict
+from kin_envs.core._validate import FieldTypeError, check_number, dataclass_from_dict
+from kin_envs.core.interrupts import atomic
 from kin_envs.core.lidar import HitKind, cast_scan, polygon_edges
 from kin_envs.core.odometry import Odometry, OdometrySpec
 from kin_envs.core.scenes import Robot, Scene
 
 __all__ = ["WorldConfig", "World", "Scan", "Contact", "LIDAR_QUERY_FILTER"]
+
+
+def _make_rng(seed) -> np.random.Generator:
+    """The world's RNG from ``seed``: ``None``, an integer >= 0, a ``SeedSequence`` or a ``Generator``
+    (used as is, shared with the caller)."""
+    if isinstance(seed, np.random.Generator):
+        return seed
+    if seed is None or isinstance(seed, np.random.SeedSequence):
+        return np.random.default_rng(seed)
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer):
+        raise FieldTypeError(
+            f"World: seed must be None, an integer >= 0 or a numpy Generator, "
+            f"got {type(seed).__name__} {seed!r}"
+        )
+    if seed < 0:
+        raise ValueError(f"World: seed must be >= 0, got {seed}")
+    return np.random.default_rng(int(seed))
 
 # Shape-filter categories. Lidar queries use category _QUERY and see housings, obstacles, walls
 # but never robot bodies (beams pass above them).
@@ -35,6 +54,22 @@ _BODY, _HOUSING, _OBSTACLE, _WALL, _QUERY = 1, 2, 4, 8, 16
 #: pymunk ShapeFilter that selects what a lidar sees (for oracle queries against ``world.space``).
 LIDAR_QUERY_FILTER = pymunk.ShapeFilter(categories=_QUERY, mask=_HOUSING | _OBSTACLE | _WALL)
 _BOUNDARY_THICKNESS = 1.0  # m; thick so nothing can be pushed through it
+#: Rows of a command whose largest magnitude exceeds this are scaled down to it (ratio kept) before
+#: any arithmetic, so no finite command can overflow to inf/NaN; the wheel limit then applies as usual.
+_COMMAND_CAP = 1e12
+
+_local = threading.local()
+
+
+def _buffers() -> tuple[pmbatch.Buffer, pmbatch.Buffer, pmbatch.Buffer]:
+    """This thread's three pymunk batch buffers (get, set, arbiters), shared by all its worlds.
+
+    pymunk never frees a ``Buffer``'s native arrays, so a buffer per world leaked ~10 kB per reset;
+    a world only uses them inside one call, so sharing them per thread is safe."""
+    bufs = getattr(_local, "buffers", None)
+    if bufs is None:
+        bufs = _local.buffers = (pmbatch.Buffer(), pmbatch.Buffer(), pmbatch.Buffer())
+    return bufs
 
 
 class Contact:
@@ -66,20 +101,25 @@ class WorldConfig:
     odometry: OdometrySpec = OdometrySpec()
 
     def __post_init__(self) -> None:
-        check_positive("WorldConfig", control_dt=self.control_dt, physics_dt=self.physics_dt)
-        if self.physics_dt > 0.05:
-            raise ValueError(f"WorldConfig.physics_dt must be <= 0.05 s, got {self.physics_dt!r}")
+        w = "WorldConfig"
+        check_number(w, "control_dt", self.control_dt, 0.0, 60.0, lo_open=True)
+        check_number(w, "physics_dt", self.physics_dt, 1e-5, 0.05)
         if self.physics_dt > self.control_dt:
             raise ValueError(
                 f"WorldConfig.physics_dt={self.physics_dt} s must be <= control_dt={self.control_dt} s"
             )
-        if self.floor_friction < 0 or self.iterations < 1:
-            raise ValueError("WorldConfig: floor_friction must be >= 0 and iterations >= 1")
+        if self.control_dt / self.physics_dt > 10_000:
+            raise ValueError(
+                f"WorldConfig: control_dt / physics_dt must be <= 10000 physics steps per step, got "
+                f"{self.control_dt} / {self.physics_dt}"
+            )
+        check_number(w, "floor_friction", self.floor_friction, 0.0, 100.0)
+        check_number(w, "iterations", self.iterations, 1, 1000, integer=True)
         if isinstance(self.odometry, dict):
-            spec = dataclass_from_dict(OdometrySpec, self.odometry, "WorldConfig")
+            spec = dataclass_from_dict(OdometrySpec, self.odometry, "WorldConfig.odometry")
             object.__setattr__(self, "odometry", spec)
         if not isinstance(self.odometry, OdometrySpec):
-            raise TypeError(f"WorldConfig.odometry must be an OdometrySpec, got {self.odometry!r}")
+            raise FieldTypeError(f"WorldConfig.odometry must be an OdometrySpec, got {self.odometry!r}")
 
     @property
     def substeps(self) -> int:
@@ -151,29 +191,63 @@ class World:
         config: WorldConfig | None = None,
     ) -> None:
         if not isinstance(scene, Scene):
-            raise ValueError(f"World: expected a Scene, got {type(scene).__name__}")
+            raise FieldTypeError(f"World: expected a Scene for scene, got {type(scene).__name__}")
+        if config is not None and not isinstance(config, WorldConfig):
+            raise FieldTypeError(f"World: config must be a WorldConfig or None, got {type(config).__name__}")
         self.scene = scene
         self.config = config or WorldConfig()
-        self.rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+        self.rng = _make_rng(seed)
+        with atomic():
+            self._build(scene)
+
+    def _build(self, scene: Scene, odometry_rng: np.random.Generator | None = None) -> None:
         self.time = 0.0
         self.n_robots = len(scene.robots)
         self.n_obstacles = len(scene.obstacles)
         self._build_space()
         self._build_lidar_geometry()
         self._commands = np.zeros((self.n_robots, 2))
-        self._batch_buf = pmbatch.Buffer()
-        self._set_buf = pmbatch.Buffer()
-        self._robot_ids = np.array([b.id for b in self.robot_bodies], dtype=np.uintp)
-        self._robot_slots: np.ndarray | None = None
-        self._control_slots = self._slots(
-            "_control_slots_", np.array([c.id for c in self._controls], np.uintp)
-        )
-        self._build_contact_lookup()
+        self._history: list[np.ndarray] = []  # applied commands of every step, for copies
+        self._index_bodies()
         self.contacts = np.zeros(self.n_robots, dtype=np.int8)
         # odometry draws from a child stream: its noise never shifts the lidar noise of the same seed
         self._odometry = Odometry(
-            self.poses, self.scene.robot.wheel_base, self.config.odometry, self.rng.spawn(1)[0]
+            self.poses, self.scene.robot.wheel_base, self.config.odometry,
+            self.rng.spawn(1)[0] if odometry_rng is None else odometry_rng,
         )
+
+    def _index_bodies(self) -> None:
+        """Lookups keyed by pymunk body ids (memory addresses: rebuilt after a copy)."""
+        self._robot_ids = np.array([b.id for b in self.robot_bodies], dtype=np.uintp)
+        self._robot_slots: np.ndarray | None = None
+        self._control_slots = None
+        self._control_slots = self._slots(
+            "_control_slots", np.array([c.id for c in self._controls], np.uintp)
+        )
+        self._body_owner = {b.id: owner for b, owner in self._owners}
+        self._build_contact_lookup()
+
+    # -- copies -----------------------------------------------------------------------------------
+    def __getstate__(self) -> dict:
+        """Plain state: the scene, config, RNG, and the commands applied since construction.
+
+        pymunk's own copies drop the solver's warm-start caches (contact and joint impulses), so a
+        copy stepped like the original would drift from it. The world is instead rebuilt from its
+        scene and every step is replayed, which is bit-exact (Chipmunk is deterministic). The cost
+        grows with the world's age: ~16 bytes per robot per step, and the replay's physics time.
+        """
+        hist = np.stack(self._history) if self._history else np.zeros((0, self.n_robots, 2))
+        return {"scene": self.scene, "config": self.config, "rng": self.rng, "history": hist,
+                "odometry": self._odometry}
+
+    def __setstate__(self, state: dict) -> None:
+        self.scene, self.config, self.rng = state["scene"], state["config"], state["rng"]
+        with atomic():
+            # a throwaway odometry stream for the replay (spawning from self.rng would change it)
+            self._build(self.scene, np.random.default_rng(0))
+            for commands in state["history"]:
+                self._advance(np.array(commands))
+        self._odometry = state["odometry"]
 
     # -- construction -----------------------------------------------------------------------------
     def _build_space(self) -> None:
@@ -186,7 +260,7 @@ class World:
         self.space = space
         self.robot_bodies: list[pymunk.Body] = []
         self._controls: list[pymunk.Body] = []
-        self._body_owner: dict[int, tuple[int, int]] = {}  # body id -> (Contact flag, index)
+        self._owners: list[tuple[pymunk.Body, tuple[int, int]]] = []  # body -> (Contact flag, index)
         moment = pymunk.moment_for_circle(spec.mass, 0.0, spec.body_radius)
         for i, r in enumerate(self.scene.robots):
             body = pymunk.Body(spec.mass, moment)
@@ -210,7 +284,7 @@ class World:
             space.add(body, shape, housing, control, pivot, gear)
             self.robot_bodies.append(body)
             self._controls.append(control)
-            self._body_owner[body.id] = (Contact.ROBOT, i)
+            self._owners.append((body, (Contact.ROBOT, i)))
         self.obstacle_bodies: list[pymunk.Body] = []
         for j, o in enumerate(self.scene.obstacles):
             kind, geom = o.footprint()
@@ -248,7 +322,7 @@ class World:
             shape.friction = 0.5
             space.add(shape)
             self.obstacle_bodies.append(body)
-            self._body_owner[body.id] = (Contact.WALL if is_wall else Contact.OBSTACLE, j)
+            self._owners.append((body, (Contact.WALL if is_wall else Contact.OBSTACLE, j)))
         if self.scene.arena.walls:
             hx, hy = self.scene.arena.half_extents
             t = _BOUNDARY_THICKNESS
@@ -263,7 +337,7 @@ class World:
                 shape.filter = pymunk.ShapeFilter(categories=_WALL, mask=_BODY | _OBSTACLE | _QUERY)
                 shape.friction = 0.5
                 space.add(shape)
-        self._body_owner[space.static_body.id] = (Contact.WALL, -1)
+        self._owners.append((space.static_body, (Contact.WALL, -1)))
 
     def _build_lidar_geometry(self) -> None:
         """Primitive arrays for the raycaster and the owner of each primitive.
@@ -327,7 +401,7 @@ class World:
     def _robot_rows(self) -> np.ndarray:
         """``(n_robots, 3)`` raw ``x, y, angle`` of the robot bodies in one batched pymunk call
         (a Python loop over bodies costs ~1 µs per robot)."""
-        buf = self._batch_buf
+        buf = _buffers()[0]
         buf.clear()
         pmbatch.get_space_bodies(self.space, self._STATE_FIELDS, buf)
         rows = np.frombuffer(buf.float_buf(), dtype=np.float64).reshape(-1, 3)
@@ -337,7 +411,8 @@ class World:
         """Rows of ``ids``' bodies in pymunk's batch order (fixed: bodies are never added or removed)."""
         slots = getattr(self, name, None)
         if slots is None:
-            buf = pmbatch.Buffer()
+            buf = _buffers()[0]
+            buf.clear()
             pmbatch.get_space_bodies(self.space, pmbatch.BodyFields.BODY_ID, buf)
             where = {int(b): k for k, b in enumerate(np.frombuffer(buf.int_buf(), dtype=np.uintp))}
             slots = np.array([where[int(b)] for b in ids], dtype=np.int64)
@@ -395,7 +470,12 @@ class World:
         return np.stack([c[:, 0] - half, c[:, 0] + half], axis=1) / spec.wheel_radius
 
     def _check_commands(self, commands, what: str) -> np.ndarray:
-        c = np.asarray(commands, dtype=np.float64)
+        try:
+            c = np.asarray(commands, dtype=np.float64)
+        except (TypeError, ValueError) as e:
+            raise FieldTypeError(
+                f"World.step: {what} must be an ({self.n_robots}, 2) array of numbers, got {commands!r:.200}"
+            ) from e
         if c.shape != (self.n_robots, 2):
             raise ValueError(f"World.step: {what} must have shape ({self.n_robots}, 2), got {c.shape}")
         if not np.all(np.isfinite(c)):
@@ -403,6 +483,11 @@ class World:
             raise ValueError(
                 f"World.step: {what}[{bad[0]}, {bad[1]}] is {c[tuple(bad)]}; expected finite numbers"
             )
+        # huge finite values (1e308) would overflow to inf and NaN in the conversions below: scale
+        # such rows down with their ratio kept (the wheel limit scales them further anyway)
+        peak = np.max(np.abs(c), axis=1, keepdims=True) if self.n_robots else np.zeros((0, 1))
+        if np.any(peak > _COMMAND_CAP):
+            c = c * np.minimum(1.0, _COMMAND_CAP / peak)
         return c
 
     def step(self, commands=None, wheel_speeds=None) -> None:
@@ -414,7 +499,8 @@ class World:
             wheel_speeds: ``(n_robots, 2)`` left and right wheel speeds, rad/s.
 
         Wheel speeds beyond ``RobotSpec.max_wheel_speed`` are scaled down together (keeping the
-        turning radius). Non-finite values or a wrong shape raise ``ValueError``.
+        turning radius), however large (any finite value is safe). Non-finite values, non-numbers or
+        a wrong shape raise ``ValueError``. Ctrl-C during a step takes effect when the step is done.
         """
         if (commands is None) == (wheel_speeds is None):
             raise ValueError("World.step: give exactly one of commands=(v, omega) or wheel_speeds=")
@@ -425,17 +511,25 @@ class World:
         limit = self.scene.robot.max_wheel_speed
         peak = np.max(np.abs(wheels), axis=1, keepdims=True) if self.n_robots else np.zeros((0, 1))
         wheels = wheels * np.minimum(1.0, limit / np.maximum(peak, 1e-12))
-        self._commands = self.wheel_speeds_to_unicycle(wheels)
+        applied = self.wheel_speeds_to_unicycle(wheels)
+        with atomic():
+            self._advance(applied)
+            self._history.append(applied)
+
+    def _advance(self, applied: np.ndarray) -> None:
+        """The physics of one step with the limited ``(v, omega)`` commands ``applied``."""
+        self._commands = applied
         dt = self.config.physics_dt
-        v, omega = self._commands[:, 0], self._commands[:, 1]
-        buf, rs, cs = self._batch_buf, self._slots("_robot_slots", self._robot_ids), self._control_slots
+        v, omega = applied[:, 0], applied[:, 1]
+        get_buf, set_buf, _ = _buffers()
+        rs, cs = self._slots("_robot_slots", self._robot_ids), self._control_slots
         odom = self._odometry
         odom.begin_step()
         for _ in range(self.config.substeps):
             # one batched read and write per substep instead of ~3 pymunk attribute calls per robot
-            buf.clear()
-            pmbatch.get_space_bodies(self.space, self._DRIVE_GET, buf)
-            rows = np.frombuffer(buf.float_buf(), dtype=np.float64).reshape(-1, 4)  # angle, vx, vy, w
+            get_buf.clear()
+            pmbatch.get_space_bodies(self.space, self._DRIVE_GET, get_buf)
+            rows = np.frombuffer(get_buf.float_buf(), dtype=np.float64).reshape(-1, 4)  # angle, vx, vy, w
             heading = rows[rs, 0]
             # pymunk moves bodies with the velocity they have now (positions are integrated first in a
             # step), so this is the motion the wheel encoders are about to measure
@@ -445,8 +539,8 @@ class World:
             vel[cs, 0] = v * np.cos(heading)
             vel[cs, 1] = v * np.sin(heading)
             vel[cs, 2] = omega
-            self._set_buf.set_float_buf(vel)
-            pmbatch.set_space_bodies(self.space, self._DRIVE_SET, self._set_buf)
+            set_buf.set_float_buf(vel)
+            pmbatch.set_space_bodies(self.space, self._DRIVE_SET, set_buf)
             self.space.step(dt)
         odom.end_step()
         self.time += self.config.substeps * dt
@@ -477,11 +571,10 @@ class World:
         owners = [self._body_owner[int(b)] for b in self._owner_ids]
         self._owner_flag = np.array([f for f, _ in owners], dtype=np.int8)
         self._owner_robot = np.array([i if f == Contact.ROBOT else -1 for f, i in owners], dtype=np.int64)
-        self._arb_buf = pmbatch.Buffer()
 
     def _update_contacts(self) -> None:
         """What each robot touches now, from pymunk's arbiters in one batched call."""
-        buf = self._arb_buf
+        buf = _buffers()[2]
         buf.clear()
         pmbatch.get_space_arbiters(
             self.space, pmbatch.ArbiterFields.BODY_A_ID | pmbatch.ArbiterFields.BODY_B_ID, buf
@@ -500,6 +593,16 @@ class World:
         self.contacts = contacts
 
     # -- sensing ----------------------------------------------------------------------------------
+    def _check_robots(self, robots) -> np.ndarray:
+        idx = np.asarray(robots).reshape(-1)
+        if idx.size == 0:
+            return idx.astype(np.int64)
+        if idx.dtype.kind not in "iu":  # 1.7 must not silently become robot 1
+            raise FieldTypeError(f"World.scan: robots must be integer robot indices, got {robots!r:.200}")
+        if idx.min() < 0 or idx.max() >= self.n_robots:
+            raise ValueError(f"World.scan: robot indices must be in [0, {self.n_robots}), got {idx.tolist()}")
+        return idx.astype(np.int64)
+
     def scan(self, robots=None, noise: bool = True) -> Scan:
         """Cast every beam of the given robots' lidars (default: all) in one vectorised call.
 
@@ -508,9 +611,7 @@ class World:
             noise: apply the lidar spec's range noise and dropouts, drawn from the world's RNG.
         """
         spec = self.scene.lidar
-        idx = np.arange(self.n_robots) if robots is None else np.asarray(robots, dtype=np.int64).reshape(-1)
-        if idx.size and (idx.min() < 0 or idx.max() >= self.n_robots):
-            raise ValueError(f"World.scan: robot indices must be in [0, {self.n_robots}), got {idx.tolist()}")
+        idx = np.arange(self.n_robots) if robots is None else self._check_robots(robots)
         all_poses = self.poses
         self._update_lidar_geometry(all_poses)
         poses = all_poses[idx]

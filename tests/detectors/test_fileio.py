@@ -1,6 +1,8 @@
 """detectors.fileio: atomic writes leave either the old file or the new one, never a partial one."""
 
 import hashlib
+import os
+import stat
 
 import pytest
 
@@ -20,6 +22,9 @@ def test_atomic_write_replaces_and_cleans_up(tmp_path):
         f.write(b"new")
     assert p.read_bytes() == b"new"
     assert sha256_file(p) == hashlib.sha256(b"new").hexdigest()
+    mask = os.umask(0o022)
+    os.umask(mask)
+    assert stat.S_IMODE(p.stat().st_mode) == 0o666 & ~mask  # not mkstemp's private 0600
 
 
 def test_atomic_write_errors(tmp_path):

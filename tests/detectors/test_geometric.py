@@ -91,8 +91,10 @@ def test_kin_is_accepted_at_its_true_position(dist, bearing_deg):
     assert det.range == pytest.approx(dist, abs=1e-6)
     # compare on the circle: at 180 degrees a rounding can land on either side of the cut
     assert abs(math.remainder(det.bearing - math.atan2(cy, cx), 2 * math.pi)) < 1e-6
-    assert det.score == pytest.approx(rep.metrics["F"])
-    assert det.score < 1e-7  # metres, summed over the beams
+    assert rep.metrics["F"] < 1e-7  # metres, summed over the beams
+    # higher = more kin-like: F_threshold / (F_threshold + F), >= 0.5 exactly when the shape filter passes
+    assert det.score == pytest.approx(0.006 / (0.006 + rep.metrics["F"]), rel=1e-12)
+    assert det.score > 0.9999
     assert det.n_beams == rep.segment.n_beams >= 3
     for key in ("d_cest", "omega_min", "omega_max", "F", "r_c", "theta_c"):
         assert key in rep.metrics
@@ -451,7 +453,8 @@ def test_paper_scenario_2_at_half_metre():
 
 def test_preprocess_non_finite_to_max_and_clip():
     d = preprocess(np.array([1.0, np.inf, np.nan, 15.0, 0.0]), d_max=12.0)
-    assert d.tolist() == [1.0, 12.0, 12.0, 12.0, 0.0]
+    # 0.0 is the RPLIDAR's invalid reading: no return, like inf and NaN (issue 15)
+    assert d.tolist() == [1.0, 12.0, 12.0, 12.0, 12.0]
 
 
 def test_noise_filter_removes_single_beam_spike():

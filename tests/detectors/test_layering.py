@@ -1,7 +1,8 @@
 """The layering rule: ``detectors`` runs on any 2D scan without the simulator.
 
 Every module of ``detectors`` is imported, and both detectors run on a stored scan, in a subprocess in
-which importing ``kin_envs`` or ``pymunk`` raises. The scan (``tests/fixtures``) is the paper's
+which importing ``kin_envs`` or ``pymunk`` raises (and ``rosbags``: the optional ROS extra is imported
+only when a bag is read or written). The scan (``tests/fixtures``) is the paper's
 Scenario II at 0.8 m seen by robot 0: the kin (robot 1) shows 5 beams among 7 cm prisms.
 """
 
@@ -18,7 +19,7 @@ import numpy as np
 
 class Forbid(importlib.abc.MetaPathFinder):
     def find_spec(self, name, path=None, target=None):
-        if name.split(".")[0] in ("kin_envs", "pymunk"):
+        if name.split(".")[0] in ("kin_envs", "pymunk", "rosbags"):
             raise ImportError(f"detectors imported {name!r}: the layering rule forbids it")
         return None
 
@@ -38,7 +39,7 @@ for det in (detectors.GeometricKinDetector(), detectors.LearnedKinDetector()):
     assert len(batch) == ranges.shape[0]
     xy = [(d.x, d.y) for d in single.detections]
     print(type(det).__name__, len(xy), json.dumps(xy))
-print("imported:", sorted(k for k in sys.modules if k.split(".")[0] in ("kin_envs", "pymunk")))
+print("imported:", sorted(k for k in sys.modules if k.split(".")[0] in ("kin_envs", "pymunk", "rosbags")))
 """
 
 

@@ -90,8 +90,12 @@ def test_library_packages_log_and_never_print():
     for mod in (kin_envs, detectors, agents):
         handlers = logging.getLogger(mod.__name__).handlers
         assert any(isinstance(h, logging.NullHandler) for h in handlers), mod.__name__
+    # the command-line front ends print their output and one-line errors: that is what they are for
+    front_ends = {ROOT / "kin_envs" / "cli.py", ROOT / "kin_envs" / "commands.py"}
     for pkg in ("kin_envs", "detectors", "agents"):
         for path in (ROOT / pkg).rglob("*.py"):
+            if path in front_ends:
+                continue
             tree = ast.parse(path.read_text(), str(path))
             calls = [n.lineno for n in ast.walk(tree) if isinstance(n, ast.Call)
                      and isinstance(n.func, ast.Name) and n.func.id == "print"]

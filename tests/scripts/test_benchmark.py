@@ -20,13 +20,31 @@ def test_lidar_and_detector_sections(bench, tmp_path):
     for r in res["lidar"]:
         assert r["scans_per_s"] > 0 and r["naive_scans_per_s"] > 0
         assert r["ratio"] == pytest.approx(r["scans_per_s"] / r["naive_scans_per_s"])
-    assert {r["scene"] for r in res["detector"]} >= {
-        "paper_scenario_I_0.5m",
-        "random_arena_64_robots_50_obstacles",
-    }
+    geo = res["detector"][0]
+    assert geo["detector"] == "geometric" and geo["scans"] == 64
+    for k in ("arrays", "objects", "objects_reports", "old", "single_scan", "startup_s"):
+        assert geo[k] > 0, k
     saved = json.loads((tmp_path / "benchmark.json").read_text())
     assert saved["config"]["robots"] == [1, 4]
-    assert "| robots |" in (tmp_path / "benchmark.md").read_text()
+    md = (tmp_path / "benchmark.md").read_text()
+    assert "| robots |" in md and "previous implementation" in md and "Start-up" in md
+
+
+def test_env_and_memory_sections(bench, tmp_path):
+    pytest.importorskip("torch")
+    argv = ["--sections", "envs,memory", "--min-time", "0.03", "--env-robots", "4", "--memory-steps", "4"]
+    res = bench.main([*argv, "--memory-robots", "4", "--out", str(tmp_path)])
+    rows = {(r["env"], r["robots"], r["detector"]): r for r in res["envs"]}
+    assert set(rows) == {
+        (e, n, d)
+        for e, n in (("KinSeek-v0", 1), ("aggregation_v0", 4))
+        for d in ("None", "geometric", "learned")
+    }
+    assert all(r["steps_per_s"] > 0 for r in rows.values())
+    assert rows[("aggregation_v0", 4, "None")]["of_detector_off"] == 1.0
+    (mem,) = res["memory"]
+    assert mem["steps"] == 4 and mem["peak_rss_mb"] > 0 and mem["rss_end_mb"] > 0
+    assert "of detector off" in (tmp_path / "benchmark.md").read_text()
 
 
 def test_naive_baseline_matches_the_world_scan(bench):
@@ -43,3 +61,12 @@ def test_bad_arguments(bench, tmp_path):
         bench.main(["--sections", "gpu", "--out", str(tmp_path)])
     with pytest.raises(SystemExit):
         bench.main(["--min-time", "0", "--out", str(tmp_path)])
+
+
+def test_ros_section(bench, tmp_path):
+    pytest.importorskip("rosbags")
+    res = bench.bench_ros(0.01, steps=3)
+    assert [r["storage"] for r in res] == ["mcap", "sqlite3", "ros1"]
+    for r in res:
+        assert r["record_steps_per_s"] > 0 and r["read_scans_per_s"] > 0 and r["detect_scans_per_s"] > 0
+    assert "| bag | record steps/s" in bench.to_markdown({"ros": res})

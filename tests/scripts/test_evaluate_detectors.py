@@ -43,12 +43,14 @@ def test_tiny_sweep_writes_tables_json_and_plots(mod, tmp_path):
         assert heading in md
     assert "| geometric | II | 0.5 m | yes | 1 × cylinder r=3.5 cm (kin radius) |" in md
     assert "seeds 1000000–1000002" in md
+    assert "timed warm" in md and "Start-up" in md  # compilation is not in the scans/s
     for png in ("f1_vs_distance.png", "centre_error_vs_distance.png"):
         data = (tmp_path / png).read_bytes()
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 10_000
     results = json.loads((tmp_path / "results.json").read_text())  # strict JSON: NaN written as null
     assert set(results["detectors"]) == set(evals)
     assert len(results["detectors"]["geometric"]["per_distance"]["0.01"]) == 9
+    assert results["detectors"]["geometric"]["startup_seconds"] > 0
     run = json.loads((tmp_path / "run.json").read_text())
     assert run["seeds"]["first"] == 1_000_000 and run["seeds"]["count"] == 3
     assert run["noise_levels"] == [0.0, 0.01] and run["scene_config"]["n_kin"] == 3

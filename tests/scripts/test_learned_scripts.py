@@ -103,3 +103,52 @@ def test_make_dataset_ray_backend_gives_the_local_shards(dataset, tmp_path):
             np.testing.assert_array_equal(a[key], b[key])
     ma, mb = (json.loads((d / "manifest.json").read_text()) for d in (dataset, ray_out))
     assert ma["counts"] == mb["counts"] and ma["seeds"] == mb["seeds"] and ma["shards"] == mb["shards"]
+
+
+# --- issue 16 (point 1): a dataset never lies -------------------------------------------------------
+
+
+def test_rerun_into_a_dataset_needs_overwrite_and_never_mixes_runs(dataset, tmp_path):
+    import shutil
+
+    from kin_envs.detection.dataset import load_dataset
+
+    out = tmp_path / "ds"
+    shutil.copytree(dataset, out)
+    refused = run("make_dataset.py", "--out", out, "--scenes", 2, "--first-seed", 50, check=False)
+    assert refused.returncode == 2 and "--overwrite" in refused.stderr
+    run("make_dataset.py", "--out", out, "--scenes", 2, "--shard-scenes", 1, "--first-seed", 50,
+        "--overwrite")
+    assert sorted(p.name for p in out.iterdir()) == ["manifest.json", "shard_00000.npz", "shard_00001.npz"]
+    segs, _, manifest = load_dataset(out)
+    assert manifest["seeds"] == {"first": 50, "count": 2}
+    assert len(segs["label"]) == manifest["counts"]["segments"]
+    (out / "notes.txt").write_text("mine")
+    kept = run("make_dataset.py", "--out", out, "--scenes", 1, "--overwrite", check=False)
+    assert kept.returncode == 2 and "notes.txt" in kept.stderr and (out / "manifest.json").exists()
+
+
+def test_damaged_or_swapped_shards_are_named(dataset, tmp_path):
+    import shutil
+
+    from kin_envs.detection.dataset import load_dataset
+
+    out = tmp_path / "ds"
+    shutil.copytree(dataset, out)
+    shard = out / "shard_00001.npz"
+    good = shard.read_bytes()
+    shard.write_bytes(good[: len(good) // 2])  # cut off mid-write
+    with pytest.raises(ValueError, match=r"shard_00001\.npz.*SHA-256"):
+        load_dataset(out)
+    shard.write_bytes((out / "shard_00000.npz").read_bytes())  # a shard from another run
+    with pytest.raises(ValueError, match=r"shard_00001\.npz"):
+        load_dataset(out)
+    # a manifest edited to match a truncated shard: the reader still names the file
+    manifest = json.loads((out / "manifest.json").read_text())
+    from detectors.fileio import sha256_file
+
+    shard.write_bytes(good[: len(good) // 2])
+    manifest["shards"][1]["sha256"] = sha256_file(shard)
+    (out / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(ValueError, match=r"shard_00001\.npz: unreadable dataset shard"):
+        load_dataset(out)

@@ -6,6 +6,8 @@ import numpy as np
 import pytest
 
 from detectors.features import FEATURE_VERSION, FeatureConfig, feature_names, segment_batch
+from detectors.fileio import sha256_file
+from detectors.samples import DATASET_FORMAT_VERSION
 from kin_envs import HitKind, World
 from kin_envs.detection.dataset import (
     CATEGORIES,
@@ -115,10 +117,12 @@ def write_tiny(tmp_path, feature_version=FEATURE_VERSION):
                         **{f"obj_{k}": v for k, v in objs.items()})  # fmt: skip
     manifest = {
         "format": DATASET_FORMAT,
+        "format_version": DATASET_FORMAT_VERSION,
         "feature_version": feature_version,
         "feature_config": FeatureConfig().to_dict(),
         "feature_names": feature_names(),
-        "shards": [{"file": "s.npz"}],
+        "shards": [{"file": "s.npz", "n_segments": len(segs["label"]), "n_objects": len(objs["row"]),
+                    "sha256": sha256_file(tmp_path / "s.npz")}],
     }
     (tmp_path / "manifest.json").write_text(json.dumps(manifest))
     return segs

@@ -1,0 +1,365 @@
+"""Compiled (numba) kernels of the batch-first detector paths.
+
+One pass per stage over *all* scans of a batch, writing flat per-segment arrays: pre-processing
+(paper 4.1), segmentation (4.2), the diameter filter (4.3.1) and the known-radius circle fit
+(4.3.2, the same Levenberg-Marquardt iteration as :func:`detectors.geometric.fit_circle`). The
+numpy functions of :mod:`detectors.geometric` stay the readable one-segment reference; tests check
+that both agree.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+# Segment stage codes shared by both detectors (detectors.base.STAGES names them).
+ACCEPTED, DIAMETER, TOO_FEW_POINTS, SHAPE, LEARNED = 0, 1, 2, 3, 4
+
+_TWO_PI = 2.0 * math.pi
+_HALF_PI = 0.5 * math.pi
+
+
+@numba.njit(cache=True, nogil=True)
+def preprocess_rows(r, d_max, d_th, circular, noise_filter, out):
+    """Paper 4.1 on every row of ``r`` into ``out``: 0.0, negative, NaN and inf -> ``d_max``
+    (a real RPLIDAR reports 0.0 for an invalid reading), clip at ``d_max``, optional spike filter
+    (as :func:`detectors.geometric.preprocess`)."""
+    n_rows, n = r.shape
+    row = np.empty(n)
+    for b in range(n_rows):
+        for i in range(n):
+            v = r[b, i]
+            # NaN fails both comparisons, inf the second
+            row[i] = v if (v > 0.0 and v < d_max) else d_max
+        if not noise_filter:
+            out[b, :] = row
+            continue
+        for i in range(n):
+            d = row[i]
+            if circular:
+                a = row[i - 1] if i > 0 else row[n - 1]
+                c = row[i + 1] if i < n - 1 else row[0]
+            else:
+                a = row[i - 1] if i > 0 else row[0]
+                c = row[i + 1] if i < n - 1 else row[n - 1]
+            up = d - a
+            down = d - c
+            if (up > d_th and down > d_th) or (up < -d_th and down < -d_th):
+                d = max(min(a, d), min(max(a, d), c))  # median of three
+            out[b, i] = d
+
+
+@numba.njit(cache=True, nogil=True)
+def segment_rows(d, d_th, d_max, circular, scan, first, count, prev, nxt, prev_nearer, next_nearer):
+    """Paper 4.2 (eq. 1) on every row of pre-processed ``d`` (B, n), as
+    :func:`detectors.geometric.segment`: maximal runs of beams ``< d_max`` without a break
+    ``|d_i - d_{i-1}| > d_th`` (no return reads ``d_max + 2 d_th``, so a change between return and
+    no return is always a break). Output arrays hold at least ``B * n`` entries; returns the number
+    of segments written (scan 0's first, each scan's in order of first beam)."""
+    n_rows, n = d.shape
+    hi = d_max + 2.0 * d_th
+    brk = np.empty(n, dtype=np.bool_)
+    s = 0
+    for b in range(n_rows):
+        prev_e = d[b, n - 1] if d[b, n - 1] < d_max else hi
+        all_valid = True
+        for i in range(n):
+            e = d[b, i] if d[b, i] < d_max else hi
+            if i == 0 and not circular:
+                brk[i] = True
+            else:
+                brk[i] = abs(e - prev_e) > d_th
+            prev_e = e
+            if not d[b, i] < d_max:
+                all_valid = False
+        s0 = s
+        for f in range(n):
+            if not (brk[f] and d[b, f] < d_max):
+                continue
+            k = f
+            c = 1
+            # a valid beam without a break after it continues onto the (valid) next beam
+            nk = k + 1 if k < n - 1 else 0
+            while not brk[nk]:
+                k = nk
+                nk = k + 1 if k < n - 1 else 0
+                c += 1
+            scan[s] = b
+            first[s] = f
+            count[s] = c
+            if circular:
+                p = (f - 1) % n
+                q = (k + 1) % n
+            else:
+                p = f - 1
+                q = k + 1 if k < n - 1 else -1
+            prev[s] = p
+            nxt[s] = q
+            prev_nearer[s] = p >= 0 and d[b, p] < d[b, f]
+            next_nearer[s] = q >= 0 and d[b, q] < d[b, k]
+            s += 1
+        if s == s0 and all_valid:  # a ring without any break (round room): one segment
+            scan[s] = b
+            first[s] = 0
+            count[s] = n
+            prev[s] = -1
+            nxt[s] = -1
+            prev_nearer[s] = False
+            next_nearer[s] = False
+            s += 1
+    return s
+
+
+def segment_arrays(d: np.ndarray, d_th: float, d_max: float, circular: bool) -> tuple[np.ndarray, ...]:
+    """Flat segments of pre-processed scans ``d`` (B, n) with :func:`segment_rows`: ``(scan, first,
+    count, prev, next, prev_nearer, next_nearer)`` arrays (int64 x 5, bool x 2)."""
+    cap = d.shape[0] * d.shape[1]
+    out = tuple(np.empty(cap, dtype=np.int64) for _ in range(5)) + (
+        np.empty(cap, dtype=np.bool_),
+        np.empty(cap, dtype=np.bool_),
+    )
+    s = segment_rows(d, d_th, d_max, circular, *out)
+    return tuple(x[:s].copy() for x in out)
+
+
+@numba.njit(cache=True, inline="always")
+def _half_width(d_cest, alpha):
+    # eqs. 4-5 half-widths; an angle >= 90 deg from the min beam bounds no finite diameter
+    return d_cest * math.tan(alpha) if alpha < _HALF_PI else math.inf
+
+
+@numba.njit(cache=True, nogil=True)
+def lm_fit(px, py, n, r, rc, tc, max_iter, xtol, lam0, lam_max):
+    """:func:`detectors.geometric._lm_scalar` compiled: known-radius circle fit of the first ``n``
+    points (Cartesian ``px, py``) from the polar centre ``(rc, tc)``. Same iteration, so the same
+    fit up to rounding. Returns ``(r_c, theta_c (not wrapped), sum |e_i|)``."""
+    a11, a12, a22, g1, g2, cost, sabs = _lm_eval(px, py, n, r, rc, tc)
+    lam = lam0
+    nu = 2.0
+    s1 = a11
+    s2 = a22
+    tol2 = (xtol * rc) ** 2
+    for _ in range(max_iter):
+        s1 = max(s1, a11)
+        s2 = max(s2, a22)
+        m11 = a11 + lam * s1
+        m22 = a22 + lam * s2
+        det = m11 * m22 - a12 * a12
+        if not det > 0.0:
+            break
+        drc = (a12 * g2 - m22 * g1) / det
+        dtc = (a12 * g1 - m11 * g2) / det
+        if not drc * drc + (dtc * rc) ** 2 > tol2:
+            break
+        b11, b12, b22, h1, h2, new_cost, new_sabs = _lm_eval(px, py, n, r, rc + drc, tc + dtc)
+        gain = cost - new_cost
+        if gain > 0.0:
+            rho = gain / (drc * (lam * s1 * drc - g1) + dtc * (lam * s2 * dtc - g2))
+            lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+            nu = 2.0
+            rc = rc + drc
+            tc = tc + dtc
+            a11, a12, a22, g1, g2, cost, sabs = b11, b12, b22, h1, h2, new_cost, new_sabs
+        else:
+            lam *= nu
+            nu *= 2.0
+            if lam > lam_max:
+                break
+    return rc, tc, sabs
+
+
+@numba.njit(cache=True, inline="always")
+def _lm_eval(px, py, n, r, rc, tc):
+    # points rotated by -theta_c put the centre at (r_c, 0): q = rotated point - centre,
+    # e = |q| - r; one cos/sin per evaluation instead of one per point
+    c = math.cos(tc)
+    s = math.sin(tc)
+    a11 = a12 = a22 = g1 = g2 = cost = sabs = 0.0
+    for k in range(n):
+        qx = px[k] * c + py[k] * s - rc
+        qy = py[k] * c - px[k] * s
+        nd = -math.sqrt(qx * qx + qy * qy)
+        e = -nd - r
+        jr = qx / nd
+        jt = rc * qy / nd
+        a11 += jr * jr
+        a12 += jr * jt
+        a22 += jt * jt
+        g1 += jr * e
+        g2 += jt * e
+        cost += e * e
+        sabs += abs(e)
+    return a11, a12, a22, g1, g2, cost, sabs
+
+
+@numba.njit(cache=True, inline="always")
+def wrap(a):
+    """Angle to (-pi, pi] (as :func:`detectors.base.wrap_angle` on arrays)."""
+    w = (a + math.pi) % _TWO_PI - math.pi
+    return w + _TWO_PI if w <= -math.pi else w
+
+
+@numba.njit(cache=True, nogil=True)
+def geometric_segments(
+    d,
+    ang,
+    sweep,
+    scan,
+    first,
+    count,
+    prev,
+    nxt,
+    prev_nearer,
+    next_nearer,
+    r,
+    F_threshold,
+    mean_metric,
+    occlusion_unbounded,
+    min_points,
+    max_iter,
+    xtol,
+    lam0,
+    lam_max,
+    stage,
+    min_beam,
+    d_cest,
+    omega_min,
+    omega_max,
+    F,
+    r_c,
+    theta_c,
+):
+    """Paper 4.3 for every segment: eqs. 2-5 (as :func:`detectors.geometric.filter_by_diameter`),
+    then for candidates with ``>= min_points`` beams the eq. 6-7 fit and the shape decision.
+    Writes the stage code and the stage numbers of segment ``i`` into row ``i`` of the outputs
+    (``F``, ``r_c``, ``theta_c`` NaN where there was no fit)."""
+    n_beams = ang.shape[0]
+    cos_a = np.cos(ang)
+    sin_a = np.sin(ang)
+    px = np.empty(n_beams)
+    py = np.empty(n_beams)
+    diameter = 2.0 * r
+    for i in range(scan.shape[0]):
+        b = scan[i]
+        f = first[i]
+        n = count[i]
+        kmin = 0
+        dmin = d[b, f]
+        j = f
+        for k in range(n):
+            v = d[b, j]
+            px[k] = v * cos_a[j]
+            py[k] = v * sin_a[j]
+            if v < dmin:  # the first minimum in scan order, as np.argmin
+                dmin = v
+                kmin = k
+            j = j + 1 if j < n_beams - 1 else 0
+        mb = (f + kmin) % n_beams
+        last = (f + n - 1) % n_beams
+        dc = dmin + r  # eq. 2
+        am = ang[mb]
+        # angles turned along the sweep from the first / previous beam to the min beam and from
+        # it to the last / next beam
+        o_min = _half_width(dc, ((ang[f] - am) * -sweep) % _TWO_PI) + _half_width(
+            dc, ((ang[last] - am) * sweep) % _TWO_PI
+        )
+        p = prev[i]
+        q = nxt[i]
+        h_p = math.inf
+        if not (p < 0 or (occlusion_unbounded and prev_nearer[i])):
+            h_p = _half_width(dc, ((ang[p] - am) * -sweep) % _TWO_PI)
+        h_q = math.inf
+        if not (q < 0 or (occlusion_unbounded and next_nearer[i])):
+            h_q = _half_width(dc, ((ang[q] - am) * sweep) % _TWO_PI)
+        o_max = h_p + h_q
+        min_beam[i] = mb
+        d_cest[i] = dc
+        omega_min[i] = o_min
+        omega_max[i] = o_max
+        F[i] = math.nan
+        r_c[i] = math.nan
+        theta_c[i] = math.nan
+        if o_min > diameter or not diameter < o_max:  # eq. 3
+            stage[i] = DIAMETER
+            continue
+        if n < min_points:
+            stage[i] = TOO_FEW_POINTS
+            continue
+        rc, tc, sabs = lm_fit(px, py, n, r, dc, am, max_iter, xtol, lam0, lam_max)  # eq. 7 start
+        err = sabs / n if mean_metric else sabs
+        F[i] = err
+        r_c[i] = rc
+        theta_c[i] = wrap(tc)
+        stage[i] = ACCEPTED if err < F_threshold else SHAPE
+
+
+@numba.njit(cache=True, nogil=True)
+def fit_centres(d, ang, scan, first, count, which, r, max_iter, xtol, lam0, lam_max, out):
+    """Observer-frame ``x, y`` of the circle fit (eq. 7 start at the first min beam) of the
+    segments ``which`` into ``out`` rows; one-beam segments get eq. 7's centre."""
+    n_beams = ang.shape[0]
+    px = np.empty(n_beams)
+    py = np.empty(n_beams)
+    for i in which:
+        b = scan[i]
+        f = first[i]
+        n = count[i]
+        kmin = 0
+        for k in range(n):
+            j = (f + k) % n_beams
+            px[k] = d[b, j] * math.cos(ang[j])
+            py[k] = d[b, j] * math.sin(ang[j])
+            if d[b, j] < d[b, (f + kmin) % n_beams]:
+                kmin = k
+        mb = (f + kmin) % n_beams
+        rc = d[b, mb] + r
+        tc = ang[mb]
+        if n >= 2:
+            rc, tc, _ = lm_fit(px, py, n, r, rc, tc, max_iter, xtol, lam0, lam_max)
+        tc = wrap(tc)
+        out[i, 0] = rc * math.cos(tc)
+        out[i, 1] = rc * math.sin(tc)
+
+
+@numba.njit(cache=True, nogil=True, fastmath=True)
+def mlp_forward(x, mean, std, weights, biases, sizes, out):
+    """``out = MLP((x - mean) / std)``: ReLU hidden layers, linear head, float32.
+
+    Layer ``l`` maps ``sizes[l]`` to ``sizes[l + 1]`` units with ``weights[l, :sizes[l + 1],
+    :sizes[l]]`` (``(out, in)``, zero-padded to one 3-D array) and ``biases[l, :sizes[l + 1]]``.
+    Rows go through in blocks of 64, activations stored transposed (unit, row) so that the inner
+    loops run over contiguous rows and compile to SIMD.
+    """
+    n_rows, n_in = x.shape
+    blk = 64
+    width = max(sizes.max(), n_in)
+    a = np.zeros((width, blk), dtype=np.float32)
+    h = np.zeros((width, blk), dtype=np.float32)
+    n_layers = weights.shape[0]
+    for s in range(0, n_rows, blk):
+        m = min(blk, n_rows - s)
+        for r_ in range(m):
+            for k in range(n_in):
+                a[k, r_] = (x[s + r_, k] - mean[k]) / std[k]
+        for li in range(n_layers):
+            k_in = sizes[li]
+            n_out = sizes[li + 1]
+            for j in range(n_out):
+                bj = biases[li, j]
+                for r_ in range(m):
+                    h[j, r_] = bj
+                for k in range(k_in):
+                    wjk = weights[li, j, k]
+                    for r_ in range(m):
+                        h[j, r_] += wjk * a[k, r_]
+                if li < n_layers - 1:
+                    for r_ in range(m):
+                        if h[j, r_] < 0.0:
+                            h[j, r_] = 0.0
+            a, h = h, a
+        n_out = sizes[n_layers]
+        for r_ in range(m):
+            for j in range(n_out):
+                out[s + r_, j] = a[j, r_]

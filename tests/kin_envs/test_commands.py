@@ -1,0 +1,189 @@
+"""The ``kin-envs`` console script (kin_envs.commands): record a bag, detect on it, errors."""
+
+import csv
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from detectors import GeometricKinDetector
+from kin_envs.commands import main
+
+pytest.importorskip("rosbags")
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture(scope="module")
+def swarm_bag(tmp_path_factory):
+    """A 3-robot aggregation episode (4 steps) recorded by the CLI, with direct detections per robot."""
+    d = tmp_path_factory.mktemp("cli")
+    bag = d / "swarm"
+    argv = [
+        "record",
+        str(bag),
+        "--env",
+        "aggregation_v0",
+        "--env-kwargs",
+        '{"n_robots": 3, "arena_size": 2.0}',
+    ]
+    assert main([*argv, "--steps", "4", "--seed", "1", "--quiet"]) == 0
+    return bag
+
+
+def test_entry_point_is_declared():
+    tomllib = pytest.importorskip("tomllib")  # Python >= 3.11
+    meta = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    assert meta["project"]["scripts"]["kin-envs"] == "kin_envs.commands:main"
+    assert any(r.startswith("rosbags") for r in meta["project"]["optional-dependencies"]["ros"])
+    assert "ros" in meta["project"]["optional-dependencies"]["all"][0]
+    assert not any("rosbags" in r for r in meta["project"]["dependencies"])  # optional, not core
+
+
+def test_record_writes_the_bag_and_its_run_record(swarm_bag):
+    run = json.loads(Path(str(swarm_bag) + ".run.json").read_text())
+    assert run["env"] == "aggregation_v0" and run["seed"] == 1 and run["steps"] == 4
+    assert run["command"].startswith("kin-envs record")
+    assert (swarm_bag / "metadata.yaml").is_file() and list(swarm_bag.glob("*.mcap"))
+
+
+def test_detect_jsonl_matches_the_detector_on_the_bag(swarm_bag, tmp_path):
+    from detectors.ros import read_scans
+
+    out = tmp_path / "d.jsonl"
+    argv = ["detect", str(swarm_bag), "--topic", "/robot_1/scan", "--odom", "/robot_1/ground_truth"]
+    assert main([*argv, "--out", str(out), "--truth", "/ground_truth/kin", "--quiet"]) == 0
+    rows = [json.loads(line) for line in out.read_text().splitlines()]
+    scans = list(read_scans(swarm_bag, "/robot_1/scan"))
+    assert len(rows) == len(scans) == 5
+    det = GeometricKinDetector()
+    for row, s in zip(rows, scans, strict=True):
+        assert row["stamp_ns"] == s.stamp_ns and row["frame_id"] == "robot_1/base_link"
+        assert row["pose"] is not None
+        direct = det.detect(s.ranges, s.angles).detections
+        # the command batches scans (detect_batch): equal to detect's results up to rounding
+        assert [d["n_beams"] for d in row["detections"]] == [d.n_beams for d in direct]
+        got = [v for d in row["detections"] for v in (d["x"], d["y"])]
+        assert got == pytest.approx([v for d in direct for v in (d.x, d.y)], abs=1e-12)
+        for d in row["detections"]:  # world coordinates from the odometry pose
+            p = row["pose"]
+            c, si = np.cos(p["yaw"]), np.sin(p["yaw"])
+            assert d["wx"] == pytest.approx(p["x"] + c * d["x"] - si * d["y"])
+            assert d["wy"] == pytest.approx(p["y"] + si * d["x"] + c * d["y"])
+            # no obstacles, no noise: every detection is a robot's housing, found to the micrometre
+            assert d["truth_error"] < 1e-5
+    assert sum(len(r["detections"]) for r in rows) >= 1  # robots 0 and 2 are in view in this arena
+
+
+def test_detect_csv_tf_and_markers(swarm_bag, tmp_path):
+    from detectors.ros import open_reader
+
+    out, markers = tmp_path / "d.csv", tmp_path / "markers.bag"
+    argv = ["detect", str(swarm_bag), "--topic", "/robot_1/scan", "--odom", "/tf", "--out", str(out)]
+    assert main([*argv, "--markers", str(markers), "--quiet"]) == 0
+    jl = tmp_path / "d.jsonl"
+    assert main(["detect", str(swarm_bag), "--topic", "/robot_1/scan", "--out", str(jl), "--quiet"]) == 0
+    per_scan = [len(json.loads(line)["detections"]) for line in jl.read_text().splitlines()]
+    with out.open() as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == sum(per_scan)
+    assert all(r["wx"] != "" and r["pose_yaw"] != "" for r in rows)
+    with open_reader(markers) as r:  # a ROS 1 bag: the scans and one MarkerArray per scan
+        topics = {t: (i.msgtype, i.msgcount) for t, i in r.topics.items()}
+        counts = [
+            len(r.deserialize(raw, c.msgtype).markers) - 1
+            for c, _, raw in r.messages([c for c in r.connections if c.topic.endswith("kin_detections")])
+        ]
+    assert topics["/robot_1/scan"] == ("sensor_msgs/msg/LaserScan", 5)
+    assert topics["/robot_1/scan/kin_detections"] == ("visualization_msgs/msg/MarkerArray", 5)
+    assert counts == per_scan
+
+
+def test_detect_learned_runs(swarm_bag, tmp_path):
+    pytest.importorskip("torch")
+    out = tmp_path / "l.jsonl"
+    assert (
+        main(
+            [
+                "detect",
+                str(swarm_bag),
+                "--topic",
+                "/robot_0/scan",
+                "--detector",
+                "learned",
+                "--out",
+                str(out),
+                "--quiet",
+            ]
+        )
+        == 0
+    )
+    assert len(out.read_text().splitlines()) == 5
+
+
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (["--topic", "/nope"], "no topic '/nope' in the bag; topics: /ground_truth/kin"),
+        (
+            ["--topic", "/robot_0/odom"],
+            "has message type nav_msgs/msg/Odometry, expected sensor_msgs/msg/LaserScan",
+        ),
+        (
+            ["--topic", "/robot_0/scan", "--odom", "/robot_0/scan"],
+            "expected nav_msgs/msg/Odometry or tf2_msgs",
+        ),
+        (["--topic", "/robot_0/scan", "--out", "x.txt"], "--out must end in .jsonl or .csv"),
+        (["--topic", "/robot_0/scan", "--checkpoint", "x.pt"], "--checkpoint applies to --detector learned"),
+        (["--topic", "/robot_0/scan", "--truth", "/ground_truth/kin"], "--truth needs --odom"),
+        (
+            ["--topic", "/robot_0/scan", "--odom", "/tf", "--truth", "/tf"],
+            "expected geometry_msgs/msg/PoseArray",
+        ),
+    ],
+)
+def test_detect_errors(swarm_bag, tmp_path, capsys, extra, message):
+    assert main(["detect", str(swarm_bag), *extra, "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "kin-envs detect: error:" in err and message in err
+    assert not list(tmp_path.iterdir())  # nothing written
+
+
+def test_detect_corrupt_and_missing_bags(tmp_path, capsys):
+    bad = tmp_path / "bad.bag"
+    bad.write_bytes(b"not a bag at all")
+    assert main(["detect", str(bad), "--topic", "/scan"]) == 2
+    assert "not a readable ROS bag" in capsys.readouterr().err
+    assert main(["detect", str(tmp_path / "none"), "--topic", "/scan"]) == 2
+    assert "no such bag" in capsys.readouterr().err
+
+
+def test_record_errors(tmp_path, capsys, swarm_bag):
+    assert main(["record", str(swarm_bag), "--env", "aggregation_v0", "--quiet"]) == 2
+    assert "already exists" in capsys.readouterr().err
+    assert main(["record", str(tmp_path / "x"), "--env", "kin_envs/Nope-v0", "--quiet"]) == 2
+    assert "--env 'kin_envs/Nope-v0'" in capsys.readouterr().err
+    assert not list(tmp_path.iterdir())
+
+
+def test_module_runs_as_a_script(swarm_bag):
+    out = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "kin_envs.commands",
+            "detect",
+            str(swarm_bag),
+            "--topic",
+            "/robot_2/scan",
+            "--quiet",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert out.returncode == 0, out.stderr
+    assert len(out.stdout.splitlines()) == 5 and "5 scans" in out.stderr
