@@ -1,4 +1,5 @@
-"""scripts/train_classifier.py writes to outputs/ by default; the shipped model only with --replace-shipped."""
+"""scripts/train_classifier.py writes to outputs/ by default; the shipped model only with
+--replace-shipped."""
 
 from __future__ import annotations
 
@@ -15,7 +16,8 @@ SHIPPED = tc.SHIPPED_CHECKPOINT
 
 
 def test_shipped_checkpoint_location():
-    assert SHIPPED.is_file() and SHIPPED.parent.name == "checkpoints" and SHIPPED.parent.parent.name == "detectors"
+    assert SHIPPED.is_file() and SHIPPED.parent.name == "checkpoints"
+    assert SHIPPED.parent.parent.name == "detectors"
 
 
 def test_checkpoint_in_the_shipped_folder_is_refused(tmp_path, capsys):
