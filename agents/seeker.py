@@ -56,9 +56,9 @@ class KinSeeker(Wanderer):
         stop_distance: stop when the detected kin's centre is this close, m.
         clearance: turn away when anything is this close within ±35° of the heading, m (wandering).
         memory: steps to keep steering toward a kin after it was last detected.
-        select: which detection to steer to: ``"score"`` the most circle-like (lowest shape
-            error; look-alike prisms and boxes fit a circle worse than a real housing) or
-            ``"nearest"``.
+        select: which detection to steer to: ``"score"`` the highest ``Detection.score`` (most
+            kin-like; for the geometric detector the most circle-like: look-alike prisms and boxes
+            fit a circle worse than a real housing) or ``"nearest"``.
         seed: seed of the wandering noise.
     """
 
@@ -103,7 +103,7 @@ class KinSeeker(Wanderer):
             )
         rng_, bearing, score = found
         if len(rng_):
-            j = 0 if self.select == "nearest" or np.isnan(score).any() else int(np.argmin(score))
+            j = 0 if self.select == "nearest" or np.isnan(score).any() else int(np.argmax(score))
             self._target, self._age = (float(rng_[j]), float(bearing[j])), 0
         elif self._target is not None:
             self._age += 1

@@ -48,6 +48,7 @@ from .geometric import (  # noqa: E402
     segment,
     shape_error,
 )
+from .tracking import KinTracker, Track, TrackerParams
 
 
 def __getattr__(name: str):
@@ -71,8 +72,11 @@ __all__ = [
     "GeometricParams",
     "KinDetector",
     "KinPosition",
+    "KinTracker",
     "Segment",
     "SegmentReport",
+    "Track",
+    "TrackerParams",
     "ShapeCheck",
     "circle_residuals",
     "filter_by_diameter",

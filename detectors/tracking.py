@@ -28,10 +28,12 @@ absorbs.
 5. *Kin probability*, in log-odds, from three cues (each documented in :class:`TrackerParams`):
 
    a. **detector score**: the frame's candidate score ``s`` (higher = more kin-like, in (0, 1)) adds
-      ``score_weight * (logit(s) - logit(score_prior))``. Frames of a static scene are strongly correlated
-      (the same object seen from almost the same place gives the same evidence), so the weight is < 1 and
-      the score part of the log-odds is clamped to ``±score_clamp``: repeating one ambiguous view cannot
-      make a track certain.
+      ``score_weight * (logit(s) - logit(score_prior))``; or, when the caller passes the detector's own
+      decisions at its operating point (``accepted``), ``accept_llr`` / ``reject_llr``: the detector's
+      operating point is then the calibration (a learned detector's thresholds depend on the noise).
+      Frames of a static scene are strongly correlated (the same object seen from almost the same place
+      gives the same evidence), so the steps are small and their sum is clamped to ``±score_clamp``:
+      repeating one ambiguous view cannot make a track certain.
    b. **accumulated outline**: the candidate's scan points, moved into the odometry frame (ego-motion
       compensated), accumulate (up to ``max_points``, newest kept) with their expected noise
       ``sigma_i = sqrt(shape_sigma**2 + (noise * d_i)**2)`` (``noise``: the frame's relative range noise,
@@ -45,9 +47,11 @@ absorbs.
       deviation ``shape_delta``" (``N(0, sigma_i^2 + shape_delta^2)``), summed over the points, scaled
       down to at most ``shape_n_cap`` points' worth (neighbouring points are not independent) and clamped
       to ``±shape_clamp``. It replaces (is not added to) the previous frame's shape cue: the outline is
-      one growing piece of evidence. With noise much larger than ``shape_delta`` it is honestly ~0. Once
-      a track has moved its points no longer share one frame, so its shape cue is frozen (the motion cue
-      has decided it anyway).
+      one growing piece of evidence. With noise much larger than ``shape_delta`` it is honestly ~0. Points
+      of a track with a significant velocity (beyond 2 standard deviations) are carried along it to the
+      current time, and their variance grows with that velocity's uncertainty times their age, so a moving
+      object's smeared history weighs little; other tracks are tested as static objects. Once a track has
+      moved (cue c) its outline is no evidence at all: the shape cue is set to 0.
    c. **motion**: static obstacles do not move in the odometry frame. A track whose filtered position has
       left the place where it was first seen by more than ``motion_dist`` (and by more than 3 standard
       deviations of the two positions' uncertainty plus the odometry drift since, which slides static
@@ -107,6 +111,9 @@ class TrackerParams:
         kin_prior: prior kin probability of a new track.
         score_prior: the score a candidate carries no evidence at (the detector's operating point).
         score_weight, score_clamp: weight of one frame's score log-odds, and the clamp of their sum.
+        accept_llr, reject_llr: with the detector's own decisions at its operating point (``accepted`` in
+            :meth:`KinTracker.update_batch`), the log-odds a frame adds for an accepted / rejected
+            candidate instead of the score's (detector-agnostic: no score calibration needed).
         shape_delta: RMS deviation of a 7 cm look-alike's outline from the housing circle, m (a hexagon's
             is ~2 mm, a triangle's ~8 mm).
         shape_sigma: per-point noise floor, m; range_noise: relative range noise used when a frame gives
@@ -122,17 +129,20 @@ class TrackerParams:
         static_time, static_penalty: a track seen this long (s) without moving, while another track has
             moved, gets this log-odds.
         kin_threshold: a confirmed track with ``kin_prob >= kin_threshold`` is reported as kin.
+        min_score: candidates scoring below this are dropped before association: a permissive detector
+            scores every segment, and those of walls slide along the wall as the observer moves, which
+            would read as motion.
     """
 
     r: float = 0.035
-    process_accel: float = 0.5
+    process_accel: float = 0.25
     meas_sigma: float = 0.01
     meas_sigma_rel: float = 0.01
     init_speed_sigma: float = 0.3
     gate_chi2: float = 9.21
     p_detect: float = 0.8
     clutter_ratio: float = 0.2
-    birth_existence: float = 0.5
+    birth_existence: float = 0.8
     confirm_existence: float = 0.8
     delete_existence: float = 0.1
     max_range: float = 5.0
@@ -140,21 +150,24 @@ class TrackerParams:
     score_prior: float = 0.5
     score_weight: float = 0.4
     score_clamp: float = 4.0
+    accept_llr: float = 1.0
+    reject_llr: float = -1.0
     shape_delta: float = 0.002
     shape_sigma: float = 0.0005
     range_noise: float = 0.01
     shape_n_cap: int = 60
     shape_min_points: int = 8
-    shape_clamp: float = 6.0
+    shape_clamp: float = 2.0
     odom_heading_rate: float = 0.045
     odom_position_rate: float = 0.005
     wheel_base: float = 0.16
     max_points: int = 120
     motion_dist: float = 0.1
     motion_gain: float = 6.0
-    static_time: float = 5.0
+    static_time: float = 3.0
     static_penalty: float = -6.0
     kin_threshold: float = 0.5
+    min_score: float = 0.1
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -168,6 +181,8 @@ class TrackerParams:
         for name in ("odom_heading_rate", "odom_position_rate"):  # 0: exact odometry
             if getattr(self, name) < 0:
                 raise ValueError(f"TrackerParams.{name} must be >= 0, got {getattr(self, name)!r}")
+        if not 0 <= self.min_score < 1:
+            raise ValueError(f"TrackerParams.min_score must be in [0, 1), got {self.min_score!r}")
         for name in ("p_detect", "birth_existence", "confirm_existence", "delete_existence", "kin_prior",
                      "score_prior", "kin_threshold"):  # fmt: skip
             if not 0 < getattr(self, name) < 1:
@@ -323,8 +338,9 @@ class KinTracker:
         self._anchor_odo = np.zeros(cap)  # the observer's odometer and the range when first seen
         self._anchor_rng = np.zeros(cap)
         self._alive = np.zeros(cap, bool)
-        # outline points, a ring: odometry-frame x, y; sensor sigma; range when seen; observer's odometer then
-        self._pts = np.zeros((cap, m, 5))
+        # outline points, a ring: odometry-frame x, y; sensor sigma; range when seen; observer's odometer
+        # and the time then
+        self._pts = np.zeros((cap, m, 6))
         self.odometer = np.zeros(self.n_observers)  # wheel travel so far, m (ages ego-motion errors)
         self._npts = np.zeros(cap, np.int64)
         self._head = np.zeros(cap, np.int64)
@@ -369,7 +385,7 @@ class KinTracker:
         self.update_batch(obs, xy, scores, delta, dt, pts, owner, None if noise is None else [noise])
 
     def update_batch(
-        self, obs, xy, scores, odom_delta, dt: float, points=None, owner=None, noise=None
+        self, obs, xy, scores, odom_delta, dt: float, points=None, owner=None, noise=None, accepted=None
     ) -> None:
         """Advance every observer by one frame.
 
@@ -382,6 +398,8 @@ class KinTracker:
             points: optional (P, 2) scan points of the candidates, their observer's robot frame, m ...
             owner: ... (P,) and the candidate each point belongs to.
             noise: optional (n_observers,) relative range noise of each observer's scan.
+            accepted: optional (k,) bool: the detector accepted the candidate at its operating point
+                (then the score cue uses ``accept_llr`` / ``reject_llr``, see :class:`TrackerParams`).
         """
         pr, N = self.params, self.n_observers
         obs = np.asarray(obs).reshape(-1)
@@ -411,6 +429,24 @@ class KinTracker:
         if noise.shape != (N,) or not np.all(np.isfinite(noise) & (noise >= 0)):
             raise ValueError(f"KinTracker: noise must be {N} relative range noises >= 0, got {noise!r}")
         obs = obs.astype(np.int64)
+        if accepted is not None:
+            accepted = np.asarray(accepted, dtype=bool).reshape(-1)
+            if accepted.shape[0] != k:
+                raise ValueError(
+                    f"KinTracker: accepted must have one flag per candidate ({k}), got {accepted.shape}"
+                )
+        if k and pr.min_score > 0:
+            keep = scores >= pr.min_score
+            if not keep.all():
+                if points is not None:  # renumber the kept candidates' points
+                    owner = np.asarray(owner).reshape(-1).astype(np.int64)
+                    new = np.cumsum(keep) - 1
+                    sel = keep[owner] if owner.size else np.zeros(0, bool)
+                    points = np.asarray(points, np.float64).reshape(-1, 2)[sel]
+                    owner = new[owner[sel]]
+                obs, xy, scores = obs[keep], xy[keep], scores[keep]
+                accepted = None if accepted is None else accepted[keep]
+                k = xy.shape[0]
         # ego-motion: each observer's new pose in its odometry frame
         c, s = np.cos(self.poses[:, 2]), np.sin(self.poses[:, 2])
         self.poses = np.c_[
@@ -434,7 +470,7 @@ class KinTracker:
         born = np.setdiff1d(np.arange(k), ci, assume_unique=True)
         tb = self._birth(z[born], obs[born], rng[born])
         tracks, cands = np.concatenate([ti, tb]), np.concatenate([ci, born])
-        self._score_cue(tracks, scores[cands])
+        self._score_cue(tracks, scores[cands], None if accepted is None else accepted[cands])
         if points is not None and len(tracks):
             self._outline_cue(tracks, cands, points, owner, obs, noise, cos, sin, k)
         self._existence(rows, hit[rows])
@@ -587,11 +623,14 @@ class KinTracker:
         self._anchor_rng[ti] = rng
         return ti
 
-    def _score_cue(self, ti: np.ndarray, scores: np.ndarray) -> None:
+    def _score_cue(self, ti: np.ndarray, scores: np.ndarray, accepted) -> None:
         # (a) the detector's score: correlated frames -> weight < 1, clamped sum
         pr = self.params
-        lo = self._lo_score[ti] + pr.score_weight * (_logit(scores) - _logit(pr.score_prior))
-        self._lo_score[ti] = np.clip(lo, -pr.score_clamp, pr.score_clamp)
+        if accepted is None:
+            step = pr.score_weight * (_logit(scores) - _logit(pr.score_prior))
+        else:
+            step = np.where(accepted, pr.accept_llr, pr.reject_llr)
+        self._lo_score[ti] = np.clip(self._lo_score[ti] + step, -pr.score_clamp, pr.score_clamp)
 
     def _outline_cue(self, ti, ci, points, owner, obs, noise, cos, sin, k) -> None:
         # (b) the accumulated outline relative to the track centre (ego-motion compensated)
@@ -613,9 +652,9 @@ class KinTracker:
         cstart = np.searchsorted(owner, np.arange(k + 1))
         _outline_kernel(
             ti, ci, np.ascontiguousarray(odom), sig, d, cstart, self._obs, self.odometer, self._moved,
-            self._pts, self._npts, self._head, self._fit_c, self._lo_shape, pr.r, pr.shape_delta**2,
-            float(pr.shape_n_cap), int(pr.shape_min_points), pr.shape_clamp, pr.odom_heading_rate**2,
-            pr.odom_position_rate**2,
+            self._pts, self._npts, self._head, self._fit_c, self._lo_shape, self._x, self._P, self.time,
+            pr.r, pr.shape_delta**2, float(pr.shape_n_cap), int(pr.shape_min_points),
+            pr.shape_clamp, pr.odom_heading_rate**2, pr.odom_position_rate**2,
         )  # fmt: skip
 
     def _existence(self, rows: np.ndarray, hit: np.ndarray) -> None:
@@ -725,16 +764,19 @@ class KinTracker:
 
 @numba.njit(cache=True, nogil=True)
 def _outline_kernel(ti, ci, pts, sig, dist, cstart, obs, odometer, moved, buf, npts, head, fit_c, lo_shape,
-                    r, delta2, n_cap, min_points, clamp, head_rate2, pos_rate2):  # fmt: skip
+                    x, P, now, r, delta2, n_cap, min_points, clamp, head_rate2, pos_rate2):  # fmt: skip
     """Append each updated track's candidate points (odometry frame) to its ring buffer, then refit its
     outline (warm-started at the last fit's centre) and set its shape cue. A track that has moved keeps
     its last shape cue: its points no longer share one frame, and the motion cue has decided it anyway."""
     m_max = buf.shape[1]
-    e, var, wgt = np.empty(m_max), np.empty(m_max), np.empty(m_max)
+    e, var, wgt, pp = np.empty(m_max), np.empty(m_max), np.empty(m_max), np.empty((m_max, 2))
     for j in range(ti.shape[0]):
         t, c = ti[j], ci[j]
         a, b = cstart[c], cstart[c + 1]
-        if b == a or moved[t]:
+        if moved[t]:  # a moving object's points share no frame: its outline is no evidence
+            lo_shape[t] = 0.0
+            continue
+        if b == a:
             continue
         for p in range(a, b):
             h = head[t]
@@ -743,6 +785,7 @@ def _outline_kernel(ti, ci, pts, sig, dist, cstart, obs, odometer, moved, buf, n
             buf[t, h, 2] = sig[p]
             buf[t, h, 3] = dist[p]
             buf[t, h, 4] = odometer[obs[t]]
+            buf[t, h, 5] = now
             head[t] = (h + 1) % m_max
             if npts[t] < m_max:
                 npts[t] += 1
@@ -751,14 +794,24 @@ def _outline_kernel(ti, ci, pts, sig, dist, cstart, obs, odometer, moved, buf, n
             continue
         acc = buf[t, :m]
         odo = odometer[obs[t]]
+        vx, vy = x[t, 2], x[t, 3]
+        pv = 0.5 * (P[t, 2, 2] + P[t, 3, 3])
+        if (vx * vx + vy * vy) < 4.0 * pv:  # no significant velocity: test the object as static
+            vx = vy = pv = 0.0
         for i in range(m):
-            # sensor noise plus the ego-motion error accumulated since the point was seen: heading drift
-            # moves it sideways in proportion to its range
+            # sensor noise, plus the ego-motion error accumulated since the point was seen (heading drift
+            # moves it sideways in proportion to its range), plus how far the object may have gone since:
+            # the point is moved along the track's velocity, with that velocity's uncertainty
             aged = odo - acc[i, 4]
-            var[i] = acc[i, 2] * acc[i, 2] + aged * (head_rate2 * acc[i, 3] * acc[i, 3] + pos_rate2)
+            dt = now - acc[i, 5]
+            pp[i, 0] = acc[i, 0] + vx * dt
+            pp[i, 1] = acc[i, 1] + vy * dt
+            var[i] = (
+                acc[i, 2] * acc[i, 2] + aged * (head_rate2 * acc[i, 3] * acc[i, 3] + pos_rate2) + pv * dt * dt
+            )
             wgt[i] = 1.0 / var[i]
         cen = fit_c[t]
-        _fit_known_circle(acc[:, :2], wgt[:m], r, cen, 4, e[:m])
+        _fit_known_circle(pp[:m], wgt[:m], r, cen, 4, e[:m])
         llr = 0.0
         for i in range(m):
             v0 = var[i]

@@ -5,6 +5,12 @@ Sections (``--sections``, comma separated; default all available):
 * ``lidar``: scans/s of the vectorised raycaster (one scan = one robot's 360 beams) for
   N = 1, 8, 64, 256 robots with 50 obstacles in a 10 x 10 m arena, against a naive loop of pymunk
   ``segment_query_first`` per beam on the same world; and physics steps/s.
+* ``lidar_scaling``: robot-scans/s for ``--scaling-robots`` (1, 16, 64, 256) robots x
+  ``--scaling-obstacles`` (10, 100, 1,000) obstacles at one density of objects (the arena's side is
+  ``sqrt((robots + obstacles) / 0.7)`` m, at least 5 m): the grid broad phase (forced on), the
+  brute-force kernel (``WorldConfig(lidar_grid=False)``) and the naive pymunk loop on the same world,
+  which of the two kernels the default picks, and the world's build time. Targets are computed on
+  the default's choice. Compile / cache-load time of the kernels is reported on its own.
 * ``detector``: scans/s of the geometric and learned detectors batched on one core (all 64 scans of
   a dense arena per call), array path vs objects vs the previous implementation, warm; start-up
   (incl. numba compilation) on its own line.
@@ -99,6 +105,85 @@ def bench_lidar(min_time: float, robots=(1, 8, 64, 256)) -> list[dict]:
     return rows
 
 
+#: objects (robots + obstacles) per m^2 of the scaling section's arenas
+SCALING_DENSITY = 0.7
+
+
+def scaling_arena_side(n_robots: int, n_obstacles: int) -> float:
+    """Side of the square arena holding ``n_robots + n_obstacles`` objects at ``SCALING_DENSITY``, m."""
+    return max(5.0, math.sqrt((n_robots + n_obstacles) / SCALING_DENSITY))
+
+
+def bench_lidar_scaling(
+    min_time: float, robots=(1, 16, 64, 256), obstacles=(10, 100, 1000)
+) -> tuple[list[dict], dict]:
+    """Robot-scans/s of the grid kernel, the brute-force kernel and the naive pymunk loop."""
+    from tqdm import tqdm
+
+    from kin_envs.core.world import WorldConfig
+
+    brute_cfg, grid_cfg = WorldConfig(lidar_grid=False), WorldConfig(lidar_grid=True)
+    # first calls compile the kernels (or load numba's cache): timed apart from the rates
+    t0 = time.perf_counter()
+    World(scenes.random_arena(2, 3, seed=0, size=5.0), seed=0, config=grid_cfg).scan()
+    t1 = time.perf_counter()
+    World(scenes.random_arena(2, 3, seed=0, size=5.0), seed=0, config=brute_cfg).scan()
+    startup = {"grid_first_scan_s": t1 - t0, "brute_force_first_scan_s": time.perf_counter() - t1}
+    print(f"  first scan (compile or cache load): grid {startup['grid_first_scan_s']:.2f} s, "
+          f"brute force {startup['brute_force_first_scan_s']:.2f} s", flush=True)  # fmt: skip
+    rows = []
+    for n_obs in obstacles:
+        for n in tqdm(robots, desc=f"lidar scaling, {n_obs} obstacles", leave=False):
+            side = scaling_arena_side(n, n_obs)
+            scene = scenes.random_arena(n, n_obs, seed=0, size=side)
+            t = time.perf_counter()
+            world = World(scene, seed=0, config=grid_cfg)
+            build = time.perf_counter() - t
+            brute = World(scene, seed=0, config=brute_cfg)
+            uses_grid = World(scene, seed=0)._lidar_grid is not None  # the default's choice
+            grid_rate = rate(world.scan, min_time) * n
+            brute_rate = rate(brute.scan, min_time) * n
+            k = min(n, 2)  # the naive loop is slow: time a few robots' scans
+            naive = rate(lambda w=world, k=k: [naive_scan(w, i) for i in range(k)], min_time / 2) * k
+            g = world._lidar_grid
+            rows.append(
+                {
+                    "robots": n,
+                    "obstacles": n_obs,
+                    "arena_m": side,
+                    "cell_m": g.cell_size,
+                    "grid_scans_per_s": grid_rate,
+                    "brute_force_scans_per_s": brute_rate,
+                    "naive_scans_per_s": naive,
+                    "grid_vs_brute_force": grid_rate / brute_rate,
+                    "grid_vs_naive": grid_rate / naive,
+                    "default": "grid" if uses_grid else "brute force",
+                    "default_scans_per_s": grid_rate if uses_grid else brute_rate,
+                    "world_build_s": build,
+                }
+            )
+            print(
+                f"  {n:4d} robots {n_obs:5d} obstacles {side:5.1f} m: grid {grid_rate:9.0f} scans/s, "
+                f"brute force {brute_rate:9.0f} (x{grid_rate / brute_rate:.2f}), naive {naive:6.0f} "
+                f"(x{grid_rate / naive:.0f}), build {build:.2f} s, default: {rows[-1]['default']}",
+                flush=True,
+            )
+    return rows, startup
+
+
+def scaling_targets(rows: list[dict]) -> dict:
+    """The issue's lidar targets on the default kernel choice (only the pairs that were measured)."""
+    cost = {(r["robots"], r["obstacles"]): 1.0 / r["default_scans_per_s"] for r in rows}
+    out: dict = {}
+    if (64, 1000) in cost and (64, 100) in cost:
+        out["cost_1000_vs_100_obstacles_64_robots"] = cost[64, 1000] / cost[64, 100]  # target <= 2
+    for n_obs in sorted({o for _, o in cost}):
+        if (256, n_obs) in cost and (64, n_obs) in cost:
+            out[f"cost_256_vs_64_robots_{n_obs}_obstacles"] = cost[256, n_obs] / cost[64, n_obs]  # <= 1.5
+    out["min_default_vs_naive"] = (
+        min(r["default_scans_per_s"] / r["naive_scans_per_s"] for r in rows) if rows else None
+    )  # >= 100
+    return out
 def _reference_detectors():
     """The pre-array-first implementations (tests/detectors/reference_detectors.py), or None
     outside a clone."""
@@ -342,6 +427,7 @@ def bench_ros(min_time: float, steps: int = 100) -> list[dict]:
 
 SECTIONS = {
     "lidar": bench_lidar,
+    "lidar_scaling": bench_lidar_scaling,
     "detector": bench_detector,
     "envs": bench_envs,
     "memory": bench_memory,
@@ -361,6 +447,30 @@ def to_markdown(results: dict) -> str:
             f"{r['ratio']:.0f}x | {r['physics_steps_per_s']:,.0f} |"
             for r in results["lidar"]
         ]
+        lines.append("")
+    if results.get("lidar_scaling"):
+        lines += [
+            "| robots | obstacles | arena (m) | grid scans/s | brute-force kernel | naive pymunk "
+            "| grid / brute force | grid / naive | default | world build (s) |",
+            "|---:|---:|---:|---:|---:|---:|---:|---:|---|---:|",
+        ]
+        lines += [
+            f"| {r['robots']} | {r['obstacles']:,} | {r['arena_m']:.1f} | "
+            f"{r['grid_scans_per_s']:,.0f} | {r['brute_force_scans_per_s']:,.0f} | "
+            f"{r['naive_scans_per_s']:,.0f} | "
+            f"{r['grid_vs_brute_force']:.2f}x | {r['grid_vs_naive']:,.0f}x | {r['default']} | "
+            f"{r['world_build_s']:.2f} |"
+            for r in results["lidar_scaling"]
+        ]
+        lines.append("")
+        for k, v in results.get("lidar_scaling_targets", {}).items():
+            lines.append(f"- {k}: {v:.2f}")
+        st = results.get("lidar_scaling_startup")
+        if st:
+            lines.append(
+                f"- first scan (compile or cache load): grid {st['grid_first_scan_s']:.2f} s, "
+                f"brute force {st['brute_force_first_scan_s']:.2f} s"
+            )
         lines.append("")
     if results.get("detector"):
         n = results["detector"][0]["scans"]
@@ -428,6 +538,16 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--min-time", type=float, default=1.5, help="seconds of timing per measurement")
     p.add_argument("--robots", type=int, nargs="+", default=[1, 8, 64, 256], help="lidar: robot counts")
     p.add_argument(
+        "--scaling-robots", type=int, nargs="+", default=[1, 16, 64, 256], help="lidar_scaling: robot counts"
+    )
+    p.add_argument(
+        "--scaling-obstacles",
+        type=int,
+        nargs="+",
+        default=[10, 100, 1000],
+        help="lidar_scaling: obstacle counts",
+    )
+    p.add_argument(
         "--env-robots", type=int, nargs="+", default=[16, 64, 256], help="envs: aggregation_v0 robot counts"
     )
     p.add_argument(
@@ -446,12 +566,17 @@ def main(argv: list[str] | None = None) -> dict:
         p.error("--min-time must be > 0, --robots >= 1, --env-robots >= 2 and --memory-steps >= 1")
     if not 2 <= args.memory_robots <= 256:
         p.error(f"--memory-robots must be in 2..256, got {args.memory_robots}")
+    if min(args.scaling_robots) < 1 or min(args.scaling_obstacles) < 0:
+        p.error("--scaling-robots must be >= 1 and --scaling-obstacles >= 0")
     results: dict = {
         "config": {
             "command": " ".join([sys.executable, *sys.argv]),
             "sections": sections,
             "min_time": args.min_time,
             "robots": args.robots,
+            "scaling_robots": args.scaling_robots,
+            "scaling_obstacles": args.scaling_obstacles,
+            "scaling_density_per_m2": SCALING_DENSITY,
             "env_robots": args.env_robots,
             "memory_steps": args.memory_steps,
             "memory_robots": args.memory_robots,
@@ -461,6 +586,12 @@ def main(argv: list[str] | None = None) -> dict:
     }
     for s in sections:
         print(f"[{s}]", flush=True)
+        if s == "lidar_scaling":
+            rows, startup = bench_lidar_scaling(args.min_time, args.scaling_robots, args.scaling_obstacles)
+            results[s] = rows
+            results["lidar_scaling_startup"] = startup
+            results["lidar_scaling_targets"] = scaling_targets(rows)
+            continue
         if s == "lidar":
             results[s] = SECTIONS[s](args.min_time, robots=args.robots)
         elif s == "envs":

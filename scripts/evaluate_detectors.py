@@ -64,7 +64,7 @@ BEAM_EDGES = (1, 2, 3, 4, 5, 7, 10, 361)
 
 
 def resolve_detector(name: str) -> KinDetector:
-    """``"geometric"``, ``"learned"`` or ``"module:Class"`` -> a detector instance.
+    """``"geometric"``, ``"learned"``, ``"beam"`` or ``"module:Class"`` -> a detector instance.
 
     Raises ``ValueError`` for an unknown name, a class that cannot be imported or built, or an
     object without ``detect_batch``.
@@ -84,6 +84,13 @@ def resolve_detector(name: str) -> KinDetector:
             return LearnedKinDetector(reports=False)
         except (OSError, ValueError) as e:  # no or bad checkpoint
             raise ValueError(f"detector 'learned' is unavailable: {e}") from e
+    if name == "beam":
+        from detectors.beam_detector import BeamKinDetector
+
+        try:
+            return BeamKinDetector()
+        except (OSError, ValueError) as e:  # no or bad checkpoint
+            raise ValueError(f"detector 'beam' is unavailable: {e}") from e
     if ":" in name:
         module, _, cls_name = name.partition(":")
         try:
@@ -97,7 +104,9 @@ def resolve_detector(name: str) -> KinDetector:
         if not callable(getattr(det, "detect_batch", None)):
             raise ValueError(f"detector {name!r}: {cls_name} has no detect_batch(ranges, angles)")
         return det
-    raise ValueError(f"unknown detector {name!r}; expected 'geometric', 'learned' or a 'module:Class' path")
+    raise ValueError(
+        f"unknown detector {name!r}; expected 'geometric', 'learned', 'beam' or a 'module:Class' path"
+    )
 
 
 # --------------------------------------------------------------------------- data

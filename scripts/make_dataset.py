@@ -47,6 +47,7 @@ from kin_envs.cli import (
     write_run_info,
 )
 from kin_envs.detection.dataset import DatasetConfig, scene_records
+from kin_envs.detection.seeds import check_training_seeds
 from kin_envs.distributed import BACKENDS, imap_seeds
 
 _SHARD = re.compile(r"shard_\d{5}\.npz|\.(shard_\d{5}\.npz|manifest\.json)\..*\.tmp")
@@ -110,6 +111,10 @@ def main(argv=None) -> dict:
     setup_logging(args)
     if args.scenes < 1 or args.shard_scenes < 1 or args.first_seed < 0:
         ap.error("--scenes and --shard-scenes must be >= 1 and --first-seed >= 0")
+    try:  # the benchmark's scenes stay unseen by training
+        check_training_seeds(range(args.first_seed, args.first_seed + args.scenes), "--first-seed/--scenes")
+    except ValueError as e:
+        ap.error(str(e))
     if args.backend == "local" and (args.address is not None or args.num_cpus is not None):
         ap.error("--address and --num-cpus need --backend ray")
     if args.num_cpus is not None and (args.num_cpus < 1 or args.address is not None):

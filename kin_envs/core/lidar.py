@@ -10,7 +10,9 @@ Each primitive carries an *owner* (what a beam that hits it reports: a kind code
 All robots' scans are cast in one call of a numba kernel. For every (robot, primitive) pair the
 kernel computes the angular interval the primitive subtends and tests only the beams inside it, with
 exact ray–circle / ray–segment intersection, so the cost grows with the number of beams that actually
-touch something rather than with ``beams × primitives``.
+touch something rather than with ``beams × primitives``. With a :class:`LidarGrid`
+(:func:`build_lidar_grid`, used by ``World`` in large arenas) a second kernel visits only the grid
+cells within each robot's reach, with bit-identical results (see "broad phase" below).
 
 Angle convention (the paper's, RPLIDAR A1): beam ``i`` points ``i * 360/n_beams`` degrees
 **clockwise** from the robot's heading. :attr:`LidarSpec.angles` gives the same directions in the
@@ -32,7 +34,16 @@ from detectors._numba_cache import ensure_cache_dir
 
 ensure_cache_dir(__file__.rsplit('/', 1)[0])  # before the @njit(cache=True) below: read-only installs
 
-__all__ = ["HitKind", "LidarSpec", "cast_scan", "scan_shapes", "polygon_edges"]
+__all__ = [
+    "HitKind",
+    "LidarGrid",
+    "LidarSpec",
+    "build_lidar_grid",
+    "cast_scan",
+    "default_cell_size",
+    "polygon_edges",
+    "scan_shapes",
+]
 
 
 class HitKind(IntEnum):
@@ -307,6 +318,458 @@ def _scan_kernel(
                 out_ranges[n, i] = d if d >= range_min else range_max
 
 
+# --- broad phase: a uniform grid --------------------------------------------------------------------
+#
+# The brute-force kernel above culls every (robot, primitive) pair, so a scan costs O(all primitives).
+# The grid kernel visits the cells around each robot in rings of growing Chebyshev distance and stops
+# once the nearest point of the next ring is farther than every beam's current hit; a cell is also
+# skipped when it is farther than the current hit of every beam that crosses it (occlusion). Each
+# primitive it visits goes through the same arithmetic as the brute force, and a hit replaces the
+# current one when it is nearer *or equally near with a lower primitive id*: the result is then the
+# minimum of (distance, id) over the primitives, which is what the brute force's in-order strict ``<``
+# computes, so both kernels return bit-identical scans whatever order the cells are visited in.
+
+# m: slack on the cell distance bounds, far above the rounding error of a computed hit distance
+_GRID_TOL = 1e-6
+
+
+@dataclass(frozen=True, eq=False)
+class LidarGrid:
+    """Static primitives binned in a uniform grid (CSR lists per cell), built once per world.
+
+    Cell ``(ix, iy)`` has id ``ix * ny + iy`` and covers ``origin + cell_size * [ix, ix+1) x [iy, iy+1)``;
+    a primitive is listed in every cell its bounding box touches. The primitives in ``dynamic_*`` move
+    between scans (robots' housings, movable obstacles): they are binned again on every scan. Build it
+    with :func:`build_lidar_grid`; it stays valid while the static rows of the primitive arrays do not
+    change (a world's static geometry never does).
+    """
+
+    origin: tuple[float, float]  #: (x, y) of the grid's lower-left corner, m
+    cell_size: float  #: m
+    shape: tuple[int, int]  #: (nx, ny) cells
+    circle_start: np.ndarray  #: (nx*ny + 1,) int32 CSR offsets into ``circle_items``
+    circle_items: np.ndarray  #: int32 static circle indices, cell by cell
+    segment_start: np.ndarray  #: (nx*ny + 1,) int32 CSR offsets into ``segment_items``
+    segment_items: np.ndarray  #: int32 static segment indices, cell by cell
+    dynamic_circles: np.ndarray  #: int32 indices of the moving circles
+    dynamic_segments: np.ndarray  #: int32 indices of the moving segments
+    n_circles: int
+    n_segments: int
+
+
+@numba.njit(cache=True, nogil=True)
+def _boxes(circles, segments, cids, sids):
+    """Bounding boxes ``(k, 4)`` of circles ``cids`` then segments ``sids``."""
+    box = np.empty((cids.shape[0] + sids.shape[0], 4))
+    for k in range(cids.shape[0]):
+        c = cids[k]
+        r = circles[c, 2]
+        box[k, 0] = circles[c, 0] - r
+        box[k, 1] = circles[c, 1] - r
+        box[k, 2] = circles[c, 0] + r
+        box[k, 3] = circles[c, 1] + r
+    for k in range(sids.shape[0]):
+        s = sids[k]
+        m = cids.shape[0] + k
+        box[m, 0] = min(segments[s, 0], segments[s, 2])
+        box[m, 1] = min(segments[s, 1], segments[s, 3])
+        box[m, 2] = max(segments[s, 0], segments[s, 2])
+        box[m, 3] = max(segments[s, 1], segments[s, 3])
+    return box
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _cell_range(lo, hi, g0, cs, n):
+    """Cells ``[i0, i1]`` that the closed interval ``[lo, hi]`` touches (a point on a border: both)."""
+    i0 = int(math.floor((lo - g0) / cs - 1e-9))
+    i1 = int(math.floor((hi - g0) / cs + 1e-9))
+    return max(i0, 0), min(i1, n - 1)
+
+
+@numba.njit(cache=True, nogil=True)
+def _bin(box, ids, gx, gy, cs, nx, ny, inside_only):
+    """CSR lists of ``ids`` (bounding boxes ``box``) per cell. With ``inside_only``, the ids whose box
+    is not entirely inside the grid come back apart (``overflow``) instead of being binned."""
+    n_cells = nx * ny
+    start = np.zeros(n_cells + 1, np.int32)
+    inside = np.ones(ids.shape[0], np.bool_)
+    xmax = gx + nx * cs
+    ymax = gy + ny * cs
+    n_over = 0
+    for k in range(ids.shape[0]):
+        if inside_only and not (box[k, 0] > gx and box[k, 1] > gy and box[k, 2] < xmax and box[k, 3] < ymax):
+            inside[k] = False
+            n_over += 1
+            continue
+        i0, i1 = _cell_range(box[k, 0], box[k, 2], gx, cs, nx)
+        j0, j1 = _cell_range(box[k, 1], box[k, 3], gy, cs, ny)
+        for i in range(i0, i1 + 1):
+            for j in range(j0, j1 + 1):
+                start[i * ny + j + 1] += 1
+    for c in range(n_cells):
+        start[c + 1] += start[c]
+    items = np.empty(start[n_cells], np.int32)
+    fill = start[:n_cells].copy()
+    overflow = np.empty(n_over, np.int32)
+    n_over = 0
+    for k in range(ids.shape[0]):
+        if not inside[k]:
+            overflow[n_over] = ids[k]
+            n_over += 1
+            continue
+        i0, i1 = _cell_range(box[k, 0], box[k, 2], gx, cs, nx)
+        j0, j1 = _cell_range(box[k, 1], box[k, 3], gy, cs, ny)
+        for i in range(i0, i1 + 1):
+            for j in range(j0, j1 + 1):
+                c = i * ny + j
+                items[fill[c]] = ids[k]
+                fill[c] += 1
+    return start, items, overflow
+
+
+def default_cell_size(range_max: float) -> float:
+    """Grid cell side for a lidar of reach ``range_max``: ``range_max / 5`` (at least 0.5 m), so a
+    scan visits about 80 cells whatever the arena. Measured on random arenas at 0.7 objects/m^2:
+    1-1.5 m cells spend more on visiting cells than they save, 4 m cells test too many primitives."""
+    return max(0.5, float(range_max) / 5.0)
+
+
+def build_lidar_grid(
+    circles: np.ndarray,
+    segments: np.ndarray,
+    dynamic_circles=(),
+    dynamic_segments=(),
+    bounds: tuple[float, float, float, float] | None = None,
+    cell_size: float | None = None,
+) -> LidarGrid:
+    """Index the static primitives in a uniform grid for :func:`cast_scan` (built once per world).
+
+    Args:
+        circles, segments: the raycaster's primitive arrays ``(C, 3)`` and ``(S, 4)``.
+        dynamic_circles, dynamic_segments: indices of the circles / segments that move between scans
+            (binned on every scan instead).
+        bounds: ``(xmin, ymin, xmax, ymax)`` the grid must cover (e.g. the arena), m; the bounding box
+            of the static primitives is always included. Robots outside the grid are scanned by brute
+            force and moving primitives outside it are tested by every robot: correct, only slower.
+        cell_size: m; default :func:`default_cell_size` of a 12 m lidar.
+    """
+    circles = np.ascontiguousarray(circles, dtype=np.float64).reshape(-1, 3)
+    segments = np.ascontiguousarray(segments, dtype=np.float64).reshape(-1, 4)
+    ids = []
+    for name, dyn, n in (("dynamic_circles", dynamic_circles, len(circles)),
+                         ("dynamic_segments", dynamic_segments, len(segments))):  # fmt: skip
+        d = np.unique(np.asarray(dyn, dtype=np.int64).reshape(-1))
+        if d.size and (d[0] < 0 or d[-1] >= n):
+            raise ValueError(f"build_lidar_grid: {name} must be indices in [0, {n}), got {d.tolist()}")
+        ids += [d.astype(np.int32), np.setdiff1d(np.arange(n), d).astype(np.int32)]
+    dyn_c, static_c, dyn_s, static_s = ids
+    box = _boxes(circles, segments, static_c, static_s)
+    if bounds is not None:
+        b = np.asarray(bounds, dtype=np.float64).reshape(4)
+        if not (np.all(np.isfinite(b)) and b[0] < b[2] and b[1] < b[3]):
+            raise ValueError(
+                f"build_lidar_grid: bounds must be finite (xmin, ymin, xmax, ymax), got {bounds!r}"
+            )
+        box = np.concatenate([box, b[None]])
+    if not len(box):
+        box = np.zeros((1, 4))
+    if not np.all(np.isfinite(box)):
+        raise ValueError("build_lidar_grid: primitive coordinates must be finite")
+    # a little margin: robots and primitives on the bounds are strictly inside
+    lo, hi = box[:, :2].min(axis=0) - 1e-3, box[:, 2:].max(axis=0) + 1e-3
+    if cell_size is None:
+        cell_size = default_cell_size(12.0)
+    if not (isinstance(cell_size, int | float) and math.isfinite(cell_size) and cell_size > 0):
+        raise ValueError(f"build_lidar_grid: cell_size must be a number > 0 m, got {cell_size!r}")
+    cs = float(cell_size)
+    nx, ny = (int(v) for v in np.maximum(1, np.ceil((hi - lo) / cs)))
+    c_start, c_items, _ = _bin(box[: len(static_c)], static_c, lo[0], lo[1], cs, nx, ny, False)
+    s_start, s_items, _ = _bin(box[len(static_c) : len(static_c) + len(static_s)], static_s,
+                               lo[0], lo[1], cs, nx, ny, False)  # fmt: skip
+    return LidarGrid(
+        origin=(float(lo[0]), float(lo[1])),
+        cell_size=cs,
+        shape=(nx, ny),
+        circle_start=c_start,
+        circle_items=c_items,
+        segment_start=s_start,
+        segment_items=s_items,
+        dynamic_circles=dyn_c,
+        dynamic_segments=dyn_s,
+        n_circles=len(circles),
+        n_segments=len(segments),
+    )
+
+
+@numba.njit(cache=True, nogil=True)
+def _cast_lists(
+    x0, y0, h, ch, sh, skip, range_max, circles, segments, cos_tab, sin_tab, best_d, best_p,
+    c_items, n_ci, s_items, n_si,
+):  # fmt: skip
+    """:func:`_cast_one`'s loops over the circles ``c_items[:n_ci]`` and the segments
+    ``s_items[:n_si]``, without re-initialising ``best_*``; the same arithmetic, except that an
+    equally near hit wins if its primitive id is lower. Called once per ring, not inlined: inlined into
+    the grid kernel it ran ~1.5x slower (measured)."""
+    n_beams = best_d.shape[0]
+    res = 2.0 * math.pi / n_beams
+    n_c = circles.shape[0]
+    rmax2 = range_max * range_max
+    for q in range(n_ci):
+        c = c_items[q]
+        if c == skip:
+            continue
+        dx = circles[c, 0] - x0
+        dy = circles[c, 1] - y0
+        r = circles[c, 2]
+        d2 = dx * dx + dy * dy
+        d = math.sqrt(d2)
+        if d - r > range_max or d <= r:
+            continue
+        half = _fast_atan2(r, math.sqrt(d2 - r * r)) + _EPS
+        phi = _fast_atan2(dy, dx) - h
+        k0 = int(math.ceil(-(phi + half) / res))
+        k1 = int(math.floor(-(phi - half) / res))
+        cc = d2 - r * r
+        i = k0 % n_beams - 1
+        for _ in range(k1 - k0 + 1):
+            i += 1
+            if i == n_beams:
+                i = 0
+            ux = ch * cos_tab[i] + sh * sin_tab[i]
+            uy = sh * cos_tab[i] - ch * sin_tab[i]
+            b = dx * ux + dy * uy
+            disc = b * b - cc
+            if disc < 0.0 or b <= 0.0:
+                continue
+            t = b - math.sqrt(disc)
+            if t > 0.0 and (t < best_d[i] or (t == best_d[i] and c < best_p[i])):
+                best_d[i] = t
+                best_p[i] = c
+    for q in range(n_si):
+        s = s_items[q]
+        p = n_c + s
+        ax = segments[s, 0] - x0
+        ay = segments[s, 1] - y0
+        bx = segments[s, 2] - x0
+        by = segments[s, 3] - y0
+        ex = bx - ax
+        ey = by - ay
+        if ey * ax - ex * ay >= 0.0:
+            continue
+        ee = ex * ex + ey * ey
+        u = -(ax * ex + ay * ey) / ee
+        u = min(1.0, max(0.0, u))
+        px = ax + u * ex
+        py = ay + u * ey
+        if px * px + py * py > rmax2:
+            continue
+        th_a = _fast_atan2(ay, ax) - h
+        span = _fast_atan2(ax * by - ay * bx, ax * bx + ay * by)
+        lo = th_a + min(0.0, span) - _EPS
+        hi = th_a + max(0.0, span) + _EPS
+        k0 = int(math.ceil(-hi / res))
+        k1 = int(math.floor(-lo / res))
+        i = k0 % n_beams - 1
+        for _ in range(k1 - k0 + 1):
+            i += 1
+            if i == n_beams:
+                i = 0
+            ux = ch * cos_tab[i] + sh * sin_tab[i]
+            uy = sh * cos_tab[i] - ch * sin_tab[i]
+            den = ux * ey - uy * ex
+            if den == 0.0:
+                continue
+            t = (ax * ey - ay * ex) / den
+            sp = (ax * uy - ay * ux) / den
+            if t > 0.0 and 0.0 <= sp <= 1.0 and (t < best_d[i] or (t == best_d[i] and p < best_p[i])):
+                best_d[i] = t
+                best_p[i] = p
+
+
+@numba.njit(cache=True, nogil=True)
+def _scan_kernel_grid(
+    ox,
+    oy,
+    heading,
+    n_beams,
+    range_min,
+    range_max,
+    circles,
+    circle_skip,
+    segments,
+    prim_kind,
+    prim_index,
+    gx,
+    gy,
+    cs,
+    nx,
+    ny,
+    c_start,
+    c_items,
+    s_start,
+    s_items,
+    dyn_c,
+    dyn_s,
+    out_ranges,
+    out_true,
+    out_kind,
+    out_index,
+):
+    """:func:`_scan_kernel` with the grid broad phase: the same outputs, bit for bit.
+
+    Per robot and ring, the primitives of the cells that pass the distance and occlusion tests are
+    gathered (each once: ``stamp``) and cast in one :func:`_cast_lists` call. Everything per cell is
+    written out in this loop: a function call per cell costs more than the cell's work (reference
+    counting of the array arguments).
+    """
+    cos_tab, sin_tab = _beam_tables(n_beams)
+    res = 2.0 * math.pi / n_beams
+    n_c = circles.shape[0]
+    # the moving primitives, binned for this scan (those not inside the grid: tested by every robot)
+    box = _boxes(circles, segments, dyn_c, dyn_s)
+    dc_start, dc_items, c_over = _bin(box[: dyn_c.shape[0]], dyn_c, gx, gy, cs, nx, ny, True)
+    ds_start, ds_items, s_over = _bin(box[dyn_c.shape[0] :], dyn_s, gx, gy, cs, nx, ny, True)
+    stamp = np.zeros(n_c + segments.shape[0], np.int32)
+    cand_c = np.empty(n_c, np.int32)
+    cand_s = np.empty(segments.shape[0], np.int32)
+    best_d = np.empty(n_beams)
+    best_p = np.empty(n_beams, dtype=np.int32)
+    rc = 0.5 * cs * math.sqrt(2.0) * (1.0 + 1e-9)  # radius of a cell's bounding circle
+    xmax = gx + nx * cs
+    ymax = gy + ny * cs
+    for n in range(ox.shape[0]):
+        x0 = ox[n]
+        y0 = oy[n]
+        h = heading[n]
+        skip = circle_skip[n]
+        if not (x0 > gx and x0 < xmax and y0 > gy and y0 < ymax):
+            _cast_one(x0, y0, h, skip, range_max, circles, segments, cos_tab, sin_tab, best_d, best_p)
+        else:
+            ch = math.cos(h)
+            sh = math.sin(h)
+            for i in range(n_beams):
+                best_d[i] = range_max
+                best_p[i] = -1
+            tag = n + 1
+            n_ci = 0
+            n_si = 0
+            for q in range(c_over.shape[0]):
+                cand_c[n_ci] = c_over[q]
+                stamp[c_over[q]] = tag
+                n_ci += 1
+            for q in range(s_over.shape[0]):
+                cand_s[n_si] = s_over[q]
+                stamp[n_c + s_over[q]] = tag
+                n_si += 1
+            ci = min(int((x0 - gx) / cs), nx - 1)
+            cj = min(int((y0 - gy) / cs), ny - 1)
+            far = range_max  # the farthest current hit: nothing beyond it can change the scan
+            ring = 0
+            while ci - ring >= 0 or cj - ring >= 0 or ci + ring < nx or cj + ring < ny:
+                if ring > 0:
+                    inner = min(
+                        min(x0 - (gx + (ci - ring + 1) * cs), gx + (ci + ring) * cs - x0),
+                        min(y0 - (gy + (cj - ring + 1) * cs), gy + (cj + ring) * cs - y0),
+                    )
+                    if inner - _GRID_TOL > far:
+                        break
+                # the ring's cells: rows cj -+ ring in full, then columns ci -+ ring without corners
+                for side in range(4):
+                    if side < 2:
+                        j = cj - ring if side == 0 else cj + ring
+                        if j < 0 or j >= ny or (side == 1 and ring == 0):
+                            continue
+                        a, b = max(ci - ring, 0), min(ci + ring, nx - 1)
+                    else:
+                        i = ci - ring if side == 2 else ci + ring
+                        if ring == 0 or i < 0 or i >= nx:
+                            continue
+                        a, b = max(cj - ring + 1, 0), min(cj + ring - 1, ny - 1)
+                    for m in range(a, b + 1):
+                        if side < 2:
+                            i = m
+                        else:
+                            j = m
+                        cell = i * ny + j
+                        if (c_start[cell + 1] == c_start[cell] and s_start[cell + 1] == s_start[cell]
+                                and dc_start[cell + 1] == dc_start[cell]
+                                and ds_start[cell + 1] == ds_start[cell]):  # fmt: skip
+                            continue
+                        cx0 = gx + i * cs
+                        cy0 = gy + j * cs
+                        dx = max(max(cx0 - x0, 0.0), x0 - cx0 - cs)
+                        dy = max(max(cy0 - y0, 0.0), y0 - cy0 - cs)
+                        dmin = math.sqrt(dx * dx + dy * dy) - _GRID_TOL  # to the cell's nearest point
+                        if dmin > far:
+                            continue
+                        if ring > 1:
+                            # occlusion: does any beam that can cross the cell reach dmin? (from
+                            # ring 2 on the origin is outside the cell's bounding circle)
+                            ex = cx0 + 0.5 * cs - x0
+                            ey = cy0 + 0.5 * cs - y0
+                            half = _fast_atan2(rc, math.sqrt(ex * ex + ey * ey - rc * rc)) + _EPS
+                            phi = _fast_atan2(ey, ex) - h
+                            k0 = int(math.ceil(-(phi + half) / res))
+                            k1 = int(math.floor(-(phi - half) / res))
+                            bi = k0 % n_beams - 1
+                            shut = True
+                            for _ in range(k1 - k0 + 1):
+                                bi += 1
+                                if bi == n_beams:
+                                    bi = 0
+                                if best_d[bi] >= dmin:
+                                    shut = False
+                                    break
+                            if shut:
+                                continue
+                        for q in range(c_start[cell], c_start[cell + 1]):
+                            c = c_items[q]
+                            if stamp[c] != tag:
+                                stamp[c] = tag
+                                cand_c[n_ci] = c
+                                n_ci += 1
+                        for q in range(dc_start[cell], dc_start[cell + 1]):
+                            c = dc_items[q]
+                            if stamp[c] != tag:
+                                stamp[c] = tag
+                                cand_c[n_ci] = c
+                                n_ci += 1
+                        for q in range(s_start[cell], s_start[cell + 1]):
+                            s = s_items[q]
+                            if stamp[n_c + s] != tag:
+                                stamp[n_c + s] = tag
+                                cand_s[n_si] = s
+                                n_si += 1
+                        for q in range(ds_start[cell], ds_start[cell + 1]):
+                            s = ds_items[q]
+                            if stamp[n_c + s] != tag:
+                                stamp[n_c + s] = tag
+                                cand_s[n_si] = s
+                                n_si += 1
+                if n_ci or n_si:
+                    _cast_lists(
+                        x0, y0, h, ch, sh, skip, range_max, circles, segments, cos_tab, sin_tab,
+                        best_d, best_p, cand_c, n_ci, cand_s, n_si,
+                    )  # fmt: skip
+                    n_ci = 0
+                    n_si = 0
+                    far = 0.0
+                    for i in range(n_beams):
+                        far = max(far, best_d[i])
+                ring += 1
+        for i in range(n_beams):
+            p = best_p[i] + 1
+            d = best_d[i]
+            out_kind[n, i] = prim_kind[p]
+            out_index[n, i] = prim_index[p]
+            if p == 0:
+                out_true[n, i] = np.inf
+                out_ranges[n, i] = range_max
+            else:
+                out_true[n, i] = d
+                out_ranges[n, i] = d if d >= range_min else range_max
+
+
 def cast_scan(
     origins: np.ndarray,
     headings: np.ndarray,
@@ -317,8 +780,13 @@ def cast_scan(
     prim_index: np.ndarray,
     spec: LidarSpec,
     dtype: type = np.float32,
+    grid: LidarGrid | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Noise-free lidar readings plus per-beam ground truth, fused in one kernel pass.
+
+    With ``grid`` (:func:`build_lidar_grid` over the same primitive arrays) the kernel visits only the
+    grid cells near each robot (see "broad phase" above); without it, every primitive (the brute-force
+    reference). Both return the same arrays, bit for bit.
 
     ``prim_kind`` / ``prim_index`` give each primitive's owner, indexed by primitive id + 1 (slot 0
     is "no hit"). Returns ``ranges`` (``dtype``, ``range_max`` for no return or a surface closer than
@@ -331,23 +799,37 @@ def cast_scan(
     true = np.empty((n, nb), dtype)
     kind = np.empty((n, nb), np.int8)
     index = np.empty((n, nb), np.int32)
-    _scan_kernel(
+    circles = np.ascontiguousarray(circles, dtype=np.float64).reshape(-1, 3)
+    segments = np.ascontiguousarray(segments, dtype=np.float64).reshape(-1, 4)
+    args = (
         origins[:, 0].copy(),
         origins[:, 1].copy(),
         np.ascontiguousarray(headings, dtype=np.float64).reshape(n),
         int(nb),
         float(spec.range_min),
         float(spec.range_max),
-        np.ascontiguousarray(circles, dtype=np.float64).reshape(-1, 3),
+        circles,
         np.ascontiguousarray(skip_circle, dtype=np.int64).reshape(n),
-        np.ascontiguousarray(segments, dtype=np.float64).reshape(-1, 4),
+        segments,
         np.ascontiguousarray(prim_kind, dtype=np.int8),
         np.ascontiguousarray(prim_index, dtype=np.int32),
-        ranges,
-        true,
-        kind,
-        index,
     )
+    if grid is None:
+        _scan_kernel(*args, ranges, true, kind, index)
+    else:
+        if not isinstance(grid, LidarGrid):
+            raise TypeError(f"cast_scan: grid must be a LidarGrid or None, got {type(grid).__name__}")
+        if (grid.n_circles, grid.n_segments) != (len(circles), len(segments)):
+            raise ValueError(
+                f"cast_scan: the grid indexes {grid.n_circles} circles and {grid.n_segments} segments, "
+                f"got {len(circles)} and {len(segments)}; rebuild it with build_lidar_grid"
+            )
+        (gx, gy), (nx, ny) = grid.origin, grid.shape
+        _scan_kernel_grid(
+            *args, gx, gy, grid.cell_size, nx, ny, grid.circle_start, grid.circle_items,
+            grid.segment_start, grid.segment_items, grid.dynamic_circles, grid.dynamic_segments,
+            ranges, true, kind, index,
+        )  # fmt: skip
     return ranges, true, kind, index
 
 

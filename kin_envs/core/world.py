@@ -25,7 +25,7 @@ import pymunk.batch as pmbatch
 
 from kin_envs.core._validate import FieldTypeError, check_number, dataclass_from_dict
 from kin_envs.core.interrupts import atomic
-from kin_envs.core.lidar import HitKind, cast_scan, polygon_edges
+from kin_envs.core.lidar import HitKind, build_lidar_grid, cast_scan, default_cell_size, polygon_edges
 from kin_envs.core.odometry import Odometry, OdometrySpec
 from kin_envs.core.scenes import Robot, Scene
 
@@ -90,6 +90,13 @@ class WorldConfig:
             rounded to a whole number of physics steps.
         floor_friction: Coulomb friction coefficient between movable obstacles and the floor.
         iterations: pymunk solver iterations.
+        lidar_grid: ``True``: index the static geometry in a uniform grid so that a scan only visits
+            the cells within the lidar's reach; ``False``: the brute-force kernel (every primitive for
+            every robot); ``None`` (default): the grid only when the arena is wider and deeper than
+            twice ``range_max`` (in smaller arenas every robot reaches most of the arena and the grid
+            is slower, see the README's Performance section). All give bit-identical scans.
+        lidar_cell_size: side of the grid's cells, m (``None``: ``range_max / 5``, see
+            :func:`~kin_envs.core.lidar.default_cell_size`).
         odometry: the robots' wheel-odometry error model (:class:`~kin_envs.core.odometry.OdometrySpec`;
             ``OdometrySpec.exact()`` for none).
     """
@@ -98,6 +105,8 @@ class WorldConfig:
     physics_dt: float = 0.02
     floor_friction: float = 0.5
     iterations: int = 10
+    lidar_grid: bool | None = None
+    lidar_cell_size: float | None = None
     odometry: OdometrySpec = OdometrySpec()
 
     def __post_init__(self) -> None:
@@ -120,6 +129,14 @@ class WorldConfig:
             object.__setattr__(self, "odometry", spec)
         if not isinstance(self.odometry, OdometrySpec):
             raise FieldTypeError(f"WorldConfig.odometry must be an OdometrySpec, got {self.odometry!r}")
+        if not (self.lidar_grid is None or isinstance(self.lidar_grid, bool)):
+            raise ValueError(f"WorldConfig.lidar_grid must be True, False or None, got {self.lidar_grid!r}")
+        if self.lidar_cell_size is not None and not (
+            isinstance(self.lidar_cell_size, int | float) and 0 < self.lidar_cell_size < math.inf
+        ):
+            raise ValueError(
+                f"WorldConfig.lidar_cell_size must be None or a number > 0 m, got {self.lidar_cell_size!r}"
+            )
 
     @property
     def substeps(self) -> int:
@@ -380,6 +397,25 @@ class World:
         # owner lookup by primitive id (+1 so that -1 = "no hit" maps to slot 0)
         self._prim_kind = np.array([HitKind.NONE, *kinds, *seg_kinds], dtype=np.int8)
         self._prim_index = np.array([-1, *index, *seg_index], dtype=np.int32)
+        # broad phase: static geometry never moves, so it is indexed once here; housings and movable
+        # obstacles are re-binned by the kernel on every scan
+        self._lidar_grid = None
+        hx, hy = self.scene.arena.half_extents
+        use_grid = self.config.lidar_grid
+        if use_grid is None:
+            use_grid = min(hx, hy) > self.scene.lidar.range_max
+        if use_grid:
+            dyn_c = list(range(self.n_robots))
+            dyn_s = []
+            for _, kind, _, first, count in self._movable:
+                if kind == "circle":
+                    dyn_c.append(self.n_robots + first)
+                else:
+                    dyn_s.extend(range(first, first + count))
+            cell = self.config.lidar_cell_size or default_cell_size(self.scene.lidar.range_max)
+            self._lidar_grid = build_lidar_grid(
+                self._circles, self._segments, dyn_c, dyn_s, bounds=(-hx, -hy, hx, hy), cell_size=cell
+            )
 
     def _update_lidar_geometry(self, poses: np.ndarray) -> None:
         self._circles[: self.n_robots, :2] = poses[:, :2]
@@ -617,7 +653,7 @@ class World:
         poses = all_poses[idx]
         ranges, true_ranges, hit_kind, hit_index = cast_scan(
             poses[:, :2], poses[:, 2], self._circles, self._segments, idx, self._prim_kind,
-            self._prim_index, spec,
+            self._prim_index, spec, grid=self._lidar_grid,
         )  # fmt: skip
         if noise and (spec.noise_sigma > 0 or spec.dropout_prob > 0):
             hit = np.isfinite(true_ranges)

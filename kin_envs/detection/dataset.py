@@ -45,6 +45,8 @@ from .. import scenes
 from ..core.lidar import HitKind, LidarSpec
 from ..core.scenes import Box, Cylinder, DetectionSceneConfig, Prism, RandomArenaConfig, Scene
 from ..core.world import World
+from .seeds import check_training_seeds
+from .swarm_scenes import SwarmSceneConfig, swarm_world
 
 __all__ = [
     "CATEGORIES",
@@ -93,6 +95,12 @@ class DatasetConfig:
         open_prob: probability that a detection scene has no boundary wall (the paper's empty Gazebo
             world: only the objects return beams).
         max_observers: robots scanned per scene (robot 0, the detection scene's observer, always).
+        swarm_prob: probability of a swarm scene (:mod:`kin_envs.detection.swarm_scenes`: robots in
+            clusters and at walls, driven a few steps) instead of the two families above; 0 (the
+            default) draws nothing extra, so older configs give the same scenes as before.
+        dropout: (min, max) beam dropout probability, drawn per scene with probability
+            ``dropout_share`` (else 0); nothing is drawn when ``dropout_share`` is 0.
+        dropout_share: share of scenes with beam dropout.
     """
 
     detection_prob: float = 0.8
@@ -107,18 +115,23 @@ class DatasetConfig:
     zero_noise_prob: float = 0.2
     open_prob: float = 0.15
     max_observers: int = 6
+    swarm_prob: float = 0.0
+    dropout: tuple[float, float] = (0.0, 0.1)
+    dropout_share: float = 0.0
 
     def __post_init__(self) -> None:
-        for name in ("detection_prob", "zero_noise_prob", "open_prob"):
+        for name in ("detection_prob", "zero_noise_prob", "open_prob", "swarm_prob", "dropout_share"):
             v = getattr(self, name)
             if not (isinstance(v, int | float) and 0.0 <= v <= 1.0):
                 raise ValueError(f"DatasetConfig.{name} must be a probability in [0, 1], got {v!r}")
         for name in ("n_kin", "n_distractors", "arena_robots", "arena_obstacles"):
             object.__setattr__(self, name, _pair(name, getattr(self, name), int, 0))
-        for name in ("distance", "cylinder_radius", "arena_size", "noise"):
+        for name in ("distance", "cylinder_radius", "arena_size", "noise", "dropout"):
             object.__setattr__(self, name, _pair(name, getattr(self, name), float, 0.0))
         if self.distance[0] <= 0 or self.cylinder_radius[0] <= 0 or self.arena_size[0] <= 0:
             raise ValueError("DatasetConfig: distance, cylinder_radius and arena_size must be > 0 m")
+        if self.dropout[1] >= 1.0:
+            raise ValueError(f"DatasetConfig.dropout must be < 1, got {self.dropout!r}")
         if self.noise[1] > 0.5:
             raise ValueError(f"DatasetConfig.noise must be <= 0.5 (relative), got {self.noise!r}")
         if self.arena_robots[0] < 1:
@@ -147,19 +160,33 @@ def make_scene(seed: int, config: DatasetConfig | None = None, noise: float | No
 
     One generator, ``numpy.random.default_rng(seed)``, draws the scene type, its parameters, the
     scene itself, the observers, and is then handed to the :class:`~kin_envs.World` for the lidar
-    noise. ``noise`` overrides the drawn noise level (evaluation sweeps at fixed noise).
-    ``info``: ``family`` (0 detection scene, 1 random arena), ``open`` (no boundary wall), ``noise``,
-    ``observers``.
+    noise. ``noise`` overrides the drawn noise level (evaluation sweeps at fixed noise). Seeds
+    reserved for the benchmark (:data:`kin_envs.detection.benchmark.BENCHMARK_SEEDS`) raise
+    ``ValueError``.
+    ``info``: ``family`` (0 detection scene, 1 random arena, 3 swarm scene), ``open`` (no boundary
+    wall), ``noise``, ``dropout``, ``observers``, and for swarm scenes ``world`` (the driven world:
+    its robots have moved away from ``scene``'s poses).
     """
     c = config or DatasetConfig()
+    # training and validation data never use the benchmark's reserved seeds
+    check_training_seeds([seed], "kin_envs.detection.dataset.make_scene")
     rng = np.random.default_rng(seed)
     detection = bool(rng.random() < c.detection_prob)
     sigma = 0.0 if rng.random() < c.zero_noise_prob else float(rng.uniform(*c.noise))
     open_world = bool(rng.random() < c.open_prob) and detection
+    swarm = c.swarm_prob > 0 and bool(rng.random() < c.swarm_prob)
+    dropout = 0.0
+    if c.dropout_share > 0 and rng.random() < c.dropout_share:
+        dropout = float(rng.uniform(*c.dropout))
     if noise is not None:
         sigma = float(noise)
-    lidar = LidarSpec(noise_sigma=sigma)
-    if detection:
+    lidar = LidarSpec(noise_sigma=sigma, dropout_prob=dropout)
+    world = None
+    if swarm:
+        detection = open_world = False
+        world = swarm_world(rng, SwarmSceneConfig(), lidar)
+        scene = world.scene
+    elif detection:
         cfg = DetectionSceneConfig(
             n_kin=int(rng.integers(c.n_kin[0], c.n_kin[1] + 1)),
             n_distractors=int(rng.integers(c.n_distractors[0], c.n_distractors[1] + 1)),
@@ -185,7 +212,10 @@ def make_scene(seed: int, config: DatasetConfig | None = None, noise: float | No
         observers = np.concatenate(([0], 1 + rng.choice(n - 1, c.max_observers - 1, replace=False)))
     else:
         observers = np.sort(rng.choice(n, c.max_observers, replace=False))
-    info = {"family": 0 if detection else 1, "open": open_world, "noise": sigma, "observers": observers}
+    family = 3 if swarm else 0 if detection else 1
+    info = {"family": family, "open": open_world, "noise": sigma, "dropout": dropout, "observers": observers}
+    if world is not None:
+        info["world"] = world  # already driven: scan this world, not a new one built from ``scene``
     return scene, rng, info
 
 
@@ -362,14 +392,14 @@ def scene_records(
     Returns ``(segments, objects, info)``: the :func:`label_scan` dicts plus ``x`` (features),
     ``frames`` (local frames), ``fit_centre`` (the features' circle-fit centre) and the columns
     ``observer``, ``noise``, ``seed``, ``family`` (0 detection scene, 1 random arena, 2 detection
-    scene without boundary wall); ``info`` as :func:`make_scene` plus ``scan``, ``scene`` and
+    scene without boundary wall, 3 swarm scene); ``info`` as :func:`make_scene` plus ``scan``, ``scene`` and
     ``batch``. ``observers`` overrides the scanned robots.
     """
     fc = feature_config or FeatureConfig()
     scene, rng, info = make_scene(seed, config, noise)
     if observers is not None:
         info["observers"] = np.asarray(observers, dtype=np.int64)
-    world = World(scene, seed=rng)
+    world = info.pop("world", None) or World(scene, seed=rng)
     scan = world.scan(robots=info["observers"])
     batch = segment_batch(scan.ranges, scan.angles, fc)
     feats = segment_features(batch, fc)

@@ -177,12 +177,12 @@ class CommonConfig:
         if not (self.detector is None or isinstance(self.detector, str)
                 or callable(getattr(self.detector, "detect", None))):
             raise ValueError(
-                f"{w}: detector must be 'geometric', 'learned', None or an object with a "
+                f"{w}: detector must be 'geometric', 'learned', 'beam', None or an object with a "
                 f"detect(ranges, angles) method, got {self.detector!r}"
             )
-        if isinstance(self.detector, str) and self.detector not in ("geometric", "learned"):
+        if isinstance(self.detector, str) and self.detector not in ("geometric", "learned", "beam"):
             raise ValueError(
-                f"{w}: detector must be 'geometric', 'learned', None or a detector object, "
+                f"{w}: detector must be 'geometric', 'learned', 'beam', None or a detector object, "
                 f"got {self.detector!r}"
             )
 
@@ -210,7 +210,8 @@ def resolve_detector(spec: Any, where: str = "kin_envs"):
 
     ``"geometric"`` → ``detectors.GeometricKinDetector(reports=False)`` (the env only needs the
     detections, and per-segment reports cost most of the detector's time); ``"learned"`` →
-    ``detectors.LearnedKinDetector()`` if that exists (it needs the ``train`` extra). The
+    ``detectors.LearnedKinDetector()`` if that exists (it needs the ``train`` extra); ``"beam"`` →
+    ``detectors.beam_detector.BeamKinDetector()`` (numpy only). The
     ``detectors`` package is imported here, lazily, so ``import kin_envs`` stays light.
     """
     if spec is None or not isinstance(spec, str):
@@ -229,6 +230,10 @@ def resolve_detector(spec: Any, where: str = "kin_envs"):
                 "detector='geometric', None or a detector object"
             ) from e
         return LearnedKinDetector()
+    if spec == "beam":
+        from detectors.beam_detector import BeamKinDetector
+
+        return BeamKinDetector()
     raise ValueError(f"{where}: unknown detector {spec!r}")
 
 

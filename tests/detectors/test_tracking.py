@@ -78,7 +78,7 @@ def test_crossing_targets_keep_their_identities():
 
 
 def test_existence_confirms_and_deletes():
-    pr = TrackerParams()
+    pr = TrackerParams(birth_existence=0.5)
     tr = KinTracker(pr)
     tr.update([[1.0, 0.0]], [0.5], STILL, DT)
     assert len(tr) == 1 and not tr.tracks()[0].confirmed  # p = birth_existence
@@ -89,6 +89,8 @@ def test_existence_confirms_and_deletes():
         tr.update(np.zeros((0, 2)), [], STILL, DT)
         misses += 1
     assert 3 <= misses <= 6
+    # the default confirms at birth (the candidate's own evidence decides whether it is kin)
+    assert KinTracker().params.birth_existence >= KinTracker().params.confirm_existence
     # beyond max_range nothing is expected: no misses, the track survives
     tr = KinTracker(pr)
     tr.update([[pr.max_range + 1, 0.0]] * 1, [0.5], STILL, DT)
@@ -98,7 +100,7 @@ def test_existence_confirms_and_deletes():
 
 
 def test_score_cue_is_bounded():
-    pr = TrackerParams()
+    pr = TrackerParams(min_score=0.0)
     tr = KinTracker(pr)
     for _ in range(200):
         tr.update([[1.0, 0.0], [1.0, 1.0]], [0.99, 0.01], STILL, DT)
@@ -155,7 +157,7 @@ def test_outline_cue_tells_a_housing_from_a_hexagon(kind, sign):
         tr.update([centre], [0.5], STILL, DT, points=[pts], noise=0.0)
     (t,) = tr.tracks()
     assert t.points.shape[0] >= 60
-    assert sign * tr._lo_shape[tr._rows(0)[0]] > 1.0  # noise-free: decisive either way
+    assert sign * tr._lo_shape[tr._rows(0)[0]] >= TrackerParams().shape_clamp  # noise-free: decisive
     assert (tr.kin_prob()[0] - 0.5) * sign > 0.3
 
 
@@ -185,6 +187,16 @@ def test_static_circle_rejected_once_others_move():
     kp = tr.kin_prob()
     assert kp[1] > 0.99  # moved
     assert kp[0] < 0.5  # a circle that stays put while the swarm moves
+
+
+def test_low_scores_are_dropped():
+    tr = KinTracker(TrackerParams(min_score=0.2))
+    arc = 0.035 * np.c_[np.cos(np.linspace(2, 4, 4)), np.sin(np.linspace(2, 4, 4))]
+    xy = np.array([[1.0, 0.0], [2.0, 0.0], [3.0, 0.0]])
+    for _ in range(3):
+        tr.update(xy, [0.1, 0.9, 0.05], STILL, DT, points=[p + arc for p in xy], noise=0.01)
+    (t,) = tr.tracks()
+    assert t.x == pytest.approx(2.0) and t.points.shape == (12, 2)  # its own points only
 
 
 def test_track_arrays_fixed_shape():

@@ -63,6 +63,30 @@ def test_bad_arguments(bench, tmp_path):
         bench.main(["--min-time", "0", "--out", str(tmp_path)])
 
 
+def test_lidar_scaling_section(bench, tmp_path):
+    res = bench.main(
+        [
+            "--sections", "lidar_scaling", "--min-time", "0.03", "--scaling-robots", "1", "3",
+            "--scaling-obstacles", "0", "5", "--out", str(tmp_path),
+        ]
+    )  # fmt: skip
+    rows = res["lidar_scaling"]
+    assert [(r["robots"], r["obstacles"]) for r in rows] == [(1, 0), (3, 0), (1, 5), (3, 5)]
+    for r in rows:
+        assert r["arena_m"] == bench.scaling_arena_side(r["robots"], r["obstacles"]) == 5.0
+        assert min(r["grid_scans_per_s"], r["brute_force_scans_per_s"], r["naive_scans_per_s"]) > 0
+        assert r["grid_vs_brute_force"] == pytest.approx(r["grid_scans_per_s"] / r["brute_force_scans_per_s"])
+        assert r["default"] == "brute force" and r["default_scans_per_s"] == r["brute_force_scans_per_s"]
+    assert res["lidar_scaling_targets"]["min_default_vs_naive"] == pytest.approx(
+        min(r["brute_force_scans_per_s"] / r["naive_scans_per_s"] for r in rows)
+    )
+    assert set(res["lidar_scaling_startup"]) == {"grid_first_scan_s", "brute_force_first_scan_s"}
+    assert "| grid / brute force |" in (tmp_path / "benchmark.md").read_text()
+    assert bench.scaling_arena_side(64, 1000) == pytest.approx((1064 / 0.7) ** 0.5)
+    with pytest.raises(SystemExit):
+        bench.main(["--scaling-robots", "0", "--out", str(tmp_path)])
+
+
 def test_ros_section(bench, tmp_path):
     pytest.importorskip("rosbags")
     res = bench.bench_ros(0.01, steps=3)

@@ -51,6 +51,10 @@ def _interrupt(cmd: list[str], ready, delay: float) -> subprocess.CompletedProce
 def _check_clean_stop(res: subprocess.CompletedProcess) -> None:
     if res.returncode == 0:
         return  # finished before the signal arrived (a late moment): allowed, never "swallowed"
+    if res.returncode == -signal.SIGINT and "Traceback" not in res.stderr:
+        # the signal landed after main() had returned (interpreter shutdown): Python then dies by SIGINT,
+        # as the shell's 130 does; callers check that the work had finished
+        return
     assert res.returncode == 130, f"exit {res.returncode}: {res.stderr[-1500:]}"
     lines = [ln for ln in res.stderr.splitlines() if ln.strip() and "%|" not in ln]  # tqdm bars aside
     assert len(lines) == 1 and "interrupted" in lines[0], res.stderr[-1500:]
@@ -83,4 +87,4 @@ def test_ctrl_c_in_make_dataset_leaves_no_lying_dataset(k, tmp_path):
         assert sorted(s["file"] for s in manifest["shards"]) == [n for n in names if n != "manifest.json"]
         load_dataset(out)
     else:
-        assert res.returncode == 130
+        assert res.returncode == 130, f"no manifest, exit {res.returncode}"

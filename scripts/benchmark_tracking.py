@@ -1,0 +1,237 @@
+"""The sequence benchmark (``kin_envs.detection.sequences``): kin tracking over time vs single scans.
+
+Runs :class:`detectors.tracking.KinTracker` (fed by a detector run permissively, plus the detector's own
+decisions at its operating point, and the world's noisy wheel odometry) and the single-scan detectors on
+the seeded ``swarm`` and ``lookalike`` episodes at each range-noise level, and writes to ``--out``:
+
+* ``results.md``: per split and noise, P / R / F1 against frames since the kin came into view
+  (1, 2, 5, 10, 20) and against distance, for the tracker and each single-scan detector; time to
+  confirm; false tracks per minute; MOTA / IDF1 / identity switches; same-radius cylinders rejected once
+  every kin in view has moved >= 0.2 m; tracker vs detector time per frame;
+* ``results.json``: the same as data;
+* ``f1_vs_frames.png``: F1 against frames observed, tracker vs single-scan detectors;
+* ``tracks.gif``: one episode with the observer's scan and its tracks drawn (``--no-gif`` to skip);
+* ``run.json``: command, arguments, version, split specs, versions, timing.
+
+Example::
+
+    python scripts/benchmark_tracking.py                            # reduced size (the main job's)
+    python scripts/benchmark_tracking.py --full --out outputs/benchmark_tracking_full
+    python scripts/benchmark_tracking.py --splits lookalike --episodes 4 --noise 0.01
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import math
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from detectors.fileio import atomic_write, write_json
+from kin_envs.cli import add_logging_args, setup_logging
+from kin_envs.detection.sequences import AGE_EDGES, SEQUENCE_SPLITS, SEQUENCE_VERSION, run_sequences
+
+SCRIPTS = Path(__file__).resolve().parent
+_AGE_NAMES = [
+    f"{a}" if b - a == 1 else f"{a}-{b - 1}" for a, b in zip(AGE_EDGES[:-1], AGE_EDGES[1:], strict=True)
+] + [f"{AGE_EDGES[-1]}+"]
+
+
+def resolve_detector(name: str):
+    """``geometric``, ``learned`` or ``module:Class`` (``scripts/evaluate_detectors.py``'s rule)."""
+    spec = importlib.util.spec_from_file_location(
+        "kin_envs_script_evaluate_detectors", SCRIPTS / "evaluate_detectors.py"
+    )
+    mod = sys.modules.get(spec.name)
+    if mod is None:
+        mod = importlib.util.module_from_spec(spec)
+        sys.modules[spec.name] = mod
+        spec.loader.exec_module(mod)
+    return mod.resolve_detector(name)
+
+
+def _f(v) -> str:
+    return "–" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v:.2f}"
+
+
+def _prf(row) -> str:
+    return f"{_f(row['precision'])} / {_f(row['recall'])} / {_f(row['f1'])}"
+
+
+def report(results: list[dict]) -> str:
+    lines = [
+        f"# Sequence benchmark (version {SEQUENCE_VERSION})",
+        "",
+        "P / R / F1 per frame; a kin counts with >= 2 valid beams, detections match within 0.10 m. "
+        "`tracker` = KinTracker on the detector's candidates + its operating-point decisions + wheel "
+        "odometry.",
+    ]
+    for r in results:
+        lines += ["", f"## {r['split']}, range noise {100 * r['noise']:g} % "
+                      f"({r['episodes']} episodes, {r['observer_frames']} observer-frames)", ""]  # fmt: skip
+        lines += ["Frames since the kin came into view:", ""]
+        lines += ["| method | " + " | ".join(_AGE_NAMES) + " |", "|---|" + "---|" * len(_AGE_NAMES)]
+        for m, rows in r["by_age"].items():
+            lines.append(f"| {m} | " + " | ".join(_prf(x) for x in rows) + " |")
+        lines += ["", "Distance (m):", ""]
+        from kin_envs.detection.benchmark import DISTANCE_EDGES
+
+        names = [f"{a:g}-{b:g}" for a, b in zip(DISTANCE_EDGES[:-1], DISTANCE_EDGES[1:], strict=True)]
+        lines += ["| method | " + " | ".join(names) + " |", "|---|" + "---|" * len(names)]
+        for m, rows in r["by_distance"].items():
+            lines.append(f"| {m} | " + " | ".join(_prf(x) for x in rows) + " |")
+        sr = ", ".join(f"{m} {_f(v[0])} ({v[1]} frames)" for m, v in r["same_radius_rejected"].items())
+        mot, sec = r["mot"], r["seconds"]
+        lines += [
+            "",
+            f"- time to confirm a kin: median {_f(r['confirm_frames']['median'])} frames, mean "
+            f"{_f(r['confirm_frames']['mean'])} ({r['confirm_frames']['n']} kin)",
+            f"- false kin tracks per minute of observation: {_f(r['false_tracks_per_minute'])}",
+            f"- CLEAR MOT (tracker): MOTA {_f(mot['mota'])}, IDF1 {_f(mot['idf1'])}, "
+            f"identity switches {mot['num_switches']}",
+            f"- same-radius cylinders rejected once every kin in view moved >= 0.2 m: {sr}",
+            f"- per frame, all observers: detector {1e3 * sec['detector_per_frame']:.2f} ms, tracker "
+            f"{1e3 * sec['tracker_per_frame']:.2f} ms "
+            f"({100 * sec['tracker_per_frame'] / max(sec['detector_per_frame'], 1e-12):.0f} %), timed warm "
+            f"(compile / start-up: {sec['warm_up']:.1f} s)",
+        ]
+    return "\n".join(lines) + "\n"
+
+
+def plot_f1(results: list[dict], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(results), figsize=(4.2 * len(results), 3.4), squeeze=False)
+    for ax, r in zip(axes[0], results, strict=True):
+        for m, rows in r["by_age"].items():
+            ax.plot(range(len(rows)), [x["f1"] for x in rows], marker="o", label=m)
+        ax.set_xticks(range(len(_AGE_NAMES)), _AGE_NAMES)
+        ax.set_xlabel("frames since the kin came into view")
+        ax.set_ylabel("F1")
+        ax.set_ylim(0, 1)
+        ax.set_title(f"{r['split']}, noise {100 * r['noise']:g} %", fontsize=9)
+        ax.grid(alpha=0.3)
+    axes[0][0].legend(fontsize=8)
+    fig.tight_layout()
+    with atomic_write(path) as f:
+        fig.savefig(f, format="png", dpi=110)
+    plt.close(fig)
+
+
+def animate(recording: list[dict], path: Path, range_max: float = 12.0) -> None:
+    """A GIF of the observer's scan (points) and tracks (circles; green = reported kin)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.animation import PillowWriter
+
+    from kin_envs.core.lidar import LidarSpec
+
+    ang = LidarSpec().angles
+    fig, ax = plt.subplots(figsize=(4.5, 4.5))
+    writer = PillowWriter(fps=8)
+    tmp = path.with_name(f".{path.name}.tmp.gif")
+    try:
+        with writer.saving(fig, str(tmp), dpi=80):
+            for k, fr in enumerate(recording):
+                ax.clear()
+                r = fr["scan"]
+                ok = r < range_max
+                ax.scatter(r[ok] * np.cos(ang[ok]), r[ok] * np.sin(ang[ok]), s=3, c="0.3")
+                for t in fr["tracks"]:
+                    kin = t[8] > 0 and t[6] >= 0.5
+                    ax.add_patch(plt.Circle((t[1], t[2]), 0.06, fill=False, lw=1.5 if kin else 0.8,
+                                            color="tab:green" if kin else "tab:red"))  # fmt: skip
+                    if kin:
+                        ax.annotate(f"{int(t[0])}", (t[1] + 0.07, t[2] + 0.07), fontsize=7, color="tab:green")
+                ax.plot([0], [0], marker=(3, 0, -90), ms=10, color="tab:blue")
+                ax.set_xlim(-2.5, 2.5)
+                ax.set_ylim(-2.5, 2.5)
+                ax.set_aspect("equal")
+                ax.set_title(f"frame {k}: scan (grey), tracks (green: kin)", fontsize=8)
+                writer.grab_frame()
+        tmp.replace(path)
+    finally:
+        tmp.unlink(missing_ok=True)
+        plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> list[dict]:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--splits", nargs="+", default=list(SEQUENCE_SPLITS), choices=list(SEQUENCE_SPLITS),
+                   help="sequence splits to run")  # fmt: skip
+    p.add_argument("--noise", nargs="+", type=float, default=None,
+                   help="relative range noise levels (default: each split's, 0 / 0.5 / 1 %%)")  # fmt: skip
+    p.add_argument("--episodes", type=int, default=None, help="episodes per split (default: reduced size)")
+    p.add_argument("--full", action="store_true", help="each split's full number of episodes")
+    p.add_argument(
+        "--detector", default="learned", help="detector feeding the tracker: geometric, learned, module:Class"
+    )
+    p.add_argument(
+        "--baselines", nargs="*", default=["geometric"], help="further single-scan detectors to score"
+    )
+    p.add_argument("--out", type=Path, default=Path("outputs/benchmark_tracking"), help="output directory")
+    p.add_argument("--no-gif", action="store_true", help="skip the animation")
+    p.add_argument("--torch-threads", type=int, default=1, help="torch threads (learned detector)")
+    add_logging_args(p)
+    args = p.parse_args(argv)
+    setup_logging(args)
+    if args.full and args.episodes is not None:
+        p.error("--full and --episodes are exclusive")
+    if args.episodes is not None and args.episodes < 1:
+        p.error(f"--episodes must be >= 1, got {args.episodes}")
+    for nz in args.noise or []:
+        if not 0 <= nz <= 0.05:
+            p.error(f"--noise must be relative range noise in [0, 0.05] (0.01 = 1 %), got {nz}")
+    args.out.mkdir(parents=True, exist_ok=True)
+    if "torch" in sys.modules or args.detector == "learned" or "learned" in args.baselines:
+        import torch
+
+        torch.set_num_threads(args.torch_threads)
+    detector = resolve_detector(args.detector)
+    baselines = {name: resolve_detector(name) for name in args.baselines if name != args.detector}
+    from tqdm import tqdm
+
+    t0 = time.perf_counter()
+    results, recording = [], None
+    jobs = [(s, nz) for s in args.splits for nz in (args.noise or SEQUENCE_SPLITS[s].noise)]
+    for split, nz in tqdm(jobs, desc="sequence benchmark"):
+        spec = SEQUENCE_SPLITS[split]
+        n = spec.n_episodes if args.full else args.episodes
+        want_gif = not args.no_gif and recording is None and split == "lookalike" and nz > 0
+        r = run_sequences(detector, split, n, nz, baselines=baselines, record=0 if want_gif else None)
+        if want_gif:
+            recording = r.pop("recording")
+        results.append(r)
+    with atomic_write(args.out / "results.md", "w") as f:
+        f.write(report(results))
+    write_json(args.out / "results.json", results, default=float)
+    plot_f1(results, args.out / "f1_vs_frames.png")
+    if recording:
+        animate(recording, args.out / "tracks.gif")
+    import detectors
+    import kin_envs
+
+    write_json(args.out / "run.json", {
+        "command": [sys.executable, *sys.argv], "args": {k: str(v) for k, v in vars(args).items()},
+        "sequence_version": SEQUENCE_VERSION,
+        "splits": {s: SEQUENCE_SPLITS[s].to_dict() for s in args.splits},
+        "versions": {"python": platform.python_version(), "numpy": np.__version__,
+                     "kin_envs": kin_envs.__version__, "detectors": getattr(detectors, "__version__", None)},
+        "seconds": time.perf_counter() - t0,
+    })  # fmt: skip
+    print(report(results))
+    return results
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,108 @@
+"""kin_envs.detection.sequences: seeds, episodes, the MOT bookkeeping on hand-made cases, a tiny run."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from detectors import GeometricKinDetector
+from detectors.metrics import match
+from kin_envs.detection import sequences as S
+from kin_envs.detection.benchmark import BENCHMARK_SEEDS, SPLITS
+
+
+def test_seeds_reserved_and_disjoint_from_the_single_scan_splits():
+    single = set()
+    for sp in SPLITS.values():
+        single.update(sp.seeds(sp.n_scenes))
+    seen = set()
+    for spec in S.SEQUENCE_SPLITS.values():
+        seeds = set(spec.seeds(spec.n_episodes))
+        assert all(s in BENCHMARK_SEEDS for s in seeds)
+        assert not seeds & single and not seeds & seen
+        seen |= seeds
+
+
+def test_episode_is_deterministic():
+    spec = S.SEQUENCE_SPLITS["lookalike"]
+
+    def run():
+        ep = S.episode(spec, spec.first_seed + 3, 0.01)
+        out = []
+        for f in range(6):
+            if f:
+                ep.step(f)
+            out.append((ep.world.poses.copy(), ep.scan().ranges.copy(), ep.world.odometry.copy()))
+        return out
+
+    for a, b in zip(run(), run(), strict=True):
+        for x, y in zip(a, b, strict=True):
+            np.testing.assert_array_equal(x, y)
+
+
+def _book():
+    import motmetrics as mm
+
+    return S._Observer(3, 0, mm.MOTAccumulator(auto_id=True))
+
+
+def _frame(bk, kin_xy, det_xy, ids, frame):
+    kin_ids = np.arange(len(kin_xy))
+    m = match(det_xy, kin_xy, S.GATE)
+    S._track_bookkeeping(bk, m, np.asarray(ids), kin_ids, np.ones(len(kin_xy), bool), np.asarray(kin_xy),
+                         np.asarray(det_xy).reshape(-1, 2), frame)  # fmt: skip
+
+
+def test_mot_perfect_tracking():
+    import motmetrics as mm
+
+    bk = _book()
+    for f in range(5):
+        kin = [[1.0 + 0.05 * f, 0.0], [2.0, 1.0]]
+        _frame(bk, kin, kin, [7, 9], f)
+    mot = S._mot_summary(mm, [bk.mot])
+    assert (
+        mot["mota"] == pytest.approx(1.0) and mot["idf1"] == pytest.approx(1.0) and mot["num_switches"] == 0
+    )
+    assert bk.confirm_frames == [1, 1] and not bk.false_ids
+
+
+def test_mot_identity_switch_miss_and_false_track():
+    import motmetrics as mm
+
+    bk = _book()
+    kin = [[1.0, 0.0], [2.0, 1.0]]
+    _frame(bk, kin, kin, [1, 2], 0)
+    _frame(bk, kin, kin, [1, 3], 1)  # kin 1 changes track: one identity switch
+    _frame(bk, kin, [kin[0], [5.0, 5.0]], [1, 4], 2)  # kin 1 missed, a false track
+    mot = S._mot_summary(mm, [bk.mot])
+    assert mot["num_switches"] == 1
+    # MOTA = 1 - (FN + FP + IDSW) / GT = 1 - (1 + 1 + 1) / 6
+    assert mot["mota"] == pytest.approx(0.5)
+    assert bk.false_ids == {4}
+
+
+def test_tiny_run_is_well_formed():
+    spec = S.SEQUENCE_SPLITS["lookalike"]
+    spec = dataclasses.replace(spec, run=dataclasses.replace(spec.run, frames=8))
+    out = S.run_sequences(GeometricKinDetector(reports=False), spec, n_episodes=1, noise=0.0)
+    assert out["frames"] == 8 and out["observer_frames"] == 8
+    assert set(out["by_age"]) == {"tracker", "single"}
+    for rows in out["by_age"].values():
+        assert len(rows) == len(S.AGE_EDGES)
+        for r in rows:
+            for k in ("precision", "recall", "f1"):
+                assert np.isnan(r[k]) or 0 <= r[k] <= 1
+    assert out["seconds"]["tracker_per_frame"] > 0
+
+
+def test_bad_arguments():
+    det = GeometricKinDetector(reports=False)
+    with pytest.raises(ValueError, match="unknown sequence split"):
+        S.run_sequences(det, "nope")
+    with pytest.raises(ValueError, match="n_episodes"):
+        S.run_sequences(det, "lookalike", n_episodes=0)
+    with pytest.raises(ValueError, match="noise"):
+        S.run_sequences(det, "lookalike", n_episodes=1, noise=5)
+    with pytest.raises(ValueError, match="frames"):
+        S.SequenceConfig(frames=0)
