@@ -239,7 +239,6 @@ def main(argv: list[str] | None = None) -> BenchmarkResults:
     p.add_argument("--torch-threads", type=int, default=1, help="torch threads for learned detectors")
     p.add_argument("--out", type=Path, default=Path("outputs/benchmark_detectors"), help="output directory")
     p.add_argument("--no-plots", action="store_true", help="skip the PR-curve PNGs")
-    p.add_argument("--quiet", action="store_true", help="no progress output")
     add_logging_args(p)
     args = p.parse_args(argv)
     setup_logging(args)

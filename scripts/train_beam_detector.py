@@ -24,7 +24,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from detectors.beam_detector import (
     BEAM_DATASET_FORMAT,
@@ -38,6 +37,7 @@ from detectors.beam_detector import (
 from detectors.fileio import atomic_write, sha256_file, write_json
 from detectors.samples import category_code
 from kin_envs.cli import add_logging_args, parse_json_object, setup_logging
+from kin_envs.cli import progress as tqdm
 from kin_envs.detection.beam_dataset import BEAM_DATASET_CONFIG, beam_records
 from kin_envs.detection.swarm_scenes import check_training_seeds
 
