@@ -43,6 +43,7 @@ from pathlib import Path
 import numpy as np
 
 from kin_envs import World, scenes
+from kin_envs.cli import add_logging_args, setup_logging, write_run_info
 from kin_envs.core.world import LIDAR_QUERY_FILTER
 
 
@@ -601,7 +602,9 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--vec-detectors", nargs="+", default=["none", "geometric"],
                    choices=["none", "geometric", "learned"], help="vecenv: detectors to time")
     p.add_argument("--out", type=Path, default=Path("outputs/benchmark"), help="output directory")
+    add_logging_args(p)
     args = p.parse_args(argv)
+    setup_logging(args)
     sections = [s.strip() for s in args.sections.split(",") if s.strip()]
     unknown = sorted(set(sections) - set(SECTIONS))
     if unknown:
@@ -652,6 +655,7 @@ def main(argv: list[str] | None = None) -> dict:
             results[s] = SECTIONS[s](args.min_time)
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "benchmark.json").write_text(json.dumps(results, indent=2))
+    write_run_info(args.out, args, config=results["config"], argv=argv, script=__file__)
     md = to_markdown(results)
     (args.out / "benchmark.md").write_text(md)
     print("\n" + md)

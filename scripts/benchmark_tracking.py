@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from detectors.fileio import atomic_write, write_json
+from kin_envs.cli import add_logging_args, setup_logging
 from kin_envs.detection.sequences import AGE_EDGES, SEQUENCE_SPLITS, SEQUENCE_VERSION, run_sequences
 
 SCRIPTS = Path(__file__).resolve().parent
@@ -181,7 +182,9 @@ def main(argv: list[str] | None = None) -> list[dict]:
     p.add_argument("--out", type=Path, default=Path("outputs/benchmark_tracking"), help="output directory")
     p.add_argument("--no-gif", action="store_true", help="skip the animation")
     p.add_argument("--torch-threads", type=int, default=1, help="torch threads (learned detector)")
+    add_logging_args(p)
     args = p.parse_args(argv)
+    setup_logging(args)
     if args.full and args.episodes is not None:
         p.error("--full and --episodes are exclusive")
     if args.episodes is not None and args.episodes < 1:
