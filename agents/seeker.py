@@ -24,6 +24,7 @@ import numpy as np
 
 from agents.base import SeedLike, steer_to_action
 from agents.wander import Wanderer
+from kin_envs.envs import unpad_detections
 from kin_envs.envs.common import ObservationLayout
 
 __all__ = ["KinSeeker", "detections_from", "SELECT_MODES"]
@@ -35,7 +36,7 @@ def detections_from(layout: ObservationLayout, obs, info) -> tuple[np.ndarray, n
     """``(range, bearing, score)`` arrays of this step's detections, nearest first, or ``None`` when
     neither the info nor the observation carries any (the env has no detector channel).
     ``score`` is NaN when read from the observation (the ``"topk"`` slots hold no score)."""
-    dets = info.get("kin_detections") if info else None
+    dets = unpad_detections(info) if info else None  # padded (v1) or variable-length (v0)
     if dets is not None:
         return dets["range"], dets["bearing"], dets["score"]
     if layout.detections != "topk":

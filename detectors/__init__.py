@@ -48,7 +48,7 @@ from .geometric import (  # noqa: E402
     segment,
     shape_error,
 )
-from .tracking import KinTracker, Track, TrackerParams
+from .tracking import KinTracker, Track, TrackerParams  # noqa: E402
 
 
 def __getattr__(name: str):

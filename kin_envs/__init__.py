@@ -1,8 +1,8 @@
 """kin-envs: a fast 2D multi-robot lidar world for kin detection research.
 
 ``import kin_envs`` is light: it never imports torch or pygame. It registers the Gymnasium ids
-(``kin_envs/KinSeek-v0``, ``kin_envs/KinFollow-v0``) with string entry points and exposes the
-PettingZoo swarm as ``kin_envs.aggregation_v0``.
+(``kin_envs/KinSeek-v1``, ``kin_envs/KinFollow-v1``, and their v0) with string entry points and
+exposes the PettingZoo swarm as ``kin_envs.aggregation_v1`` (and ``aggregation_v0``).
 
 The library reports through the ``kin_envs`` logger (``logging``; silent unless the application
 configures logging). It first checks that the top-level packages ``detectors`` and ``agents`` are
@@ -18,7 +18,7 @@ from kin_envs._toplevel import check_all as _check_toplevel  # noqa: E402
 _check_toplevel()  # before anything imports detectors: a foreign one would fail later, confusingly
 logging.getLogger(__name__).addHandler(logging.NullHandler())
 
-from kin_envs import aggregation_v0, scenes  # noqa: E402
+from kin_envs import aggregation_v0, aggregation_v1, scenes  # noqa: E402
 from kin_envs.core.lidar import HitKind, LidarSpec  # noqa: E402
 from kin_envs.core.scenes import RobotSpec, Scene  # noqa: E402
 from kin_envs.core.world import Contact, Scan, World, WorldConfig  # noqa: E402
@@ -38,6 +38,7 @@ __all__ = [
     "World",
     "WorldConfig",
     "aggregation_v0",
+    "aggregation_v1",
     "record_episode",
     "scenes",
 ]

@@ -17,6 +17,9 @@ Sections (``--sections``, comma separated; default all available):
 * ``envs``: env steps/s for KinSeek and aggregation_v0 (16, 64, 256 robots) with the detector off,
   geometric and learned, as a user gets them (no thread settings), and the ratio to detector off.
 * ``memory``: RSS of a 256-robot swarm with the learned detector over ``--memory-steps`` steps.
+* ``vecenv``: env-steps/s of ``KinSeek-v1``'s native vector env (``gym.make_vec``, K sub-envs,
+  ``--vec-envs``) against Gymnasium's ``SyncVectorEnv`` over K envs, same run, per detector
+  (``--vec-detectors``).
 * ``ros``: recording an 8-robot World run to a bag (steps/s, against the same run unrecorded) and
   reading its scans back (scans/s, against running the geometric detector on them), per bag format
   (needs the ``ros`` extra).
@@ -361,6 +364,35 @@ def bench_memory(min_time: float, steps: int = 1000, n_robots: int = 256) -> lis
     return [row]
 
 
+def bench_vecenv(min_time: float, num_envs: int = 64, detectors=("none", "geometric")) -> list[dict]:
+    """Native vector env vs SyncVectorEnv, K sub-envs each, constant random actions, autoresets
+    included; env-steps/s = K x vector steps/s."""
+    import gymnasium as gym
+
+    import kin_envs  # noqa: F401  (registers the ids)
+
+    rows = []
+    for det in detectors:
+        rates = {}
+        for mode in ("vector_entry_point", "sync"):
+            env = gym.make_vec("kin_envs/KinSeek-v1", num_envs=num_envs, vectorization_mode=mode,
+                               detector=None if det == "none" else det)
+            env.reset(seed=0)
+            env.action_space.seed(0)
+            actions = env.action_space.sample()
+            rates[mode] = rate(lambda env=env, a=actions: env.step(a), min_time) * num_envs
+            env.close()
+        row = {"env": "KinSeek-v1", "num_envs": num_envs, "detector": det,
+               "native_env_steps_per_s": rates["vector_entry_point"],
+               "sync_env_steps_per_s": rates["sync"],
+               "ratio": rates["vector_entry_point"] / rates["sync"]}
+        rows.append(row)
+        print(f"  KinSeek-v1 x{num_envs} detector={det:9s} native {row['native_env_steps_per_s']:8.0f} "
+              f"env-steps/s, SyncVectorEnv {row['sync_env_steps_per_s']:7.0f}: {row['ratio']:.1f}x",
+              flush=True)
+    return rows
+
+
 def bench_ros(min_time: float, steps: int = 100) -> list[dict]:
     try:
         from detectors.ros import read_scans
@@ -432,6 +464,7 @@ SECTIONS = {
     "envs": bench_envs,
     "memory": bench_memory,
     "ros": bench_ros,
+    "vecenv": bench_vecenv,
 }
 
 
@@ -529,6 +562,17 @@ def to_markdown(results: dict) -> str:
             f"{r['open_s']:.2f} | {r['read_scans_per_s']:,.0f} | {r['detect_scans_per_s']:,.0f} |"
             for r in results["ros"]
         ]
+        lines.append("")
+    if results.get("vecenv"):
+        lines += [
+            "| env | sub-envs | detector | native vector env, env-steps/s | SyncVectorEnv | ratio |",
+            "|---|---:|---|---:|---:|---:|",
+        ]
+        lines += [
+            f"| {r['env']} | {r['num_envs']} | {r['detector']} | {r['native_env_steps_per_s']:,.0f} | "
+            f"{r['sync_env_steps_per_s']:,.0f} | {r['ratio']:.1f}x |"
+            for r in results["vecenv"]
+        ]
     return "\n".join(lines) + "\n"
 
 
@@ -554,6 +598,9 @@ def main(argv: list[str] | None = None) -> dict:
         "--memory-steps", type=int, default=1000, help="memory: steps of the 256-robot learned-detector swarm"
     )
     p.add_argument("--memory-robots", type=int, default=256, help="memory: robots in the swarm")
+    p.add_argument("--vec-envs", type=int, default=64, help="vecenv: number of sub-envs K")
+    p.add_argument("--vec-detectors", nargs="+", default=["none", "geometric"],
+                   choices=["none", "geometric", "learned"], help="vecenv: detectors to time")
     p.add_argument("--out", type=Path, default=Path("outputs/benchmark"), help="output directory")
     add_logging_args(p)
     args = p.parse_args(argv)
@@ -566,6 +613,8 @@ def main(argv: list[str] | None = None) -> dict:
         p.error("--min-time must be > 0, --robots >= 1, --env-robots >= 2 and --memory-steps >= 1")
     if not 2 <= args.memory_robots <= 256:
         p.error(f"--memory-robots must be in 2..256, got {args.memory_robots}")
+    if args.vec_envs < 1:
+        p.error(f"--vec-envs must be >= 1, got {args.vec_envs}")
     if min(args.scaling_robots) < 1 or min(args.scaling_obstacles) < 0:
         p.error("--scaling-robots must be >= 1 and --scaling-obstacles >= 0")
     results: dict = {
@@ -580,6 +629,8 @@ def main(argv: list[str] | None = None) -> dict:
             "env_robots": args.env_robots,
             "memory_steps": args.memory_steps,
             "memory_robots": args.memory_robots,
+            "vec_envs": args.vec_envs,
+            "vec_detectors": args.vec_detectors,
             "python": platform.python_version(),
             "machine": platform.machine(),
         }
@@ -598,6 +649,8 @@ def main(argv: list[str] | None = None) -> dict:
             results[s] = SECTIONS[s](args.min_time, robots=args.env_robots)
         elif s == "memory":
             results[s] = SECTIONS[s](args.min_time, steps=args.memory_steps, n_robots=args.memory_robots)
+        elif s == "vecenv":
+            results[s] = SECTIONS[s](args.min_time, args.vec_envs, args.vec_detectors)
         else:
             results[s] = SECTIONS[s](args.min_time)
     args.out.mkdir(parents=True, exist_ok=True)

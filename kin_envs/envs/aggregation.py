@@ -1,4 +1,4 @@
-"""``aggregation_v0``: a PettingZoo swarm in which robots gather into clusters using lidar only."""
+"""``aggregation_v1`` (and ``_v0``): a PettingZoo swarm in which robots gather into clusters using lidar."""
 
 from __future__ import annotations
 
@@ -22,19 +22,24 @@ from kin_envs.envs.common import (
     check_int,
     check_render_mode,
     config_from_kwargs,
-    kin_truth,
+    detect_rows,
+    kin_truth_rows,
     resolve_detector,
-    run_detector,
+    split_rows,
 )
+from kin_envs.envs.info import pad_rows
 
-__all__ = ["AggregationConfig", "AggregationEnv", "env", "parallel_env", "raw_env"]
+__all__ = [
+    "AggregationConfig", "AggregationEnv", "AggregationEnvV0", "env", "env_v0", "parallel_env",
+    "parallel_env_v0", "raw_env", "raw_env_v0",
+]
 
 
 @dataclass(frozen=True, kw_only=True)
 class AggregationConfig(CommonConfig):
-    """Arguments of ``aggregation_v0`` (see :class:`AggregationEnv`)."""
+    """Arguments of ``aggregation_v1`` (see :class:`AggregationEnv`)."""
 
-    env_id: ClassVar[str] = "aggregation_v0"
+    env_id: ClassVar[str] = "aggregation_v1"
 
     n_robots: int = 16
     arena_size: float | None = None
@@ -43,6 +48,7 @@ class AggregationConfig(CommonConfig):
     max_cycles: int = 500
     kin_radius: float = 0.6
     max_kin_counted: int = 6
+    max_kin_truth: int = 16
     kin_reward: float = 0.1
     collision_penalty: float = 1.0
     render_agent: int | None = 0
@@ -63,6 +69,7 @@ class AggregationConfig(CommonConfig):
         check_int(w, "max_cycles", self.max_cycles, 1, 1_000_000)
         check_float(w, "kin_radius", self.kin_radius, 0.18, 100.0, lo_open=True)
         check_int(w, "max_kin_counted", self.max_kin_counted, 1, 255)
+        check_int(w, "max_kin_truth", self.max_kin_truth, 1, 255)
         check_float(w, "kin_reward", self.kin_reward, 0.0, 1e6)
         check_float(w, "collision_penalty", self.collision_penalty, 0.0, 1e6)
         if self.render_agent is not None:
@@ -118,24 +125,33 @@ class AggregationEnv(ParallelEnv):
 
     ## Info
 
-    Per agent: ``kin_truth`` (robots its lidar sees: arrays ``index, range, bearing, x, y,
-    n_beams``, nearest first), ``reward_terms``, ``n_kin`` (robots within ``kin_radius``) and,
-    unless ``detector=None``, ``kin_detections`` (arrays ``range, bearing, x, y, score,
-    first_beam, last_beam, n_beams, kin_index``; ``kin_index`` -1 = false detection). All agents'
-    scans go through the detector's ``detect_batch`` at once. The geometric detector costs far
-    more than the simulation at large swarms (about 1 ms per scan): pass ``detector=None`` for
-    fast training.
+    Per agent, every entry with one shape on every step (padded columns, valid slots first,
+    nearest first; ``kin_envs.envs.unpad_kin_truth(info)`` / ``unpad_detections(info)`` drop the
+    empty slots, which hold -1 for indices and beams, else 0):
+
+    * ``kin_truth``: robots its lidar sees, ``max_kin_truth`` (16) slots of ``index, range,
+      bearing, x, y, n_beams``, and ``kin_truth_count`` (<= ``max_kin_truth``: the nearest are
+      kept);
+    * unless ``detector=None``, ``kin_detections``: ``max_detections`` (16) slots of ``range,
+      bearing, x, y, score, first_beam, last_beam, n_beams, kin_index`` (``kin_index`` -1 = false
+      detection) and ``kin_detections_count``;
+    * ``reward_terms`` and ``n_kin`` (robots within ``kin_radius``).
+
+    All agents' scans go through the detector's ``detect_batch`` at once. The geometric detector
+    costs far more than the simulation at large swarms (about 1 ms per scan): pass
+    ``detector=None`` for fast training.
 
     ## Arguments
 
-    ``aggregation_v0.parallel_env(**kwargs)`` / ``aggregation_v0.env(**kwargs)`` (AEC):
+    ``aggregation_v1.parallel_env(**kwargs)`` / ``aggregation_v1.env(**kwargs)`` (AEC):
 
     * ``n_robots`` (16, 2–256); ``arena_size`` (None: ``max(3, sqrt(n_robots * area_per_robot))``
       m), ``area_per_robot`` (1.0 m²); ``n_obstacles`` (None: ``n_robots // 8``);
     * ``max_cycles`` (500); ``kin_radius`` (0.6 m); ``max_kin_counted`` (6); ``kin_reward``
-      (0.1); ``collision_penalty`` (1.0);
+      (0.1); ``collision_penalty`` (1.0); ``max_kin_truth`` (16 info slots);
     * common: ``noise_sigma``, ``dropout_prob``, ``detector`` (``"geometric"``), ``obs_detections``,
-      ``obs_top_k``, ``frame_stack``, ``action_type``, ``control_dt``;
+      ``obs_top_k``, ``max_detections`` (16 info slots), ``frame_stack``, ``action_type``,
+      ``control_dt``;
     * rendering: ``render_mode`` (None, ``"rgb_array"``, ``"human"``), ``render_size`` (512 px),
       ``render_beams`` (True) and ``render_agent`` (0: whose beams and detections are drawn).
 
@@ -143,18 +159,25 @@ class AggregationEnv(ParallelEnv):
 
     ## Version History
 
-    * v0: initial version.
+    * v1: fixed-shape info (padded ``kin_truth`` / ``kin_detections`` slots with
+      ``kin_truth_count`` / ``kin_detections_count``), ``max_kin_truth`` and ``max_detections``
+      arguments. Observations, rewards and dynamics are those of v0.
+    * v0: initial version (variable-length info columns; still available as
+      ``kin_envs.aggregation_v0``).
     """
 
+    #: True: fixed-shape info (padded slots + counts); False: v0's variable-length info
+    padded_info: ClassVar[bool] = True
+    config_class: ClassVar[type] = AggregationConfig
     metadata: ClassVar[dict[str, Any]] = {
         "render_modes": ["human", "rgb_array"],
-        "name": "aggregation_v0",
+        "name": "aggregation_v1",
         "is_parallelizable": True,
         "render_fps": 10,
     }
 
     def __init__(self, render_mode: str | None = None, **kwargs: Any) -> None:
-        self.config = cfg = config_from_kwargs(AggregationConfig, kwargs)
+        self.config = cfg = config_from_kwargs(self.config_class, kwargs)
         where = cfg.env_id
         self.render_mode = check_render_mode(render_mode, self.metadata["render_modes"], where)
         self.detector = resolve_detector(cfg.detector, where)
@@ -221,18 +244,18 @@ class AggregationEnv(ParallelEnv):
 
     def step(self, actions: dict):
         if self.world is None:
-            raise RuntimeError("aggregation_v0: call reset() before step()")
+            raise RuntimeError(f"{self.metadata['name']}: call reset() before step()")
         if not self.agents:
-            raise RuntimeError("aggregation_v0: all agents are done; call reset() before step()")
+            raise RuntimeError(f"{self.metadata['name']}: all agents are done; call reset() before step()")
         if not isinstance(actions, dict):
-            raise ValueError(f"aggregation_v0: actions must be a dict agent -> action, got "
+            raise ValueError(f"{self.metadata['name']}: actions must be a dict agent -> action, got "
                              f"{type(actions).__name__}")
         if len(actions) != len(self.agents) or actions.keys() != self._index.keys():
             missing = [a for a in self.agents if a not in actions]
             unknown = [a for a in actions if a not in self._index]
             if missing or unknown:
                 raise ValueError(
-                    f"aggregation_v0: actions must have one entry per agent; missing {missing[:5]}"
+                    f"{self.metadata['name']}: actions must have one entry per agent; missing {missing[:5]}"
                     f"{'...' if len(missing) > 5 else ''}, unknown {unknown[:5]}"
                 )
         wheels = self._actions.many([actions[a] for a in self.agents], self.agents)
@@ -272,23 +295,38 @@ class AggregationEnv(ParallelEnv):
     def _sense(self) -> tuple[np.ndarray, dict[str, dict]]:
         scan = self.world.scan()
         self._last_scan = scan
-        poses = scan.poses
-        truth = kin_truth(scan, poses)
+        poses, n = scan.poses, scan.ranges.shape[0]
+        truth = kin_truth_rows(scan, poses)
         dets = None
         if self.detector is not None:
-            dets = run_detector(self.detector, scan.ranges, scan.angles, scan.robots, poses)
+            dets = detect_rows(self.detector, scan.ranges, scan.angles, scan.robots, poses)
         self._last_detections = dets
-        infos = {}
-        for i, a in enumerate(self.possible_agents):
-            info = {"kin_truth": truth[i]}
+        entries = {}
+        if self.padded_info:
+            entries["kin_truth"] = pad_rows(*truth, n, self.config.max_kin_truth)
             if dets is not None:
-                info["kin_detections"] = dets[i]
-            infos[a] = info
+                entries["kin_detections"] = pad_rows(*dets, n, self.config.max_detections)
+            infos = {}
+            for i, a in enumerate(self.possible_agents):
+                info = {}
+                for key, (cols, count) in entries.items():
+                    info[key] = {f: c[i] for f, c in cols.items()}
+                    info[f"{key}_count"] = int(count[i])
+                infos[a] = info
+        else:
+            truth_rows = split_rows(*truth, n)
+            det_rows = split_rows(*dets, n) if dets is not None else None
+            infos = {}
+            for i, a in enumerate(self.possible_agents):
+                info = {"kin_truth": truth_rows[i]}
+                if det_rows is not None:
+                    info["kin_detections"] = det_rows[i]
+                infos[a] = info
         return self._obs.frame(scan.ranges, dets), infos
 
     def state(self) -> np.ndarray:
         if self.world is None:
-            raise RuntimeError("aggregation_v0: call reset() before state()")
+            raise RuntimeError(f"{self.metadata['name']}: call reset() before state()")
         return self.world.poses.astype(np.float32)
 
     def render(self):
@@ -296,17 +334,17 @@ class AggregationEnv(ParallelEnv):
             import gymnasium
 
             gymnasium.logger.warn(
-                "aggregation_v0: render() called without a render_mode; pass "
+                f"{self.metadata['name']}: render() called without a render_mode; pass "
                 "render_mode='rgb_array' or 'human'"
             )
             return None
         if self.world is None:
-            raise RuntimeError("aggregation_v0: call reset() before render()")
+            raise RuntimeError(f"{self.metadata['name']}: call reset() before render()")
         from kin_envs.envs.rendering import Renderer
 
         if self._renderer is None:
             self._renderer = Renderer(self.world.scene, self.render_mode, self.config.render_size,
-                                      self.metadata["render_fps"], title="aggregation_v0")
+                                      self.metadata["render_fps"], title=self.metadata["name"])
         elif self._renderer.scene is not self.world.scene:
             self._renderer.set_scene(self.world.scene)
         beams, dets = [], []
@@ -314,7 +352,8 @@ class AggregationEnv(ParallelEnv):
         if self.config.render_beams and k is not None and scan is not None:
             beams.append((scan.poses[k], scan.ranges[k], scan.angles, scan.range_max))
             if self._last_detections is not None:
-                dets.append((scan.poses[k], self._last_detections[k]))
+                row, cols = self._last_detections
+                dets.append((scan.poses[k], {f: c[row == k] for f, c in cols.items()}))
         roles = ["agent"] * self.world.n_robots
         if k is not None:
             roles[k] = "learner"  # highlight the robot whose view is drawn
@@ -339,3 +378,32 @@ def raw_env(**kwargs: Any) -> parallel_to_aec_wrapper:
 def env(**kwargs: Any):
     """The AEC version (``pettingzoo.utils.parallel_to_aec`` of :func:`parallel_env`)."""
     return parallel_to_aec(AggregationEnv(**kwargs))
+
+
+@dataclass(frozen=True, kw_only=True)
+class _AggregationConfigV0(AggregationConfig):
+    env_id: ClassVar[str] = "aggregation_v0"
+
+
+class AggregationEnvV0(AggregationEnv):
+    """``aggregation_v0``: :class:`AggregationEnv` with the v0 info layout (``kin_truth`` and
+    ``kin_detections`` columns of variable length, no counts), kept to reproduce earlier results."""
+
+    padded_info: ClassVar[bool] = False
+    metadata: ClassVar[dict[str, Any]] = {**AggregationEnv.metadata, "name": "aggregation_v0"}
+    config_class: ClassVar[type] = _AggregationConfigV0
+
+
+def parallel_env_v0(**kwargs: Any) -> AggregationEnvV0:
+    """``aggregation_v0``'s parallel env."""
+    return AggregationEnvV0(**kwargs)
+
+
+def raw_env_v0(**kwargs: Any) -> parallel_to_aec_wrapper:
+    """``aggregation_v0``'s AEC env without the order-enforcing wrapper."""
+    return parallel_to_aec_wrapper(AggregationEnvV0(**kwargs))
+
+
+def env_v0(**kwargs: Any):
+    """``aggregation_v0``'s AEC env."""
+    return parallel_to_aec(AggregationEnvV0(**kwargs))

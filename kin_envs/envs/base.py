@@ -21,10 +21,12 @@ from kin_envs.envs.common import (
     ObservationLayout,
     check_render_mode,
     config_from_kwargs,
-    kin_truth,
+    detect_rows,
+    kin_truth_rows,
     resolve_detector,
-    run_detector,
+    split_rows,
 )
+from kin_envs.envs.info import pad_rows
 
 __all__ = ["SingleRobotEnv"]
 
@@ -39,12 +41,15 @@ class SingleRobotEnv(gym.Env):
     config_class: ClassVar[type[CommonConfig]] = CommonConfig
     #: per-robot role names for rendering
     roles: ClassVar[tuple[str, ...]] = ("learner", "kin")
+    #: True: fixed-shape info (padded slots + counts); False: the v0 ids' variable-length info
+    padded_info: ClassVar[bool] = True
 
     def __init__(self, render_mode: str | None = None, **kwargs: Any) -> None:
         self.config = config_from_kwargs(self.config_class, kwargs)
         where = self.config.env_id
         self.render_mode = check_render_mode(render_mode, self.metadata["render_modes"], where)
         self.detector = resolve_detector(self.config.detector, where)
+        self.tracker = self.config.make_tracker()
         self._lidar = self.config.lidar_spec()
         self._world_config = WorldConfig(control_dt=self.config.control_dt)
         self.layout = ObservationLayout(
@@ -62,8 +67,14 @@ class SingleRobotEnv(gym.Env):
         self.world: World | None = None
         self._renderer = None
         self._last_scan: Scan | None = None
-        self._last_detections: dict | None = None
+        self._last_detections = None
+        self._wheels: np.ndarray | None = None
+        self._current_poses: np.ndarray | None = None
         self._steps = 0
+
+    def _poses(self) -> np.ndarray:
+        """``world.poses`` now (read once per step; the vector env sets it from its batch read)."""
+        return self._current_poses
 
     # -- hooks for subclasses -----------------------------------------------------------------
     def _make_scene(self, rng: np.random.Generator) -> Scene:
@@ -95,9 +106,15 @@ class SingleRobotEnv(gym.Env):
         self.world = World(scene, seed=self.np_random, config=self._world_config)
         self._steps = 0
         scan = self.world.scan(self._scan_robots())
+        poses = self._current_poses = self.world.poses
         self._after_reset(scan)
-        frame, info = self._sense(scan)
+        dets = self._detect(scan, poses)
+        if self.tracker is not None:
+            self.tracker.reset()
+            self._track(scan, dets, np.zeros(3))
+        frame = self._sense(scan, dets)
         obs = self._obs.reset(frame)[0]
+        info = self._kin_info(scan, dets, poses)
         info.update(self._task_info_at_reset())
         info["reward_terms"] = self._zero_terms()
         if self.render_mode == "human":
@@ -108,35 +125,111 @@ class SingleRobotEnv(gym.Env):
         return {}
 
     def step(self, action):
+        self._wheel_speeds(action)  # checks reset() was called
+        self.world.step(wheel_speeds=self._wheels)
+        scan = self.world.scan(self._scan_robots())
+        poses = self._current_poses = self.world.poses
+        dets = self._detect(scan, poses)
+        if self.tracker is not None:
+            self._track(scan, dets, self.world.odometry_delta[LEARNER])
+        obs, reward, terminated, truncated, info = self._finish_step(self._sense(scan, dets))
+        info.update(self._kin_info(scan, dets, poses))
+        return obs, reward, terminated, truncated, info
+
+    # The step in phases, so that the native vector env (kin_envs.envs.vector) can run the
+    # physics, the lidar and the detector of all its sub-envs in one call each, between them.
+    def _wheel_speeds(self, action) -> np.ndarray:
+        """Phase 1: ``(n_robots, 2)`` wheel speeds (rad/s) of this step, kept in ``_wheels``."""
         if self.world is None:
             raise RuntimeError(f"{self.config.env_id}: call reset() before step()")
         learner = self._actions.one(action)
         wheels = np.vstack([learner[None, :], self._other_wheels(self._last_scan)])
-        self.world.step(wheel_speeds=wheels * self.world.scene.robot.max_wheel_speed)
+        self._wheels = wheels * self.world.scene.robot.max_wheel_speed
+        return self._wheels
+
+    def _detect(self, scan: Scan, poses: np.ndarray):
+        """The learner's detections as flat ``(row, cols)`` (:func:`detect_rows`), or ``None``."""
+        if self.detector is None:
+            return None
+        return detect_rows(self.detector, scan.ranges[:1], scan.angles, scan.robots[:1], poses)
+
+    def _track(self, scan: Scan, dets, odom_delta: np.ndarray) -> None:
+        """Advance the tracker with this frame's detections (all accepted: the detector's operating
+        point), their segments' scan points and the learner's odometry increment."""
+        row, cols = dets if dets is not None else (np.zeros(0, np.int64), None)
+        n = scan.ranges.shape[1]
+        r = scan.ranges[0].astype(np.float64)
+        xy, pts, own = np.zeros((0, 2)), [np.zeros((0, 2))], [np.zeros(0, np.int64)]
+        if row.size:
+            xy = np.c_[cols["x"], cols["y"]]
+            for k, (a, b) in enumerate(zip(cols["first_beam"], cols["last_beam"], strict=True)):
+                idx = np.arange(a, a + (b - a) % n + 1) % n
+                ok = r[idx] < scan.range_max
+                pts.append(np.c_[r[idx][ok] * np.cos(scan.angles[idx][ok]),
+                                 r[idx][ok] * np.sin(scan.angles[idx][ok])])  # fmt: skip
+                own.append(np.full(int(ok.sum()), k))
+        scores = np.zeros(0) if not row.size else cols["score"]
+        self.tracker.update_batch(np.zeros(row.size, np.int64), xy, scores, odom_delta[None, :],
+                                  self.world.config.control_dt, np.concatenate(pts), np.concatenate(own),
+                                  accepted=np.ones(row.size, bool))  # fmt: skip
+
+    def _track_rows(self):
+        """The tracker's confirmed kin tracks as detection rows (for ``obs_tracks``)."""
+        a = self.tracker.track_arrays(self.config.max_tracks)
+        t = a["tracks"][0][a["mask"][0]]
+        kin = (t[:, 8] > 0) & (t[:, 6] >= self.tracker.params.kin_threshold)
+        t = t[kin][np.argsort(np.hypot(t[kin, 1], t[kin, 2]), kind="stable")]
+        m = t.shape[0]
+        cols = {"range": np.hypot(t[:, 1], t[:, 2]).astype(np.float64),
+                "bearing": np.arctan2(t[:, 2], t[:, 1]).astype(np.float64),
+                "x": t[:, 1].astype(np.float64), "y": t[:, 2].astype(np.float64),
+                "score": t[:, 6].astype(np.float64), "first_beam": np.full(m, -1, np.int64),
+                "last_beam": np.full(m, -1, np.int64), "n_beams": np.zeros(m, np.int64),
+                "kin_index": np.full(m, -1, np.int64)}  # fmt: skip
+        return np.zeros(m, np.int64), cols
+
+    def _sense(self, scan: Scan, dets) -> np.ndarray:
+        """Phase 2: remember the scan and detections; the learner's observation frame ``(1, d)``."""
+        self._last_scan = scan
+        self._last_detections = dets
+        if self.config.obs_tracks:
+            return self._obs.frame(scan.ranges[:1], self._track_rows())
+        return self._obs.frame(scan.ranges[:1], dets)
+
+    def _finish_step(self, frame: np.ndarray):
+        """Phase 3: observation, reward, ends and the task's info (without the kin entries)."""
         self._steps += 1
-        scan = self.world.scan(self._scan_robots())
-        frame, info = self._sense(scan)
         obs = self._obs.push(frame)[0]
-        terms, terminated, extra = self._task(scan)
+        terms, terminated, info = self._task(self._last_scan)
         reward = float(sum(terms.values()))
-        info.update(extra)
         info["reward_terms"] = terms
         truncated = bool(self._steps >= self.config.max_steps and not terminated)
         if self.render_mode == "human":
             self.render()
         return obs, reward, bool(terminated), truncated, info
 
-    def _sense(self, scan: Scan) -> tuple[np.ndarray, dict[str, Any]]:
-        """Frame of the learner's observation and the info channel."""
-        self._last_scan = scan
-        poses = self.world.poses
-        info: dict[str, Any] = {"kin_truth": kin_truth(_rows(scan, 1), poses)[0]}
-        dets = None
-        if self.detector is not None:
-            dets = run_detector(self.detector, scan.ranges[:1], scan.angles, scan.robots[:1], poses)
-            info["kin_detections"] = dets[0]
-        self._last_detections = dets[0] if dets is not None else None
-        return self._obs.frame(scan.ranges[:1], dets), info
+    def _kin_info(self, scan: Scan, dets, poses: np.ndarray) -> dict[str, Any]:
+        """``kin_truth`` and ``kin_detections`` (padded with counts, or ragged for v0)."""
+        truth_row, truth = kin_truth_rows(_rows(scan, 1), poses)
+        if not self.padded_info:
+            info = {"kin_truth": truth}
+            if dets is not None:
+                info["kin_detections"] = dets[1]
+            return info
+        cols, count = pad_rows(truth_row, truth, 1, self.world.n_robots - 1)
+        info = {"kin_truth": {k: v[0] for k, v in cols.items()}, "kin_truth_count": int(count[0])}
+        if dets is not None:
+            cols, count = pad_rows(dets[0], dets[1], 1, self.config.max_detections)
+            info["kin_detections"] = {k: v[0] for k, v in cols.items()}
+            info["kin_detections_count"] = int(count[0])
+        if self.tracker is not None:
+            from detectors.tracking import TRACK_FIELDS
+
+            a = self.tracker.track_arrays(self.config.max_tracks)
+            info["kin_tracks"] = {name: a["tracks"][0][:, j].astype(np.float64)
+                                  for j, name in enumerate(TRACK_FIELDS)}  # fmt: skip
+            info["kin_tracks_count"] = int(a["count"][0])
+        return info
 
     def render(self):
         if self.render_mode is None:
@@ -149,13 +242,16 @@ class SingleRobotEnv(gym.Env):
             raise RuntimeError(f"{self.config.env_id}: call reset() before render()")
         from kin_envs.envs.rendering import Renderer
 
-        if self._renderer is None or (
-            self._renderer.scene.arena != self.world.scene.arena
-        ):
+        if self._renderer is None or (self._renderer.scene.arena != self.world.scene.arena):
             if self._renderer is not None:
                 self._renderer.close()
-            self._renderer = Renderer(self.world.scene, self.render_mode, self.config.render_size,
-                                      self.metadata["render_fps"], title=self.config.env_id)
+            self._renderer = Renderer(
+                self.world.scene,
+                self.render_mode,
+                self.config.render_size,
+                self.metadata["render_fps"],
+                title=self.config.env_id,
+            )
         elif self._renderer.scene is not self.world.scene:
             self._renderer.set_scene(self.world.scene)
         beams, dets = [], []
@@ -163,8 +259,11 @@ class SingleRobotEnv(gym.Env):
         if self.config.render_beams and scan is not None:
             beams.append((scan.poses[0], scan.ranges[0], scan.angles, scan.range_max))
             if self._last_detections is not None:
-                dets.append((scan.poses[0], self._last_detections))
-        return self._renderer.render(self.world, self.roles, beams, dets)
+                dets.append((scan.poses[0], split_rows(*self._last_detections, 1)[0]))
+        tracks = []
+        if self.tracker is not None and scan is not None:
+            tracks.append((scan.poses[0], self._track_rows()[1]))
+        return self._renderer.render(self.world, self.roles, beams, dets, tracks)
 
     def close(self) -> None:
         if self._renderer is not None:
@@ -177,7 +276,12 @@ def _rows(scan: Scan, k: int) -> Scan:
     if scan.ranges.shape[0] == k:
         return scan
     return Scan(
-        ranges=scan.ranges[:k], angles=scan.angles, hit_kind=scan.hit_kind[:k],
-        hit_index=scan.hit_index[:k], true_ranges=scan.true_ranges[:k], robots=scan.robots[:k],
-        poses=scan.poses[:k], range_max=scan.range_max,
+        ranges=scan.ranges[:k],
+        angles=scan.angles,
+        hit_kind=scan.hit_kind[:k],
+        hit_index=scan.hit_index[:k],
+        true_ranges=scan.true_ranges[:k],
+        robots=scan.robots[:k],
+        poses=scan.poses[:k],
+        range_max=scan.range_max,
     )

@@ -9,19 +9,22 @@ speeds:
 * :class:`ObservationLayout` / :class:`ObservationBuilder`: the normalised scan, optional
   detector channel and frame stacking;
 * :class:`ActionAdapter`: continuous or discrete actions → normalised wheel speeds, with checks;
-* :func:`resolve_detector`, :func:`run_detector`: the ``detector=`` argument and
-  ``info["kin_detections"]``;
-* :func:`kin_truth`: ``info["kin_truth"]``, the kin each robot's lidar actually sees.
+* :func:`resolve_detector`, :func:`detect_rows`: the ``detector=`` argument and
+  ``info["kin_detections"]`` (:func:`detection_arrays` is the one place that reads a detector's
+  output);
+* :func:`kin_truth_rows`: ``info["kin_truth"]``, the kin each robot's lidar actually sees.
 
 Info arrays are *columns*: a dict of equal-length 1-D numpy arrays, one entry per kin, nearest
-first. (Structured numpy arrays would be neater, but Gymnasium's checker compares infos with
-``np.allclose``, which cannot handle them.)
+first, padded to a fixed number of slots (:mod:`kin_envs.envs.info`). (Structured numpy arrays
+would be neater, but Gymnasium's checker compares infos with ``np.allclose``, which cannot handle
+them.)
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -29,6 +32,7 @@ import numpy as np
 from gymnasium import spaces
 
 from kin_envs.core.lidar import HitKind, LidarSpec
+from kin_envs.envs.info import DETECTION_FIELDS, KIN_TRUTH_FIELDS
 
 __all__ = [
     "ACTION_TYPES",
@@ -44,9 +48,13 @@ __all__ = [
     "ObservationLayout",
     "UnknownArgumentError",
     "config_from_kwargs",
+    "detect_rows",
+    "detection_arrays",
     "kin_truth",
+    "kin_truth_rows",
     "resolve_detector",
     "run_detector",
+    "split_rows",
 ]
 
 ACTION_TYPES = ("continuous", "discrete")
@@ -59,10 +67,6 @@ DISCRETE_ACTIONS = np.array(
 )
 DISCRETE_ACTION_NAMES = ("stop", "forward", "turn_left", "turn_right", "back")
 
-KIN_TRUTH_FIELDS = ("index", "range", "bearing", "x", "y", "n_beams")
-DETECTION_FIELDS = (
-    "range", "bearing", "x", "y", "score", "first_beam", "last_beam", "n_beams", "kin_index",
-)
 #: A detection is counted correct when its centre is within this distance of a robot's centre, m.
 #: Distractors keep >= 0.175 m from any robot centre (body radius + clearance + their size), so
 #: 0.1 m never credits a detection on an obstacle to a robot.
@@ -128,10 +132,19 @@ class CommonConfig:
         frame_stack: number of consecutive frames in one observation (oldest first).
         obs_detections: ``None``/``False`` (scan only), ``"topk"``/``True`` or ``"mask"``.
         obs_top_k: detection slots in the ``"topk"`` encoding.
+        max_detections: slots of ``info["kin_detections"]`` (fixed-shape info; further, farther
+            detections are left out of the info, never out of the observation's ``"mask"``).
         action_type: ``"continuous"`` or ``"discrete"``.
         control_dt: seconds per step (the world's ``WorldConfig.control_dt``).
         render_size: longer side of rendered frames, pixels.
         render_beams: draw the lidar beams (and detections) of the observed robot.
+        tracker: multi-frame kin tracking of the detections (:class:`detectors.KinTracker`, fed with
+            the detector's operating-point detections and the robot's wheel odometry): ``None``/
+            ``False`` (off), ``True`` (default parameters) or a dict of ``detectors.TrackerParams``
+            fields. Adds ``info["kin_tracks"]``. Needs a detector.
+        max_tracks: slots of ``info["kin_tracks"]`` (fixed-shape info).
+        obs_tracks: fill the observation's detection channel from the tracker's confirmed kin tracks
+            (their centre; score = kin probability) instead of the frame's raw detections.
     """
 
     env_id: ClassVar[str] = "kin_envs"
@@ -142,10 +155,14 @@ class CommonConfig:
     frame_stack: int = 1
     obs_detections: str | bool | None = None
     obs_top_k: int = 3
+    max_detections: int = 16
     action_type: str = "continuous"
     control_dt: float = 0.1
     render_size: int = 512
     render_beams: bool = True
+    tracker: Any = None
+    max_tracks: int = 16
+    obs_tracks: bool = False
 
     def __post_init__(self) -> None:
         w = self.env_id
@@ -153,6 +170,7 @@ class CommonConfig:
         check_float(w, "dropout_prob", self.dropout_prob, 0.0, 0.99)
         check_int(w, "frame_stack", self.frame_stack, 1, 64)
         check_int(w, "obs_top_k", self.obs_top_k, 1, 64)
+        check_int(w, "max_detections", self.max_detections, 1, 1024)
         check_float(w, "control_dt", self.control_dt, 0.02, 1.0)
         check_int(w, "render_size", self.render_size, 64, 4096)
         check_bool(w, "render_beams", self.render_beams)
@@ -162,20 +180,17 @@ class CommonConfig:
         elif mode is False:
             mode = None
         if mode is not None and mode not in OBS_DETECTION_MODES:
-            raise ValueError(
-                f"{w}: obs_detections must be None, False, True, 'topk' or 'mask', got {mode!r}"
-            )
+            raise ValueError(f"{w}: obs_detections must be None, False, True, 'topk' or 'mask', got {mode!r}")
         object.__setattr__(self, "obs_detections", mode)
         if self.action_type not in ACTION_TYPES:
-            raise ValueError(
-                f"{w}: action_type must be one of {ACTION_TYPES}, got {self.action_type!r}"
-            )
+            raise ValueError(f"{w}: action_type must be one of {ACTION_TYPES}, got {self.action_type!r}")
         if mode is not None and self.detector is None:
-            raise ValueError(
-                f"{w}: obs_detections={mode!r} needs a detector, but detector=None"
-            )
-        if not (self.detector is None or isinstance(self.detector, str)
-                or callable(getattr(self.detector, "detect", None))):
+            raise ValueError(f"{w}: obs_detections={mode!r} needs a detector, but detector=None")
+        if not (
+            self.detector is None
+            or isinstance(self.detector, str)
+            or callable(getattr(self.detector, "detect", None))
+        ):
             raise ValueError(
                 f"{w}: detector must be 'geometric', 'learned', 'beam', None or an object with a "
                 f"detect(ranges, angles) method, got {self.detector!r}"
@@ -185,6 +200,30 @@ class CommonConfig:
                 f"{w}: detector must be 'geometric', 'learned', 'beam', None or a detector object, "
                 f"got {self.detector!r}"
             )
+
+        check_int(w, "max_tracks", self.max_tracks, 1, 1024)
+        check_bool(w, "obs_tracks", self.obs_tracks)
+        if self.tracker is False:
+            object.__setattr__(self, "tracker", None)
+        if self.tracker is not None:
+            if self.tracker is not True and not isinstance(self.tracker, dict):
+                raise ValueError(
+                    f"{w}: tracker must be None, False, True or a dict of detectors.TrackerParams "
+                    f"fields, got {self.tracker!r}"
+                )
+            if self.detector is None:
+                raise ValueError(f"{w}: tracker={self.tracker!r} needs a detector, but detector=None")
+        if self.obs_tracks and (self.tracker is None or mode is None):
+            raise ValueError(f"{w}: obs_tracks=True needs tracker=True and obs_detections ('topk' or 'mask')")
+
+    def make_tracker(self, n_observers: int = 1):
+        """The configured :class:`detectors.KinTracker` (imported lazily), or ``None``."""
+        if self.tracker is None:
+            return None
+        from detectors.tracking import KinTracker, TrackerParams
+
+        params = TrackerParams() if self.tracker is True else TrackerParams.from_dict(self.tracker)
+        return KinTracker(params, n_observers=n_observers)
 
     def lidar_spec(self) -> LidarSpec:
         return LidarSpec(noise_sigma=float(self.noise_sigma), dropout_prob=float(self.dropout_prob))
@@ -237,31 +276,35 @@ def resolve_detector(spec: Any, where: str = "kin_envs"):
     raise ValueError(f"{where}: unknown detector {spec!r}")
 
 
-def _empty_detections() -> dict[str, np.ndarray]:
-    return {
-        k: np.zeros(0, dtype=np.int64 if k in ("first_beam", "last_beam", "n_beams", "kin_index")
-                    else np.float64)
-        for k in DETECTION_FIELDS
-    }
+def detection_arrays(detector, ranges: np.ndarray, angles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Run ``detector`` over every row of ``ranges`` in one call: ``(row (D,), table (D, 8))``.
 
-
-def run_detector(
-    detector, ranges: np.ndarray, angles: np.ndarray, observers: np.ndarray, poses: np.ndarray
-) -> list[dict[str, np.ndarray]]:
-    """Detect kin in each row of ``ranges`` and match every detection to ground truth.
-
-    Args:
-        detector: object with ``detect`` (and optionally ``detect_batch``).
-        ranges: ``(B, n_beams)`` scans, m.
-        angles: ``(n_beams,)`` beam angles, rad.
-        observers: ``(B,)`` robot index of each row.
-        poses: ``(n_robots, 3)`` all robots' poses (for the ``kin_index`` match).
-
-    Returns:
-        One column dict per row (fields :data:`DETECTION_FIELDS`, nearest first). ``kin_index``
-        is the robot whose centre is within :data:`KIN_MATCH_TOLERANCE` of the detected centre
-        (privileged ground truth, for evaluation and rendering), or -1 for a false detection.
+    The one place where the envs read a detector's output: ``table`` holds
+    :data:`DETECTION_FIELDS` ``[:8]`` (range .. n_beams) of each detection as float64, ``row`` the
+    scan row it came from, in the detector's order. A detector with ``detect_arrays`` (a compact
+    array result: ``scan``, ``range``, ``bearing``, ``x``, ``y``, ``score``, ``first_beam``,
+    ``last_beam``, ``n_beams_on``, as attributes of ``detectors.BatchDetections`` or as a dict
+    with ``n_beams``) is read without building per-detection objects.
     """
+    if callable(getattr(detector, "detect_arrays", None)):
+        b = detector.detect_arrays(ranges, angles)
+        # detectors.BatchDetections (attributes, ``n_beams_on``) or a plain dict of columns
+        get = b.__getitem__ if isinstance(b, Mapping) else lambda k: getattr(b, k)
+        beams = get("n_beams") if isinstance(b, Mapping) else b.n_beams_on
+        tab = np.stack(
+            [
+                get("range"),
+                get("bearing"),
+                get("x"),
+                get("y"),
+                get("score"),
+                get("first_beam"),
+                get("last_beam"),
+                beams,
+            ],
+            axis=1,
+        )
+        return np.asarray(get("scan"), dtype=np.int64), tab.astype(np.float64).reshape(-1, 8)
     if len(ranges) == 1 or not callable(getattr(detector, "detect_batch", None)):
         results = [detector.detect(r, angles) for r in ranges]
     else:
@@ -270,22 +313,51 @@ def run_detector(
     for b, res in enumerate(results):
         for d in res.detections:
             owner.append(b)
-            rows.append((d.range, d.bearing, d.x, d.y, d.score, d.first_beam, d.last_beam,
-                         d.n_beams))
-    if not rows:
-        return [_empty_detections() for _ in results]
-    tab = np.array(rows, dtype=np.float64)
-    owner_a = np.asarray(owner)
-    obs_idx = np.asarray(observers)[owner_a]
+            rows.append((d.range, d.bearing, d.x, d.y, d.score, d.first_beam, d.last_beam, d.n_beams))
+    return np.asarray(owner, dtype=np.int64), np.array(rows, dtype=np.float64).reshape(-1, 8)
+
+
+def detect_rows(
+    detector,
+    ranges: np.ndarray,
+    angles: np.ndarray,
+    observers: np.ndarray,
+    poses: np.ndarray,
+    robot_world: np.ndarray | None = None,
+) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Detect kin in each row of ``ranges`` and match every detection to ground truth.
+
+    Args:
+        detector: object with ``detect`` (and optionally ``detect_batch``).
+        ranges: ``(B, n_beams)`` scans, m.
+        angles: ``(n_beams,)`` beam angles, rad.
+        observers: ``(B,)`` robot index (into ``poses``) of each row.
+        poses: ``(N, 3)`` all robots' poses (for the ``kin_index`` match).
+        robot_world: ``(N,)`` world of each robot when ``poses`` stacks several worlds (a detection
+            only matches robots of its observer's world); ``None`` = one world.
+
+    Returns:
+        ``(row, cols)``: flat columns (:data:`DETECTION_FIELDS`) sorted by row, then nearest
+        first, and the row of each detection. ``kin_index`` is the robot (index into ``poses``)
+        whose centre is within :data:`KIN_MATCH_TOLERANCE` of the detected centre (privileged
+        ground truth, for evaluation and rendering), or -1 for a false detection.
+    """
+    owner_a, tab = detection_arrays(detector, ranges, angles)
+    obs_idx = np.asarray(observers, dtype=np.int64)[owner_a]
     px, py, th = poses[obs_idx, 0], poses[obs_idx, 1], poses[obs_idx, 2]
     c, s = np.cos(th), np.sin(th)
     wx = px + c * tab[:, 2] - s * tab[:, 3]
     wy = py + s * tab[:, 2] + c * tab[:, 3]
     d2 = (wx[:, None] - poses[None, :, 0]) ** 2 + (wy[:, None] - poses[None, :, 1]) ** 2
     d2[np.arange(len(obs_idx)), obs_idx] = np.inf  # never match the observer itself
-    nearest = np.argmin(d2, axis=1)
-    ok = d2[np.arange(len(nearest)), nearest] <= KIN_MATCH_TOLERANCE**2
-    kin_index = np.where(ok, nearest, -1)
+    if robot_world is not None:
+        d2[robot_world[None, :] != robot_world[obs_idx][:, None]] = np.inf
+    if len(obs_idx):
+        nearest = np.argmin(d2, axis=1)
+        ok = d2[np.arange(len(nearest)), nearest] <= KIN_MATCH_TOLERANCE**2
+        kin_index = np.where(ok, nearest, -1)
+    else:
+        kin_index = np.zeros(0, dtype=np.int64)
     # nearest first within each row: sort by (row, range)
     order = np.lexsort((tab[:, 0], owner_a))
     tab, owner_a, kin_index = tab[order], owner_a[order], kin_index[order]
@@ -293,21 +365,34 @@ def run_detector(
     for k, name in enumerate(DETECTION_FIELDS[5:8], start=5):
         cols[name] = tab[:, k].astype(np.int64)
     cols["kin_index"] = kin_index.astype(np.int64)
-    bounds = np.searchsorted(owner_a, np.arange(len(results) + 1)).tolist()
+    return owner_a, cols
+
+
+def split_rows(row: np.ndarray, cols: dict[str, np.ndarray], n_rows: int) -> list[dict[str, np.ndarray]]:
+    """Flat columns sorted by row → one column dict per row (the variable-length layout)."""
+    bounds = np.searchsorted(row, np.arange(n_rows + 1)).tolist()
     return [
         {name: col[lo:hi] for name, col in cols.items()}
         for lo, hi in zip(bounds[:-1], bounds[1:], strict=True)
     ]
 
 
+def run_detector(
+    detector, ranges: np.ndarray, angles: np.ndarray, observers: np.ndarray, poses: np.ndarray
+) -> list[dict[str, np.ndarray]]:
+    """:func:`detect_rows` as one column dict per row (fields :data:`DETECTION_FIELDS`, nearest
+    first, variable length)."""
+    row, cols = detect_rows(detector, ranges, angles, observers, poses)
+    return split_rows(row, cols, len(ranges))
+
+
 # --- ground truth -------------------------------------------------------------------------------
 
 
-def kin_truth(scan, poses: np.ndarray) -> list[dict[str, np.ndarray]]:
-    """The kin each scanned robot's lidar actually sees: ``scan.visible_robots`` for every row at
-    once, with their true centre positions.
+def kin_truth_rows(scan, poses: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """The kin each scanned robot's lidar actually sees, for every row at once, as flat columns
+    (:data:`KIN_TRUTH_FIELDS`) sorted by row, then nearest first, and the row of each entry.
 
-    Returns one column dict per scan row (fields :data:`KIN_TRUTH_FIELDS`, nearest first):
     ``index`` robot index, ``range`` centre distance m, ``bearing`` rad CCW in the observer's
     frame, ``x``/``y`` m in the observer's frame (x forward, y left), ``n_beams`` valid beams on
     its lidar housing (>= 1).
@@ -325,17 +410,24 @@ def kin_truth(scan, poses: np.ndarray) -> list[dict[str, np.ndarray]]:
     rng = np.sqrt(dx * dx + dy * dy)
     # nearest first within each row; one argsort of a composite key beats lexsort here
     order = np.argsort(rows * (2.0 * scan.range_max + 1.0) + rng, kind="stable")
-    rows, idx, n_beams, rng, dx, dy, c, s = (
-        a[order] for a in (rows, idx, n_beams, rng, dx, dy, c, s)
-    )
+    rows, idx, n_beams, rng, dx, dy, c, s = (a[order] for a in (rows, idx, n_beams, rng, dx, dy, c, s))
     x, y = c * dx + s * dy, c * dy - s * dx
     bearing = np.arctan2(y, x)
-    bounds = np.searchsorted(rows, np.arange(n_rows + 1)).tolist()
-    return [
-        {"index": idx[lo:hi], "range": rng[lo:hi], "bearing": bearing[lo:hi], "x": x[lo:hi],
-         "y": y[lo:hi], "n_beams": n_beams[lo:hi]}
-        for lo, hi in zip(bounds[:-1], bounds[1:], strict=True)
-    ]
+    cols = {
+        "index": idx.astype(np.int64),
+        "range": rng,
+        "bearing": bearing,
+        "x": x,
+        "y": y,
+        "n_beams": n_beams.astype(np.int64),
+    }
+    return rows, cols
+
+
+def kin_truth(scan, poses: np.ndarray) -> list[dict[str, np.ndarray]]:
+    """:func:`kin_truth_rows` as one column dict per scan row (variable length)."""
+    rows, cols = kin_truth_rows(scan, poses)
+    return split_rows(rows, cols, scan.ranges.shape[0])
 
 
 # --- observations -------------------------------------------------------------------------------
@@ -397,8 +489,11 @@ class ObservationBuilder:
         high = np.ones(self.layout.dim, dtype=np.float32)
         return spaces.Box(low=self._low.copy(), high=high, dtype=np.float32)
 
-    def frame(self, ranges: np.ndarray, detections: list[dict] | None) -> np.ndarray:
-        """``(B, frame_dim)`` float32 from ``(B, n_beams)`` ranges and per-row detection columns."""
+    def frame(
+        self, ranges: np.ndarray, detections: tuple[np.ndarray, dict[str, np.ndarray]] | None
+    ) -> np.ndarray:
+        """``(B, frame_dim)`` float32 from ``(B, n_beams)`` ranges and the flat detections
+        ``(row, cols)`` of :func:`detect_rows` (sorted by row, nearest first)."""
         L = self.layout
         out = np.empty((ranges.shape[0], L.frame_dim), dtype=np.float32)
         np.clip(ranges * np.float32(1.0 / L.range_max), 0.0, 1.0, out=out[:, : L.n_beams])
@@ -406,23 +501,29 @@ class ObservationBuilder:
             return out
         det = out[:, L.n_beams :]
         det[:] = 0.0
-        for b, d in enumerate(detections):
-            k = min(len(d["range"]), L.top_k) if L.detections == "topk" else len(d["range"])
-            if k == 0:
-                continue
-            if L.detections == "topk":
-                slots = det[b].reshape(L.top_k, 4)
-                slots[:k, 0] = 1.0
-                slots[:k, 1] = np.minimum(d["range"][:k] / L.range_max, 1.0)
-                slots[:k, 2] = np.sin(d["bearing"][:k])
-                slots[:k, 3] = np.cos(d["bearing"][:k])
-            else:
-                for first, last in zip(d["first_beam"], d["last_beam"], strict=True):
-                    if first <= last:
-                        det[b, first : last + 1] = 1.0
-                    else:  # the segment wraps across beam 0
-                        det[b, first:] = 1.0
-                        det[b, : last + 1] = 1.0
+        row, cols = detections
+        if row.size == 0:
+            return out
+        if L.detections == "topk":
+            rank = np.arange(row.size) - np.searchsorted(row, row)
+            keep = rank < L.top_k
+            r, k = row[keep], 4 * rank[keep]
+            b = cols["bearing"][keep]
+            det[r, k] = 1.0
+            det[r, k + 1] = np.minimum(cols["range"][keep] / L.range_max, 1.0)
+            det[r, k + 2] = np.sin(b)
+            det[r, k + 3] = np.cos(b)
+        else:
+            # beams first..last of each detection (wrapping across beam 0) via a difference array
+            n = L.n_beams
+            first, last = cols["first_beam"], cols["last_beam"]
+            wrap = first > last
+            diff = np.zeros((ranges.shape[0], n + 1), dtype=np.int32)
+            np.add.at(diff, (row, first), 1)
+            np.add.at(diff, (row, np.where(wrap, n, last + 1)), -1)
+            np.add.at(diff, (row[wrap], np.zeros(int(wrap.sum()), dtype=np.int64)), 1)
+            np.add.at(diff, (row[wrap], last[wrap] + 1), -1)
+            det[:] = np.cumsum(diff[:, :n], axis=1) > 0
         return out
 
     def reset(self, frame: np.ndarray) -> np.ndarray:
@@ -466,8 +567,7 @@ class ActionAdapter:
             a = np.asarray(action, dtype=np.float64)
         except (TypeError, ValueError) as e:
             raise ValueError(
-                f"{self.where}: {who} must be 2 numbers (left, right wheel speed in [-1, 1]), "
-                f"got {action!r}"
+                f"{self.where}: {who} must be 2 numbers (left, right wheel speed in [-1, 1]), got {action!r}"
             ) from e
         if a.shape != (2,):
             raise ValueError(

@@ -1,4 +1,4 @@
-"""``kin_envs/KinFollow-v0``: keep within a distance band of a wandering kin robot."""
+"""``kin_envs/KinFollow-v1``: keep within a distance band of a wandering kin robot."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ from kin_envs.envs.base import SingleRobotEnv
 from kin_envs.envs.common import CommonConfig, check_bool, check_float, check_int
 from kin_envs.envs.kin_seek import DISTRACTORS, thin_kin_like_cylinders
 
-__all__ = ["KinFollowConfig", "KinFollowEnv", "wander_command"]
+__all__ = ["KinFollowConfig", "KinFollowEnv", "KinFollowEnvV0", "wander_command"]
 
 _MAX_LAYOUT_TRIES = 1000
 _FRONT = math.radians(35.0)
@@ -23,9 +23,9 @@ _FRONT = math.radians(35.0)
 
 @dataclass(frozen=True, kw_only=True)
 class KinFollowConfig(CommonConfig):
-    """Arguments of ``KinFollow-v0`` (see :class:`KinFollowEnv`)."""
+    """Arguments of ``KinFollow-v1`` (see :class:`KinFollowEnv`)."""
 
-    env_id: ClassVar[str] = "KinFollow-v0"
+    env_id: ClassVar[str] = "KinFollow-v1"
 
     arena_size: float = 5.0
     n_distractors: int = 4
@@ -60,7 +60,7 @@ class KinFollowEnv(SingleRobotEnv):
 
     ## Description
 
-    The arena, robots and distractors are those of ``KinSeek-v0``. Robot 1, the kin, wanders at
+    The arena, robots and distractors are those of ``KinSeek-v1``. Robot 1, the kin, wanders at
     ``kin_speed`` times the top speed with a scripted controller that sees only its own lidar scan
     (:func:`wander_command`: drive on with a slowly drifting turn rate, turn in place toward the
     more open side when something is within 0.45 m ahead; it avoids the learner too). Robot 0
@@ -68,12 +68,12 @@ class KinFollowEnv(SingleRobotEnv):
 
     ## Action Space
 
-    As ``KinSeek-v0``: ``Box(-1, 1, (2,), float32)`` normalised (left, right) wheel speeds, or
+    As ``KinSeek-v1``: ``Box(-1, 1, (2,), float32)`` normalised (left, right) wheel speeds, or
     ``Discrete(5)`` (stop, forward, turn left, turn right, back) with ``action_type="discrete"``.
 
     ## Observation Space
 
-    As ``KinSeek-v0``: the learner's scan as ``range / 12 m``, optional detector channel
+    As ``KinSeek-v1``: the learner's scan as ``range / 12 m``, optional detector channel
     (``obs_detections``), ``frame_stack`` frames, float32.
 
     ## Rewards
@@ -98,8 +98,9 @@ class KinFollowEnv(SingleRobotEnv):
 
     ## Info
 
-    ``kin_truth``, ``kin_detections`` (unless ``detector=None``) and ``reward_terms`` as in
-    ``KinSeek-v0``; also ``kin_distance`` (``d``, m), ``in_band`` and ``collision`` (bools).
+    ``kin_truth`` / ``kin_truth_count``, ``kin_detections`` / ``kin_detections_count`` (unless
+    ``detector=None``; fixed shapes, padded slots) and ``reward_terms`` as in ``KinSeek-v1``;
+    also ``kin_distance`` (``d``, m), ``in_band`` and ``collision`` (bools).
 
     ## Arguments
 
@@ -107,14 +108,22 @@ class KinFollowEnv(SingleRobotEnv):
     ``band_max`` (0.8 m), ``lost_distance`` (2.0 m), ``kin_speed`` (0.5 of 0.33 m/s),
     ``kin_like_cylinders`` (False), reward weights ``in_band_reward`` (0.1),
     ``distance_weight`` (0.2 per m), ``collision_penalty`` (0.5), ``lost_penalty`` (5), and the
-    common arguments of ``KinSeek-v0`` (``noise_sigma``, ``dropout_prob``, ``detector``,
-    ``obs_detections``, ``obs_top_k``, ``frame_stack``, ``action_type``, ``control_dt``,
+    common arguments of ``KinSeek-v1`` (``noise_sigma``, ``dropout_prob``, ``detector``,
+    ``obs_detections``, ``obs_top_k``, ``max_detections``, ``frame_stack``, ``action_type``, ``control_dt``,
     ``render_mode``, ``render_size``, ``render_beams``). Unknown names raise
     :class:`~kin_envs.envs.common.UnknownArgumentError`.
 
+    Multi-frame tracking (opt-in): ``tracker=True`` or a dict of ``detectors.TrackerParams`` fields adds
+    ``info["kin_tracks"]`` (``max_tracks`` = 16 padded slots of ``detectors.tracking.TRACK_FIELDS``, robot
+    frame) and ``info["kin_tracks_count"]``; ``obs_tracks=True`` fills the observation's detection channel
+    from the confirmed kin tracks instead of the raw detections (needs ``obs_detections``).
+
     ## Version History
 
-    * v0: initial version.
+    * v1: fixed-shape info as ``KinSeek-v1`` (padded slots with counts), ``max_detections``,
+      native vector entry point (``gymnasium.make_vec``). Observations, rewards and dynamics are
+      those of v0.
+    * v0: initial version (variable-length info columns; still registered).
     """
 
     config_class: ClassVar[type] = KinFollowConfig
@@ -156,7 +165,7 @@ class KinFollowEnv(SingleRobotEnv):
         return wheels / spec.max_wheel_speed
 
     def _distance(self) -> float:
-        p = self.world.poses
+        p = self._poses()
         return float(math.hypot(p[1, 0] - p[0, 0], p[1, 1] - p[0, 1]))
 
     def _zero_terms(self) -> dict[str, float]:
@@ -206,3 +215,17 @@ def wander_command(
     state[1] = 0.0
     state[0] = float(np.clip(0.85 * state[0] + rng.normal(0.0, 0.15), -0.5, 0.5))
     return speed, float(state[0] * turn_rate)
+
+
+@dataclass(frozen=True, kw_only=True)
+class _KinFollowConfigV0(KinFollowConfig):
+    env_id: ClassVar[str] = "KinFollow-v0"
+
+
+class KinFollowEnvV0(KinFollowEnv):
+    """``kin_envs/KinFollow-v0``: :class:`KinFollowEnv` with the v0 info layout (``kin_truth`` and
+    ``kin_detections`` columns of variable length, no counts). Kept so that earlier results can be
+    reproduced; Gymnasium's vector envs cannot stack this info: use ``KinFollow-v1``."""
+
+    config_class: ClassVar[type] = _KinFollowConfigV0
+    padded_info: ClassVar[bool] = False

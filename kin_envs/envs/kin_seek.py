@@ -1,4 +1,4 @@
-"""``kin_envs/KinSeek-v0``: find a static kin robot among look-alike distractors with the lidar."""
+"""``kin_envs/KinSeek-v1``: find a static kin robot among look-alike distractors with the lidar."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from kin_envs.core.world import Scan
 from kin_envs.envs.base import SingleRobotEnv
 from kin_envs.envs.common import CommonConfig, check_bool, check_float, check_int
 
-__all__ = ["KinSeekConfig", "KinSeekEnv", "DISTRACTORS"]
+__all__ = ["KinSeekConfig", "KinSeekEnv", "KinSeekEnvV0", "DISTRACTORS"]
 
 #: Distractor mix: cylinders, boxes, regular prisms, interior walls; half of the cylinders, boxes
 #: and prisms are exactly the kin's 7 cm width. Other cylinders are >= 5 cm in radius.
@@ -34,9 +34,9 @@ _MAX_LAYOUT_TRIES = 200
 
 @dataclass(frozen=True, kw_only=True)
 class KinSeekConfig(CommonConfig):
-    """Arguments of ``KinSeek-v0`` (see :class:`KinSeekEnv`)."""
+    """Arguments of ``KinSeek-v1`` (see :class:`KinSeekEnv`)."""
 
-    env_id: ClassVar[str] = "KinSeek-v0"
+    env_id: ClassVar[str] = "KinSeek-v1"
 
     arena_size: float = 4.0
     n_distractors: int = 6
@@ -129,17 +129,30 @@ class KinSeekEnv(SingleRobotEnv):
 
     ## Info
 
-    Always ``kin_truth`` (the kin the learner's lidar sees this step: a dict of equal-length
-    arrays ``index, range, bearing, x, y, n_beams``, nearest first, empty when it is not seen),
-    ``reward_terms``, ``is_success``, ``kin_distance`` (true centre distance, m) and ``collision``.
-    With a detector also ``kin_detections``: arrays ``range, bearing, x, y, score, first_beam,
-    last_beam, n_beams, kin_index`` (``kin_index`` = matched robot, -1 for a false detection),
-    nearest first. With ``detector=None`` the key is absent. Bearings are rad CCW in the robot's
-    frame, x forward, y left.
+    Every entry keeps one shape on every step (so vector envs can stack it). Per-kin entries are
+    padded columns, valid slots first, nearest first, with a count (:mod:`kin_envs.envs.info`;
+    ``kin_envs.envs.unpad_detections(info)`` / ``unpad_kin_truth(info)`` drop the empty slots):
+
+    * ``kin_truth``: the kin the learner's lidar sees this step, 1 slot of ``index, range,
+      bearing, x, y, n_beams``; ``kin_truth_count`` is 1 when it is seen, else 0;
+    * ``kin_detections`` (absent with ``detector=None``): ``max_detections`` (16) slots of
+      ``range, bearing, x, y, score, first_beam, last_beam, n_beams, kin_index`` (``kin_index`` =
+      matched robot, -1 for a false detection); ``kin_detections_count`` (int) valid slots;
+    * empty slots hold -1 (``index``, ``first_beam``, ``last_beam``, ``kin_index``) or 0;
+    * ``reward_terms``, ``is_success``, ``kin_distance`` (true centre distance, m), ``collision``.
+
+    Bearings are rad CCW in the robot's frame, x forward, y left.
+
+    ## Vector env
+
+    ``gymnasium.make_vec("kin_envs/KinSeek-v1", num_envs=K)`` builds the native vector env
+    (:class:`kin_envs.envs.vector.KinVectorEnv`): it steps the K worlds and casts all their lidars
+    and runs the detector over all K scans in one call each, with Gymnasium's ``NEXT_STEP``
+    autoreset, and returns what ``vectorization_mode="sync"`` returns for the same seeds.
 
     ## Arguments
 
-    ``gymnasium.make("kin_envs/KinSeek-v0", **kwargs)``; unknown names raise
+    ``gymnasium.make("kin_envs/KinSeek-v1", **kwargs)``; unknown names raise
     :class:`~kin_envs.envs.common.UnknownArgumentError` (a ``TypeError`` and ``ValueError``):
 
     * ``arena_size`` (4.0): arena side, m; ``n_distractors`` (6);
@@ -152,13 +165,23 @@ class KinSeekEnv(SingleRobotEnv):
     * sensing: ``noise_sigma`` (0, relative range noise), ``dropout_prob`` (0);
     * ``detector``: ``"geometric"`` (default, the paper's detector), ``"learned"``, ``None`` or a
       detector object; ``obs_detections`` (None), ``obs_top_k`` (3), ``frame_stack`` (1);
+      ``max_detections`` (16): slots of ``info["kin_detections"]``;
     * ``action_type`` (``"continuous"``/``"discrete"``), ``control_dt`` (0.1 s);
     * ``render_mode`` (None, ``"rgb_array"``, ``"human"``), ``render_size`` (512 px),
       ``render_beams`` (True: the learner's beams and detections, green = real kin, red = false).
 
+    Multi-frame tracking (opt-in): ``tracker=True`` or a dict of ``detectors.TrackerParams`` fields adds
+    ``info["kin_tracks"]`` (``max_tracks`` = 16 padded slots of ``detectors.tracking.TRACK_FIELDS``, robot
+    frame) and ``info["kin_tracks_count"]``; ``obs_tracks=True`` fills the observation's detection channel
+    from the confirmed kin tracks instead of the raw detections (needs ``obs_detections``).
+
     ## Version History
 
-    * v0: initial version.
+    * v1: fixed-shape info (padded ``kin_truth`` / ``kin_detections`` slots with
+      ``kin_truth_count`` / ``kin_detections_count``), so that Gymnasium's vector envs, SB3's and
+      RLlib's can stack it; ``max_detections`` argument; native vector entry point. Observations,
+      rewards and dynamics are those of v0.
+    * v0: initial version (variable-length info columns; still registered).
     """
 
     config_class: ClassVar[type] = KinSeekConfig
@@ -185,7 +208,7 @@ class KinSeekEnv(SingleRobotEnv):
         return scene
 
     def _kin_distance(self) -> float:
-        p = self.world.poses
+        p = self._poses()
         return float(math.hypot(p[1, 0] - p[0, 0], p[1, 1] - p[0, 1]))
 
     def _after_reset(self, scan: Scan) -> None:
@@ -222,3 +245,17 @@ def thin_kin_like_cylinders(scene: Scene, rng: np.random.Generator) -> Scene:
             obstacles[j] = Cylinder(x=o.x, y=o.y, radius=float(rng.uniform(*_SMALL_CYLINDER_RADIUS)))
             changed = True
     return scene.replace(obstacles=tuple(obstacles)) if changed else scene
+
+
+@dataclass(frozen=True, kw_only=True)
+class _KinSeekConfigV0(KinSeekConfig):
+    env_id: ClassVar[str] = "KinSeek-v0"
+
+
+class KinSeekEnvV0(KinSeekEnv):
+    """``kin_envs/KinSeek-v0``: :class:`KinSeekEnv` with the v0 info layout (``kin_truth`` and
+    ``kin_detections`` columns of variable length, no counts). Kept so that earlier results can be
+    reproduced; Gymnasium's vector envs cannot stack this info: use ``KinSeek-v1``."""
+
+    config_class: ClassVar[type] = _KinSeekConfigV0
+    padded_info: ClassVar[bool] = False

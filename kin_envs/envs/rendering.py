@@ -25,6 +25,7 @@ _HIT = (220, 40, 40)
 _HOUSING = (30, 30, 30)
 _GOOD = (20, 170, 40)
 _BAD = (220, 20, 20)
+_TRACK = (30, 90, 230)
 ROLE_COLORS = {
     "learner": (240, 140, 20),  # the controlled robot (single-agent envs)
     "kin": (40, 110, 220),
@@ -55,8 +56,9 @@ class Renderer:
         title: window title.
     """
 
-    def __init__(self, scene, render_mode: str, size: int = 512, fps: int = 10,
-                 title: str = "kin_envs") -> None:
+    def __init__(
+        self, scene, render_mode: str, size: int = 512, fps: int = 10, title: str = "kin_envs"
+    ) -> None:
         if render_mode not in ("rgb_array", "human"):
             raise ValueError(f"Renderer: render_mode must be 'rgb_array' or 'human', got {render_mode!r}")
         self.pg = import_pygame()
@@ -89,7 +91,7 @@ class Renderer:
         return [self.px(float(x), float(y)) for x, y in xy]
 
     # -- drawing ------------------------------------------------------------------------------
-    def render(self, world, roles=None, beams=(), detections=()):
+    def render(self, world, roles=None, beams=(), detections=(), tracks=()):
         """Draw ``world`` and return the frame (``"rgb_array"``) or show it (``"human"``).
 
         Args:
@@ -97,12 +99,18 @@ class Renderer:
             roles: per-robot role names (keys of ``ROLE_COLORS``); default all ``"agent"``.
             beams: ``(pose (3,), ranges (n_beams,), angles (n_beams,), range_max)`` tuples.
             detections: ``(pose (3,), columns)`` tuples, ``columns`` as ``info["kin_detections"]``.
+            tracks: ``(pose (3,), columns)`` tuples of the tracker's kin tracks (``x``, ``y`` in the
+                robot frame): drawn as a cross in a wider ring.
         """
         pg, surf, s = self.pg, self.surface, self.scale
         surf.fill(_BG)
         x0, y0 = self.px(-self.hx, self.hy)
-        pg.draw.rect(surf, _ARENA, pg.Rect(round(x0), round(y0), round(2 * self.hx * s),
-                                           round(2 * self.hy * s)), width=2)
+        pg.draw.rect(
+            surf,
+            _ARENA,
+            pg.Rect(round(x0), round(y0), round(2 * self.hx * s), round(2 * self.hy * s)),
+            width=2,
+        )
         obstacle_poses = world.obstacle_poses if self.movable else None
         for j, (o, (kind, geom)) in enumerate(zip(self.scene.obstacles, self.footprints, strict=True)):
             color = _WALL if o.kind == "wall" else _OBSTACLE
@@ -138,6 +146,14 @@ class Renderer:
             for dx, dy, k in zip(cols["x"], cols["y"], cols["kin_index"], strict=True):
                 c = self.px(x + ct * dx - st * dy, y + st * dx + ct * dy)
                 pg.draw.circle(surf, _GOOD if k >= 0 else _BAD, c, ring, width=2)
+        for pose, cols in tracks:
+            x, y, th = (float(v) for v in pose)
+            ct, st = math.cos(th), math.sin(th)
+            for dx, dy in zip(cols["x"], cols["y"], strict=True):
+                cx, cy = self.px(x + ct * dx - st * dy, y + st * dx + ct * dy)
+                pg.draw.circle(surf, _TRACK, (cx, cy), 1.8 * ring, width=1)
+                pg.draw.line(surf, _TRACK, (cx - ring, cy), (cx + ring, cy), 1)
+                pg.draw.line(surf, _TRACK, (cx, cy - ring), (cx, cy + ring), 1)
         if self.mode == "human":
             self._show()
             return None

@@ -47,6 +47,18 @@ def test_env_and_memory_sections(bench, tmp_path):
     assert "of detector off" in (tmp_path / "benchmark.md").read_text()
 
 
+def test_vecenv_section(bench, tmp_path):
+    res = bench.main(["--sections", "vecenv", "--min-time", "0.03", "--vec-envs", "2",
+                      "--vec-detectors", "none", "geometric", "--out", str(tmp_path)])
+    assert [r["detector"] for r in res["vecenv"]] == ["none", "geometric"]
+    for r in res["vecenv"]:
+        assert r["num_envs"] == 2 and r["native_env_steps_per_s"] > 0 and r["sync_env_steps_per_s"] > 0
+        assert r["ratio"] == pytest.approx(r["native_env_steps_per_s"] / r["sync_env_steps_per_s"])
+    assert "| KinSeek-v1 | 2 | geometric |" in (tmp_path / "benchmark.md").read_text()
+    with pytest.raises(SystemExit):
+        bench.main(["--sections", "vecenv", "--vec-envs", "0", "--out", str(tmp_path)])
+
+
 def test_naive_baseline_matches_the_world_scan(bench):
     import numpy as np
 

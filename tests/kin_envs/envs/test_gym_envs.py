@@ -12,14 +12,14 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 from kin_envs.core import scenes
-from kin_envs.envs import ENV_IDS, register_envs
+from kin_envs.envs import ENV_IDS, register_envs, unpad_detections, unpad_kin_truth
 from kin_envs.envs.common import DETECTION_FIELDS, KIN_TRUTH_FIELDS, UnknownArgumentError
 
 from .helpers import assert_same
 
 register_envs()
 IDS = list(ENV_IDS)
-SEEK, FOLLOW = "kin_envs/KinSeek-v0", "kin_envs/KinFollow-v0"
+SEEK, FOLLOW = "kin_envs/KinSeek-v1", "kin_envs/KinFollow-v1"
 
 VARIANTS = [
     {},
@@ -89,8 +89,8 @@ def test_seek_success_terminates_with_bonus():
     fixed_scene(env.unwrapped, (scenes.Robot(0.0, 0.0, 0.0), scenes.Robot(0.6, 0.0, math.pi)))
     obs, info = env.reset(seed=0)
     assert info["kin_distance"] == pytest.approx(0.6)
-    assert list(info["kin_truth"]["index"]) == [1]
-    assert info["kin_detections"]["kin_index"].tolist() == [1]  # 0.6 m ahead: detected
+    assert list(unpad_kin_truth(info)["index"]) == [1]
+    assert unpad_detections(info)["kin_index"].tolist() == [1]  # 0.6 m ahead: detected
     total = 0.0
     for _ in range(30):
         obs, reward, terminated, truncated, info = env.step(np.array([1.0, 1.0]))
@@ -147,7 +147,7 @@ def test_kin_truth_matches_scan(env_id):
     for _ in range(20):
         u = env.unwrapped
         scan, poses = u._last_scan, u.world.poses
-        truth = info["kin_truth"]
+        truth = unpad_kin_truth(info)
         assert tuple(truth) == KIN_TRUTH_FIELDS
         assert dict(zip(truth["index"].tolist(), truth["n_beams"].tolist(), strict=True)) == \
             scan.visible_robots(0)
@@ -155,7 +155,7 @@ def test_kin_truth_matches_scan(env_id):
             d = poses[j, :2] - poses[0, :2]
             assert truth["range"][k] == pytest.approx(np.hypot(*d))
             assert truth["x"][k] == pytest.approx(truth["range"][k] * math.cos(truth["bearing"][k]))
-        assert tuple(info["kin_detections"]) == DETECTION_FIELDS
+        assert tuple(unpad_detections(info)) == DETECTION_FIELDS
         _, _, _, _, info = env.step(env.action_space.sample())
 
 
@@ -188,7 +188,7 @@ def test_custom_detector_and_observation_channels():
     obs, info = env.reset(seed=0)
     layout = env.unwrapped.layout
     assert obs.shape == (2 * (360 + 8),) and det.calls == 1
-    assert info["kin_detections"]["range"].tolist() == [1.0]
+    assert unpad_detections(info)["range"].tolist() == [1.0]
     frame = obs[layout.frame_dim :]
     np.testing.assert_allclose(frame[360:368], [1, 1 / 12, 0.5, math.cos(math.radians(30)), 0, 0, 0, 0],
                                atol=1e-6)
@@ -207,7 +207,7 @@ def test_learned_detector_channel():
     env = gym.make(SEEK, detector="learned", obs_detections="topk")
     obs, info = env.reset(seed=0)
     assert env.observation_space.contains(obs)
-    assert set(info["kin_detections"]) >= {"range", "bearing", "score", "kin_index"}
+    assert set(unpad_detections(info)) >= {"range", "bearing", "score", "kin_index"}
     with pytest.raises(ValueError, match="detector must be .*, got 'neural'"):
         gym.make(SEEK, detector="neural")
 

@@ -1,0 +1,409 @@
+"""Several independent worlds advanced and scanned together (the native vector env's core).
+
+:class:`WorldBatch` ``.step`` and ``.scan`` do exactly what ``World.step`` and ``World.scan`` do
+for each of its worlds (same arithmetic, same RNG draws in the same order, so results are bit-identical),
+but pay Python's per-call overhead once per batch instead of once per world: the drive update of
+all worlds is one set of numpy operations per physics substep, the pymunk calls go straight to
+Chipmunk, contacts are resolved for all worlds at once, and every robot of every world is scanned
+in one call of the raycasting kernel (each robot against its own world's primitives only).
+
+Worlds stay independent objects: any of them can be reset (replaced) between calls.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numba
+import numpy as np
+import pymunk.batch as pmbatch
+from pymunk._chipmunk import lib as _cp
+
+from kin_envs.core.interrupts import atomic
+from kin_envs.core.lidar import _beam_tables, _cast_one
+from kin_envs.core.odometry import Odometry
+from kin_envs.core.world import _COMMAND_CAP, Contact, Scan, World, _buffers
+
+__all__ = ["WorldBatch"]
+
+
+def _key(w: World) -> tuple:
+    return (w.n_robots, w.scene.robot, w.scene.lidar, w.config.physics_dt, w.config.substeps,
+            w.config.odometry)
+
+
+class _StackedRNG:
+    """Draws ``normal(loc, scale, (K * n, ...))`` as the concatenation of K worlds' own draws of
+    ``(n, ...)``, so that one :class:`Odometry` over all worlds' robots consumes every world's
+    stream exactly as that world's own odometry would."""
+
+    def __init__(self, rngs: list[np.random.Generator]) -> None:
+        self.rngs = rngs
+        self._ahead: list[np.ndarray] = []
+
+    def prefetch(self, calls: int, size: tuple[int, ...]) -> None:
+        """Draw the standard normals of the next ``calls`` calls of ``normal(0, 1, size)`` now, one
+        draw per world (a generator fills a larger request with the same stream, in order)."""
+        per = (size[0] // len(self.rngs), *size[1:])
+        blocks = [r.normal(0.0, 1.0, (calls, *per)) for r in self.rngs]
+        stacked = np.concatenate(blocks, axis=1)
+        self._ahead = [stacked[c] for c in range(calls)][::-1]
+
+    def normal(self, loc: float, scale: float, size: tuple[int, ...]) -> np.ndarray:
+        if self._ahead and (loc, scale) == (0.0, 1.0) and self._ahead[-1].shape == tuple(size):
+            return self._ahead.pop()
+        per = (size[0] // len(self.rngs), *size[1:])
+        return np.concatenate([r.normal(loc, scale, per) for r in self.rngs])
+
+
+def _stacked_odometry(odos: list[Odometry]) -> Odometry:
+    """One :class:`Odometry` whose robots are all of ``odos``' robots, in order."""
+    o = Odometry.__new__(Odometry)
+    o.spec, o.wheel_base = odos[0].spec, odos[0].wheel_base
+    o.rng = _StackedRNG([x.rng for x in odos])
+    o.pose = np.concatenate([x.pose for x in odos])
+    o.scale = np.concatenate([x.scale for x in odos])
+    o._step_start = np.concatenate([x._step_start for x in odos])
+    o.delta = np.concatenate([x.delta for x in odos])
+    return o
+
+
+class WorldBatch:
+    """``K`` independent worlds, stepped and scanned together.
+
+    All worlds must have the same number of robots, robot spec, lidar spec and timestep (the
+    scenes, obstacles and RNGs are each world's own). Replace a world (a new episode) with
+    ``batch[k] = World(...)``.
+
+    Example::
+
+        batch = WorldBatch([World(scenes.random_arena(2, 6, seed=s), seed=s) for s in range(64)])
+        batch.step(np.zeros((64, 2, 2)))      # wheel speeds, rad/s
+        scans, poses = batch.scan([0])        # robot 0 of every world, one kernel call
+    """
+
+    def __init__(self, worlds: Sequence[World]) -> None:
+        self._worlds = list(worlds)
+        if not self._worlds:
+            raise ValueError("WorldBatch: needs at least one world")
+        self._layout_ok = False
+
+    def __len__(self) -> int:
+        return len(self._worlds)
+
+    def __getitem__(self, k: int) -> World:
+        return self._worlds[k]
+
+    def __setitem__(self, k: int, world: World) -> None:
+        if not isinstance(world, World):
+            raise TypeError(f"WorldBatch: expected a World, got {type(world).__name__}")
+        self._worlds[k] = world
+        self._layout_ok = False
+
+    @property
+    def worlds(self) -> tuple[World, ...]:
+        return tuple(self._worlds)
+
+    def _layout(self) -> None:
+        """Per-batch tables, rebuilt whenever a world was replaced."""
+        if self._layout_ok:
+            return
+        ws = self._worlds
+        k0 = _key(ws[0])
+        for j, w in enumerate(ws):
+            if _key(w) != k0:
+                raise ValueError(
+                    f"WorldBatch: world {j} differs from world 0 in robot count, robot spec, lidar "
+                    "spec or timestep; a batch needs them equal"
+                )
+        self.n_robots = ws[0].n_robots
+        self._bodies = [b._body for w in ws for b in w.robot_bodies]
+        self._controls = [c._body for w in ws for c in w._controls]
+        self._spaces = [w.space._space for w in ws]
+        n = self.n_robots
+        # contacts: one owner table of all worlds (pymunk body ids are unique across spaces)
+        ids = np.concatenate([w._owner_ids for w in ws])
+        flags = np.concatenate([w._owner_flag for w in ws])
+        robots = np.concatenate([np.where(w._owner_robot >= 0, w._owner_robot + j * n, -1)
+                                 for j, w in enumerate(ws)])
+        order = np.argsort(ids, kind="stable")
+        self._ids, self._flags, self._owner_robots = ids[order], flags[order], robots[order]
+        # lidar: every world's primitives in one array, each robot casting against its own slice
+        self._movable = any(w._movable for w in ws)
+        c_len = np.array([len(w._circles) for w in ws])
+        s_len = np.array([len(w._segments) for w in ws])
+        p_len = np.array([len(w._prim_kind) for w in ws])
+        self._c_off = np.concatenate([[0], np.cumsum(c_len)[:-1]])
+        self._s_off = np.concatenate([[0], np.cumsum(s_len)[:-1]])
+        self._p_off = np.concatenate([[0], np.cumsum(p_len)[:-1]])
+        self._c_len, self._s_len = c_len, s_len
+        self._circles = np.concatenate([w._circles for w in ws]).reshape(-1, 3)
+        self._segments = np.concatenate([w._segments for w in ws]).reshape(-1, 4)
+        self._prim_kind = np.concatenate([w._prim_kind for w in ws]).astype(np.int8)
+        self._prim_index = np.concatenate([w._prim_index for w in ws]).astype(np.int32)
+        # robot i of world j is circle i of that world's slice
+        self._robot_circle = (self._c_off[:, None] + np.arange(n)[None, :]).reshape(-1)
+        self._scan_cache: tuple | None = None
+        self._layout_ok = True
+
+    # -- physics ----------------------------------------------------------------------------------
+    def step(self, wheel_speeds: np.ndarray, active: np.ndarray | None = None) -> None:
+        """``worlds[k].step(wheel_speeds=wheel_speeds[k])`` for every ``k``, batched.
+
+        Args:
+            wheel_speeds: ``(K, n_robots, 2)`` left/right wheel speeds, rad/s.
+            active: ``(K,)`` bools, the worlds to step (default all); rows of the others are ignored.
+        """
+        self._layout()
+        ws, k, n = self._worlds, len(self._worlds), self.n_robots
+        sel = self._select(active)
+        wheels = np.asarray(wheel_speeds, dtype=np.float64)
+        if wheels.shape != (k, n, 2):
+            raise ValueError(f"WorldBatch.step: wheel_speeds must have shape ({k}, {n}, 2), got "
+                             f"{wheels.shape}")
+        if sel is not None:
+            wheels = np.where(sel[:, None, None], wheels, 0.0)
+        if not np.all(np.isfinite(wheels)):
+            bad = np.argwhere(~np.isfinite(wheels))[0]
+            raise ValueError(f"WorldBatch.step: wheel_speeds{bad.tolist()} is "
+                             f"{wheels[tuple(bad)]}; expected finite numbers")
+        w0 = ws[0]
+        # the same elementwise arithmetic as World.step, on all worlds' rows at once
+        flat = wheels.reshape(k * n, 2)
+        peak = np.max(np.abs(flat), axis=1, keepdims=True)
+        if np.any(peak > _COMMAND_CAP):  # World._check_commands: no overflow for huge values
+            flat = flat * np.minimum(1.0, _COMMAND_CAP / peak)
+        limit = w0.scene.robot.max_wheel_speed
+        peak = np.max(np.abs(flat), axis=1, keepdims=True)
+        flat = flat * np.minimum(1.0, limit / np.maximum(peak, 1e-12))
+        commands = w0.wheel_speeds_to_unicycle(flat)
+        on = range(k) if sel is None else np.flatnonzero(sel).tolist()
+        with atomic():  # as World.step: Ctrl-C takes effect between steps, never inside one
+            self._advance(commands, on, sel)
+
+    def _advance(self, commands: np.ndarray, on, sel) -> None:
+        """World._advance of the worlds ``on`` with their ``(K * n, 2)`` rows of ``commands``."""
+        ws, n, w0 = self._worlds, self.n_robots, self._worlds[0]
+        for j in on:
+            applied = commands[j * n : (j + 1) * n].copy()
+            ws[j]._commands = applied
+            ws[j]._history.append(applied)  # World copies replay it
+        bodies, controls, spaces = self._bodies, self._controls, self._spaces
+        if sel is not None:
+            rows = np.repeat(sel, n)
+            commands = commands[rows]
+            bodies = [b for b, r in zip(bodies, rows.tolist(), strict=True) if r]
+            controls = [c for c, r in zip(controls, rows.tolist(), strict=True) if r]
+            spaces = [spaces[j] for j in on]
+        v, omega = commands[:, 0], commands[:, 1]
+        dt, substeps = w0.config.physics_dt, w0.config.substeps
+        get_angle, set_vel, set_avel, space_step = (
+            _cp.cpBodyGetAngle, _cp.cpBodySetVelocity, _cp.cpBodySetAngularVelocity, _cp.cpSpaceStep
+        )
+        # The yaw rate is constant over a control step: set it once (World.step rewrites the same
+        # value every substep, a no-op for a kinematic body). A robot commanded to stand still
+        # (v = 0) gets its zero velocity once too.
+        for c, om in zip(controls, omega.tolist(), strict=True):
+            set_avel(c, om)
+        moving = np.flatnonzero(v != 0.0).tolist()
+        still = [controls[i] for i in np.flatnonzero(v == 0.0).tolist()]
+        m_controls = [controls[i] for i in moving]
+        m_v = v[moving]
+        # wheel odometry of every world's robots in one Odometry (World.step: begin, integrate the
+        # achieved motion each substep before the drive update, end)
+        odo = _stacked_odometry([ws[j]._odometry for j in on])
+        if odo.spec.noise_k > 0:  # Odometry.integrate draws normal(0, 1, (robots, 2)) per substep
+            odo.rng.prefetch(substeps, (len(bodies), 2))
+        odo.begin_step()
+        get_vel, get_avel = _cp.cpBodyGetVelocity, _cp.cpBodyGetAngularVelocity
+        for sub in range(substeps):
+            if sub == 0:
+                for c in still:
+                    set_vel(c, (0.0, 0.0))
+            heading = np.array([get_angle(b) for b in bodies])
+            vel = np.array([(q.x, q.y) for q in map(get_vel, bodies)])
+            w = np.array([get_avel(b) for b in bodies])
+            odo.integrate(vel[:, 0] * np.cos(heading) + vel[:, 1] * np.sin(heading), w, dt)
+            h = heading[moving]
+            cx = (m_v * np.cos(h)).tolist()
+            cy = (m_v * np.sin(h)).tolist()
+            for c, x, y in zip(m_controls, cx, cy, strict=True):
+                set_vel(c, (x, y))
+            for s in spaces:
+                space_step(s, dt)
+        odo.end_step()
+        if odo.rng._ahead:
+            raise RuntimeError("WorldBatch: odometry noise draws out of step with Odometry.integrate")
+        for r, j in enumerate(on):
+            o, sl = ws[j]._odometry, slice(r * n, (r + 1) * n)
+            o.pose, o._step_start = odo.pose[sl].copy(), odo._step_start[sl].copy()
+            o.delta = odo.delta[sl].copy()
+        for j in on:
+            ws[j].time += substeps * dt
+        self._update_contacts(on)
+
+    def _select(self, active) -> np.ndarray | None:
+        if active is None:
+            return None
+        sel = np.asarray(active, dtype=bool).reshape(-1)
+        if sel.shape != (len(self._worlds),):
+            raise ValueError(f"WorldBatch: active must have shape ({len(self._worlds)},), got {sel.shape}")
+        return None if sel.all() else sel
+
+    def _update_contacts(self, on) -> None:
+        """``World._update_contacts`` of the worlds ``on``: arbiters read per world, resolved at once."""
+        pairs = []
+        fields = pmbatch.ArbiterFields.BODY_A_ID | pmbatch.ArbiterFields.BODY_B_ID
+        buf = _buffers()[2]  # the thread's arbiter buffer, shared by all worlds: copy each read
+        for w in (self._worlds[j] for j in on):
+            buf.clear()
+            pmbatch.get_space_arbiters(w.space, fields, buf)
+            pairs.append(np.frombuffer(buf.int_buf(), dtype=np.uintp).copy())
+        pairs_a = np.concatenate(pairs).reshape(-1, 2)
+        n = self.n_robots
+        contacts = np.zeros(len(self._worlds) * n, dtype=np.int8)
+        if len(pairs_a):
+            ids = self._ids
+            k = np.minimum(np.searchsorted(ids, pairs_a), len(ids) - 1)
+            known = ids[k] == pairs_a
+            flag = np.where(known, self._flags[k], Contact.WALL).astype(np.int8)
+            robot = np.where(known, self._owner_robots[k], -1)
+            for me, other in ((0, 1), (1, 0)):
+                m = robot[:, me] >= 0
+                np.bitwise_or.at(contacts, robot[m, me], flag[m, other])
+        for j in on:
+            self._worlds[j].contacts = contacts[j * n : (j + 1) * n].copy()
+
+    # -- state ------------------------------------------------------------------------------------
+    def poses(self) -> np.ndarray:
+        """``(K, n_robots, 3)``: ``worlds[k].poses`` for every ``k`` (theta wrapped), read at once."""
+        self._layout()
+        get_pos, get_angle = _cp.cpBodyGetPosition, _cp.cpBodyGetAngle
+        rows = []
+        for b in self._bodies:
+            p = get_pos(b)
+            rows.append((p.x, p.y, get_angle(b)))
+        out = np.array(rows, dtype=np.float64).reshape(-1, 3)
+        out[:, 2] = np.arctan2(np.sin(out[:, 2]), np.cos(out[:, 2]))
+        return out.reshape(len(self._worlds), self.n_robots, 3)
+
+    # -- sensing ----------------------------------------------------------------------------------
+    def scan(self, robots: Sequence[int] | None = None, noise: bool = True,
+             active: np.ndarray | None = None) -> tuple[list[Scan | None], np.ndarray]:
+        """``[w.scan(robots, noise) for w in worlds]`` in one call of the raycasting kernel.
+
+        Args:
+            robots: robot indices to scan in every world (``None``: all).
+            noise: apply each world's lidar noise and dropouts, drawn from that world's RNG in the
+                order ``World.scan`` draws them.
+            active: ``(K,)`` bools, the worlds to scan (default all; others give ``None``).
+
+        Returns:
+            ``(scans, poses)``: one :class:`Scan` per world (views into shared buffers) and the
+            ``(K, n_robots, 3)`` poses of every robot at the time of the scan.
+        """
+        combined, poses, on = self.scan_combined(robots, noise, active)
+        m = combined.robots.size // max(len(on), 1)
+        scans: list[Scan | None] = [None] * len(self._worlds)
+        for r, j in enumerate(on):
+            sl = slice(r * m, (r + 1) * m)
+            scans[j] = Scan(ranges=combined.ranges[sl], angles=combined.angles,
+                            hit_kind=combined.hit_kind[sl], hit_index=combined.hit_index[sl],
+                            true_ranges=combined.true_ranges[sl], robots=combined.robots[sl],
+                            poses=combined.poses[sl], range_max=combined.range_max)
+        return scans, poses
+
+    def scan_combined(self, robots: Sequence[int] | None = None, noise: bool = True,
+                      active: np.ndarray | None = None) -> tuple[Scan, np.ndarray, list[int]]:
+        """:meth:`scan` as one :class:`Scan` whose rows are the scanned robots of the active worlds
+        in order (``robots`` per world; ``hit_index`` and ``robots`` are indices within each
+        world), the ``(K, n_robots, 3)`` poses and the list of active worlds."""
+        self._layout()
+        ws, n, k = self._worlds, self.n_robots, len(self._worlds)
+        sel = self._select(active)
+        on = list(range(k)) if sel is None else np.flatnonzero(sel).tolist()
+        spec = ws[0].scene.lidar
+        ix = np.arange(n) if robots is None else np.asarray(robots, dtype=np.int64).reshape(-1)
+        if ix.size and (ix.min() < 0 or ix.max() >= n):
+            raise ValueError(f"WorldBatch.scan: robot indices must be in [0, {n}), got {ix.tolist()}")
+        poses = self.poses()
+        if self._movable:  # rare: moved obstacles change their world's primitives
+            for w, p in zip(ws, poses, strict=True):
+                w._update_lidar_geometry(p)  # (inactive worlds too: it draws no random numbers)
+            self._circles = np.concatenate([w._circles for w in ws]).reshape(-1, 3)
+            self._segments = np.concatenate([w._segments for w in ws]).reshape(-1, 4)
+        else:
+            self._circles[self._robot_circle, :2] = poses.reshape(-1, 3)[:, :2]
+        key = tuple(ix.tolist())
+        if self._scan_cache is None or self._scan_cache[0] != key:
+            m = ix.size
+            world = np.repeat(np.arange(k), m)
+            self._scan_cache = (
+                key, world, np.tile(ix, k), self._c_off[world], self._c_off[world] + self._c_len[world],
+                self._s_off[world], self._s_off[world] + self._s_len[world], self._p_off[world],
+            )
+        _, world, skip, c_lo, c_hi, s_lo, s_hi, p_lo = self._scan_cache
+        origin = poses[:, ix].reshape(-1, 3)
+        if sel is not None:
+            rows_on = np.repeat(sel, ix.size)
+            skip, c_lo, c_hi, s_lo, s_hi, p_lo, origin = (
+                a[rows_on] for a in (skip, c_lo, c_hi, s_lo, s_hi, p_lo, origin)
+            )
+        rows, nb = origin.shape[0], spec.n_beams
+        ranges = np.empty((rows, nb), np.float32)
+        true = np.empty((rows, nb), np.float32)
+        kind = np.empty((rows, nb), np.int8)
+        index = np.empty((rows, nb), np.int32)
+        _multi_kernel(
+            np.ascontiguousarray(origin[:, 0]), np.ascontiguousarray(origin[:, 1]),
+            np.ascontiguousarray(origin[:, 2]), int(nb), float(spec.range_min),
+            float(spec.range_max), self._circles, c_lo, c_hi, skip, self._segments, s_lo, s_hi,
+            self._prim_kind, self._prim_index, p_lo, ranges, true, kind, index,
+        )  # fmt: skip
+        m = ix.size
+        if noise and (spec.noise_sigma > 0 or spec.dropout_prob > 0):
+            # World.scan's noise; each world draws from its own RNG in the same order
+            hit = np.isfinite(true)
+            per_world = hit.reshape(len(on), -1).sum(axis=1).tolist()
+            d = true[hit].astype(np.float64)
+            if spec.noise_sigma > 0:
+                z = np.concatenate([ws[j].rng.normal(0.0, 1.0, c)
+                                    for j, c in zip(on, per_world, strict=True)])
+                d += z * spec.noise_sigma * d
+            invalid = (d < spec.range_min) | (d > spec.range_max)
+            if spec.dropout_prob > 0:
+                u = np.concatenate([ws[j].rng.random(c) for j, c in zip(on, per_world, strict=True)])
+                invalid |= u < spec.dropout_prob
+            d[invalid] = spec.range_max
+            ranges[hit] = d
+        combined = Scan(ranges=ranges, angles=spec.angles, hit_kind=kind, hit_index=index,
+                        true_ranges=true, robots=np.tile(ix, len(on)), poses=origin,
+                        range_max=spec.range_max)
+        return combined, poses, on
+
+
+@numba.njit(cache=True, nogil=True)
+def _multi_kernel(ox, oy, heading, n_beams, range_min, range_max, circles, c_lo, c_hi, skip,
+                  segments, s_lo, s_hi, prim_kind, prim_index, p_lo, out_ranges, out_true,
+                  out_kind, out_index):  # fmt: skip
+    """``_scan_kernel`` with per-origin primitive ranges: origin ``n`` sees circles
+    ``c_lo[n]:c_hi[n]`` and segments ``s_lo[n]:s_hi[n]`` (its own world's), and its owner table
+    starts at ``p_lo[n]``."""
+    cos_tab, sin_tab = _beam_tables(n_beams)
+    best_d = np.empty(n_beams)
+    best_p = np.empty(n_beams, dtype=np.int32)
+    for n in range(ox.shape[0]):
+        _cast_one(ox[n], oy[n], heading[n], skip[n], range_max, circles[c_lo[n] : c_hi[n]],
+                  segments[s_lo[n] : s_hi[n]], cos_tab, sin_tab, best_d, best_p)
+        base = p_lo[n]
+        for i in range(n_beams):
+            p = best_p[i] + 1
+            d = best_d[i]
+            out_kind[n, i] = prim_kind[base + p]
+            out_index[n, i] = prim_index[base + p]
+            if p == 0:
+                out_true[n, i] = np.inf
+                out_ranges[n, i] = range_max
+            else:
+                out_true[n, i] = d
+                out_ranges[n, i] = d if d >= range_min else range_max

@@ -1,0 +1,101 @@
+"""The fixed-shape ``info`` layout of the envs and helpers to read it (numpy only).
+
+Gymnasium's vector envs (and RLlib, and anything else that stacks infos) need every info entry
+to keep one shape on every step. So per-kin entries are *padded columns*: a dict of equal-length
+1-D arrays with a fixed number of slots, valid slots first (nearest first), plus a count:
+
+* ``info["kin_detections"]``: :data:`DETECTION_FIELDS`, ``max_detections`` slots each, and
+  ``info["kin_detections_count"]`` (int, <= ``max_detections``);
+* ``info["kin_truth"]``: :data:`KIN_TRUTH_FIELDS`, a fixed number of slots (the single-robot envs:
+  1, there is one kin; the swarm: ``max_kin_truth``), and ``info["kin_truth_count"]``.
+
+Empty slots hold :data:`PAD_VALUES` (-1 for indices and beams, 0 for ``n_beams`` and floats).
+:func:`unpad_detections` / :func:`unpad_kin_truth` give back the variable-length view, for one
+env's info or for a vector env's stacked info (then a list, one dict per sub-env).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+__all__ = [
+    "DETECTION_FIELDS",
+    "INT_FIELDS",
+    "KIN_TRUTH_FIELDS",
+    "PAD_VALUES",
+    "pad_rows",
+    "unpad",
+    "unpad_detections",
+    "unpad_kin_truth",
+]
+
+KIN_TRUTH_FIELDS = ("index", "range", "bearing", "x", "y", "n_beams")
+DETECTION_FIELDS = (
+    "range", "bearing", "x", "y", "score", "first_beam", "last_beam", "n_beams", "kin_index",
+)
+#: int64 fields; every other field is float64
+INT_FIELDS = frozenset({"index", "n_beams", "first_beam", "last_beam", "kin_index"})
+#: value of an empty slot (indices -1 so that an empty slot can never be read as robot 0)
+PAD_VALUES = {"index": -1, "first_beam": -1, "last_beam": -1, "kin_index": -1, "n_beams": 0}
+
+
+def _dtype(name: str) -> type:
+    return np.int64 if name in INT_FIELDS else np.float64
+
+
+def pad_rows(
+    row: np.ndarray, cols: dict[str, np.ndarray], n_rows: int, slots: int
+) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """Flat per-item columns → padded ``(n_rows, slots)`` columns and ``(n_rows,)`` counts.
+
+    Args:
+        row: ``(D,)`` scan row of each item, non-decreasing (items sorted by row, then nearest first).
+        cols: ``{field: (D,) array}``.
+        n_rows: number of rows.
+        slots: slots per row; items beyond ``slots`` in a row (the farthest) are dropped.
+    """
+    row = np.asarray(row, dtype=np.int64)
+    start = np.searchsorted(row, np.arange(n_rows))
+    rank = np.arange(row.size) - start[row] if row.size else row
+    keep = rank < slots
+    r, k = row[keep], rank[keep]
+    out = {}
+    for name, col in cols.items():
+        a = np.full((n_rows, slots), PAD_VALUES.get(name, 0), dtype=_dtype(name))
+        a[r, k] = col[keep]
+        out[name] = a
+    count = np.minimum(np.bincount(row, minlength=n_rows), slots).astype(np.int64)
+    return out, count
+
+
+def unpad(info: dict[str, Any], key: str) -> dict[str, np.ndarray] | list[dict[str, np.ndarray]] | None:
+    """The valid slots of ``info[key]`` (``None`` if absent).
+
+    One env's info → one dict of 1-D arrays; a vector env's stacked info (2-D columns) → a list
+    with one dict per sub-env. An info without ``{key}_count`` (the ragged layout of the v0 envs)
+    is returned unchanged.
+    """
+    cols = info.get(key) if info else None
+    if cols is None:
+        return None
+    count = info.get(f"{key}_count")
+    if count is None:
+        return cols
+    fields = [f for f in cols if not f.startswith("_")]  # vector infos add "_field" masks
+    count = np.asarray(count)
+    if count.ndim == 0:
+        n = int(count)
+        return {f: np.asarray(cols[f])[:n] for f in fields}
+    return [{f: np.asarray(cols[f])[e, : int(n)] for f in fields} for e, n in enumerate(count)]
+
+
+def unpad_detections(info: dict[str, Any]):
+    """``info["kin_detections"]`` without the empty slots (see :func:`unpad`)."""
+    return unpad(info, "kin_detections")
+
+
+def unpad_kin_truth(info: dict[str, Any]):
+    """``info["kin_truth"]`` without the empty slots (see :func:`unpad`)."""
+    return unpad(info, "kin_truth")

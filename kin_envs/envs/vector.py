@@ -1,0 +1,365 @@
+"""Native Gymnasium vector envs of the single-robot tasks (``KinSeek-v1``, ``KinFollow-v1``).
+
+``gymnasium.make_vec("kin_envs/KinSeek-v1", num_envs=K)`` (the registered ``vector_entry_point``)
+returns a :class:`KinSeekVectorEnv`. It holds K ordinary envs (their scenes, tasks, RNGs and
+frame stacks) but runs the expensive parts of a step once for all of them:
+
+* the physics of the K worlds (:class:`kin_envs.core.multi.WorldBatch`: batched drive update,
+  direct Chipmunk calls, contacts of all worlds at once);
+* the lidars of all K worlds: one call of the raycasting kernel;
+* the detector over all K learners' scans: one ``detect_batch`` call;
+* observations and the fixed-shape info built as (K, ...) arrays, never per-env dicts to stack.
+
+Autoreset is Gymnasium's default ``NEXT_STEP`` (``metadata["autoreset_mode"]``): the step after a
+sub-env terminates or truncates resets it (its action is ignored, reward 0, not done) and returns
+its first observation and reset info. Everything returned (observations, rewards, terminations,
+truncations and the stacked info with its ``_key`` masks) is what
+``gymnasium.make_vec(..., vectorization_mode="sync")`` returns for the same seeds (tested, across
+autoresets).
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import numpy as np
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from kin_envs.core.multi import WorldBatch
+from kin_envs.core.world import Scan
+from kin_envs.envs.base import SingleRobotEnv
+from kin_envs.envs.common import detect_rows, kin_truth_rows
+from kin_envs.envs.info import DETECTION_FIELDS, INT_FIELDS, KIN_TRUTH_FIELDS, pad_rows
+from kin_envs.envs.kin_follow import KinFollowEnv
+from kin_envs.envs.kin_seek import KinSeekEnv
+
+__all__ = ["KinFollowVectorEnv", "KinSeekVectorEnv", "KinVectorEnv", "stack_infos"]
+
+_KIN_KEYS = ("kin_truth", "kin_detections")
+
+
+def stack_infos(infos: list[dict[str, Any]]) -> dict[str, Any]:
+    """Stack per-env infos with the same keys the way ``gymnasium.vector.VectorEnv._add_info``
+    does (arrays of the first env's dtype, nested dicts recursively, ``_key`` masks all True)."""
+    n = len(infos)
+    out: dict[str, Any] = {}
+    for key, v in infos[0].items():
+        vals = [d[key] for d in infos]
+        if isinstance(v, dict):
+            out[key] = stack_infos(vals)
+        elif type(v) in (int, float, bool) or isinstance(v, np.number):
+            out[key] = np.array(vals, dtype=type(v))
+        elif isinstance(v, np.ndarray):
+            out[key] = np.stack(vals).astype(v.dtype, copy=False)
+        else:
+            arr = np.full(n, None, dtype=object)
+            arr[:] = vals
+            out[key] = arr
+        out[f"_{key}"] = np.ones(n, dtype=np.bool_)
+    return out
+
+
+class KinVectorEnv(VectorEnv):
+    """K sub-envs of ``env_class`` stepped together; see the module docstring.
+
+    Args:
+        num_envs: number of sub-envs K.
+        render_mode: ``None`` or ``"rgb_array"`` (``render()`` returns a tuple of K frames).
+        **kwargs: the single env's arguments (see its docstring), the same for every sub-env.
+    """
+
+    env_class: ClassVar[type[SingleRobotEnv]] = SingleRobotEnv
+    metadata: ClassVar[dict[str, Any]] = {
+        "render_modes": ["rgb_array"],
+        "render_fps": 10,
+        "autoreset_mode": AutoresetMode.NEXT_STEP,
+    }
+
+    def __init__(self, num_envs: int = 1, render_mode: str | None = None, **kwargs: Any) -> None:
+        self.envs: list[SingleRobotEnv] = []  # so that close() works if a check below raises
+        where = self.env_class.config_class.env_id
+        if not isinstance(num_envs, int | np.integer) or isinstance(num_envs, bool) or num_envs < 1:
+            raise ValueError(f"{where} vector env: num_envs must be an integer >= 1, got {num_envs!r}")
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(
+                f"{where} vector env: render_mode must be None or 'rgb_array', got {render_mode!r}"
+            )
+        first = self.env_class(render_mode=render_mode, **kwargs)
+        if "detector" in kwargs or first.detector is not None:
+            # one detector object for all sub-envs (a learned model is loaded once)
+            kwargs = {**kwargs, "detector": first.detector}
+        self.envs = [first] + [
+            self.env_class(render_mode=render_mode, **kwargs) for _ in range(int(num_envs) - 1)
+        ]
+        self.num_envs = int(num_envs)
+        self.render_mode = render_mode
+        self.detector = first.detector
+        self.layout = first.layout
+        self.config = first.config
+        if self.config.tracker is not None:
+            raise ValueError(
+                f"{self.config.env_id}: tracker= is not supported by the native vector env yet; use "
+                "gymnasium.make_vec(..., vectorization_mode='sync') (or 'async') with tracker="
+            )
+        self.single_observation_space = first.observation_space
+        self.single_action_space = first.action_space
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        self._batch: WorldBatch | None = None
+        self._autoreset = np.zeros(self.num_envs, dtype=np.bool_)
+        self._observations = np.zeros((self.num_envs, self.layout.dim), dtype=np.float32)
+        self._n_robots = 0
+        self._truth_slots = 0
+
+    # -- API ----------------------------------------------------------------------------------
+    def reset(self, *, seed: int | list[int | None] | None = None, options: dict | None = None):
+        """Reset sub-envs: all, or those in ``options["reset_mask"]`` (a ``(K,)`` bool array).
+
+        ``seed``: ``None``, an int (sub-env ``i`` gets ``seed + i``) or a list of K seeds, as
+        ``SyncVectorEnv``.
+        """
+        k = self.num_envs
+        if seed is None:
+            seeds = [None] * k
+        elif isinstance(seed, int | np.integer) and not isinstance(seed, bool):
+            seeds = [int(seed) + i for i in range(k)]
+        else:
+            seeds = list(seed)
+            if len(seeds) != k:
+                raise ValueError(f"reset: seed must be None, an int or a list of {k} seeds, got {seed!r}")
+        options = dict(options) if options else {}
+        mask = options.pop("reset_mask", None)
+        if mask is None:
+            mask = np.ones(k, dtype=np.bool_)
+        elif not (
+            isinstance(mask, np.ndarray) and mask.dtype == np.bool_ and mask.shape == (k,) and mask.any()
+        ):
+            raise ValueError(
+                f"reset: options['reset_mask'] must be a numpy bool array of shape ({k},) with at "
+                f"least one True, got {mask!r}"
+            )
+        ids = np.flatnonzero(mask).tolist()
+        if self._batch is None and len(ids) < k:
+            raise ValueError("reset: the first reset must reset every sub-env (no reset_mask)")
+        infos = []
+        for i in ids:
+            obs, info = self.envs[i].reset(seed=seeds[i], options=options or None)
+            self._observations[i] = obs
+            infos.append(info)
+        self._autoreset[ids] = False
+        self._sync_batch(ids)
+        info = stack_infos(infos)
+        if len(ids) < k:  # stack_infos fills every listed sub-env; widen to K with masks
+            info = _widen(info, ids, k)
+        return self._observations.copy(), info
+
+    def _sync_batch(self, ids: list[int]) -> None:
+        if self._batch is None or len(ids) == self.num_envs:
+            self._batch = WorldBatch([e.world for e in self.envs])
+        else:
+            for i in ids:
+                self._batch[i] = self.envs[i].world
+        self._n_robots = self.envs[0].world.n_robots
+        self._truth_slots = self._n_robots - 1
+
+    def step(self, actions):
+        if self._batch is None:
+            raise RuntimeError(f"{self.config.env_id} vector env: call reset() before step()")
+        k = self.num_envs
+        acts = np.asarray(actions)
+        if acts.shape[:1] != (k,):
+            raise ValueError(
+                f"{self.config.env_id} vector env: actions must have {k} rows (one per sub-env), "
+                f"got shape {acts.shape}"
+            )
+        resets = np.flatnonzero(self._autoreset).tolist()
+        active = ~self._autoreset
+        on = np.flatnonzero(active).tolist()
+        envs = self.envs
+        wheels = self._wheel_speeds(acts, on)
+        rewards = np.zeros(k, dtype=np.float64)
+        terminations = np.zeros(k, dtype=np.bool_)
+        truncations = np.zeros(k, dtype=np.bool_)
+        per_env: list[dict[str, Any] | None] = [None] * k
+        kin: dict[str, tuple[dict[str, np.ndarray], np.ndarray]] = {}
+        if on:
+            self._batch.step(wheels, active=None if not resets else active)
+            combined, poses, _ = self._batch.scan_combined(
+                envs[0]._scan_robots(), active=None if not resets else active
+            )
+            frames, kin = self._sense(on, combined, poses)
+            for r, i in enumerate(on):
+                obs, rew, term, trunc, info = envs[i]._finish_step(frames[r : r + 1])
+                self._observations[i] = obs
+                rewards[i], terminations[i], truncations[i] = rew, term, trunc
+                per_env[i] = info
+        for i in resets:
+            obs, info = envs[i].reset()
+            self._observations[i] = obs
+            per_env[i] = info
+        if resets:
+            self._sync_batch(resets)
+        info = self._assemble_info(per_env, on, resets, kin)
+        self._autoreset = terminations | truncations
+        return self._observations.copy(), rewards, terminations, truncations, info
+
+    def _wheel_speeds(self, acts: np.ndarray, on: list[int]) -> np.ndarray:
+        """``(K, n_robots, 2)`` wheel speeds, rad/s (rows of resetting sub-envs zero): what each
+        sub-env's ``_wheel_speeds`` gives, with the learners' actions checked all at once."""
+        k, n, envs = self.num_envs, self._n_robots, self.envs
+        where = f"{self.config.env_id} vector env"
+        adapter = envs[0]._actions
+        if adapter.action_type == "continuous":
+            try:
+                a = np.asarray(acts, dtype=np.float64)
+            except (TypeError, ValueError) as e:
+                raise ValueError(f"{where}: actions must be numbers, shape ({k}, 2)") from e
+            if a.shape != (k, 2):
+                raise ValueError(f"{where}: actions must have shape ({k}, 2), got {a.shape}")
+            bad = ~np.isfinite(a[on]).all(axis=1)
+            if bad.any():
+                i = on[int(np.flatnonzero(bad)[0])]
+                raise ValueError(f"{where}: actions[{i}] must be finite numbers, got {a[i].tolist()}")
+            learner = np.clip(a, -1.0, 1.0)
+        else:
+            learner = np.zeros((k, 2))
+            for i in on:
+                learner[i] = adapter.one(acts[i], f"actions[{i}]")
+        wheels = np.zeros((k, n, 2))
+        wheels[:, 0] = learner
+        if type(envs[0])._other_wheels is not SingleRobotEnv._other_wheels:
+            for i in on:  # scripted robots: per sub-env (their own scans and RNG draws)
+                wheels[i, 1:] = envs[i]._other_wheels(envs[i]._last_scan)
+        wheels *= envs[0].world.scene.robot.max_wheel_speed
+        return wheels
+
+    def _sense(self, on: list[int], combined: Scan, poses: np.ndarray):
+        """Detector, kin truth and observation frames of the stepped sub-envs, all at once."""
+        k_on, n = len(on), self._n_robots
+        m = combined.ranges.shape[0] // k_on  # rows scanned per world (the learner's is row 0)
+        learner = slice(None, None, m)
+        ranges = combined.ranges[learner]
+        flat_poses = poses[on].reshape(-1, 3)  # (k_on * n, 3): robot r of stepped env e at e*n + r
+        world_of_robot = np.repeat(np.arange(k_on), n)
+        observers = np.arange(k_on) * n
+        angles = combined.angles
+        dets = None
+        if self.detector is not None:
+            row, cols = detect_rows(
+                self.detector, ranges, angles, observers, flat_poses, robot_world=world_of_robot
+            )
+            ki = cols["kin_index"]
+            cols["kin_index"] = np.where(ki >= 0, ki - row * n, -1)
+            dets = (row, cols)
+        # kin truth of all learners in one call: a virtual scan whose robot indices are global
+        stacked = Scan(
+            ranges=ranges, angles=angles, hit_kind=combined.hit_kind[learner],
+            hit_index=combined.hit_index[learner] + observers[:, None].astype(np.int32),
+            true_ranges=combined.true_ranges[learner], robots=observers,
+            poses=combined.poses[learner], range_max=combined.range_max,
+        )  # fmt: skip
+        t_row, t_cols = kin_truth_rows(stacked, flat_poses)
+        t_cols["index"] = t_cols["index"] - t_row * n
+        frames = self.envs[0]._obs.frame(ranges, dets)
+        kin = {"kin_truth": pad_rows(t_row, t_cols, k_on, self._truth_slots)}
+        if dets is not None:
+            kin["kin_detections"] = pad_rows(*dets, k_on, self.config.max_detections)
+        # what each sub-env keeps of this step (for the scripted kin and rendering)
+        keep = self.render_mode is not None
+        # a sub-env's own scan is read only by scripted robots (KinFollow's kin) and rendering
+        need_scan = keep or type(self.envs[0])._other_wheels is not SingleRobotEnv._other_wheels
+        for r, i in enumerate(on):
+            env = self.envs[i]
+            env._current_poses = poses[i]
+            if not need_scan:
+                env._last_scan = None
+                continue
+            sl = slice(r * m, (r + 1) * m)
+            env._last_scan = Scan(
+                ranges=combined.ranges[sl], angles=angles, hit_kind=combined.hit_kind[sl],
+                hit_index=combined.hit_index[sl], true_ranges=combined.true_ranges[sl],
+                robots=combined.robots[sl], poses=combined.poses[sl], range_max=combined.range_max,
+            )  # fmt: skip
+            if keep and dets is not None:
+                sel = dets[0] == r
+                env._last_detections = (
+                    np.zeros(int(sel.sum()), dtype=np.int64),
+                    {f: c[sel] for f, c in dets[1].items()},
+                )
+            else:
+                env._last_detections = None
+        return frames, kin
+
+    def _assemble_info(self, per_env, on, resets, kin) -> dict[str, Any]:
+        """The stacked info, equal to ``SyncVectorEnv``'s: kin entries written as (K, slots)
+        arrays, the few scalar task entries stacked per key."""
+        k = self.num_envs
+        rest = [
+            {
+                key: v
+                for key, v in d.items()
+                if key not in _KIN_KEYS and key not in ("kin_truth_count", "kin_detections_count")
+            }
+            for d in per_env
+        ]
+        info = stack_infos(rest)
+        ones = np.ones(k, dtype=np.bool_)
+        layout = [("kin_truth", KIN_TRUTH_FIELDS, self._truth_slots)]
+        if self.detector is not None:
+            layout.append(("kin_detections", DETECTION_FIELDS, self.config.max_detections))
+        for key, fields, slots in layout:
+            cols = {
+                f: np.empty((k, slots), dtype=np.int64 if f in INT_FIELDS else np.float64) for f in fields
+            }
+            count = np.zeros(k, dtype=np.int64)
+            if on:
+                kc, kn = kin[key]
+                for f, c in cols.items():
+                    c[on] = kc[f]
+                count[on] = kn
+            for i in resets:
+                for f, c in cols.items():
+                    c[i] = per_env[i][key][f]
+                count[i] = per_env[i][f"{key}_count"]
+            nested: dict[str, Any] = {}
+            for f, c in cols.items():
+                nested[f] = c
+                nested[f"_{f}"] = ones.copy()
+            info[key], info[f"_{key}"] = nested, ones.copy()
+            info[f"{key}_count"], info[f"_{key}_count"] = count, ones.copy()
+        return info
+
+    def render(self):
+        if self.render_mode is None:
+            return None
+        return tuple(e.render() for e in self.envs)
+
+    def close_extras(self, **kwargs: Any) -> None:
+        for e in self.envs:
+            e.close()
+
+
+def _widen(info: dict[str, Any], ids: list[int], k: int) -> dict[str, Any]:
+    """A stacked info of the sub-envs ``ids`` as K rows (others zero, masks False)."""
+    out: dict[str, Any] = {}
+    for key, v in info.items():
+        if isinstance(v, dict):
+            out[key] = _widen(v, ids, k)
+            continue
+        full = np.zeros((k, *v.shape[1:]), dtype=v.dtype) if v.dtype != object else np.full(k, None)
+        full[ids] = v
+        out[key] = full
+    return out
+
+
+class KinSeekVectorEnv(KinVectorEnv):
+    """K ``KinSeek-v1`` envs stepped together (``gymnasium.make_vec("kin_envs/KinSeek-v1", K)``)."""
+
+    env_class: ClassVar[type[SingleRobotEnv]] = KinSeekEnv
+
+
+class KinFollowVectorEnv(KinVectorEnv):
+    """K ``KinFollow-v1`` envs stepped together (``gymnasium.make_vec("kin_envs/KinFollow-v1", K)``)."""
+
+    env_class: ClassVar[type[SingleRobotEnv]] = KinFollowEnv

@@ -1,0 +1,82 @@
+"""Envs with the multi-frame tracker: fixed-shape info["kin_tracks"], determinism, observation mode,
+vector stacking, rendering and argument errors."""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+import kin_envs  # noqa: F401  (registers the ids)
+from detectors.tracking import TRACK_FIELDS
+from kin_envs.envs.info import unpad
+
+IDS = ["kin_envs/KinSeek-v1", "kin_envs/KinFollow-v1"]
+
+
+@pytest.mark.parametrize("env_id", IDS)
+def test_info_shape_is_fixed_and_tracks_follow_the_kin(env_id):
+    env = gym.make(env_id, tracker=True, max_tracks=8, noise_sigma=0.005)
+    _, info = env.reset(seed=3)
+    near = 0
+    for _ in range(60):
+        _, _, term, trunc, info = env.step(env.action_space.sample())
+        assert set(info["kin_tracks"]) == set(TRACK_FIELDS)
+        assert all(v.shape == (8,) for v in info["kin_tracks"].values())
+        assert 0 <= info["kin_tracks_count"] <= 8
+        tracks = unpad(info, "kin_tracks")
+        truth = unpad(info, "kin_truth")
+        if len(truth["x"]) and len(tracks["x"]):
+            d = np.hypot(tracks["x"][:, None] - truth["x"][None], tracks["y"][:, None] - truth["y"][None])
+            near += int((d.min(axis=0) < 0.1).any())
+        if term or trunc:
+            env.reset(seed=4)
+    assert near > 0  # the kin is tracked when it is seen
+
+
+def test_checker_and_determinism_with_track_observations():
+    kw = dict(tracker=True, obs_detections="topk", obs_tracks=True, noise_sigma=0.01)
+    check_env(gym.make(IDS[1], **kw).unwrapped)
+    runs = []
+    for _ in range(2):
+        env = gym.make(IDS[1], **kw)
+        obs, _ = env.reset(seed=7)
+        env.action_space.seed(7)
+        seq = [obs]
+        for _ in range(25):
+            obs, _, _, _, info = env.step(env.action_space.sample())
+            seq.append(np.r_[obs, info["kin_tracks"]["kin_prob"]])
+        runs.append(np.concatenate([np.ravel(s) for s in seq]))
+    np.testing.assert_array_equal(*runs)
+
+
+def test_sync_vector_env_stacks_tracks_through_autoresets():
+    v = gym.make_vec(IDS[0], num_envs=2, vectorization_mode="sync", tracker=True, max_steps=15)
+    v.reset(seed=0)
+    for _ in range(40):
+        _, _, _, _, info = v.step(v.action_space.sample())
+        assert info["kin_tracks"]["kin_prob"].shape == (2, 16)
+    v.close()
+
+
+def test_render_draws_tracks():
+    env = gym.make(IDS[1], tracker=True, render_mode="rgb_array")
+    env.reset(seed=0)
+    for _ in range(5):
+        env.step(env.action_space.sample())
+    assert env.render().shape == (512, 512, 3)
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(tracker=True, detector=None), "needs a detector"),
+    (dict(obs_tracks=True), "obs_tracks"),
+    (dict(tracker="yes"), "tracker must be"),
+    (dict(tracker={"bogus": 1}), "unknown key"),
+])  # fmt: skip
+def test_bad_tracker_arguments(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        gym.make(IDS[0], **kwargs)
+
+
+def test_native_vector_env_refuses_the_tracker_clearly():
+    with pytest.raises(ValueError, match="not supported by the native vector env"):
+        gym.make_vec(IDS[0], num_envs=2, vectorization_mode="vector_entry_point", tracker=True)
