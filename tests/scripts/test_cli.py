@@ -101,7 +101,7 @@ def test_verbose_and_quiet_flags(core_help, script):
 def test_scripts_write_run_json_through_the_shared_helper():
     # one helper (kin_envs.cli.write_run_info) instead of a copy per script. Not yet converted: the
     # scripts added in parallel (they write run.json with detectors.fileio.write_json, atomically too)
-    later = {"benchmark_detectors.py", "benchmark_tracking.py", "train_beam_detector.py"}
+    later = {"benchmark_detectors.py", "train_beam_detector.py"}
     for script in sorted(set(SCRIPTS) - later):
         text = (ROOT / "scripts" / script).read_text()
         assert '"run.json").write_text' not in text, script
