@@ -9,10 +9,19 @@
 
 Helpers: :func:`run_episode` (Gymnasium), :class:`PolicyGroup` and :func:`run_parallel_episode`
 (PettingZoo parallel), :data:`agents.hyperparams.HYPERPARAMS` (shipped training settings).
+
+Logs through the ``agents`` logger. ``import kin_envs`` (which every module here does) checks that this
+package is kin-envs' own: an unrelated distribution named ``agents`` exists (kin_envs._toplevel).
 """
 
-from agents.aggregator import Aggregator
-from agents.base import (
+import logging
+
+__kin_envs_package__ = True
+logging.getLogger(__name__).addHandler(logging.NullHandler())
+
+import kin_envs as _kin_envs  # noqa: E402,F401  (runs the top-level package check first)
+from agents.aggregator import Aggregator  # noqa: E402
+from agents.base import (  # noqa: E402
     EpisodeStats,
     Policy,
     PolicyGroup,
@@ -22,9 +31,9 @@ from agents.base import (
     run_parallel_episode,
     steer_to_action,
 )
-from agents.random_policy import RandomPolicy
-from agents.seeker import KinSeeker
-from agents.wander import Wanderer
+from agents.random_policy import RandomPolicy  # noqa: E402
+from agents.seeker import KinSeeker  # noqa: E402
+from agents.wander import Wanderer  # noqa: E402
 
 ScriptedKinSeeker = KinSeeker
 

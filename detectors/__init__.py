@@ -5,10 +5,19 @@ pymunk). ``import detectors`` stays light (numpy/scipy/numba): ``LearnedKinDetec
 on first access. The dataset format and category names are in :mod:`detectors.samples`; generating
 labelled data and evaluating against the simulator's ground truth is on the simulator side
 (:mod:`kin_envs.detection`).
+
+It reports through the ``detectors`` logger (``logging``; silent unless the application configures it).
 """
 
-from . import _numba_cache  # noqa: F401  (first: a cache directory before any @njit(cache=True))
-from .base import (
+import logging
+
+# kin-envs' marker: ``import kin_envs`` and ``detectors.base`` check for it, since an unrelated
+# distribution named ``detectors`` exists and would shadow or overwrite this file (kin_envs._toplevel)
+__kin_envs_package__ = True
+logging.getLogger(__name__).addHandler(logging.NullHandler())
+
+from . import _numba_cache  # noqa: E402,F401  (first: a cache directory before any @njit(cache=True))
+from .base import (  # noqa: E402
     STAGES,
     BatchDetections,
     Detection,
@@ -20,7 +29,7 @@ from .base import (
     validate_scan,
     wrap_angle,
 )
-from .geometric import (
+from .geometric import (  # noqa: E402
     CircleFit,
     DiameterCheck,
     GeometricKinDetector,
@@ -39,7 +48,7 @@ from .geometric import (
     segment,
     shape_error,
 )
-from .tracking import KinTracker, Track, TrackerParams
+from .tracking import KinTracker, Track, TrackerParams  # noqa: E402
 
 
 def __getattr__(name: str):

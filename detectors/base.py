@@ -15,11 +15,31 @@ learned detector can implement :class:`KinDetector` and reuse
 from __future__ import annotations
 
 import math
+import sys
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
+
+
+def _check_package() -> None:
+    # every module of this package imports this one: if the ``detectors`` package Python imported is
+    # not ours (an unrelated distribution named ``detectors`` overwrote our __init__), say so here
+    pkg = sys.modules.get(__name__.rpartition(".")[0])
+    if pkg is None or getattr(pkg, "__kin_envs_package__", None) is True:
+        return
+    from importlib import metadata
+
+    dists = sorted(d for d in metadata.packages_distributions().get(pkg.__name__, []) if d != "kin-envs")
+    raise ImportError(
+        f"the package {pkg.__name__!r} imported from {getattr(pkg, '__file__', '?')} is not kin-envs' own "
+        f"(it comes from {dists or 'an unknown source'}): uninstall it and reinstall kin-envs, or use "
+        "separate virtual environments"
+    )
+
+
+_check_package()
 
 __all__ = [
     "STAGES",

@@ -3,13 +3,27 @@
 ``import kin_envs`` is light: it never imports torch or pygame. It registers the Gymnasium ids
 (``kin_envs/KinSeek-v1``, ``kin_envs/KinFollow-v1``, and their v0) with string entry points and
 exposes the PettingZoo swarm as ``kin_envs.aggregation_v1`` (and ``aggregation_v0``).
+
+The library reports through the ``kin_envs`` logger (``logging``; silent unless the application
+configures logging). It first checks that the top-level packages ``detectors`` and ``agents`` are
+kin-envs' own (:mod:`kin_envs._toplevel`: unrelated distributions of the same names exist).
 """
 
-from kin_envs import aggregation_v0, aggregation_v1, scenes
-from kin_envs.core.lidar import HitKind, LidarSpec
-from kin_envs.core.scenes import RobotSpec, Scene
-from kin_envs.core.world import Contact, Scan, World, WorldConfig
-from kin_envs.envs import register_envs as _register_envs
+import logging
+
+__kin_envs_package__ = True
+
+from kin_envs._toplevel import check_all as _check_toplevel  # noqa: E402
+
+_check_toplevel()  # before anything imports detectors: a foreign one would fail later, confusingly
+logging.getLogger(__name__).addHandler(logging.NullHandler())
+
+from kin_envs import aggregation_v0, aggregation_v1, scenes  # noqa: E402
+from kin_envs.core.lidar import HitKind, LidarSpec  # noqa: E402
+from kin_envs.core.scenes import RobotSpec, Scene  # noqa: E402
+from kin_envs.core.world import Contact, Scan, World, WorldConfig  # noqa: E402
+from kin_envs.envs import register_envs as _register_envs  # noqa: E402
+from kin_envs.envs.recording import record_episode  # noqa: E402
 
 _register_envs()
 
@@ -25,5 +39,6 @@ __all__ = [
     "WorldConfig",
     "aggregation_v0",
     "aggregation_v1",
+    "record_episode",
     "scenes",
 ]

@@ -1,12 +1,51 @@
-"""Small helpers shared by the command-line scripts (no heavy imports)."""
+"""Small helpers shared by the command-line scripts (no heavy imports: stdlib and numpy only).
+
+* :func:`parse_json_object`: a CLI value holding a JSON object inline or in a file;
+* :func:`add_logging_args` / :func:`setup_logging`: the ``--verbose`` / ``--quiet`` flags of every script;
+* :func:`progress`: a tqdm bar when tqdm is installed (the ``train`` / ``distributed`` extras), else the
+  plain iterable, so that the scripts run on the core install;
+* :func:`write_run_info`: the ``run.json`` every script writes next to its outputs (command, config,
+  seed, package versions, git commit), written atomically.
+"""
 
 from __future__ import annotations
 
+import argparse
+import dataclasses
+import datetime
+import functools
 import json
+import logging
+import math
 import os
+import platform
+import subprocess
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
+from importlib import metadata
 from pathlib import Path
+from typing import Any
+
+from detectors.fileio import write_json
+
+__all__ = [
+    "add_logging_args",
+    "package_versions",
+    "parse_json_object",
+    "progress",
+    "setup_logging",
+    "to_plain",
+    "write_run_info",
+]
+
+#: the loggers of the project's packages; the scripts log under ``kin_envs.scripts.<name>``
+LOGGERS = ("kin_envs", "detectors", "agents")
+#: distributions whose versions go into ``run.json`` when installed (read from metadata, never imported)
+VERSIONED = (
+    "kin-envs", "numpy", "scipy", "numba", "pymunk", "gymnasium", "pettingzoo", "torch",
+    "stable-baselines3", "supersuit", "ray",
+)  # fmt: skip
+_ROOT = Path(__file__).resolve().parents[1]
 
 #: Exit status of a script stopped by Ctrl-C (128 + SIGINT, the shell convention).
 EXIT_INTERRUPTED = 130
@@ -93,3 +132,172 @@ def parse_json_object(text: str | None, what: str) -> dict | None:
     if not isinstance(d, dict):
         raise ValueError(f"{what}: expected a JSON object, got {type(d).__name__}: {text!r}")
     return d
+
+
+# --- logging ------------------------------------------------------------------------------------
+
+
+def add_logging_args(parser: argparse.ArgumentParser) -> None:
+    """Add ``-v/--verbose`` (debug messages) and ``-q/--quiet`` (warnings and errors only)."""
+    g = parser.add_mutually_exclusive_group()
+    g.add_argument("-v", "--verbose", action="store_true", help="also log debug messages")
+    g.add_argument("-q", "--quiet", action="store_true", help="log warnings and errors only")
+
+
+def setup_logging(args: argparse.Namespace | None = None, *, verbose: bool = False,
+                  quiet: bool = False) -> int:
+    """Set the level of the project's loggers from ``--verbose`` / ``--quiet``; returns the level.
+
+    The library only creates loggers (with a ``NullHandler``); a script calls this once. A stderr
+    handler is added to the root logger only when none is configured, so an application's (or
+    pytest's) logging set-up is left alone.
+    """
+    if args is not None:
+        verbose, quiet = getattr(args, "verbose", False), getattr(args, "quiet", False)
+    level = logging.DEBUG if verbose else logging.WARNING if quiet else logging.INFO
+    logging.basicConfig(format="%(levelname)s %(name)s: %(message)s")  # no-op when handlers exist
+    for name in LOGGERS:
+        logging.getLogger(name).setLevel(level)
+    return level
+
+
+def script_logger(file: str) -> logging.Logger:
+    """The logger of a script: ``kin_envs.scripts.<file stem>``."""
+    return logging.getLogger(f"kin_envs.scripts.{Path(file).stem}")
+
+
+# --- progress -----------------------------------------------------------------------------------
+
+
+class _NoBar:
+    """What the scripts use of a tqdm bar, doing nothing (tqdm is not installed)."""
+
+    def __init__(self, iterable=None, total=None, **_):
+        self.iterable, self.total, self.n = iterable, total, 0
+
+    def __iter__(self):
+        return iter(self.iterable if self.iterable is not None else ())
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+    def update(self, n=1):
+        self.n += n
+
+    def set_postfix(self, *args, **kwargs):
+        pass
+
+    def set_description(self, *args, **kwargs):
+        pass
+
+    def close(self):
+        pass
+
+
+def progress(iterable: Iterable | None = None, **kwargs):
+    """``tqdm(iterable, **kwargs)`` when tqdm is installed, else an object with the same use
+    (iteration, ``update``, ``set_postfix``, ``close``) that shows nothing."""
+    try:
+        from tqdm import tqdm
+    except ImportError:  # tqdm comes with the train / distributed extras, not the core
+        return _NoBar(iterable, **kwargs)
+    return tqdm(iterable, **kwargs)
+
+
+# --- run records --------------------------------------------------------------------------------
+
+
+def to_plain(obj: Any) -> Any:
+    """JSON-ready copy: dataclasses and mappings to dicts, paths to strings, numpy values to Python,
+    tuples and sets to lists, non-finite floats to ``None``."""
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return to_plain(dataclasses.asdict(obj))
+    if isinstance(obj, dict):
+        return {str(k): to_plain(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple | set | frozenset):
+        return [to_plain(v) for v in obj]
+    if isinstance(obj, Path):
+        return str(obj)
+    if isinstance(obj, bool | int | str) or obj is None:
+        return obj
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    tolist = getattr(obj, "tolist", None)  # numpy scalars and arrays, without importing numpy here
+    if callable(tolist):
+        return to_plain(tolist())
+    return repr(obj)
+
+
+def package_versions() -> dict[str, str]:
+    """Python, platform and the installed versions of :data:`VERSIONED` (from package metadata)."""
+    out = {"python": platform.python_version(), "platform": platform.platform()}
+    for name in VERSIONED:
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            continue
+    return out
+
+
+@functools.lru_cache(maxsize=1)
+def _git_commit() -> str | None:
+    if not (_ROOT / ".git").exists():  # an installed copy, not a checkout
+        return None
+    try:
+        r = subprocess.run(["git", "-C", str(_ROOT), "rev-parse", "HEAD"], capture_output=True, text=True,
+                           timeout=10, check=False)
+        dirty = subprocess.run(["git", "-C", str(_ROOT), "status", "--porcelain", "--untracked-files=no"],
+                               capture_output=True, text=True, timeout=10, check=False)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    if r.returncode != 0:
+        return None
+    return r.stdout.strip() + ("-dirty" if dirty.stdout.strip() else "")
+
+
+def _script_path(script: str | None) -> str | None:
+    if script is None:
+        return None
+    p = Path(script).resolve()
+    try:
+        return str(p.relative_to(_ROOT))
+    except ValueError:
+        return str(p)
+
+
+def write_run_info(out_dir, args: argparse.Namespace | dict | None = None, *, config: Any = None,
+                   seed: Any = None, argv: list[str] | None = None, script: str | None = None,
+                   filename: str = "run.json", **fields: Any) -> dict:
+    """Write ``out_dir/filename`` (default ``run.json``) atomically and return what was written.
+
+    Keys: ``script``; ``command`` (``sys.argv`` when ``argv`` is ``None``, else the script and
+    ``argv``: the call ``main(argv)``); ``cwd``; ``args`` (the parsed command line); ``config`` (the
+    resolved configuration, e.g. a dataclass); ``seed``; ``versions`` (:func:`package_versions`);
+    ``git_commit`` (``-dirty`` when the checkout has changes; ``None`` outside a checkout); ``time``
+    (UTC); then ``fields`` as given (results, timings, status). Values go through :func:`to_plain`.
+    Call it again (e.g. with ``status="done"``) to replace the file.
+    """
+    out_dir = Path(out_dir)
+    script = _script_path(script)
+    if argv is None:
+        command = [sys.executable, *sys.argv]
+    else:
+        command = [sys.executable, *([script] if script else []), *map(str, argv)]
+    info = {
+        "script": script,
+        "command": command,
+        "cwd": os.getcwd(),
+        "args": vars(args) if isinstance(args, argparse.Namespace) else args,
+        "config": config,
+        "seed": seed,
+        "versions": package_versions(),
+        "git_commit": _git_commit(),
+        "time": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        **fields,
+    }
+    info = to_plain(info)
+    write_json(out_dir / filename, info, allow_nan=False)
+    return info

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import inspect
 import itertools
+import logging
 import socket
 import sys
 from collections.abc import Callable, Iterable, Iterator
@@ -36,6 +37,7 @@ __all__ = ["BACKENDS", "cached", "imap_seeds", "map_seeds", "ray_session", "ship
 BACKENDS = ("local", "ray")
 U = TypeVar("U")
 R = TypeVar("R")
+log = logging.getLogger(__name__)
 
 _INSTALL_HINT = "pip install kin-envs[distributed]"
 # per-process objects built by cached(): this module is imported by name on every worker, so the
@@ -79,10 +81,12 @@ def ray_session(address: str | None = None, num_cpus: int | None = None) -> Iter
     if num_cpus is not None and (isinstance(num_cpus, bool) or not isinstance(num_cpus, int) or num_cpus < 1):
         raise ValueError(f"num_cpus must be an int >= 1, got {num_cpus!r}")
     if address is None:
+        log.info("starting a local Ray (%s CPUs)", "all" if num_cpus is None else num_cpus)
         # light local instance: no dashboard; worker output not mirrored (errors still propagate)
         ray.init(num_cpus=num_cpus, include_dashboard=False, log_to_driver=False)
     else:
         _check_reachable(address)
+        log.info("joining the Ray cluster at %s", address)
         try:
             ray.init(address=address, log_to_driver=False)
         except ConnectionError as e:

@@ -42,6 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from kin_envs import World, scenes
+from kin_envs.cli import add_logging_args, setup_logging, write_run_info
 from kin_envs.core.world import LIDAR_QUERY_FILTER
 
 
@@ -600,7 +601,9 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--vec-detectors", nargs="+", default=["none", "geometric"],
                    choices=["none", "geometric", "learned"], help="vecenv: detectors to time")
     p.add_argument("--out", type=Path, default=Path("outputs/benchmark"), help="output directory")
+    add_logging_args(p)
     args = p.parse_args(argv)
+    setup_logging(args)
     sections = [s.strip() for s in args.sections.split(",") if s.strip()]
     unknown = sorted(set(sections) - set(SECTIONS))
     if unknown:
@@ -659,6 +662,7 @@ def main(argv: list[str] | None = None) -> dict:
     md = to_markdown(results)
     write_text(args.out / "benchmark.md", md)
     write_json(args.out / "benchmark.json", results)
+    write_run_info(args.out, args, config=results["config"], argv=argv, script=__file__)  # last
     print("\n" + md)
     print(f"wrote {args.out / 'benchmark.json'} and {args.out / 'benchmark.md'}")
     return results

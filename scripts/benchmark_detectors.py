@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from detectors.fileio import atomic_write, write_json
-from kin_envs.cli import check_output_dir, noise_level
+from kin_envs.cli import add_logging_args, check_output_dir, noise_level, setup_logging
 from kin_envs.detection.benchmark import (
     BENCHMARK_VERSION,
     CONDITIONS,
@@ -239,8 +239,9 @@ def main(argv: list[str] | None = None) -> BenchmarkResults:
     p.add_argument("--torch-threads", type=int, default=1, help="torch threads for learned detectors")
     p.add_argument("--out", type=Path, default=Path("outputs/benchmark_detectors"), help="output directory")
     p.add_argument("--no-plots", action="store_true", help="skip the PR-curve PNGs")
-    p.add_argument("--quiet", action="store_true", help="no progress output")
+    add_logging_args(p)
     args = p.parse_args(argv)
+    setup_logging(args)
     if args.scenes is not None and args.scenes < 1:
         p.error("--scenes must be >= 1")
     if args.resamples < 0 or args.seed_offset < 0:

@@ -25,7 +25,6 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import math
-import platform
 import sys
 import time
 from pathlib import Path
@@ -33,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from detectors.fileio import atomic_write, write_json
-from kin_envs.cli import check_output_dir
+from kin_envs.cli import add_logging_args, check_output_dir, setup_logging, write_run_info
 from kin_envs.detection.sequences import AGE_EDGES, SEQUENCE_SPLITS, SEQUENCE_VERSION, run_sequences
 
 SCRIPTS = Path(__file__).resolve().parent
@@ -182,7 +181,9 @@ def main(argv: list[str] | None = None) -> list[dict]:
     p.add_argument("--out", type=Path, default=Path("outputs/benchmark_tracking"), help="output directory")
     p.add_argument("--no-gif", action="store_true", help="skip the animation")
     p.add_argument("--torch-threads", type=int, default=1, help="torch threads (learned detector)")
+    add_logging_args(p)
     args = p.parse_args(argv)
+    setup_logging(args)
     if args.full and args.episodes is not None:
         p.error("--full and --episodes are exclusive")
     if args.episodes is not None and args.episodes < 1:
@@ -219,17 +220,11 @@ def main(argv: list[str] | None = None) -> list[dict]:
     plot_f1(results, args.out / "f1_vs_frames.png")
     if recording:
         animate(recording, args.out / "tracks.gif")
-    import detectors
-    import kin_envs
 
-    write_json(args.out / "run.json", {
-        "command": [sys.executable, *sys.argv], "args": {k: str(v) for k, v in vars(args).items()},
-        "sequence_version": SEQUENCE_VERSION,
-        "splits": {s: SEQUENCE_SPLITS[s].to_dict() for s in args.splits},
-        "versions": {"python": platform.python_version(), "numpy": np.__version__,
-                     "kin_envs": kin_envs.__version__, "detectors": getattr(detectors, "__version__", None)},
-        "seconds": time.perf_counter() - t0,
-    })  # fmt: skip
+    write_run_info(
+        args.out, args, argv=argv, script=__file__, sequence_version=SEQUENCE_VERSION,
+        splits={s: SEQUENCE_SPLITS[s].to_dict() for s in args.splits}, seconds=time.perf_counter() - t0,
+    )
     print(report(results))
     return results
 

@@ -42,18 +42,26 @@ import time
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from detectors.base import KinDetector
 from detectors.fileio import atomic_write, write_json, write_text
 from kin_envs import World, scenes
-from kin_envs.cli import check_output_dir, noise_level
+from kin_envs.cli import (
+    add_logging_args,
+    check_output_dir,
+    noise_level,
+    script_logger,
+    setup_logging,
+    write_run_info,
+)
+from kin_envs.cli import progress as tqdm
 from kin_envs.core.lidar import LidarSpec
 from kin_envs.core.scenes import DetectionSceneConfig
 from kin_envs.detection.evaluation import DEFAULT_GATE, Evaluation, Metrics, evaluate
 from kin_envs.distributed import BACKENDS, cached, map_seeds
 
 FIRST_SEED = 1_000_000
+log = script_logger(__file__)
 DEFAULT_SCENES = 1000
 NOISE_LEVELS = (0.0, 0.005, 0.01, 0.02)
 #: valid beams on the kin: 1, 2, 3, 4, 5-6, 7-9, 10+ (a kin at 0.3 m gets about 13 at 1°)
@@ -339,7 +347,11 @@ def markdown(evals: dict[str, Evaluation], dist_edges, noise_levels, paper: list
 
 
 def plot(evals: dict[str, Evaluation], dist_edges, noise_levels, out: Path) -> list[Path]:
-    import matplotlib
+    try:
+        import matplotlib
+    except ImportError:  # the viz extra; tables and JSON do not need it (e.g. a .[distributed] install)
+        log.warning("no figures: matplotlib is not installed (pip install kin-envs[viz])")
+        return []
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -445,7 +457,9 @@ def main(argv: list[str] | None = None) -> dict:
     )  # fmt: skip
     ap.add_argument("--address", default=None, help="ray: join this cluster (e.g. auto, host:6379)")
     ap.add_argument("--num-cpus", type=int, default=None, help="ray: CPUs of a local Ray (default: all)")
+    add_logging_args(ap)
     args = ap.parse_args(argv)
+    setup_logging(args)
     if not (math.isfinite(args.gate) and args.gate > 0):
         raise ValueError(f"--gate must be a finite distance > 0 m, got {args.gate!r}")
     if args.scenes < 1 or args.first_seed < 0 or args.torch_threads < 1:
@@ -541,10 +555,6 @@ def main(argv: list[str] | None = None) -> dict:
         "figures": figures,
     }
     run = {
-        "command": " ".join(
-            [sys.executable, *(sys.argv if argv is None else ["scripts/evaluate_detectors.py", *argv])]
-        ),
-        "args": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()},
         "detectors": {name: f"{type(d).__module__}.{type(d).__qualname__}" for name, d in detectors.items()},
         "scene_config": dataclasses.asdict(config),
         "noise_levels": noise_levels,
@@ -560,9 +570,9 @@ def main(argv: list[str] | None = None) -> dict:
         "seconds": {"data": t_data, "sweep": t_sweep, "total": time.perf_counter() - t0},
     }
     write_json(out / "results.json", _plain(results), allow_nan=False)
-    write_json(out / "run.json", _plain(run), allow_nan=False)  # last: the run record
+    run = write_run_info(out, args, config=config, seed=args.first_seed, argv=argv, script=__file__, **run)
     print(md)
-    print(
+    log.info(
         f"wrote {out}/results.md, results.json, run.json and {len(figures)} figures "
         f"in {run['seconds']['total']:.1f} s"
     )

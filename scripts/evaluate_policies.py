@@ -1,12 +1,13 @@
 """Evaluate policies over the same seeded episodes: a markdown table with 95 % CIs and learning curves.
 
-Single-robot envs (``--env kin_envs/KinSeek-v0``): success rate (Wilson interval), return,
-collision steps and steps to success (t intervals; steps to success over successful episodes).
+Single-robot envs (``--env kin_envs/KinSeek-v0``): success rate (Wilson interval, scipy's
+``binomtest``), return, collision steps and steps to success (bootstrap BCa intervals of the mean,
+which stay within the range of the data; steps to success over successful episodes).
 
 Swarm (``--env aggregation_v0``): cluster metrics averaged over the last ``--metric-cycles``
 cycles of each episode: mean distance from each robot to its nearest other robot, and the
 largest-cluster fraction (robots linked when their centres are within ``--link-radius``; the
-size of the largest connected group / n), plus the per-robot return; t intervals over episodes.
+size of the largest connected group / n), plus the per-robot return; bootstrap intervals over episodes.
 
 Policies: ``--policies`` names built-in ones (``random``, ``wander``, ``scripted``,
 ``aggregator``); ``--model [NAME=]PATH`` adds trained SB3 models (repeatable). A model is run in
@@ -30,14 +31,14 @@ import argparse
 import csv
 import json
 import math
-import platform
 import sys
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from scipy import stats
-from tqdm import tqdm
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import connected_components
 
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:  # run as a file: make agents / kin_envs importable from the checkout
@@ -57,61 +58,72 @@ from agents import (  # noqa: E402
 )
 from detectors.fileio import atomic_write, write_json, write_text  # noqa: E402
 from kin_envs import aggregation_v0  # noqa: E402
-from kin_envs.cli import check_output_dir  # noqa: E402
+from kin_envs.cli import add_logging_args, check_output_dir, script_logger, setup_logging, write_run_info  # noqa: E402
+from kin_envs.cli import progress as tqdm  # noqa: E402
 
 SWARM_ID = "aggregation_v0"
 BUILTIN = {"random": RandomPolicy, "wander": Wanderer, "scripted": KinSeeker, "aggregator": Aggregator}
 DEFAULT_POLICIES = {"single": ["random", "scripted"], "swarm": ["random", "wander", "aggregator"]}
 DEFAULT_SWARM_KWARGS = {"obs_detections": "topk"}
+log = script_logger(__file__)
 
 
 # --- statistics ---------------------------------------------------------------------------------
 
+#: resamples of the bootstrap intervals (BCa); seeded, so the tables are reproducible
+N_RESAMPLES = 9999
 
-def wilson(k: int, n: int, z: float = 1.959964) -> tuple[float, float]:
-    """Wilson score interval of a proportion ``k / n`` (95 % by default)."""
+
+def proportion_ci(k: int, n: int, conf: float = 0.95) -> tuple[float, float]:
+    """Wilson score interval of a proportion ``k / n`` (scipy's ``binomtest``); within [0, 1]."""
     if n == 0:
         return (math.nan, math.nan)
-    p = k / n
-    den = 1 + z * z / n
-    centre = (p + z * z / (2 * n)) / den
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / den
-    return (max(0.0, centre - half), min(1.0, centre + half))
+    ci = stats.binomtest(int(k), int(n)).proportion_ci(confidence_level=conf, method="wilson")
+    return (float(ci.low), float(ci.high))
 
 
-def t_interval(x, conf: float = 0.95) -> tuple[float, float, float]:
-    """``(mean, low, high)``: Student-t interval of the mean (NaN bounds below 2 samples)."""
+def mean_ci(x, conf: float = 0.95, seed: int = 0) -> tuple[float, float, float]:
+    """``(mean, low, high)``: bootstrap (BCa, ``scipy.stats.bootstrap``) interval of the mean.
+
+    Counts, distances and fractions are bounded and often skewed (most episodes with 0 collisions, a
+    few with many), where a Student t interval can leave the possible range (e.g. below 0). The bounds
+    of a bootstrap interval are means of resamples, so they stay within [min(x), max(x)]. NaN bounds
+    below 2 samples; a zero-width interval when all values are equal.
+    """
     x = np.asarray(x, dtype=np.float64)
     if x.size == 0:
         return (math.nan, math.nan, math.nan)
     m = float(x.mean())
     if x.size < 2:
         return (m, math.nan, math.nan)
-    half = float(stats.t.ppf(0.5 + conf / 2, x.size - 1) * x.std(ddof=1) / math.sqrt(x.size))
-    return (m, m - half, m + half)
+    if np.ptp(x) == 0:  # the bootstrap distribution is a point (BCa would warn and give NaN)
+        return (m, m, m)
+    res = stats.bootstrap((x,), np.mean, confidence_level=conf, n_resamples=N_RESAMPLES, method="BCa",
+                          vectorized=True, rng=np.random.default_rng(seed))
+    lo, hi = float(res.confidence_interval.low), float(res.confidence_interval.high)
+    # BCa can fail on tiny or extreme samples (NaN): fall back to the percentile interval
+    if not (math.isfinite(lo) and math.isfinite(hi)):
+        res = stats.bootstrap((x,), np.mean, confidence_level=conf, n_resamples=N_RESAMPLES,
+                              method="percentile", vectorized=True, rng=np.random.default_rng(seed))
+        lo, hi = float(res.confidence_interval.low), float(res.confidence_interval.high)
+    return (m, lo, hi)
 
 
 # --- swarm metrics ------------------------------------------------------------------------------
 
 
 def cluster_metrics(xy: np.ndarray, link_radius: float) -> tuple[float, float]:
-    """``(mean nearest-neighbour distance m, largest-cluster fraction)`` of robot centres ``(n, 2)``."""
+    """``(mean nearest-neighbour distance m, largest-cluster fraction)`` of robot centres ``(n, 2)``.
+
+    Robots within ``link_radius`` of each other are linked; a cluster is a connected component of
+    that graph (``scipy.sparse.csgraph.connected_components``).
+    """
     n = len(xy)
     d = np.sqrt(((xy[:, None, :] - xy[None, :, :]) ** 2).sum(-1))
     np.fill_diagonal(d, np.inf)
     nearest = float(d.min(axis=1).mean())
-    parent = np.arange(n)
-
-    def find(i: int) -> int:
-        while parent[i] != i:
-            parent[i] = parent[parent[i]]
-            i = parent[i]
-        return i
-
-    for i, j in zip(*np.nonzero(np.triu(d <= link_radius, 1)), strict=True):
-        parent[find(i)] = find(j)
-    roots = [find(i) for i in range(n)]
-    return nearest, float(np.bincount(roots).max() / n)
+    _, labels = connected_components(csr_matrix(d <= link_radius), directed=False)
+    return nearest, float(np.bincount(labels).max() / n)
 
 
 # --- policies -----------------------------------------------------------------------------------
@@ -169,10 +181,10 @@ def evaluate_single(env, policy, seeds, desc: str, progress: bool) -> dict[str, 
     tts = [e.time_to_success for e in eps if e.success]
     return {
         "episodes": n,
-        "success_rate": k / n, "success_ci": wilson(k, n),
-        "return": t_interval([e.episode_return for e in eps]),
-        "collisions": t_interval([e.collisions for e in eps]),
-        "time_to_success": t_interval(tts),
+        "success_rate": k / n, "success_ci": proportion_ci(k, n),
+        "return": mean_ci([e.episode_return for e in eps]),
+        "collisions": mean_ci([e.collisions for e in eps]),
+        "time_to_success": mean_ci(tts),
         "per_episode": [{"seed": int(s), "success": e.success, "return": e.episode_return,
                          "length": e.length, "collisions": e.collisions}
                         for s, e in zip(seeds, eps, strict=True)],
@@ -199,8 +211,8 @@ def evaluate_swarm(env, group, seeds, link_radius: float, metric_cycles: int, de
         coll.append(float(np.mean(list(res["collisions"].values()))))
         rows.append({"seed": int(s), "nearest": nn[-1], "largest_cluster": frac[-1], "return": ret[-1],
                      "collisions": coll[-1]})
-    return {"episodes": len(seeds), "nearest": t_interval(nn), "largest_cluster": t_interval(frac),
-            "return": t_interval(ret), "collisions": t_interval(coll), "per_episode": rows}
+    return {"episodes": len(seeds), "nearest": mean_ci(nn), "largest_cluster": mean_ci(frac),
+            "return": mean_ci(ret), "collisions": mean_ci(coll), "per_episode": rows}
 
 
 # --- reporting ----------------------------------------------------------------------------------
@@ -229,9 +241,9 @@ def markdown_table(results: dict[str, dict], swarm: bool, meta: dict[str, Any]) 
             lines.append(f"| {name} | {fmt_ci(r['success_rate'], *r['success_ci'])} | "
                          f"{fmt_ci(*r['return'])} | {fmt_ci(*r['collisions'], 1)} | "
                          f"{fmt_ci(*r['time_to_success'], 1)} |")
-    how = ("Student t over episodes; swarm metrics averaged over the last "
+    how = ("bootstrap BCa over episodes; swarm metrics averaged over the last "
            f"{meta['metric_cycles']} cycles of each episode" if swarm
-           else "Wilson for the success rate, Student t for means")
+           else "Wilson for the success rate, bootstrap BCa for means")
     note = (f"\n{meta['episodes']} episodes per policy, seeds {meta['first_seed']}–"
             f"{meta['first_seed'] + meta['episodes'] - 1}; 95 % intervals in brackets ({how}).\n")
     return "\n".join(lines) + "\n" + note
@@ -270,7 +282,11 @@ def load_curve(model_path: Path) -> dict[str, np.ndarray] | None:
 def plot_curves(curves: dict[str, dict], path: Path) -> bool:
     if not curves:
         return False
-    import matplotlib
+    try:
+        import matplotlib
+    except ImportError:  # the viz extra: the tables do not need it
+        log.warning("no learning_curve.png: matplotlib is not installed (pip install kin-envs[viz])")
+        return False
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -310,15 +326,18 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--max-cycles", type=int, default=None, help="swarm episode length (default: the env's)")
     p.add_argument("--link-radius", type=float, default=0.5, help="swarm: cluster link radius, m")
     p.add_argument("--metric-cycles", type=int, default=50, help="swarm: average metrics over the last N")
-    p.add_argument("--out", type=Path, default=Path("outputs/evaluate_policies"))
-    p.add_argument("--torch-threads", type=int, default=1)
-    p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--out", type=Path, default=Path("outputs/evaluate_policies"),
+                   help="output directory (default: %(default)s)")
+    p.add_argument("--torch-threads", type=int, default=1, help="torch threads for the SB3 models")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars, no table on stdout")
+    add_logging_args(p)
     return p.parse_args(argv)
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Evaluate; returns ``{"results": {policy: metrics}, "markdown": table, "out": dir}``."""
     args = parse_args(argv)
+    setup_logging(args)
     swarm = args.env == SWARM_ID
     if args.env_kwargs:
         base_kwargs = json.loads(args.env_kwargs)
@@ -382,13 +401,11 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     write_text(out / "results.md", md)
     write_json(out / "results.json", {"env": args.env, "results": results}, indent=1, default=float)
     plotted = plot_curves(curves, out / "learning_curve.png")
-    run = {"script": "scripts/evaluate_policies.py",
-           "command": ([sys.executable, *sys.argv] if argv is None
-                       else ["scripts/evaluate_policies.py", *argv]),
-           "args": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()},
-           "env_kwargs": used_kwargs, "seeds": [int(seeds[0]), int(seeds[-1])],
-           "models": {n: str(p) for n, p in models}, "python": platform.python_version()}
-    write_json(out / "run.json", run)
+    write_run_info(out, args, config={"env": args.env, "episodes": episodes}, seed=args.first_seed,
+                   argv=argv, script=__file__,
+                   env_kwargs=used_kwargs, seeds=[int(seeds[0]), int(seeds[-1])],
+                   models={n: str(p) for n, p in models})
+    log.info("wrote %s", ", ".join(str(out / f) for f in ("results.md", "results.json", "run.json")))
     if progress:
         print(md)
     return {"results": results, "markdown": md, "out": out,

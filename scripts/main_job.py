@@ -22,6 +22,10 @@ import time
 from pathlib import Path
 
 SCRIPTS = Path(__file__).resolve().parent
+if str(SCRIPTS.parent) not in sys.path:  # run as a file: make kin_envs importable from the checkout
+    sys.path.insert(0, str(SCRIPTS.parent))
+
+from kin_envs.cli import add_logging_args, setup_logging, write_run_info  # noqa: E402
 
 
 def _load(name: str):
@@ -40,12 +44,18 @@ def main(argv: list[str] | None = None) -> dict:
     )
     p.add_argument("--full", action="store_true", help="run the benchmark at its full size")
     p.add_argument("--quick", action="store_true", help="tiny sizes, for smoke tests")
+    add_logging_args(p)
     args = p.parse_args(argv)
+    setup_logging(args)
     if args.full and args.scenes is not None:
         p.error("--full and --scenes are exclusive")
+    args.out.mkdir(parents=True, exist_ok=True)
+    write_run_info(args.out, args, argv=argv, script=__file__)
     results = {}
     t0 = time.perf_counter()
     repro_argv = ["--out", str(args.out / "reproduce_paper"), "--noise", "0.005", "0.01"]
+    verbosity = ["--verbose"] if args.verbose else ["--quiet"] if args.quiet else []
+    repro_argv += verbosity
     if args.quick:
         repro_argv += ["--repeats", "3", "--draws", "4", "--no-figures"]
     print("== 1/3 paper reproduction ==", flush=True)
@@ -58,14 +68,14 @@ def main(argv: list[str] | None = None) -> dict:
         bench_argv += ["--scenes", str(args.scenes if args.scenes is not None else 2)]
     if args.quick:
         bench_argv += ["--noise", "0", "0.01", "--resamples", "50", "--no-plots"]
-    results["benchmark_detectors"] = _load("benchmark_detectors").main(bench_argv)
+    results["benchmark_detectors"] = _load("benchmark_detectors").main([*bench_argv, *verbosity])
     print("== 3/3 sequence benchmark: tracker vs single scans ==", flush=True)
     seq_argv = ["--out", str(args.out / "benchmark_tracking"), "--noise", "0", "0.01"]
     if args.full:
         seq_argv.append("--full")
     elif args.quick:
         seq_argv += ["--episodes", "1", "--splits", "lookalike", "--no-gif"]
-    results["benchmark_tracking"] = _load("benchmark_tracking").main(seq_argv)
+    results["benchmark_tracking"] = _load("benchmark_tracking").main([*seq_argv, *verbosity])
     print(f"\nmain job done in {time.perf_counter() - t0:.0f} s. Outputs:")
     print(f"  {args.out / 'reproduce_paper'}/reproduction.md  (tables; figure*.png: the paper's figures)")
     print(f"  {args.out / 'benchmark_detectors'}/results.md   (benchmark: geometric vs learned; pr_*.png)")

@@ -37,7 +37,15 @@ import numpy as np
 from detectors.features import FEATURE_VERSION, FeatureConfig, feature_names
 from detectors.fileio import atomic_write, sha256_file, write_json
 from detectors.samples import CATEGORIES, DATASET_FORMAT, DATASET_FORMAT_VERSION, concat_records
-from kin_envs.cli import check_output_dir, parse_json_object, run_main
+from kin_envs.cli import (
+    add_logging_args,
+    check_output_dir,
+    parse_json_object,
+    run_main,
+    script_logger,
+    setup_logging,
+    write_run_info,
+)
 from kin_envs.detection.dataset import DatasetConfig, scene_records
 from kin_envs.detection.seeds import check_training_seeds
 from kin_envs.distributed import BACKENDS, imap_seeds
@@ -73,7 +81,7 @@ def prepare_out_dir(out: Path, overwrite: bool) -> str | None:
         return None
     if not overwrite:
         return f"--out {out} is not empty; pass --overwrite to replace the dataset in it"
-    ours = [p for p in entries if p.name == "manifest.json" or _SHARD.fullmatch(p.name)]
+    ours = [p for p in entries if p.name in ("manifest.json", "run.json") or _SHARD.fullmatch(p.name)]
     other = sorted(p.name for p in entries if p not in ours)
     if other:
         return f"--out {out} holds files that are not a dataset's ({other[:5]}); not deleting them"
@@ -97,7 +105,9 @@ def main(argv=None) -> dict:
     ap.add_argument("--backend", choices=BACKENDS, default="local", help="scenes here or as Ray tasks")
     ap.add_argument("--address", default=None, help="ray: join this cluster (e.g. auto, host:6379)")
     ap.add_argument("--num-cpus", type=int, default=None, help="ray: CPUs of a local Ray (default: all)")
+    add_logging_args(ap)
     args = ap.parse_args(argv)
+    setup_logging(args)
     if args.scenes < 1 or args.shard_scenes < 1 or args.first_seed < 0:
         ap.error("--scenes and --shard-scenes must be >= 1 and --first-seed >= 0")
     try:  # the benchmark's scenes stay unseen by training
@@ -116,6 +126,8 @@ def main(argv=None) -> dict:
     problem = prepare_out_dir(args.out, args.overwrite)
     if problem:
         ap.error(problem)
+    write_run_info(args.out, args, config={"dataset": cfg, "features": fcfg}, seed=args.first_seed, argv=argv,
+                   script=__file__)
     t0 = time.perf_counter()
     shards, seg_parts, obj_parts = [], [], []
     label_counts = np.zeros(2, np.int64)
@@ -185,7 +197,7 @@ def main(argv=None) -> dict:
         "numpy": np.__version__,
     }
     write_json(args.out / "manifest.json", manifest)  # last: it vouches for the shards above
-    print(
+    script_logger(__file__).info(
         f"{n_seg} segments ({label_counts[1]} kin, {n_same} same-radius cylinder) from {args.scenes} scenes "
         f"in {seconds:.1f} s -> {args.out}"
     )

@@ -37,19 +37,26 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import importlib.util
 import math
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from detectors import GeometricKinDetector, range_derivative
 from detectors.base import DetectionResult
 from detectors.fileio import atomic_write, write_json, write_text
 from kin_envs import World, scenes
-from kin_envs.cli import check_output_dir, noise_level
+from kin_envs.cli import (
+    add_logging_args,
+    check_output_dir,
+    noise_level,
+    script_logger,
+    setup_logging,
+    write_run_info,
+)
+from kin_envs.cli import progress as tqdm
 from kin_envs.core.lidar import HitKind, LidarSpec
 from kin_envs.core.scenes import Box, Cylinder, Robot, Scene
 from kin_envs.detection.evaluation import describe_hits
@@ -581,7 +588,13 @@ def main(argv: list[str] | None = None) -> dict:
     )
     ap.add_argument("--seed", type=int, default=0, help="seed of the sensitivity draws and the noise")
     ap.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    add_logging_args(ap)
     args = ap.parse_args(argv)
+    setup_logging(args)
+    if not args.no_figures and importlib.util.find_spec("matplotlib") is None:
+        # the viz extra draws the figures; the tables and JSON do not need it
+        script_logger(__file__).warning("no figures: matplotlib is not installed (pip install kin-envs[viz])")
+        args.no_figures = True
     if any(not (math.isfinite(d) and d > 0) for d in args.distances):
         ap.error(f"--distances must be > 0 m, got {args.distances}")
     # the object's centre past range_max: its face may still return, but nothing the paper measured
@@ -683,20 +696,16 @@ def main(argv: list[str] | None = None) -> dict:
         "noise": {"levels": levels if args.noise else [], "repeats": args.repeats, "rows": noise_rows},
         "figures": figures,
     }
-    run = {
-        "command": " ".join(
-            [sys.executable, *(sys.argv if argv is None else ["scripts/reproduce_paper.py", *argv])]
-        ),
-        "args": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()},
-        "seed": args.seed,
-        "seeds": {"sensitivity": "SeedSequence(seed).spawn(2)[0]", "noise": "SeedSequence(seed).spawn(2)[1]"},
-        "seconds": time.perf_counter() - t0,
-    }
-    write_json(out / "run.json", run)
+    run = write_run_info(
+        out, args, config={"detector": results["detector"], "layout_rule": LAYOUT_RULE}, seed=args.seed,
+        argv=argv, script=__file__,
+        seeds={"sensitivity": "SeedSequence(seed).spawn(2)[0]", "noise": "SeedSequence(seed).spawn(2)[1]"},
+        seconds=time.perf_counter() - t0,
+    )
     if args.json is not None:
         write_json(args.json, {**results, "run": run}, default=_json_default)
-    print(
-        f"\nwrote {out}/reproduction.md, run.json"
+    script_logger(__file__).info(
+        f"wrote {out}/reproduction.md, run.json"
         + (f", {len(figures)} figures" if figures else "")
         + (f" and {args.json}" if args.json else "")
         + f" in {run['seconds']:.1f} s"

@@ -24,7 +24,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from detectors.beam_detector import (
     BEAM_DATASET_FORMAT,
@@ -37,7 +36,8 @@ from detectors.beam_detector import (
 )
 from detectors.fileio import atomic_write, sha256_file, write_json
 from detectors.samples import category_code
-from kin_envs.cli import check_output_dir, parse_json_object
+from kin_envs.cli import add_logging_args, check_output_dir, parse_json_object, setup_logging
+from kin_envs.cli import progress as tqdm
 from kin_envs.detection.beam_dataset import BEAM_DATASET_CONFIG, beam_records
 from kin_envs.detection.swarm_scenes import check_training_seeds
 
@@ -184,7 +184,9 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--threads", type=int, default=1, help="torch threads (1: best on a busy machine)")
     ap.add_argument("--install", action="store_true", help="also replace the shipped beam_default.npz")
     ap.add_argument("--no-progress", action="store_true", help="no progress bars")
+    add_logging_args(ap)
     args = ap.parse_args(argv)
+    setup_logging(args)
     try:  # before generating data and training: an unwritable --out must not cost a whole run
         check_output_dir(args.out)
     except ValueError as e:

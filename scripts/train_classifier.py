@@ -16,14 +16,20 @@ Steps (all seeded by ``--seed``):
    learned detector (both positioning options) and the geometric detector run on the same scans;
    kin-level precision / recall / F1 per distance bin x noise level, same-radius cylinders apart,
    false positives per distractor kind, centre errors, throughput (``eval.json``, ``eval.md``);
-6. the checkpoint (``--checkpoint``; positioning: the better option on the sweep, or ``--positioning``)
-   and ``<checkpoint>.json`` next to it (command, configs, data, training and evaluation summary).
+6. the checkpoint (``--checkpoint``, default ``OUT/learned.pt``; positioning: the better option on the
+   sweep, or ``--positioning``) and ``<checkpoint>.json`` next to it (command, configs, data, training
+   and evaluation summary); ``run.json`` in ``--out``.
 
-Example (the shipped model)::
+Everything goes to ``--out`` (default ``outputs/train_classifier``). The shipped model
+(``detectors/checkpoints/learned_default.pt``) is replaced only with ``--replace-shipped``; any other
+``--checkpoint`` inside ``detectors/checkpoints/`` is refused.
+
+Example (the shipped model: train, compare, then replace it on purpose)::
 
     python scripts/make_dataset.py --out outputs/segments --scenes 3000
-    python scripts/train_classifier.py --data outputs/segments --out outputs/train \\
-        --checkpoint detectors/checkpoints/learned_default.pt --eval-scenes 300
+    python scripts/train_classifier.py --data outputs/segments --out outputs/train --eval-scenes 300
+    python scripts/train_classifier.py --data outputs/segments --out outputs/train --eval-scenes 300 \\
+        --replace-shipped
 """
 
 from __future__ import annotations
@@ -38,21 +44,22 @@ import time
 from pathlib import Path
 
 import numpy as np
-import torch
-from tqdm import tqdm
 
+import detectors
 from detectors.features import feature_names, observer_to_local
 from detectors.fileio import write_json, write_text
 from detectors.geometric import GeometricKinDetector
-from detectors.learned import (
-    LearnedKinDetector,
-    TrainConfig,
-    sample_weights,
-    save_checkpoint,
-    train_segment_net,
-)
 from kin_envs import World, scenes
-from kin_envs.cli import check_output_dir, noise_level, parse_json_object
+from kin_envs.cli import (
+    add_logging_args,
+    check_output_dir,
+    noise_level,
+    parse_json_object,
+    script_logger,
+    setup_logging,
+    write_run_info,
+)
+from kin_envs.cli import progress as tqdm
 from kin_envs.detection.dataset import CATEGORIES, DatasetConfig, label_scan, load_dataset, make_scene
 
 GATE = 0.1  # m: a detection matches a kin whose centre is this close
@@ -63,6 +70,26 @@ EVAL_CONFIG = DatasetConfig(
     detection_prob=1.0, open_prob=0.0, n_kin=(3, 3), n_distractors=(12, 12), distance=(0.3, 3.0)
 )
 _KIN, _SAME = CATEGORIES.index("kin"), CATEGORIES.index("same_radius_cylinder")
+#: the shipped model; the folder is written only with --replace-shipped (torch-free: no detectors.learned)
+SHIPPED_DIR = Path(detectors.__file__).resolve().parent / "checkpoints"
+SHIPPED_CHECKPOINT = SHIPPED_DIR / "learned_default.pt"
+logger = script_logger(__file__)
+
+
+def checkpoint_path(out: Path, checkpoint: Path | None, replace_shipped: bool) -> Path:
+    """Where the checkpoint goes: ``--checkpoint``, else ``OUT/learned.pt``; the shipped model's folder
+    only with ``--replace-shipped`` (``ValueError`` otherwise, before any work)."""
+    if replace_shipped:
+        if checkpoint is not None and checkpoint.resolve() != SHIPPED_CHECKPOINT:
+            raise ValueError(f"--replace-shipped writes {SHIPPED_CHECKPOINT}; do not also give --checkpoint "
+                             f"{checkpoint}")
+        return SHIPPED_CHECKPOINT
+    ckpt = checkpoint if checkpoint is not None else out / "learned.pt"
+    if ckpt.resolve().parent == SHIPPED_DIR:
+        raise ValueError(f"--checkpoint {ckpt} is in the shipped models' folder {SHIPPED_DIR}: write it "
+                         "elsewhere (default: OUT/learned.pt), or pass --replace-shipped to replace the "
+                         "shipped model on purpose")
+    return ckpt
 
 
 def prf(tp: float, fp: float, fn: float) -> dict:
@@ -103,6 +130,8 @@ def targets(segs: dict) -> np.ndarray:
 
 def predict(model, x: np.ndarray, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``p(kin)`` and regressed centres (observer frame) of dataset rows."""
+    import torch
+
     from detectors.features import local_to_observer
 
     with torch.inference_mode():
@@ -378,6 +407,8 @@ def markdown(ev: dict) -> str:
 
 
 def evaluate(ckpt: Path, args, progress: bool) -> dict:
+    from detectors.learned import LearnedKinDetector
+
     dets = {
         "learned": LearnedKinDetector(ckpt, args.threshold, positioning="regression", reports=False),
         "learned_fit": LearnedKinDetector(ckpt, args.threshold, positioning="fit", reports=False),
@@ -469,8 +500,13 @@ def evaluate(ckpt: Path, args, progress: bool) -> dict:
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--data", required=True, type=Path, help="dataset directory (scripts/make_dataset.py)")
-    ap.add_argument("--out", required=True, type=Path, help="output directory for logs and evaluation")
-    ap.add_argument("--checkpoint", type=Path, default=None, help="checkpoint path (default: OUT/learned.pt)")
+    ap.add_argument("--out", type=Path, default=Path("outputs/train_classifier"),
+                    help="output directory for the checkpoint, logs and evaluation (default: %(default)s)")
+    ap.add_argument("--checkpoint", type=Path, default=None,
+                    help="checkpoint path (default: OUT/learned.pt; not inside detectors/checkpoints/)")
+    ap.add_argument("--replace-shipped", action="store_true",
+                    help=f"write the checkpoint over the shipped model {SHIPPED_CHECKPOINT.name} "
+                    "(detectors/checkpoints/), which the learned detector loads by default")
     ap.add_argument("--seed", type=int, default=0, help="seed of the split, initialisation and shuffling")
     ap.add_argument("--config", default=None, help="TrainConfig overrides: JSON object or file")
     ap.add_argument("--val-fraction", type=float, default=0.15, help="fraction of scenes for validation")
@@ -501,11 +537,26 @@ def main(argv=None) -> dict:
     ap.add_argument("--eval-first-seed", type=int, default=1_000_000, help="first seed of the held-out sweep")
     ap.add_argument("--threads", type=int, default=1, help="torch threads (1: best on a busy machine)")
     ap.add_argument("--no-progress", action="store_true", help="no progress bars")
+    add_logging_args(ap)
     args = ap.parse_args(argv)
+    setup_logging(args)
     if not 0 < args.val_fraction < 1:
         ap.error(f"--val-fraction must be in (0, 1), got {args.val_fraction}")
     if args.eval_scenes < 0 or args.threads < 1:
         ap.error("--eval-scenes must be >= 0 and --threads >= 1")
+    try:
+        ckpt = checkpoint_path(args.out, args.checkpoint, args.replace_shipped)
+    except ValueError as e:
+        ap.error(str(e))
+    import torch
+
+    from detectors.learned import (
+        TrainConfig,
+        sample_weights,
+        save_checkpoint,
+        train_segment_net,
+    )
+
     try:
         tcfg = TrainConfig.from_dict(parse_json_object(args.config, "--config") or {})
     except ValueError as e:
@@ -522,6 +573,8 @@ def main(argv=None) -> dict:
     progress = not args.no_progress
     command = [sys.executable, *sys.argv] if argv is None else ["train_classifier.py", *map(str, argv)]
     ckpt = args.checkpoint or args.out / "learned.pt"
+    write_run_info(args.out, args, config=tcfg, seed=args.seed,
+                   argv=argv, script=__file__, checkpoint=ckpt)
     t_start = time.perf_counter()
 
     try:
@@ -634,13 +687,13 @@ def main(argv=None) -> dict:
     sidecar = {"checkpoint": str(ckpt), "feature_config": fcfg.to_dict(), **info}
     write_json(ckpt.with_suffix(".json"), sidecar)
     write_json(args.out / "config.json", sidecar)  # last: the run's record
-    print(
+    logger.info(
         f"checkpoint {ckpt} ({ckpt.stat().st_size / 1e3:.0f} kB), positioning {positioning}; "
         f"validation kin F1 {val['kin']['f1']:.3f}; training {train_seconds:.0f} s"
     )
     if ev is not None:
         t = ev["targets"]
-        print(
+        logger.info(
             f"held-out 1 % noise, 0.3-2 m: learned F1 {t['learned_f1_1pct_noise_0.3_2m']['f1']:.3f}, "
             f"geometric {t['geometric_f1_1pct_noise_0.3_2m']['f1']:.3f}; "
             f"learned {t['learned_scans_per_s']:.0f} scans/s"

@@ -23,7 +23,6 @@ import argparse
 import dataclasses
 import inspect
 import json
-import platform
 import sys
 import time
 from dataclasses import dataclass, field
@@ -40,7 +39,13 @@ if str(ROOT) not in sys.path:  # run as a file: make agents / kin_envs importabl
 import kin_envs  # noqa: E402,F401  (registers the env ids)
 from agents.hyperparams import hyperparams_for  # noqa: E402
 from agents.sb3 import ALGOS, algo_class, resolve_policy_kwargs  # noqa: E402
-from kin_envs.cli import parse_json_object  # noqa: E402
+from kin_envs.cli import (  # noqa: E402
+    add_logging_args,
+    parse_json_object,
+    script_logger,
+    setup_logging,
+    write_run_info,
+)
 
 VEC_ENVS = ("dummy", "subproc")
 EVAL_SEED_OFFSET = 10_000
@@ -133,7 +138,8 @@ def build_config(args: argparse.Namespace) -> TrainConfig:
 def make_callbacks(cfg: TrainConfig, out: Path, progress: bool):
     from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback, EvalCallback
     from stable_baselines3.common.env_util import make_vec_env
-    from tqdm import tqdm
+
+    from kin_envs.cli import progress as tqdm
 
     class SeededEvalCallback(EvalCallback):
         """Reseeds the eval env before each evaluation: every point of the curve plays the same
@@ -187,41 +193,38 @@ def final_evaluation(out: Path) -> dict[str, Any] | None:
     return res
 
 
-def write_run(out: Path, run: dict[str, Any]) -> None:
-    from detectors.fileio import write_json
-
-    write_json(out / "run.json", run, default=str)
-
-
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--env", default="kin_envs/KinSeek-v0", help="registered Gymnasium id")
     p.add_argument("--env-kwargs", default=None, help="env kwargs as a JSON object (or a JSON file)")
-    p.add_argument("--algo", default="ppo", choices=ALGOS)
+    p.add_argument("--algo", default="ppo", choices=ALGOS, help="SB3 algorithm (default: %(default)s)")
     p.add_argument("--timesteps", type=int, default=None, help="total env steps (default: shipped)")
     p.add_argument("--n-envs", type=int, default=None, help="parallel envs (default: shipped)")
-    p.add_argument("--vec-env", default="dummy", choices=VEC_ENVS)
+    p.add_argument("--vec-env", default="dummy", choices=VEC_ENVS,
+                   help="SB3 vec env: dummy (one process) or subproc (one process per env)")
     p.add_argument("--hyperparams", default=None,
                    help="algorithm kwargs overriding the shipped ones, JSON object (or file)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0, help="seed of the model and the envs (eval env: +10,000)")
     p.add_argument("--eval-freq", type=int, default=20_000, help="env steps between evaluations (0 = off)")
-    p.add_argument("--eval-episodes", type=int, default=50)
+    p.add_argument("--eval-episodes", type=int, default=50, help="episodes per evaluation")
     p.add_argument("--checkpoint-freq", type=int, default=100_000, help="env steps between checkpoints")
     p.add_argument("--torch-threads", type=int, default=1,
                    help="torch threads (1: two threads on a busy 2-core machine ran 30x slower)")
-    p.add_argument("--out", type=Path, default=Path("runs/train_single"))
-    p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--out", type=Path, default=Path("runs/train_single"),
+                   help="output directory (default: %(default)s)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar, no summary on stdout")
+    add_logging_args(p)
     return p.parse_args(argv)
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Train; returns ``{"model": path, "run": run.json contents, "model_object": the SB3 model}``."""
     args = parse_args(argv)
+    setup_logging(args)
     cfg = build_config(args)
     check_env_and_algo(cfg)
 
-    import stable_baselines3
     import torch
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
@@ -230,16 +233,12 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     from kin_envs.cli import check_output_dir
 
     out: Path = check_output_dir(args.out)  # a clear error before training, not a traceback
-    run: dict[str, Any] = {
-        "script": "scripts/train_single.py",
-        "command": [sys.executable, *sys.argv] if argv is None else ["scripts/train_single.py", *argv],
-        "algo": cfg.algo, "env_id": cfg.env_id, "env_kwargs": cfg.env_kwargs, "seed": cfg.seed,
-        "config": cfg.to_dict(),
-        "versions": {"python": platform.python_version(), "stable_baselines3": stable_baselines3.__version__,
-                     "torch": torch.__version__, "gymnasium": gymnasium.__version__},
-        "status": "running",
-    }
-    write_run(out, run)
+
+    def write_run(**fields) -> dict[str, Any]:
+        return write_run_info(out, args, config=cfg.to_dict(), seed=cfg.seed, argv=argv, script=__file__,
+                              algo=cfg.algo, env_id=cfg.env_id, env_kwargs=cfg.env_kwargs, **fields)
+
+    write_run(status="running")
 
     vec_cls = SubprocVecEnv if cfg.vec_env == "subproc" else DummyVecEnv
     env = make_vec_env(cfg.env_id, n_envs=cfg.n_envs, seed=cfg.seed, env_kwargs=cfg.env_kwargs,
@@ -259,9 +258,9 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     with atomic_write(model_path) as f:  # never half a model under the final name
         model.save(f)
     env.close()
-    run.update(status="done", train_seconds=round(elapsed, 1), timesteps=int(model.num_timesteps),
-               model=str(model_path), final_eval=final_evaluation(out))
-    write_run(out, run)
+    run = write_run(status="done", train_seconds=round(elapsed, 1), timesteps=int(model.num_timesteps),
+                    model=str(model_path), final_eval=final_evaluation(out))
+    script_logger(__file__).info("wrote %s and %s", model_path, out / "run.json")
     if not args.no_progress:
         summary = {k: run[k] for k in ("model", "train_seconds", "timesteps", "final_eval")}
         print(json.dumps(summary, indent=2))

@@ -24,7 +24,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import inspect
-import platform
 import sys
 import time
 from dataclasses import dataclass, field
@@ -36,9 +35,9 @@ if str(ROOT) not in sys.path:  # run as a file: make agents / kin_envs importabl
     sys.path.insert(0, str(ROOT))
 
 from agents.hyperparams import hyperparams_for  # noqa: E402
-from detectors.fileio import atomic_write, write_json  # noqa: E402
+from detectors.fileio import atomic_write  # noqa: E402
 from kin_envs import aggregation_v0  # noqa: E402
-from kin_envs.cli import parse_json_object  # noqa: E402
+from kin_envs.cli import add_logging_args, parse_json_object, setup_logging, write_run_info  # noqa: E402
 
 ENV_ID = "aggregation_v0"
 #: the swarm's env kwargs unless --env-kwargs says otherwise: the detector channel in the observation
@@ -125,47 +124,47 @@ def make_model(cfg: SwarmTrainConfig, tensorboard_log: str | None = None):
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--n-robots", type=int, default=8)
+    p.add_argument("--n-robots", type=int, default=8, help="robots per swarm (default: %(default)s)")
     p.add_argument("--env-kwargs", default=None,
                    help=f"aggregation_v0 kwargs, JSON object or file (default {DEFAULT_ENV_KWARGS})")
     p.add_argument("--n-copies", type=int, default=None, help="swarms run side by side (default: shipped)")
     p.add_argument("--timesteps", type=int, default=None,
                    help="total robot-steps (one swarm step of n robots = n; default: shipped)")
     p.add_argument("--hyperparams", default=None, help="PPO kwargs overriding the shipped ones, JSON")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0, help="seed of PPO and the swarm copies (copy i: seed + i)")
     p.add_argument("--checkpoint-freq", type=int, default=200_000, help="robot-steps between checkpoints")
     p.add_argument("--torch-threads", type=int, default=1,
                    help="torch threads (1: two threads on a busy 2-core machine ran 30x slower)")
-    p.add_argument("--out", type=Path, default=Path("runs/train_swarm"))
-    p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--out", type=Path, default=Path("runs/train_swarm"),
+                   help="output directory (default: %(default)s)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_logging_args(p)
     return p.parse_args(argv)
 
 
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     """Train; returns ``{"model": path, "run": run.json contents, "model_object": the PPO model}``."""
     args = parse_args(argv)
+    setup_logging(args)
     cfg = build_config(args)
     cfg.make_env().close()  # validate the env kwargs before anything heavy
 
-    import stable_baselines3
     import torch
     from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
-    from tqdm import tqdm
+
+    from kin_envs.cli import progress as tqdm
 
     torch.set_num_threads(cfg.torch_threads)
     from kin_envs.cli import check_output_dir
 
     out: Path = check_output_dir(args.out)  # a clear error before training, not a traceback
-    run: dict[str, Any] = {
-        "script": "scripts/train_swarm.py",
-        "command": [sys.executable, *sys.argv] if argv is None else ["scripts/train_swarm.py", *argv],
-        "algo": "ppo", "env_id": ENV_ID, "env_kwargs": {"n_robots": cfg.n_robots, **cfg.env_kwargs},
-        "seed": cfg.seed, "config": dataclasses.asdict(cfg),
-        "versions": {"python": platform.python_version(), "stable_baselines3": stable_baselines3.__version__,
-                     "torch": torch.__version__},
-        "status": "running",
-    }
-    write_json(out / "run.json", run)
+
+    def write_run(**fields) -> dict[str, Any]:
+        env_kwargs = {"n_robots": cfg.n_robots, **cfg.env_kwargs}
+        return write_run_info(out, args, config=cfg, seed=cfg.seed, argv=argv, script=__file__, algo="ppo",
+                              env_id=ENV_ID, env_kwargs=env_kwargs, **fields)
+
+    write_run(status="running")
 
     venv, model = make_model(cfg, tensorboard_log=str(out / "tb"))
 
@@ -192,9 +191,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     with atomic_write(model_path) as f:  # never half a model under the final name
         model.save(f)
     venv.close()
-    run.update(status="done", train_seconds=round(elapsed, 1), timesteps=int(model.num_timesteps),
-               model=str(model_path))
-    write_json(out / "run.json", run)
+    run = write_run(status="done", train_seconds=round(elapsed, 1), timesteps=int(model.num_timesteps),
+                    model=str(model_path))
     return {"model": model_path, "run": run, "model_object": model}
 
 

@@ -37,7 +37,6 @@ import contextlib
 import json
 import math
 import os
-import platform
 import sys
 import time
 from pathlib import Path
@@ -46,8 +45,9 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:  # run as a file: make kin_envs importable from the checkout
     sys.path.insert(0, str(ROOT))
 
-from detectors.fileio import write_json  # noqa: E402
 from kin_envs import aggregation_v0  # noqa: E402
+from kin_envs.cli import add_logging_args, script_logger, setup_logging, write_run_info  # noqa: E402
+from kin_envs.cli import progress as tqdm  # noqa: E402
 from kin_envs.distributed import ray_session, ship_by_value  # noqa: E402
 
 ENV_NAME = "kin_envs_aggregation_v0"
@@ -82,10 +82,10 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--batch", type=int, default=4000, help="env steps per iteration (x robots agent steps)")
     p.add_argument("--minibatch", type=int, default=1000, help="SGD minibatch, env steps")
     p.add_argument("--epochs", type=int, default=10, help="SGD epochs per iteration")
-    p.add_argument("--lr", type=float, default=3e-4)
-    p.add_argument("--gamma", type=float, default=0.99)
+    p.add_argument("--lr", type=float, default=3e-4, help="learning rate (default: %(default)s)")
+    p.add_argument("--gamma", type=float, default=0.99, help="discount factor (default: %(default)s)")
     p.add_argument("--hidden", type=int, nargs="+", default=[256, 256], help="MLP layer sizes")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0, help="seed of RLlib, the env runners and the envs")
     p.add_argument(
         "--torch-threads",
         type=int,
@@ -97,9 +97,12 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument(
         "--checkpoint-every", type=int, default=0, help="also checkpoint every N iterations (0: end)"
     )
-    p.add_argument("--out", type=Path, default=Path("runs/train_swarm_rllib"))
-    p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--out", type=Path, default=Path("runs/train_swarm_rllib"),
+                   help="output directory (default: %(default)s)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_logging_args(p)
     args = p.parse_args(argv)
+    setup_logging(args)
     positive = {
         "n_robots": 2,
         "max_cycles": 1,
@@ -196,12 +199,10 @@ def main(argv=None) -> dict:
     import torch
 
     torch.set_num_threads(args.torch_threads)
-    from tqdm import tqdm
 
     from kin_envs.cli import check_output_dir
 
     out: Path = check_output_dir(args.out)  # a clear error before training, not a traceback
-    command = [sys.executable, *(sys.argv if argv is None else ["scripts/train_swarm_rllib.py", *argv])]
     t0 = time.perf_counter()
     rows: list[dict] = []
     with ray_session(args.address, args.num_cpus) as ray:  # without ray: ImportError with the pip hint
@@ -236,33 +237,22 @@ def main(argv=None) -> dict:
             algo.stop()  # ends the env-runner actors before Ray shuts down
             with contextlib.suppress(OSError):  # the empty ~/ray_results/<time> every Algorithm makes
                 Path(algo.logdir).rmdir()
-        import gymnasium
-        import pettingzoo
-
         run = {
-            "command": command,
-            "script": "scripts/train_swarm_rllib.py",
             "env": "aggregation_v0",
             "env_config": args.env_config,
-            "seed": args.seed,
             "python_hash_seed": os.environ.get("PYTHONHASHSEED"),
-            "args": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()},
             "ray": {"address": args.address, "num_cpus": args.num_cpus, "cluster_cpus": cpus},
-            "rllib_config": config.to_dict(),
             "policy_id": POLICY_ID,
             "checkpoint": str(checkpoint),
             "module_checkpoint": str(checkpoint / "learner_group" / "learner" / "rl_module" / POLICY_ID),
             "iterations": len(rows),
             "final": rows[-1],
             "seconds": time.perf_counter() - t0,
-            "versions": {
-                "python": platform.python_version(), "ray": ray.__version__, "torch": torch.__version__,
-                "gymnasium": gymnasium.__version__, "pettingzoo": pettingzoo.__version__,
-            },
-        }  # fmt: skip
-    write_json(out / "run.json", run, default=repr)
+        }
+        run = write_run_info(out, args, config=config.to_dict(), seed=args.seed, argv=argv, script=__file__,
+                             **run)
     ret = rows[-1]["episode_return_mean"]
-    print(
+    script_logger(__file__).info(
         f"{len(rows)} iterations, {rows[-1]['env_steps']} env steps in {run['seconds']:.1f} s; "
         f"swarm return {'–' if ret is None else f'{ret:.3f}'}; checkpoint {checkpoint}"
     )

@@ -41,6 +41,7 @@ become "don't care" and detections outside it count only when they match a count
 from __future__ import annotations
 
 import dataclasses
+import logging as _logging
 import math
 import sys
 import time
@@ -60,6 +61,8 @@ from ..core.scenes import DetectionSceneConfig, RandomArenaConfig, Robot, Scene
 from ..core.world import Scan, World
 from .evaluation import SAME_RADIUS_TOL, describe_hits, kin_truth, segment_beams
 from .seeds import BENCHMARK_SEEDS, check_training_seeds
+
+_log = _logging.getLogger(__name__)
 
 __all__ = [
     "BEAM_EDGES",
@@ -1079,11 +1082,10 @@ def run_benchmark(
                 extras[(det_name, split_name, cond.name)] = ex
                 if progress:
                     a = det_rows[0]
-                    print(
+                    _log.info(
                         f"  {split_name:9s} {cond.name:24s} {det_name:10s} AP {a['ap']:.3f}  "
                         f"P/R/F1 {a['precision']:.2f}/{a['recall']:.2f}/{a['f1']:.2f}  "
                         f"{ex['scans_per_second']:.0f} scans/s",
-                        flush=True,
                     )
     config = {
         "benchmark_version": BENCHMARK_VERSION,

@@ -23,7 +23,7 @@ def test_import_from_a_read_only_install():
     tmp_path = Path(tempfile.mkdtemp(prefix="kin-envs-readonly-"))
     tmp_path.chmod(0o755)
     pkg = tmp_path / "site"
-    for name in ("kin_envs", "detectors"):
+    for name in ("kin_envs", "detectors", "agents"):  # the whole install (kin_envs checks agents is ours)
         shutil.copytree(ROOT / name, pkg / name, ignore=shutil.ignore_patterns("__pycache__"))
     home = tmp_path / "home"
     home.mkdir()

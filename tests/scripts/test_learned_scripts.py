@@ -127,7 +127,9 @@ def test_rerun_into_a_dataset_needs_overwrite_and_never_mixes_runs(dataset, tmp_
     assert refused.returncode == 2 and "--overwrite" in refused.stderr
     run("make_dataset.py", "--out", out, "--scenes", 2, "--shard-scenes", 1, "--first-seed", 50,
         "--overwrite")
-    assert sorted(p.name for p in out.iterdir()) == ["manifest.json", "shard_00000.npz", "shard_00001.npz"]
+    names = sorted(p.name for p in out.iterdir())  # run.json: the command that wrote this dataset
+    assert names == ["manifest.json", "run.json", "shard_00000.npz", "shard_00001.npz"]
+    assert json.loads((out / "run.json").read_text())["seed"] == 50
     segs, _, manifest = load_dataset(out)
     assert manifest["seeds"] == {"first": 50, "count": 2}
     assert len(segs["label"]) == manifest["counts"]["segments"]

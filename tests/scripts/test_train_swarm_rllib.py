@@ -68,10 +68,10 @@ def test_one_iteration_on_a_local_ray_writes_run_json_metrics_and_a_checkpoint(m
     res = mod.main([*TINY, "--env-runners", "1", "--num-cpus", "2", "--seed", "3", "--out", str(tmp_path)])
     assert not ray.is_initialized()  # the script shut down the Ray it started
     run = json.loads((tmp_path / "run.json").read_text())
-    assert run["seed"] == 3 and run["rllib_config"]["seed"] == 3
+    assert run["seed"] == 3 and run["config"]["seed"] == 3
     assert run["command"][-1] == str(tmp_path) and run["args"]["env_runners"] == 1
     assert run["env_config"] == {"obs_detections": "topk", "n_robots": 3, "max_cycles": 10}
-    assert run["rllib_config"]["num_env_runners"] == 1 and run["versions"]["ray"] == ray.__version__
+    assert run["config"]["num_env_runners"] == 1 and run["versions"]["ray"] == ray.__version__
     rows = [json.loads(line) for line in (tmp_path / "metrics.jsonl").read_text().splitlines()]
     assert rows == res["metrics"] and len(rows) == 1
     assert rows[0]["env_steps"] >= 40 and rows[0]["agent_steps"] == 3 * rows[0]["env_steps"]

@@ -97,20 +97,6 @@ def test_evaluate_single_and_swarm(trained, tmp_path):
     assert "largest-cluster fraction" in (out / "results.md").read_text()
 
 
-def test_statistics_by_hand():
-    ev = load_script("evaluate_policies")
-    lo, hi = ev.wilson(8, 10)
-    assert lo == pytest.approx(0.4902, abs=1e-3) and hi == pytest.approx(0.9433, abs=1e-3)
-    assert ev.wilson(0, 5)[0] == 0.0
-    m, lo, hi = ev.t_interval([1.0, 2.0, 3.0])
-    assert m == 2.0 and hi - m == pytest.approx(4.303 / np.sqrt(3), rel=1e-3)
-    # two pairs 0.3 m apart, far from each other; link radius 0.5: largest cluster 2 of 4
-    xy = np.array([[0, 0], [0.3, 0], [3, 3], [3.3, 3]])
-    nearest, frac = ev.cluster_metrics(xy, 0.5)
-    assert nearest == pytest.approx(0.3) and frac == 0.5
-    assert ev.cluster_metrics(xy, 5.0)[1] == 1.0
-
-
 def test_bad_input_raises(tmp_path):
     ts = load_script("train_single")
     with pytest.raises(ValueError, match="obs_detections"):

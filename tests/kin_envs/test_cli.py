@@ -1,0 +1,102 @@
+"""kin_envs.cli: the run record every script writes, logging set-up, the optional progress bar; and the
+library's logging rule (loggers with a NullHandler, never ``print``)."""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import dataclasses
+import json
+import logging
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from kin_envs import cli
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@dataclasses.dataclass(frozen=True)
+class _Cfg:
+    size: tuple = (1, 2)
+    path: Path = Path("a/b")
+
+
+def test_write_run_info_records_command_config_seed_and_versions(tmp_path):
+    args = argparse.Namespace(out=tmp_path, n=3)
+    info = cli.write_run_info(tmp_path, args, config=_Cfg(), seed=np.int64(7), argv=["--n", 3],
+                              script=str(ROOT / "scripts" / "benchmark.py"), score=math.nan,
+                              arr=np.arange(2), status="running")
+    on_disk = json.loads((tmp_path / "run.json").read_text())  # strict JSON: NaN written as null
+    assert on_disk == info
+    assert info["script"] == "scripts/benchmark.py"
+    assert info["command"] == [sys.executable, "scripts/benchmark.py", "--n", "3"]
+    assert info["args"] == {"out": str(tmp_path), "n": 3}
+    assert info["config"] == {"size": [1, 2], "path": "a/b"} and info["seed"] == 7
+    assert info["score"] is None and info["arr"] == [0, 1] and info["status"] == "running"
+    v = info["versions"]
+    assert v["numpy"] == np.__version__ and "python" in v and "gymnasium" in v
+    assert "git_commit" in info and info["time"].endswith("+00:00")
+    # written again: replaced atomically, no temporary file left
+    cli.write_run_info(tmp_path, args, config=None, argv=[], status="done")
+    assert json.loads((tmp_path / "run.json").read_text())["status"] == "done"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run.json"]
+
+
+def test_write_run_info_without_argv_records_sys_argv(tmp_path, monkeypatch):
+    monkeypatch.setattr(sys, "argv", ["scripts/x.py", "--seed", "1"])
+    info = cli.write_run_info(tmp_path, config={"a": 1}, filename="config.json")
+    assert info["command"] == [sys.executable, "scripts/x.py", "--seed", "1"]
+    assert (tmp_path / "config.json").is_file()
+
+
+def test_setup_logging_levels():
+    p = argparse.ArgumentParser()
+    cli.add_logging_args(p)
+    try:
+        assert cli.setup_logging(p.parse_args([])) == logging.INFO
+        assert cli.setup_logging(p.parse_args(["-v"])) == logging.DEBUG
+        assert logging.getLogger("detectors").level == logging.DEBUG
+        assert cli.setup_logging(p.parse_args(["--quiet"])) == logging.WARNING
+        assert logging.getLogger("agents").getEffectiveLevel() == logging.WARNING
+        assert cli.script_logger("scripts/foo.py").getEffectiveLevel() == logging.WARNING
+        with pytest.raises(SystemExit):
+            p.parse_args(["-v", "-q"])  # mutually exclusive
+    finally:
+        for name in cli.LOGGERS:
+            logging.getLogger(name).setLevel(logging.NOTSET)
+
+
+def test_progress_falls_back_without_tqdm(monkeypatch):
+    monkeypatch.setitem(sys.modules, "tqdm", None)  # import tqdm -> ImportError
+    bar = cli.progress(range(3), desc="x", disable=False)
+    assert list(bar) == [0, 1, 2]
+    bar = cli.progress(total=5)
+    bar.update(2)
+    bar.set_postfix(a=1)
+    bar.close()
+    assert bar.n == 2
+
+
+def test_library_packages_log_and_never_print():
+    import agents
+    import detectors
+    import kin_envs
+
+    for mod in (kin_envs, detectors, agents):
+        handlers = logging.getLogger(mod.__name__).handlers
+        assert any(isinstance(h, logging.NullHandler) for h in handlers), mod.__name__
+    # the command-line front ends print their output and one-line errors: that is what they are for
+    front_ends = {ROOT / "kin_envs" / "cli.py", ROOT / "kin_envs" / "commands.py"}
+    for pkg in ("kin_envs", "detectors", "agents"):
+        for path in (ROOT / pkg).rglob("*.py"):
+            if path in front_ends:
+                continue
+            tree = ast.parse(path.read_text(), str(path))
+            calls = [n.lineno for n in ast.walk(tree) if isinstance(n, ast.Call)
+                     and isinstance(n.func, ast.Name) and n.func.id == "print"]
+            assert calls == [], f"{path.relative_to(ROOT)} calls print() at lines {calls}: use logging"
