@@ -118,7 +118,10 @@ def train_beam_model(
     net = _Net(config, x_mean, x_std)
     opt = torch.optim.Adam(net.parameters(), lr=tc.lr, weight_decay=tc.weight_decay)
     steps = tc.epochs * math.ceil(len(x) / tc.batch_size)
-    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=tc.lr, total_steps=steps, pct_start=0.1)
+    # OneCycleLR divides by pct_start * total_steps - 1: 0.1 x 10 steps is a ZeroDivisionError
+    sched = torch.optim.lr_scheduler.OneCycleLR(
+        opt, max_lr=tc.lr, total_steps=steps, pct_start=0.1 if steps != 10 else 0.2
+    )
     X, Y, T, W = (torch.as_tensor(v) for v in (x, y, t / _OFFSET_SCALE, w))
     bce = nn.BCEWithLogitsLoss(reduction="none")
     history = []

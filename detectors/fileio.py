@@ -18,7 +18,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import IO, Any
 
-__all__ = ["atomic_write", "write_json", "sha256_file"]
+__all__ = ["atomic_write", "write_json", "write_text", "sha256_file"]
 
 
 @contextlib.contextmanager
@@ -58,6 +58,12 @@ def write_json(path, obj, **dump_kwargs) -> None:
     with atomic_write(path, "w") as f:
         json.dump(obj, f, **dump_kwargs)
         f.write("\n")
+
+
+def write_text(path, text: str) -> None:
+    """Write ``text`` (UTF-8) to ``path`` atomically."""
+    with atomic_write(path, "w") as f:
+        f.write(text)
 
 
 def sha256_file(path, chunk: int = 1 << 20) -> str:

@@ -840,6 +840,12 @@ def train_segment_net(
     xv, yv, tv, mv, wv = tensors(val, "val")
     if xv.shape[1] != xt.shape[1]:
         raise ValueError(f"train_segment_net: train has {xt.shape[1]} features, val {xv.shape[1]}")
+    if cfg.batch_size > xt.shape[0]:
+        # one step per epoch on less than a batch: almost surely a config meant for another dataset
+        raise ValueError(
+            f"train_segment_net: TrainConfig.batch_size={cfg.batch_size} is larger than the "
+            f"{xt.shape[0]} training segments; use batch_size <= {xt.shape[0]} or more data"
+        )
     model = SegmentNet(ModelConfig(int(xt.shape[1]), cfg.hidden))
     x_mean, x_std = xt.mean(0), xt.std(0)
     x_std = torch.where(x_std > 1e-6, x_std, torch.ones_like(x_std))  # constant features pass through
@@ -850,9 +856,12 @@ def train_segment_net(
     model.set_normalisation(x_mean, x_std, t_mean, t_std)
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     steps_per_epoch = math.ceil(xt.shape[0] / cfg.batch_size)
+    total_steps = cfg.epochs * steps_per_epoch
+    # OneCycleLR divides by pct_start * total_steps - 1: 0.1 x 10 steps is a ZeroDivisionError
     sched = torch.optim.lr_scheduler.OneCycleLR(
-        opt, max_lr=cfg.lr, total_steps=cfg.epochs * steps_per_epoch, pct_start=0.1, final_div_factor=20
-    )
+        opt, max_lr=cfg.lr, total_steps=total_steps, pct_start=0.1 if total_steps != 10 else 0.2,
+        final_div_factor=20,
+    )  # fmt: skip
     best, best_state, bad_epochs, history = math.inf, None, 0, []
     t0 = time.perf_counter()
     epochs = tqdm(range(1, cfg.epochs + 1), desc="epochs", disable=not progress)

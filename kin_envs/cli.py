@@ -50,6 +50,10 @@ _ROOT = Path(__file__).resolve().parents[1]
 #: Exit status of a script stopped by Ctrl-C (128 + SIGINT, the shell convention).
 EXIT_INTERRUPTED = 130
 
+#: Largest relative range noise a script option accepts (50 % of the distance), the bound the envs
+#: (``CommonConfig.noise_sigma``) and ``DatasetConfig.noise`` use: past it a scan is noise.
+MAX_NOISE = 0.5
+
 
 def run_main(main: Callable[[], object], bad_input: tuple[type[BaseException], ...] = (ValueError,)) -> None:
     """Run a script's ``main()``; Ctrl-C ends it with one line on stderr and exit status 130, and bad
@@ -78,6 +82,23 @@ def run_main(main: Callable[[], object], bad_input: tuple[type[BaseException], .
         print(f"{name}: interrupted (Ctrl-C); finished outputs are intact, unfinished ones were not written",
               file=sys.stderr)
         raise SystemExit(EXIT_INTERRUPTED) from None
+
+
+def noise_level(text: str) -> float:
+    """argparse ``type=`` of a relative range-noise option: a number in ``[0, MAX_NOISE]`` (0.01 =
+    1 % of the distance); anything else is an argparse error naming the option."""
+    import argparse
+    import math
+
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a relative noise level, got {text!r}") from None
+    if not (math.isfinite(v) and 0.0 <= v <= MAX_NOISE):
+        raise argparse.ArgumentTypeError(
+            f"noise levels must be in [0, {MAX_NOISE:g}] (relative: 0.01 = 1 % of the distance), got {text}"
+        )
+    return v
 
 
 def check_output_dir(path, what: str = "--out") -> Path:

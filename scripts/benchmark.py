@@ -31,7 +31,6 @@ Never assert wall-clock times in tests; this script is where speed targets are c
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import platform
@@ -617,6 +616,13 @@ def main(argv: list[str] | None = None) -> dict:
         p.error(f"--vec-envs must be >= 1, got {args.vec_envs}")
     if min(args.scaling_robots) < 1 or min(args.scaling_obstacles) < 0:
         p.error("--scaling-robots must be >= 1 and --scaling-obstacles >= 0")
+    from detectors.fileio import write_json, write_text
+    from kin_envs.cli import check_output_dir
+
+    try:  # before the timings: an unwritable --out must not cost a whole run
+        check_output_dir(args.out)
+    except ValueError as e:
+        p.error(str(e))
     results: dict = {
         "config": {
             "command": " ".join([sys.executable, *sys.argv]),
@@ -653,11 +659,10 @@ def main(argv: list[str] | None = None) -> dict:
             results[s] = SECTIONS[s](args.min_time, args.vec_envs, args.vec_detectors)
         else:
             results[s] = SECTIONS[s](args.min_time)
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "benchmark.json").write_text(json.dumps(results, indent=2))
-    write_run_info(args.out, args, config=results["config"], argv=argv, script=__file__)
     md = to_markdown(results)
-    (args.out / "benchmark.md").write_text(md)
+    write_text(args.out / "benchmark.md", md)
+    write_json(args.out / "benchmark.json", results)
+    write_run_info(args.out, args, config=results["config"], argv=argv, script=__file__)  # last
     print("\n" + md)
     print(f"wrote {args.out / 'benchmark.json'} and {args.out / 'benchmark.md'}")
     return results

@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from detectors.fileio import atomic_write, write_json
-from kin_envs.cli import add_logging_args, setup_logging
+from kin_envs.cli import add_logging_args, check_output_dir, noise_level, setup_logging
 from kin_envs.detection.benchmark import (
     BENCHMARK_VERSION,
     CONDITIONS,
@@ -226,7 +226,7 @@ def main(argv: list[str] | None = None) -> BenchmarkResults:
     size.add_argument("--full", action="store_true", help="the benchmark's full size (default: reduced)")
     size.add_argument("--scenes", type=int, default=None, help="scenes per split instead of a named size")
     p.add_argument(
-        "--noise", type=float, nargs="+", default=None,
+        "--noise", type=noise_level, nargs="+", default=None,
         help="range noise levels to run instead of the benchmark's conditions (no dropout)",
     )  # fmt: skip
     p.add_argument(
@@ -253,11 +253,14 @@ def main(argv: list[str] | None = None) -> BenchmarkResults:
         }
     except ValueError as e:
         p.error(str(e))
+    try:  # before the benchmark: an unwritable --out must not cost a whole run
+        check_output_dir(args.out)
+    except ValueError as e:
+        p.error(str(e))
     if "torch" in sys.modules:
         sys.modules["torch"].set_num_threads(args.torch_threads)
     conditions = tuple(Condition(float(n)) for n in args.noise) if args.noise else CONDITIONS
     size_arg = "full" if args.full else (args.scenes if args.scenes is not None else "reduced")
-    args.out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     res = run_benchmark(
         detectors, args.splits, size_arg, conditions, args.seed_offset,
@@ -305,4 +308,6 @@ def _plain(obj):
 
 
 if __name__ == "__main__":
-    main()
+    from kin_envs.cli import run_main
+
+    run_main(main)  # Ctrl-C: exit 130 with one line; bad input: one line, exit 2

@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from detectors.fileio import atomic_write, write_json
-from kin_envs.cli import add_logging_args, setup_logging, write_run_info
+from kin_envs.cli import add_logging_args, check_output_dir, setup_logging, write_run_info
 from kin_envs.detection.sequences import AGE_EDGES, SEQUENCE_SPLITS, SEQUENCE_VERSION, run_sequences
 
 SCRIPTS = Path(__file__).resolve().parent
@@ -191,7 +191,10 @@ def main(argv: list[str] | None = None) -> list[dict]:
     for nz in args.noise or []:
         if not 0 <= nz <= 0.05:
             p.error(f"--noise must be relative range noise in [0, 0.05] (0.01 = 1 %), got {nz}")
-    args.out.mkdir(parents=True, exist_ok=True)
+    try:  # before the episodes: an unwritable --out must not cost a whole run
+        check_output_dir(args.out)
+    except ValueError as e:
+        p.error(str(e))
     if "torch" in sys.modules or args.detector == "learned" or "learned" in args.baselines:
         import torch
 
@@ -227,4 +230,6 @@ def main(argv: list[str] | None = None) -> list[dict]:
 
 
 if __name__ == "__main__":
-    main()
+    from kin_envs.cli import run_main
+
+    run_main(main)  # Ctrl-C: exit 130 with one line; bad input: one line, exit 2

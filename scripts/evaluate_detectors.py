@@ -44,8 +44,16 @@ from pathlib import Path
 import numpy as np
 
 from detectors.base import KinDetector
+from detectors.fileio import atomic_write, write_json, write_text
 from kin_envs import World, scenes
-from kin_envs.cli import add_logging_args, script_logger, setup_logging, write_run_info
+from kin_envs.cli import (
+    add_logging_args,
+    check_output_dir,
+    noise_level,
+    script_logger,
+    setup_logging,
+    write_run_info,
+)
 from kin_envs.cli import progress as tqdm
 from kin_envs.core.lidar import LidarSpec
 from kin_envs.core.scenes import DetectionSceneConfig
@@ -386,7 +394,8 @@ def plot(evals: dict[str, Evaluation], dist_edges, noise_levels, out: Path) -> l
             axes[0, 0].set_yscale("log")
         axes[0, -1].legend(fontsize=7)
         fig.tight_layout()
-        fig.savefig(out / fname, dpi=110)
+        with atomic_write(out / fname) as f:
+            fig.savefig(f, format="png", dpi=110)
         plt.close(fig)
         paths.append(out / fname)
     return paths
@@ -425,7 +434,7 @@ def main(argv: list[str] | None = None) -> dict:
     )
     ap.add_argument(
         "--noise",
-        type=float,
+        type=noise_level,
         nargs="+",
         default=list(NOISE_LEVELS),
         help="relative range noise levels (0.01 = 1 %% of the distance)",
@@ -458,8 +467,6 @@ def main(argv: list[str] | None = None) -> dict:
             "--scenes and --torch-threads must be >= 1 and --first-seed >= 0, got "
             f"{args.scenes}, {args.torch_threads}, {args.first_seed}"
         )
-    if any(not (math.isfinite(n) and n >= 0) for n in args.noise):
-        raise ValueError(f"--noise levels must be >= 0 (relative, 0.01 = 1 %), got {args.noise}")
     if args.backend == "local" and (args.address is not None or args.num_cpus is not None):
         raise ValueError("--address and --num-cpus need --backend ray")
     if args.num_cpus is not None and (args.num_cpus < 1 or args.address is not None):
@@ -468,12 +475,11 @@ def main(argv: list[str] | None = None) -> dict:
         )
     noise_levels = sorted(set(args.noise))
     config = _load_config(args.scene_config)
+    out: Path = check_output_dir(args.out)  # before the detectors' warm-up and the sweep
     # fail before the sweep; warm, so that the sweep's timings leave compilation out
     detectors, startup = build_detectors(args.detectors, args.torch_threads)
     for name, sec in startup.items():
         print(f"{name}: start-up (construction + first call, incl. numba compilation) {sec:.2f} s")
-    out: Path = args.out
-    out.mkdir(parents=True, exist_ok=True)
     sweep = Sweep(
         args.first_seed, tuple(noise_levels), config, tuple(args.detectors), args.gate,
         args.separate_same_radius, args.torch_threads,
@@ -517,7 +523,7 @@ def main(argv: list[str] | None = None) -> dict:
         "startup_seconds": startup,
     }
     md = markdown(evals, dist_edges, noise_levels, paper_rows, info)
-    (out / "results.md").write_text(md)
+    write_text(out / "results.md", md)
     figures = [str(p) for p in plot(evals, dist_edges, noise_levels, out)]
     results = {
         "detectors": {
@@ -563,7 +569,7 @@ def main(argv: list[str] | None = None) -> dict:
         # data: building and scanning, summed over the units (and so over workers); sweep: wall time
         "seconds": {"data": t_data, "sweep": t_sweep, "total": time.perf_counter() - t0},
     }
-    (out / "results.json").write_text(json.dumps(_plain(results), indent=2, allow_nan=False))
+    write_json(out / "results.json", _plain(results), allow_nan=False)
     run = write_run_info(out, args, config=config, seed=args.first_seed, argv=argv, script=__file__, **run)
     print(md)
     log.info(

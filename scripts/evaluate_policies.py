@@ -56,8 +56,9 @@ from agents import (  # noqa: E402
     run_episode,
     run_parallel_episode,
 )
+from detectors.fileio import atomic_write, write_json, write_text  # noqa: E402
 from kin_envs import aggregation_v0  # noqa: E402
-from kin_envs.cli import add_logging_args, script_logger, setup_logging, write_run_info  # noqa: E402
+from kin_envs.cli import add_logging_args, check_output_dir, script_logger, setup_logging, write_run_info  # noqa: E402
 from kin_envs.cli import progress as tqdm  # noqa: E402
 
 SWARM_ID = "aggregation_v0"
@@ -304,7 +305,8 @@ def plot_curves(curves: dict[str, dict], path: Path) -> bool:
         ax.grid(alpha=0.3)
         ax.legend()
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    with atomic_write(path) as f:
+        fig.savefig(f, format="png", dpi=110)
     plt.close(fig)
     return True
 
@@ -354,6 +356,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     if not args.link_radius > 0:
         raise ValueError(f"--link-radius must be > 0 m, got {args.link_radius}")
     names = args.policies if args.policies is not None else DEFAULT_POLICIES["swarm" if swarm else "single"]
+    out: Path = check_output_dir(args.out)  # before the episodes: an unwritable --out fails now
     models = [parse_model_arg(m) for m in args.model]
     seeds = np.arange(args.first_seed, args.first_seed + episodes)
     progress = not args.no_progress
@@ -391,15 +394,12 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
             if curve is not None:
                 curves[name] = curve
 
-    out: Path = args.out
-    out.mkdir(parents=True, exist_ok=True)
     meta = {"episodes": episodes, "first_seed": args.first_seed, "link_radius": args.link_radius,
             "metric_cycles": args.metric_cycles}
     md = f"## {args.env}" + (f", {args.n_robots} robots" if swarm else "") + "\n\n"
     md += markdown_table(results, swarm, meta)
-    (out / "results.md").write_text(md)
-    (out / "results.json").write_text(json.dumps({"env": args.env, "results": results}, indent=1,
-                                                 default=float) + "\n")
+    write_text(out / "results.md", md)
+    write_json(out / "results.json", {"env": args.env, "results": results}, indent=1, default=float)
     plotted = plot_curves(curves, out / "learning_curve.png")
     write_run_info(out, args, config={"env": args.env, "episodes": episodes}, seed=args.first_seed,
                    argv=argv, script=__file__,

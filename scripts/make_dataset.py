@@ -26,7 +26,6 @@ Example::
 from __future__ import annotations
 
 import argparse
-import os
 import platform
 import re
 import sys
@@ -40,6 +39,7 @@ from detectors.fileio import atomic_write, sha256_file, write_json
 from detectors.samples import CATEGORIES, DATASET_FORMAT, DATASET_FORMAT_VERSION, concat_records
 from kin_envs.cli import (
     add_logging_args,
+    check_output_dir,
     parse_json_object,
     run_main,
     script_logger,
@@ -72,11 +72,10 @@ def prepare_out_dir(out: Path, overwrite: bool) -> str | None:
     """Create ``out`` or, with ``overwrite``, clear a previous dataset from it; returns an error or
     ``None``. The manifest goes first, so an interrupted rerun never leaves an old manifest beside
     new shards."""
-    if out.exists() and not out.is_dir():
-        return f"--out {out} is a file, not a directory"
-    out.mkdir(parents=True, exist_ok=True)
-    if not os.access(out, os.W_OK):
-        return f"--out {out} is not writable"
+    try:
+        check_output_dir(out)
+    except ValueError as e:
+        return str(e)
     entries = list(out.iterdir())
     if not entries:
         return None

@@ -38,7 +38,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import importlib.util
-import json
 import math
 import time
 from pathlib import Path
@@ -47,8 +46,16 @@ import numpy as np
 
 from detectors import GeometricKinDetector, range_derivative
 from detectors.base import DetectionResult
+from detectors.fileio import atomic_write, write_json, write_text
 from kin_envs import World, scenes
-from kin_envs.cli import add_logging_args, script_logger, setup_logging, write_run_info
+from kin_envs.cli import (
+    add_logging_args,
+    check_output_dir,
+    noise_level,
+    script_logger,
+    setup_logging,
+    write_run_info,
+)
 from kin_envs.cli import progress as tqdm
 from kin_envs.core.lidar import HitKind, LidarSpec
 from kin_envs.core.scenes import Box, Cylinder, Robot, Scene
@@ -516,7 +523,8 @@ def save_figure(path: Path, scene: Scene, scan, result, rows, title: str, d_th: 
     ax_d = fig.add_subplot(gs[2], sharex=ax_r)
     _draw_scan(ax_r, ax_d, scan, result, d_th, y_top)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    with atomic_write(path) as f:
+        fig.savefig(f, format="png", dpi=110)
     plt.close(fig)
 
 
@@ -558,11 +566,13 @@ def main(argv: list[str] | None = None) -> dict:
     )
     ap.add_argument("--out", type=Path, default=Path("outputs/reproduce_paper"), help="output directory")
     ap.add_argument("--json", type=Path, default=None, help="also write all results to this JSON file")
-    ap.add_argument("--distances", type=float, nargs="+", default=list(scenes.PAPER_DISTANCES),
-                    help="distances of the paper's scenes, m (default: %(default)s)")
+    ap.add_argument(
+        "--distances", type=float, nargs="+", default=list(scenes.PAPER_DISTANCES),
+        help=f"observer-object distances, m, within the lidar's range (< {LidarSpec().range_max:g} m)",
+    )  # fmt: skip
     ap.add_argument(
         "--noise",
-        type=float,
+        type=noise_level,
         nargs="*",
         default=[],
         help="relative range noise levels for the noise study, e.g. 0.005 0.01 (0 is always added)",
@@ -587,12 +597,18 @@ def main(argv: list[str] | None = None) -> dict:
         args.no_figures = True
     if any(not (math.isfinite(d) and d > 0) for d in args.distances):
         ap.error(f"--distances must be > 0 m, got {args.distances}")
-    if any(not (math.isfinite(n) and n >= 0) for n in args.noise):
-        ap.error(f"--noise levels must be >= 0 (relative, 0.01 = 1 %), got {args.noise}")
+    # the object's centre past range_max: its face may still return, but nothing the paper measured
+    range_max = LidarSpec().range_max
+    if any(d >= range_max for d in args.distances):
+        ap.error(f"--distances must be within the lidar's range (< {range_max:g} m), got {args.distances}")
     if args.repeats < 1 or args.draws < 0 or args.seed < 0:
         ap.error("--repeats must be >= 1, --draws >= 0 and --seed >= 0")
-    out: Path = args.out
-    out.mkdir(parents=True, exist_ok=True)
+    try:  # before any computation: an unwritable --out must not cost a whole run
+        out: Path = check_output_dir(args.out)
+        if args.json is not None:
+            check_output_dir(args.json.parent, "--json's directory")
+    except ValueError as e:
+        ap.error(str(e))
     t0 = time.perf_counter()
     detector = GeometricKinDetector()
     sens_seed, noise_seed = np.random.SeedSequence(args.seed).spawn(2)
@@ -671,7 +687,7 @@ def main(argv: list[str] | None = None) -> dict:
             "",
             noise_markdown(noise_rows),
         ]
-    (out / "reproduction.md").write_text("\n".join(md))
+    write_text(out / "reproduction.md", "\n".join(md))
     results = {
         "layout_rule": LAYOUT_RULE,
         "detector": {"class": type(detector).__name__, "params": dataclasses.asdict(detector.params)},
@@ -687,8 +703,7 @@ def main(argv: list[str] | None = None) -> dict:
         seconds=time.perf_counter() - t0,
     )
     if args.json is not None:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps({**results, "run": run}, indent=2, default=_json_default))
+        write_json(args.json, {**results, "run": run}, default=_json_default)
     script_logger(__file__).info(
         f"wrote {out}/reproduction.md, run.json"
         + (f", {len(figures)} figures" if figures else "")

@@ -36,7 +36,7 @@ from detectors.beam_detector import (
 )
 from detectors.fileio import atomic_write, sha256_file, write_json
 from detectors.samples import category_code
-from kin_envs.cli import add_logging_args, parse_json_object, setup_logging
+from kin_envs.cli import add_logging_args, check_output_dir, parse_json_object, setup_logging
 from kin_envs.cli import progress as tqdm
 from kin_envs.detection.beam_dataset import BEAM_DATASET_CONFIG, beam_records
 from kin_envs.detection.swarm_scenes import check_training_seeds
@@ -187,6 +187,10 @@ def main(argv: list[str] | None = None) -> dict:
     add_logging_args(ap)
     args = ap.parse_args(argv)
     setup_logging(args)
+    try:  # before generating data and training: an unwritable --out must not cost a whole run
+        check_output_dir(args.out)
+    except ValueError as e:
+        ap.error(str(e))
     import torch
 
     from detectors.beam_training import BeamTrainConfig, beam_training_set, train_beam_model
@@ -194,7 +198,6 @@ def main(argv: list[str] | None = None) -> dict:
     torch.set_num_threads(args.threads)
     bcfg = BeamConfig.from_dict(parse_json_object(args.model_config, "--model-config") or {})
     tcfg = BeamTrainConfig.from_dict(parse_json_object(args.config, "--config") or {})
-    args.out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     data_dir = args.data or args.out / "data"
     if args.data is None:
@@ -260,4 +263,6 @@ def main(argv: list[str] | None = None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    from kin_envs.cli import run_main
+
+    run_main(main)  # Ctrl-C: exit 130 with one line; bad input: one line, exit 2

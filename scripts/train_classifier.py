@@ -47,9 +47,18 @@ import numpy as np
 
 import detectors
 from detectors.features import feature_names, observer_to_local
+from detectors.fileio import write_json, write_text
 from detectors.geometric import GeometricKinDetector
 from kin_envs import World, scenes
-from kin_envs.cli import add_logging_args, parse_json_object, script_logger, setup_logging, write_run_info
+from kin_envs.cli import (
+    add_logging_args,
+    check_output_dir,
+    noise_level,
+    parse_json_object,
+    script_logger,
+    setup_logging,
+    write_run_info,
+)
 from kin_envs.cli import progress as tqdm
 from kin_envs.detection.dataset import CATEGORIES, DatasetConfig, label_scan, load_dataset, make_scene
 
@@ -511,7 +520,7 @@ def main(argv=None) -> dict:
     )
     ap.add_argument(
         "--calib-noise-edges",
-        type=float,
+        type=noise_level,
         nargs="*",
         default=list(CALIB_NOISE_EDGES),
         help="scan-noise bin edges of the threshold calibration (relative sigma)",
@@ -543,7 +552,6 @@ def main(argv=None) -> dict:
 
     from detectors.learned import (
         TrainConfig,
-        load_checkpoint,
         sample_weights,
         save_checkpoint,
         train_segment_net,
@@ -553,11 +561,18 @@ def main(argv=None) -> dict:
         tcfg = TrainConfig.from_dict(parse_json_object(args.config, "--config") or {})
     except ValueError as e:
         ap.error(str(e))
+    try:  # before loading and training: an unwritable --out / --checkpoint must not cost a run
+        check_output_dir(args.out)
+        if args.checkpoint is not None:
+            if args.checkpoint.is_dir():
+                raise ValueError(f"--checkpoint {args.checkpoint} is a directory; expected a file path")
+            check_output_dir(args.checkpoint.parent, "--checkpoint's directory")
+    except ValueError as e:
+        ap.error(str(e))
     torch.set_num_threads(args.threads)
     progress = not args.no_progress
     command = [sys.executable, *sys.argv] if argv is None else ["train_classifier.py", *map(str, argv)]
-    args.out.mkdir(parents=True, exist_ok=True)
-    ckpt.parent.mkdir(parents=True, exist_ok=True)
+    ckpt = args.checkpoint or args.out / "learned.pt"
     write_run_info(args.out, args, config=tcfg, seed=args.seed,
                    argv=argv, script=__file__, checkpoint=ckpt)
     t_start = time.perf_counter()
@@ -612,7 +627,7 @@ def main(argv=None) -> dict:
         np.searchsorted(np.asarray(thresholds["noise_edges"]), sigma, side="right")
     ]
     val = validation_metrics(vs, vo, p, xy, seg_thr)
-    (args.out / "validation.json").write_text(json.dumps(val, indent=2))
+    write_json(args.out / "validation.json", val)
 
     lidar_res = 2 * math.pi / 360  # the dataset's lidar (LidarSpec default, RPLIDAR A1)
     info = {
@@ -639,6 +654,24 @@ def main(argv=None) -> dict:
         "thresholds": thresholds,
     }
     positioning = "regression" if args.positioning == "auto" else args.positioning
+    ev = None
+    if args.eval_scenes:
+        # the sweep loads a provisional checkpoint under a hidden name: until the final one below is
+        # written, nothing under the checkpoint's name claims an evaluation it has not had
+        provisional = ckpt.with_name(f".{ckpt.stem}.pre-eval{ckpt.suffix}")
+        try:
+            save_checkpoint(provisional, model, fcfg, positioning=positioning, angular_resolution=lidar_res,
+                            thresholds=thresholds, info=info)  # fmt: skip
+            ev = evaluate(provisional, args, progress)
+        finally:
+            provisional.unlink(missing_ok=True)
+        write_json(args.out / "eval.json", ev)
+        write_text(args.out / "eval.md", markdown(ev))
+        if args.positioning == "auto":
+            positioning = ev["positioning"]["better"]
+        info["evaluation"] = {
+            k: ev[k] for k in ("targets", "positioning", "centre_error", "scenes_per_noise", "first_seed")
+        }
     save_checkpoint(
         ckpt,
         model,
@@ -648,32 +681,12 @@ def main(argv=None) -> dict:
         thresholds=thresholds,
         info=info,
     )
-    ev = None
-    if args.eval_scenes:
-        ev = evaluate(ckpt, args, progress)
-        (args.out / "eval.json").write_text(json.dumps(ev, indent=2))
-        (args.out / "eval.md").write_text(markdown(ev))
-        if args.positioning == "auto":
-            positioning = ev["positioning"]["better"]
-        info["evaluation"] = {
-            k: ev[k] for k in ("targets", "positioning", "centre_error", "scenes_per_noise", "first_seed")
-        }
-        model, _ = load_checkpoint(ckpt)
-        save_checkpoint(
-            ckpt,
-            model,
-            fcfg,
-            positioning=positioning,
-            angular_resolution=lidar_res,
-            thresholds=thresholds,
-            info=info,
-        )
     info["positioning"] = positioning
     info["total_seconds"] = round(time.perf_counter() - t_start, 1)
     info["python"], info["torch"] = platform.python_version(), torch.__version__
     sidecar = {"checkpoint": str(ckpt), "feature_config": fcfg.to_dict(), **info}
-    ckpt.with_suffix(".json").write_text(json.dumps(sidecar, indent=2))
-    (args.out / "config.json").write_text(json.dumps(sidecar, indent=2))
+    write_json(ckpt.with_suffix(".json"), sidecar)
+    write_json(args.out / "config.json", sidecar)  # last: the run's record
     logger.info(
         f"checkpoint {ckpt} ({ckpt.stat().st_size / 1e3:.0f} kB), positioning {positioning}; "
         f"validation kin F1 {val['kin']['f1']:.3f}; training {train_seconds:.0f} s"

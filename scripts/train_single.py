@@ -230,8 +230,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
     torch.set_num_threads(cfg.torch_threads)
-    out: Path = args.out
-    out.mkdir(parents=True, exist_ok=True)
+    from kin_envs.cli import check_output_dir
+
+    out: Path = check_output_dir(args.out)  # a clear error before training, not a traceback
+
     def write_run(**fields) -> dict[str, Any]:
         return write_run_info(out, args, config=cfg.to_dict(), seed=cfg.seed, argv=argv, script=__file__,
                               algo=cfg.algo, env_id=cfg.env_id, env_kwargs=cfg.env_kwargs, **fields)
@@ -251,7 +253,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                 tb_log_name=cfg.algo)
     elapsed = time.perf_counter() - t0
     model_path = out / "model.zip"
-    model.save(model_path)
+    from detectors.fileio import atomic_write
+
+    with atomic_write(model_path) as f:  # never half a model under the final name
+        model.save(f)
     env.close()
     run = write_run(status="done", train_seconds=round(elapsed, 1), timesteps=int(model.num_timesteps),
                     model=str(model_path), final_eval=final_evaluation(out))

@@ -35,6 +35,7 @@ if str(ROOT) not in sys.path:  # run as a file: make agents / kin_envs importabl
     sys.path.insert(0, str(ROOT))
 
 from agents.hyperparams import hyperparams_for  # noqa: E402
+from detectors.fileio import atomic_write  # noqa: E402
 from kin_envs import aggregation_v0  # noqa: E402
 from kin_envs.cli import add_logging_args, parse_json_object, setup_logging, write_run_info  # noqa: E402
 
@@ -154,8 +155,10 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     from kin_envs.cli import progress as tqdm
 
     torch.set_num_threads(cfg.torch_threads)
-    out: Path = args.out
-    out.mkdir(parents=True, exist_ok=True)
+    from kin_envs.cli import check_output_dir
+
+    out: Path = check_output_dir(args.out)  # a clear error before training, not a traceback
+
     def write_run(**fields) -> dict[str, Any]:
         env_kwargs = {"n_robots": cfg.n_robots, **cfg.env_kwargs}
         return write_run_info(out, args, config=cfg, seed=cfg.seed, argv=argv, script=__file__, algo="ppo",
@@ -185,7 +188,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     model.learn(total_timesteps=cfg.total_timesteps, callback=callbacks, tb_log_name="ppo")
     elapsed = time.perf_counter() - t0
     model_path = out / "model.zip"
-    model.save(model_path)
+    with atomic_write(model_path) as f:  # never half a model under the final name
+        model.save(f)
     venv.close()
     run = write_run(status="done", train_seconds=round(elapsed, 1), timesteps=int(model.num_timesteps),
                     model=str(model_path))

@@ -200,8 +200,9 @@ def main(argv=None) -> dict:
 
     torch.set_num_threads(args.torch_threads)
 
-    out: Path = args.out
-    out.mkdir(parents=True, exist_ok=True)
+    from kin_envs.cli import check_output_dir
+
+    out: Path = check_output_dir(args.out)  # a clear error before training, not a traceback
     t0 = time.perf_counter()
     rows: list[dict] = []
     with ray_session(args.address, args.num_cpus) as ray:  # without ray: ImportError with the pip hint

@@ -76,3 +76,38 @@ def check_positive(where: str, **values: float) -> None:
     """Each value is a real number in ``(0, MAX_MAGNITUDE]``."""
     for name, v in values.items():
         check_number(where, name, v, 0.0, lo_open=True)
+
+
+def check_sequence(where: str, name: str, v: Any, n: int | None = None, *, min_len: int = 0) -> tuple:
+    """``v`` is a list / tuple / 1-D array (of ``n`` items if given, at least ``min_len``); returned
+    as a tuple (frozen configs store tuples)."""
+    if isinstance(v, str | bytes) or not isinstance(v, tuple | list) and type(v).__name__ != "ndarray":
+        what = f"{n} numbers" if n is not None else "numbers"
+        raise FieldTypeError(
+            f"{where}: {name} must be a list or tuple of {what}, got {type(v).__name__} {v!r}"
+        )
+    t = tuple(v)
+    if (n is not None and len(t) != n) or len(t) < min_len:
+        expected = f"exactly {n}" if n is not None else f"at least {min_len}"
+        raise ValueError(f"{where}: {name} must hold {expected} item(s), got {len(t)}: {v!r}")
+    return t
+
+
+def check_interval(where: str, name: str, v: Any, lo: float = 0.0, hi: float = MAX_MAGNITUDE) -> tuple:
+    """``v`` is ``(min, max)`` with ``lo < min <= max <= hi``; returned as a tuple of floats."""
+    a, b = check_sequence(where, name, v, 2)
+    check_number(where, f"{name}[0]", a, lo, hi, lo_open=True)
+    check_number(where, f"{name}[1]", b, lo, hi, lo_open=True)
+    if a > b:
+        raise ValueError(f"{where}: {name} must be (min, max) with min <= max, got {v!r}")
+    return (a, b)
+
+
+def check_weights(where: str, name: str, v: Any, n: int) -> tuple:
+    """``v`` is ``n`` relative weights: finite, >= 0, not all 0."""
+    t = check_sequence(where, name, v, n)
+    for i, w in enumerate(t):
+        check_number(where, f"{name}[{i}]", w, 0.0)
+    if sum(float(w) for w in t) <= 0:
+        raise ValueError(f"{where}: {name} must not all be 0, got {v!r}")
+    return t

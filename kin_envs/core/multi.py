@@ -187,7 +187,7 @@ class WorldBatch:
         for j in on:
             applied = commands[j * n : (j + 1) * n].copy()
             ws[j]._commands = applied
-            ws[j]._history.append(applied)  # World copies replay it
+            ws[j]._record(applied)  # World copies replay it (run-length encoded)
         bodies, controls, spaces = self._bodies, self._controls, self._spaces
         if sel is not None:
             rows = np.repeat(sel, n)

@@ -28,8 +28,11 @@ from kin_envs.core._validate import (
     FieldTypeError,
     check_bool,
     check_finite,
+    check_interval,
     check_number,
     check_positive,
+    check_sequence,
+    check_weights,
     dataclass_from_dict,
 )
 from kin_envs.core.lidar import HitKind, LidarSpec
@@ -322,7 +325,7 @@ def obstacle_from_dict(d: Any, where: str = "obstacle") -> Obstacle:
     if not isinstance(d, dict) or "kind" not in d:
         raise ValueError(f"{where}: expected a dict with a 'kind' key, got {d!r}")
     kind = d["kind"]
-    if kind not in OBSTACLE_TYPES:
+    if not isinstance(kind, str) or kind not in OBSTACLE_TYPES:  # a list would be unhashable
         raise ValueError(f"{where}: unknown obstacle kind {kind!r}; expected one of {sorted(OBSTACLE_TYPES)}")
     rest = {k: v for k, v in d.items() if k != "kind"}
     if "vertices" in rest:
@@ -623,24 +626,24 @@ class RandomArenaConfig:
     max_attempts: int = 500
 
     def __post_init__(self) -> None:
-        w = np.asarray(self.kind_weights, dtype=float)
-        if w.shape != (4,) or np.any(w < 0) or w.sum() <= 0:
-            raise ValueError(
-                f"RandomArenaConfig.kind_weights must be 4 non-negative weights, got {self.kind_weights!r}"
-            )
+        w = "RandomArenaConfig"
+        # lists (from JSON) become tuples, so the config stays frozen and hashable
+        object.__setattr__(self, "kind_weights", check_weights(w, "kind_weights", self.kind_weights, 4))
+        check_number(w, "kin_width_prob", self.kin_width_prob, 0.0, 1.0)
         for name in ("cylinder_radius", "box_size", "prism_width", "wall_length"):
-            lo, hi = getattr(self, name)
-            if not (0 < lo <= hi):
-                raise ValueError(f"RandomArenaConfig.{name} must be 0 < min <= max, got {(lo, hi)!r}")
-        if not (0 <= self.kin_width_prob <= 1):
-            raise ValueError(
-                f"RandomArenaConfig.kin_width_prob must be in [0, 1], got {self.kin_width_prob!r}"
-            )
-        if not self.prism_sides or min(self.prism_sides) < 3:
-            raise ValueError(f"RandomArenaConfig.prism_sides must be integers >= 3, got {self.prism_sides!r}")
-        check_positive("RandomArenaConfig", wall_thickness=self.wall_thickness)
-        if self.clearance < 0 or self.max_attempts < 1:
-            raise ValueError("RandomArenaConfig: clearance must be >= 0 and max_attempts >= 1")
+            object.__setattr__(self, name, check_interval(w, name, getattr(self, name)))
+        sides = check_sequence(w, "prism_sides", self.prism_sides, min_len=1)
+        for i, n in enumerate(sides):
+            check_number(w, f"prism_sides[{i}]", n, 3, 1000, integer=True)
+        object.__setattr__(self, "prism_sides", sides)
+        check_positive(w, wall_thickness=self.wall_thickness)
+        check_number(w, "clearance", self.clearance, 0.0)
+        check_number(w, "max_attempts", self.max_attempts, 1, 10**7, integer=True)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> RandomArenaConfig:
+        """From a plain dict (e.g. JSON); unknown keys raise ``ValueError`` naming them."""
+        return dataclass_from_dict(cls, d, "RandomArenaConfig")
 
 
 def _random_obstacle(rng: np.random.Generator, cfg: RandomArenaConfig, spec: RobotSpec, x, y) -> Obstacle:
@@ -712,7 +715,7 @@ def random_arena(
     n_obstacles: int = 20,
     seed: int | np.random.Generator | None = 0,
     size: float | tuple[float, float] = 10.0,
-    config: RandomArenaConfig | None = None,
+    config: RandomArenaConfig | dict | None = None,
     robot: RobotSpec | None = None,
     lidar: LidarSpec | None = None,
 ) -> Scene:
@@ -724,7 +727,8 @@ def random_arena(
     overlaps and everything keeps ``config.clearance`` from everything else and from the boundary.
     The same ``seed`` always gives the same scene. Raises ``ValueError`` when the objects cannot fit.
     """
-    cfg = config or RandomArenaConfig()
+    # a dict (e.g. from JSON) is accepted and validated like the dataclass
+    cfg = dataclass_from_dict(RandomArenaConfig, {} if config is None else config, "random_arena")
     spec = robot or RobotSpec()
     if not isinstance(n_robots, int | np.integer) or n_robots < 0:
         raise ValueError(f"random_arena: n_robots must be an integer >= 0, got {n_robots!r}")
@@ -803,32 +807,22 @@ class DetectionSceneConfig:
     )
 
     def __post_init__(self) -> None:
-        if self.n_kin < 0 or self.n_distractors < 0:
-            raise ValueError(
-                "DetectionSceneConfig: n_kin and n_distractors must be >= 0, "
-                f"got {self.n_kin}, {self.n_distractors}"
-            )
-        lo, hi = self.distance
-        if not (0 < lo <= hi):
-            raise ValueError(f"DetectionSceneConfig.distance must be 0 < min <= max, got {self.distance!r}")
-        w = np.asarray(self.distractor_weights, dtype=float)
-        if w.shape != (6,) or np.any(w < 0) or w.sum() <= 0:
-            raise ValueError(
-                "DetectionSceneConfig.distractor_weights must be 6 non-negative weights for "
-                f"{self.DISTRACTOR_KINDS}, got {self.distractor_weights!r}"
-            )
+        w = "DetectionSceneConfig"
+        check_number(w, "n_kin", self.n_kin, 0, 10_000, integer=True)
+        check_number(w, "n_distractors", self.n_distractors, 0, 10_000, integer=True)
+        object.__setattr__(self, "distance", check_interval(w, "distance", self.distance))
+        object.__setattr__(
+            self, "distractor_weights", check_weights(w, "distractor_weights", self.distractor_weights, 6)
+        )
         for name in ("cylinder_radius", "wall_length"):
-            a, b = getattr(self, name)
-            if not (0 < a <= b):
-                raise ValueError(f"DetectionSceneConfig.{name} must be 0 < min <= max, got {(a, b)!r}")
-        if self.clearance < 0 or self.arena_margin < 0 or self.max_attempts < 1:
-            raise ValueError(
-                "DetectionSceneConfig: clearance, arena_margin >= 0 and max_attempts >= 1 required"
-            )
+            object.__setattr__(self, name, check_interval(w, name, getattr(self, name)))
+        check_number(w, "clearance", self.clearance, 0.0)
+        check_number(w, "arena_margin", self.arena_margin, 0.0)
+        check_number(w, "max_attempts", self.max_attempts, 1, 10**7, integer=True)
 
     @classmethod
     def from_dict(cls, d: dict) -> DetectionSceneConfig:
-        d = {k: tuple(v) if isinstance(v, list) else v for k, v in d.items()}
+        """From a plain dict (e.g. JSON); unknown keys raise ``ValueError`` naming them."""
         return dataclass_from_dict(cls, d, "DetectionSceneConfig")
 
 
@@ -869,7 +863,7 @@ def _detection_distractor(rng, cfg: DetectionSceneConfig, spec: RobotSpec, x: fl
 
 def detection_scene(
     seed: int | np.random.Generator | None = 0,
-    config: DetectionSceneConfig | None = None,
+    config: DetectionSceneConfig | dict | None = None,
     lidar: LidarSpec | None = None,
     robot: RobotSpec | None = None,
 ) -> Scene:
@@ -882,7 +876,7 @@ def detection_scene(
     observer naturally occlude farther ones, kin included. Used by the detector evaluation sweep and
     the learned classifier's training data; seeded, so the same seed gives the same scene.
     """
-    cfg = config or DetectionSceneConfig()
+    cfg = dataclass_from_dict(DetectionSceneConfig, {} if config is None else config, "detection_scene")
     spec = robot or RobotSpec()
     rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
     side = 2 * cfg.distance[1] + 2 * cfg.arena_margin

@@ -224,7 +224,10 @@ class World:
         self._build_space()
         self._build_lidar_geometry()
         self._commands = np.zeros((self.n_robots, 2))
-        self._history: list[np.ndarray] = []  # applied commands of every step, for copies
+        # applied commands since construction, for copies, run-length encoded (agents often hold a
+        # command): distinct consecutive commands and how many steps each was held
+        self._history: list[np.ndarray] = []
+        self._history_counts: list[int] = []
         self._index_bodies()
         self.contacts = np.zeros(self.n_robots, dtype=np.int8)
         # odometry draws from a child stream: its noise never shifts the lidar noise of the same seed
@@ -251,19 +254,25 @@ class World:
         pymunk's own copies drop the solver's warm-start caches (contact and joint impulses), so a
         copy stepped like the original would drift from it. The world is instead rebuilt from its
         scene and every step is replayed, which is bit-exact (Chipmunk is deterministic). The cost
-        grows with the world's age: ~16 bytes per robot per step, and the replay's physics time.
+        grows with the world's age: 16 bytes per robot per *change* of the commands (consecutive
+        steps with bit-identical commands are stored once, with a count), and the replay's physics
+        time, which is that of every step since construction.
         """
         hist = np.stack(self._history) if self._history else np.zeros((0, self.n_robots, 2))
         return {"scene": self.scene, "config": self.config, "rng": self.rng, "history": hist,
-                "odometry": self._odometry}
+                "history_counts": np.array(self._history_counts, dtype=np.int64), "odometry": self._odometry}
 
     def __setstate__(self, state: dict) -> None:
         self.scene, self.config, self.rng = state["scene"], state["config"], state["rng"]
         with atomic():
             # a throwaway odometry stream for the replay (spawning from self.rng would change it)
             self._build(self.scene, np.random.default_rng(0))
-            for commands in state["history"]:
-                self._advance(np.array(commands))
+            hist = state["history"]
+            counts = state.get("history_counts", np.ones(len(hist), np.int64))  # older copies: one per step
+            for commands, count in zip(hist, counts, strict=True):
+                for _ in range(int(count)):
+                    self._advance(np.array(commands))
+                self._record(np.array(commands), int(count))
         self._odometry = state["odometry"]
 
     # -- construction -----------------------------------------------------------------------------
@@ -550,7 +559,16 @@ class World:
         applied = self.wheel_speeds_to_unicycle(wheels)
         with atomic():
             self._advance(applied)
+            self._record(applied)
+
+    def _record(self, applied: np.ndarray, count: int = 1) -> None:
+        """Log ``count`` steps of ``applied`` for copies; bit-identical repeats extend the last run
+        (compared as bytes: -0.0 and 0.0 stay apart, so the replay stays bit-exact)."""
+        if self._history and applied.tobytes() == self._history[-1].tobytes():
+            self._history_counts[-1] += count
+        else:
             self._history.append(applied)
+            self._history_counts.append(count)
 
     def _advance(self, applied: np.ndarray) -> None:
         """The physics of one step with the limited ``(v, omega)`` commands ``applied``."""

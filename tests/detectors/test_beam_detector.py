@@ -203,3 +203,20 @@ def test_envs_take_detector_beam():
     swarm.reset(seed=0)
     _, _, _, _, infos = swarm.step({a: swarm.action_space(a).sample() for a in swarm.agents})
     assert len(infos) == 4
+
+
+def test_beam_training_with_ten_steps_in_all():
+    """Issue 16 (point 9): 10 optimiser steps in all (e.g. one batch per epoch, 10 epochs) were a
+    ZeroDivisionError inside OneCycleLR; they train."""
+    pytest.importorskip("torch")
+    from detectors.beam_detector import BeamConfig, beam_inputs
+    from detectors.beam_training import BeamTrainConfig, train_beam_model
+
+    rng = np.random.default_rng(0)
+    angles = -np.arange(360) * (2 * np.pi / 360)
+    x, _, _ = beam_inputs(rng.uniform(0.5, 3.0, (1, 360)), angles, BeamConfig())
+    y = (rng.random(len(x)) < 0.3).astype(np.float32)
+    t = np.zeros((len(x), 2), np.float32)
+    w = np.ones(len(x), np.float32)
+    _, log = train_beam_model(x, y, t, w, BeamConfig(), BeamTrainConfig(epochs=10, batch_size=len(x)))
+    assert len(log) == 10

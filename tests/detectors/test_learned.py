@@ -82,6 +82,19 @@ def test_training_input_errors():
         TrainConfig.from_dict({"epochs": 1, "lr_decay": 0.5})
 
 
+def test_batch_larger_than_the_data_is_refused_and_ten_steps_train():
+    """Issue 16 (point 9): a batch larger than the data was a ZeroDivisionError inside OneCycleLR
+    (0.1 warm-up x 10 steps); now a ValueError naming batch_size, and 10 steps in all train."""
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=(40, 3)).astype(np.float32)
+    d = {"x": x, "y": (x[:, 0] > 0).astype(np.float32), "target": np.full((40, 2), np.nan)}
+    with pytest.raises(ValueError, match=r"batch_size=64 is larger than the 40 training segments"):
+        train_segment_net(d, d, TrainConfig(hidden=(4,), epochs=10, batch_size=64), progress=False)
+    _, hist = train_segment_net(d, d, TrainConfig(hidden=(4,), epochs=10, batch_size=40, patience=10),
+                                progress=False)  # fmt: skip
+    assert len(hist) == 10 and all(np.isfinite(h["train_loss"]) for h in hist)
+
+
 def test_checkpoint_round_trip_gives_identical_outputs(tmp_path):
     path = save_checkpoint(tmp_path / "m.pt", random_model(), FeatureConfig(), info={"note": np.float64(1.5)})
     model, ck = load_checkpoint(path)

@@ -197,6 +197,46 @@ def test_random_arena_config_validation():
         scenes.RandomArenaConfig(cylinder_radius=(0.2, 0.1))
 
 
+@pytest.mark.parametrize("cls, kwargs, exc, match", [
+    (scenes.RandomArenaConfig, {"kind_weights": "abcd"}, TypeError, "kind_weights must be a list or tuple"),
+    (scenes.RandomArenaConfig, {"kind_weights": (1, -1, 0, 0)}, ValueError, r"kind_weights\[1\]"),
+    (scenes.RandomArenaConfig, {"kind_weights": (0, 0, 0, 0)}, ValueError, "kind_weights must not all be 0"),
+    (scenes.RandomArenaConfig, {"kin_width_prob": "0.5"}, TypeError, "kin_width_prob"),
+    (scenes.RandomArenaConfig, {"box_size": (0.1, float("nan"))}, ValueError, r"box_size\[1\]"),
+    (scenes.RandomArenaConfig, {"wall_length": None}, TypeError, "wall_length"),
+    (scenes.RandomArenaConfig, {"prism_sides": (3, 4.5)}, TypeError, r"prism_sides\[1\] must be an integer"),
+    (scenes.RandomArenaConfig, {"prism_sides": ()}, ValueError, "prism_sides must hold at least 1"),
+    (scenes.RandomArenaConfig, {"prism_sides": (10**9,)}, ValueError, r"prism_sides\[0\]"),
+    (scenes.RandomArenaConfig, {"clearance": -0.1}, ValueError, "clearance"),
+    (scenes.RandomArenaConfig, {"max_attempts": 2.5}, TypeError, "max_attempts must be an integer"),
+    (scenes.DetectionSceneConfig, {"n_kin": 1.5}, TypeError, "n_kin must be an integer"),
+    (scenes.DetectionSceneConfig, {"n_distractors": True}, TypeError, "n_distractors"),
+    (scenes.DetectionSceneConfig, {"n_kin": 10**9}, ValueError, "n_kin"),
+    (scenes.DetectionSceneConfig, {"distance": 2.0}, TypeError, "distance must be a list or tuple"),
+    (scenes.DetectionSceneConfig, {"distance": (0.0, 1.0)}, ValueError, r"distance\[0\]"),
+    (scenes.DetectionSceneConfig, {"distance": (0.5, float("inf"))}, ValueError, r"distance\[1\]"),
+    (scenes.DetectionSceneConfig, {"distractor_weights": (1, 1, 1, 1, 1, "x")}, TypeError,
+     r"distractor_weights\[5\]"),
+    (scenes.DetectionSceneConfig, {"arena_margin": None}, TypeError, "arena_margin"),
+    (scenes.DetectionSceneConfig, {"max_attempts": 0}, ValueError, "max_attempts"),
+])  # fmt: skip
+def test_scene_generator_configs_name_the_bad_field(cls, kwargs, exc, match):
+    with pytest.raises(exc, match=match):
+        cls(**kwargs)
+    with pytest.raises(exc, match=match):  # the same from a dict (JSON), lists for tuples
+        cls.from_dict({k: list(v) if isinstance(v, tuple) else v for k, v in kwargs.items()})
+
+
+def test_scene_generator_configs_store_tuples_and_refuse_unknown_keys():
+    cfg = scenes.RandomArenaConfig.from_dict({"box_size": [0.1, 0.2], "prism_sides": [3, 5]})
+    assert cfg.box_size == (0.1, 0.2) and cfg.prism_sides == (3, 5) and hash(cfg)
+    assert scenes.DetectionSceneConfig.from_dict({"distance": [0.5, 1.0]}).distance == (0.5, 1.0)
+    with pytest.raises(ValueError, match=r"unknown key\(s\) \['size'\]"):
+        scenes.RandomArenaConfig.from_dict({"size": 3})
+    with pytest.raises(TypeError, match="expected a dict"):
+        scenes.RandomArenaConfig.from_dict([("clearance", 0.1)])
+
+
 def test_detection_scene_layout():
     cfg = scenes.DetectionSceneConfig(n_kin=3, n_distractors=15, distance=(0.3, 3.0))
     a = scenes.detection_scene(3, cfg)

@@ -39,6 +39,39 @@ def test_world_copy_is_exact_in_a_jam():
         np.testing.assert_array_equal(twin.scan().ranges, ref.scan().ranges)
 
 
+def test_copy_of_a_copy_is_exact():
+    """The replay log is rebuilt in the copy, so a copy can be copied again (before, the copy's log was
+    empty and its own copies restarted from the scene)."""
+    world = World(scenes.random_arena(8, 5, seed=1, size=4.0), seed=0)
+    rng = np.random.default_rng(0)
+    for t in range(30):
+        world.step(commands=rng.uniform(-1, 1, (8, 2)) if t % 5 == 0 else np.tile([0.3, 0.5], (8, 1)))
+    twice = pickle.loads(pickle.dumps(copy.deepcopy(world)))
+    for w in (world, twice):
+        for _ in range(5):
+            w.step(commands=np.tile([0.2, -0.4], (8, 1)))
+    np.testing.assert_array_equal(twice.poses, world.poses)
+    np.testing.assert_array_equal(twice.scan().ranges, world.scan().ranges)
+
+
+def test_copy_log_stores_each_held_command_once():
+    """Issue 16 (point 5): the log grows with changes of the commands, not with steps."""
+    world = World(scenes.random_arena(16, 5, seed=2, size=4.0), seed=0)
+    held = np.tile([0.3, 0.2], (16, 1))
+    for t in range(300):
+        world.step(commands=held if t < 200 else -held)
+    state = world.__getstate__()
+    assert state["history"].shape == (2, 16, 2) and state["history_counts"].tolist() == [200, 100]
+    assert len(pickle.dumps(world)) < 20_000  # 300 steps x 16 robots x 16 B unencoded: 77 kB of log alone
+    twin = pickle.loads(pickle.dumps(world))
+    np.testing.assert_array_equal(twin.poses, world.poses)
+    # -0.0 and 0.0 compare equal but are different bits: runs are split on bits, so a replay is exact
+    w = World(scenes.random_arena(2, 0, seed=0, size=2.0))
+    w._record(np.zeros((2, 2)))
+    w._record(np.array([[-0.0, 0.0], [0.0, 0.0]]))
+    assert w.__getstate__()["history_counts"].tolist() == [1, 1]
+
+
 SOAK = """
 import gc, resource, numpy as np
 from kin_envs import World, scenes
@@ -77,7 +110,11 @@ def test_resets_do_not_grow_native_memory():
         [sys.executable, "-c", code], capture_output=True, text=True, timeout=900, check=True
     )
     per_reset = float(out.stdout.split()[-1])
-    assert per_reset * 2000 < 5e6, f"RSS grows {per_reset / 1e3:.2f} kB per world reset (budget 2.5 kB)"
+    # the fitted slope of 400 resets scatters from 0.9 to 2.9 kB per reset between runs (one ~1 MB
+    # jump of the allocator moves it), so the reduced run's budget is 5 kB: still less than half the
+    # old leak (11.5 kB); the full soak keeps the issue's 2.5 kB (5 MB per 2,000 resets)
+    budget = 2.5e3 if n >= 2000 else 5e3
+    assert per_reset < budget, f"RSS grows {per_reset / 1e3:.2f} kB per reset (budget {budget / 1e3} kB)"
 
 
 @pytest.mark.parametrize("huge", [1e308, -1e308, 1.7e308, 1e20])

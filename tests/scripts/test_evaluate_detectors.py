@@ -85,7 +85,6 @@ def test_detector_names(mod, monkeypatch):
     (["--gate", "0"], "gate must be a finite distance > 0 m"),
     (["--gate", "nan"], "gate must be a finite distance > 0 m"),
     (["--detectors", "nope"], "unknown detector"),
-    (["--noise", "-0.01"], "noise levels must be >= 0"),
     (["--scenes", "0"], "scenes"),
     (["--scene-config", '{"n_kin": 2, "colour": 1}'], "unknown key"),
     (["--address", "auto"], "--address and --num-cpus need --backend ray"),

@@ -83,6 +83,14 @@ def test_scripts_reject_bad_configs(dataset, tmp_path):
     assert out.returncode != 0 and "manifest" in out.stderr
 
 
+def test_train_classifier_batch_larger_than_the_data(dataset, tmp_path):
+    pytest.importorskip("torch")
+    cfg = json.dumps({"epochs": 10, "hidden": [4], "batch_size": 10**6})
+    out = run("train_classifier.py", "--data", dataset, "--out", tmp_path, "--config", cfg, check=False)
+    assert out.returncode == 2 and "batch_size=1000000 is larger than the" in out.stderr
+    assert "Traceback" not in out.stderr and len(out.stderr.strip().splitlines()) == 1, out.stderr
+
+
 def test_make_dataset_backend_flags_need_ray(tmp_path):
     out = run("make_dataset.py", "--out", tmp_path / "x", "--scenes", 2, "--num-cpus", 2, check=False)
     assert out.returncode == 2 and "--address and --num-cpus need --backend ray" in out.stderr
