@@ -82,7 +82,7 @@ from scipy.optimize import linear_sum_assignment
 from .base import DetectionResult, wrap_angle
 from .features import scan_noise, segment_batch
 
-__all__ = ["TrackerParams", "Track", "KinTracker", "TRACK_FIELDS", "fit_known_circle"]
+__all__ = ["TrackerParams", "Track", "KinTracker", "TRACK_FIELDS", "fit_known_circle", "segment_points"]
 
 #: Columns of :meth:`KinTracker.track_arrays`' ``tracks`` array.
 TRACK_FIELDS = ("id", "x", "y", "vx", "vy", "existence", "kin_prob", "frames_seen", "confirmed", "age")
@@ -282,6 +282,30 @@ def _fit_known_circle(p, w, r, c, iterations, e):
             break
     for i in range(m):
         e[i] = math.sqrt((p[i, 0] - c[0]) ** 2 + (p[i, 1] - c[1]) ** 2) - r
+
+
+def segment_points(ranges, angles, rows, first, last, range_max: float = math.inf):
+    """The scan points of segments, for the tracker's outline cue (vectorised over all segments).
+
+    Args:
+        ranges: ``(B, n)`` scans, m; angles: ``(n,)`` beam angles, rad (robot frame, CCW positive).
+        rows, first, last: ``(k,)`` scan row and first / last beam of each segment (wrapping at the
+            seam: ``first > last`` is allowed).
+        range_max: readings at or above it are no return (as are 0.0, NaN and inf).
+
+    Returns ``(points (P, 2) x forward / y left, owner (P,))``: each valid beam's point and its segment.
+    """
+    ranges = np.asarray(ranges, dtype=np.float64).reshape(-1, np.shape(angles)[0])
+    angles = np.asarray(angles, dtype=np.float64)
+    n = angles.shape[0]
+    first = np.asarray(first, dtype=np.int64).reshape(-1)
+    count = (np.asarray(last, dtype=np.int64).reshape(-1) - first) % n + 1
+    owner = np.repeat(np.arange(first.size), count)
+    beam = (np.repeat(first, count) + np.arange(owner.size) - np.repeat(np.cumsum(count) - count, count)) % n
+    r = ranges[np.repeat(np.asarray(rows, dtype=np.int64).reshape(-1), count), beam]
+    ok = np.isfinite(r) & (r > 0) & (r < range_max)
+    r, a = r[ok], angles[beam[ok]]
+    return np.c_[r * np.cos(a), r * np.sin(a)], owner[ok]
 
 
 class KinTracker:
@@ -485,18 +509,15 @@ class KinTracker:
         scan's own noise estimate (:func:`detectors.features.scan_noise`) the outline cue's noise."""
         ranges = np.asarray(ranges, dtype=np.float64)
         angles = np.asarray(angles, dtype=np.float64)
-        n = ranges.shape[0]
         dets = result.detections
         xy = np.array([[d.x, d.y] for d in dets]).reshape(-1, 2)
         scores = np.array([d.score for d in dets])
-        pts = []
-        for d in dets:
-            idx = np.arange(d.first_beam, d.first_beam + ((d.last_beam - d.first_beam) % n) + 1) % n
-            r = ranges[idx]
-            ok = np.isfinite(r) & (r > 0)
-            pts.append(np.stack([r[ok] * np.cos(angles[idx][ok]), r[ok] * np.sin(angles[idx][ok])], axis=1))
+        pts, owner = segment_points(ranges, angles, np.zeros(len(dets), np.int64),
+                                    [d.first_beam for d in dets], [d.last_beam for d in dets])  # fmt: skip
         noise, count = scan_noise(segment_batch(ranges[None], angles))
-        self.update(xy, scores, odom_delta, dt, pts, noise=float(noise[0]) if count[0] >= 5 else None)
+        delta = np.asarray(odom_delta, np.float64).reshape(1, -1)
+        self.update_batch(np.zeros(len(dets), np.int64), xy, scores, delta, dt, pts, owner,
+                          None if count[0] < 5 else [float(noise[0])])  # fmt: skip
 
     # -- steps ----------------------------------------------------------------------------------------
     def _to_odom(self, xy, obs, cos, sin) -> np.ndarray:

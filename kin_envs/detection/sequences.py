@@ -43,7 +43,7 @@ import numpy as np
 from detectors.base import KinDetector
 from detectors.features import scan_noise, segment_batch
 from detectors.metrics import match, prf1
-from detectors.tracking import KinTracker, TrackerParams
+from detectors.tracking import KinTracker, TrackerParams, segment_points
 
 from ..core.lidar import HitKind
 from ..core.scenes import Cylinder
@@ -473,32 +473,18 @@ def _warm_up(detectors, tracker_params) -> float:
 def _candidates(results, scan, operating=None):
     """Flatten one frame's detection results into the tracker's batch arrays (points from the segments);
     ``operating``: the same detector's results at its operating point, for the ``accepted`` flags."""
-    ob, xy, sc, pts, own, acc = [], [], [], [], [], []
-    n = scan.ranges.shape[1]
-    ang = scan.angles
-    k = 0
-    for row, res in enumerate(results):
-        r = scan.ranges[row]
-        taken = (
-            set() if operating is None else {(d.first_beam, d.last_beam) for d in operating[row].detections}
-        )
-        for d in res.detections:
-            idx = np.arange(d.first_beam, d.first_beam + ((d.last_beam - d.first_beam) % n) + 1) % n
-            rr = r[idx].astype(np.float64)
-            ok = rr < scan.range_max
-            p = np.c_[rr[ok] * np.cos(ang[idx][ok]), rr[ok] * np.sin(ang[idx][ok])]
-            pts.append(p)
-            own.append(np.full(p.shape[0], k))
-            ob.append(row)
-            xy.append((d.x, d.y))
-            sc.append(d.score)
-            acc.append((d.first_beam, d.last_beam) in taken)
-            k += 1
-    accepted = None if operating is None else np.array(acc, bool)
-    if not k:
-        empty = np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros(0), np.zeros((0, 2)), np.zeros(0, np.int64)
-        return (*empty, None if operating is None else np.zeros(0, bool))
-    return np.array(ob), np.array(xy), np.array(sc), np.concatenate(pts), np.concatenate(own), accepted
+    dets = [(row, d) for row, res in enumerate(results) for d in res.detections]
+    ob = np.array([row for row, _ in dets], np.int64)
+    xy = np.array([(d.x, d.y) for _, d in dets], np.float64).reshape(-1, 2)
+    sc = np.array([d.score for _, d in dets], np.float64)
+    first = np.array([d.first_beam for _, d in dets], np.int64)
+    last = np.array([d.last_beam for _, d in dets], np.int64)
+    pts, own = segment_points(scan.ranges, scan.angles, ob, first, last, scan.range_max)
+    if operating is None:
+        return ob, xy, sc, pts, own, None
+    taken = {(row, d.first_beam, d.last_beam) for row, res in enumerate(operating) for d in res.detections}
+    accepted = np.array([(row, d.first_beam, d.last_beam) in taken for row, d in dets], bool)
+    return ob, xy, sc, pts, own, accepted
 
 
 def _fp_bin(xy, kin_xy, ob_xy, kin_age, ob_age, frame) -> tuple[int, float]:

@@ -156,21 +156,17 @@ class SingleRobotEnv(gym.Env):
     def _track(self, scan: Scan, dets, odom_delta: np.ndarray) -> None:
         """Advance the tracker with this frame's detections (all accepted: the detector's operating
         point), their segments' scan points and the learner's odometry increment."""
+        from detectors.tracking import segment_points
+
         row, cols = dets if dets is not None else (np.zeros(0, np.int64), None)
-        n = scan.ranges.shape[1]
-        r = scan.ranges[0].astype(np.float64)
-        xy, pts, own = np.zeros((0, 2)), [np.zeros((0, 2))], [np.zeros(0, np.int64)]
+        xy, pts, own = np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0, np.int64)
         if row.size:
             xy = np.c_[cols["x"], cols["y"]]
-            for k, (a, b) in enumerate(zip(cols["first_beam"], cols["last_beam"], strict=True)):
-                idx = np.arange(a, a + (b - a) % n + 1) % n
-                ok = r[idx] < scan.range_max
-                pts.append(np.c_[r[idx][ok] * np.cos(scan.angles[idx][ok]),
-                                 r[idx][ok] * np.sin(scan.angles[idx][ok])])  # fmt: skip
-                own.append(np.full(int(ok.sum()), k))
+            first, last = cols["first_beam"], cols["last_beam"]
+            pts, own = segment_points(scan.ranges[:1], scan.angles, row, first, last, scan.range_max)
         scores = np.zeros(0) if not row.size else cols["score"]
         self.tracker.update_batch(np.zeros(row.size, np.int64), xy, scores, odom_delta[None, :],
-                                  self.world.config.control_dt, np.concatenate(pts), np.concatenate(own),
+                                  self.world.config.control_dt, pts, own,
                                   accepted=np.ones(row.size, bool))  # fmt: skip
 
     def _track_rows(self):

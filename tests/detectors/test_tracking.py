@@ -256,3 +256,23 @@ def test_bad_input():
         TrackerParams(p_detect=1.5)
     with pytest.raises(ValueError, match="unknown key"):
         TrackerParams.from_dict({"bogus": 1})
+
+
+def test_segment_points_match_a_per_segment_loop():
+    from detectors.tracking import segment_points
+
+    rng = np.random.default_rng(5)
+    ranges = rng.uniform(0.2, 3.0, (3, 360))
+    ranges[0, 5] = 0.0
+    ranges[1, 359] = np.inf
+    ranges[2, 10] = 12.0
+    angles = np.deg2rad(-np.arange(360.0))
+    rows, first, last = np.array([0, 1, 2, 2]), np.array([3, 355, 8, 100]), np.array([7, 2, 12, 100])
+    pts, own = segment_points(ranges, angles, rows, first, last, range_max=12.0)
+    for k, (row, a, b) in enumerate(zip(rows, first, last, strict=True)):
+        idx = np.arange(a, a + (b - a) % 360 + 1) % 360
+        r = ranges[row, idx]
+        ok = np.isfinite(r) & (r > 0) & (r < 12.0)
+        ref = np.c_[r[ok] * np.cos(angles[idx][ok]), r[ok] * np.sin(angles[idx][ok])]
+        np.testing.assert_allclose(pts[own == k], ref)
+    assert (own == 0).sum() == 4 and (own == 1).sum() == 7 and (own == 2).sum() == 4  # 0.0, inf, 12 dropped
