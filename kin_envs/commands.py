@@ -198,10 +198,12 @@ def record(args: argparse.Namespace) -> int:
     from kin_envs.ros import record_episode
 
     kwargs = parse_json_object(args.env_kwargs, "--env-kwargs") or {}
-    if args.env in ("aggregation_v0", "kin_envs.aggregation_v0"):
-        from kin_envs import aggregation_v0
+    from kin_envs import aggregation_v0, aggregation_v1
 
-        env = aggregation_v0.parallel_env(**kwargs)
+    swarms = {"aggregation_v1": aggregation_v1, "aggregation_v0": aggregation_v0}
+    swarm = swarms.get(args.env.removeprefix("kin_envs."))
+    if swarm is not None:
+        env = swarm.parallel_env(**kwargs)
     else:
         import gymnasium as gym
 
@@ -298,7 +300,9 @@ def build_parser() -> argparse.ArgumentParser:
     r = sub.add_parser("record", help="record one simulated episode to a ROS bag")
     r.add_argument("out", help="bag to create: a ROS 2 bag directory, or OUT.bag for ROS 1")
     r.add_argument(
-        "--env", default="kin_envs/KinSeek-v0", help="Gymnasium id, or aggregation_v0 (PettingZoo)"
+        "--env",
+        default="kin_envs/KinSeek-v1",
+        help="Gymnasium id, or aggregation_v1 / aggregation_v0 (PettingZoo)",
     )
     r.add_argument("--env-kwargs", default=None, help="env keyword arguments: a JSON object or a JSON file")
     r.add_argument(

@@ -26,7 +26,7 @@ def swarm_bag(tmp_path_factory):
         "record",
         str(bag),
         "--env",
-        "aggregation_v0",
+        "aggregation_v1",
         "--env-kwargs",
         '{"n_robots": 3, "arena_size": 2.0}',
     ]
@@ -45,7 +45,7 @@ def test_entry_point_is_declared():
 
 def test_record_writes_the_bag_and_its_run_record(swarm_bag):
     run = json.loads(Path(str(swarm_bag) + ".run.json").read_text())
-    assert run["env"] == "aggregation_v0" and run["seed"] == 1 and run["steps"] == 4
+    assert run["env"] == "aggregation_v1" and run["seed"] == 1 and run["steps"] == 4
     assert run["command"].startswith("kin-envs record")
     assert (swarm_bag / "metadata.yaml").is_file() and list(swarm_bag.glob("*.mcap"))
 
@@ -194,7 +194,7 @@ def test_detect_corrupt_and_missing_bags(tmp_path, capsys):
 
 
 def test_record_errors(tmp_path, capsys, swarm_bag):
-    assert main(["record", str(swarm_bag), "--env", "aggregation_v0", "--quiet"]) == 2
+    assert main(["record", str(swarm_bag), "--env", "aggregation_v1", "--quiet"]) == 2
     assert "already exists" in capsys.readouterr().err
     assert main(["record", str(tmp_path / "x"), "--env", "kin_envs/Nope-v0", "--quiet"]) == 2
     assert "--env 'kin_envs/Nope-v0'" in capsys.readouterr().err
