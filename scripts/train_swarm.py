@@ -35,6 +35,7 @@ if str(ROOT) not in sys.path:  # run as a file: make agents / kin_envs importabl
     sys.path.insert(0, str(ROOT))
 
 from agents.hyperparams import hyperparams_for  # noqa: E402
+from agents.sb3 import atomic_checkpoints  # noqa: E402
 from detectors.fileio import atomic_write  # noqa: E402
 from kin_envs import aggregation_v1  # noqa: E402
 from kin_envs.cli import add_logging_args, parse_json_object, setup_logging, write_run_info  # noqa: E402
@@ -150,7 +151,7 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     cfg.make_env().close()  # validate the env kwargs before anything heavy
 
     import torch
-    from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback
+    from stable_baselines3.common.callbacks import BaseCallback
 
     from kin_envs.cli import progress as tqdm
 
@@ -182,8 +183,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
 
     callbacks = [TqdmCallback()]
     if cfg.checkpoint_freq > 0:
-        callbacks.append(CheckpointCallback(save_freq=max(cfg.checkpoint_freq // venv.num_envs, 1),
-                                            save_path=str(out / "checkpoints"), name_prefix="model"))
+        every = max(cfg.checkpoint_freq // venv.num_envs, 1)  # calls: one per step of all robots
+        callbacks.append(atomic_checkpoints(every, out / "checkpoints"))
     t0 = time.perf_counter()
     model.learn(total_timesteps=cfg.total_timesteps, callback=callbacks, tb_log_name="ppo")
     elapsed = time.perf_counter() - t0

@@ -45,6 +45,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:  # run as a file: make kin_envs importable from the checkout
     sys.path.insert(0, str(ROOT))
 
+from detectors.fileio import LiveLog  # noqa: E402
 from kin_envs import aggregation_v1  # noqa: E402
 from kin_envs.cli import add_logging_args, script_logger, setup_logging, write_run_info  # noqa: E402
 from kin_envs.cli import progress as tqdm  # noqa: E402
@@ -218,15 +219,14 @@ def main(argv=None) -> dict:
         register_env(ENV_NAME, make_env)
         config = build_config(args)
         algo = config.build_algo()
+        metrics = LiveLog(out / "metrics.jsonl")  # flushed per line; whole lines only, even after Ctrl-C
         try:
-            metrics = (out / "metrics.jsonl").open("w")
             bar = tqdm(range(1, args.iterations + 1), desc="iterations", unit="it", disable=args.no_progress)
             for it in bar:
                 t_it = time.perf_counter()
                 row = _iteration_row(it, algo.train(), time.perf_counter() - t_it)
                 rows.append(row)
                 metrics.write(json.dumps(row) + "\n")
-                metrics.flush()
                 ret = row["episode_return_mean"]
                 bar.set_postfix(env_steps=row["env_steps"], ret="–" if ret is None else f"{ret:.2f}")
                 if args.checkpoint_every and it % args.checkpoint_every == 0 and it < args.iterations:
@@ -234,6 +234,7 @@ def main(argv=None) -> dict:
             metrics.close()
             checkpoint = Path(algo.save_to_path(str((out / "checkpoint").resolve())))
         finally:
+            metrics.close()
             algo.stop()  # ends the env-runner actors before Ray shuts down
             with contextlib.suppress(OSError):  # the empty ~/ray_results/<time> every Algorithm makes
                 Path(algo.logdir).rmdir()

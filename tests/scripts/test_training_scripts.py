@@ -47,6 +47,7 @@ def test_train_single_outputs(trained):
     for f in ("model.zip", "best/best_model.zip", "eval/evaluations.npz", "run.json"):
         assert (single / f).is_file(), f
     assert list((single / "checkpoints").glob("*.zip"))
+    assert sorted(q.name for q in (single / "eval").iterdir()) == ["evaluations.npz"]  # no scratch copy left
     assert list((single / "monitor").glob("*.monitor.csv"))
     assert any((single / "tb").rglob("events.out.tfevents*"))
     r = json.loads((single / "run.json").read_text())
