@@ -35,8 +35,7 @@ from kin_envs.detection.benchmark import (
     _sample,
     _table,
 )
-from kin_envs.detection.seeds import check_training_seeds
-from kin_envs.detection.swarm_scenes import check_training_seeds as check_training_range
+from kin_envs.detection.seeds import TRAINING_SEEDS, check_training_seeds
 
 GRID = np.round(np.arange(0.10, 0.91, 0.01), 2)
 LEVELS = (0.0, 0.005, 0.01, 0.02)
@@ -105,8 +104,7 @@ def main(argv=None) -> dict:
             raise ValueError(f"--scenes must be >= 1, got {args.scenes}")
         if len(edges) < 2 or any(b <= a for a, b in zip(edges, edges[1:], strict=False)) or edges[0] < 0:
             raise ValueError(f"--bins must be >= 2 increasing distances >= 0, got {edges}")
-        check_training_seeds(seeds, "--first-seed/--scenes")
-        check_training_range([seeds[0], seeds[-1]])
+        check_training_seeds(seeds, "--first-seed/--scenes", within=TRAINING_SEEDS)
     except ValueError as e:
         ap.error(str(e))
     import detectors

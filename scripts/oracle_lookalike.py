@@ -32,8 +32,7 @@ from kin_envs.core.lidar import HitKind
 from kin_envs.detection.benchmark import GATE, SPLITS, Condition, _frames, _sample
 from kin_envs.detection.evaluation import describe_hits, segment_beams
 from kin_envs.detection.oracle import best_f1, scan_objects_llr
-from kin_envs.detection.seeds import check_training_seeds
-from kin_envs.detection.swarm_scenes import check_training_seeds as check_training_range
+from kin_envs.detection.seeds import TRAINING_SEEDS, check_training_seeds
 
 _KIND = {"kin": HitKind.ROBOT, "prism": HitKind.PRISM, "box": HitKind.BOX, "cylinder": HitKind.CYLINDER}
 
@@ -84,8 +83,7 @@ def main(argv=None) -> dict:
             raise ValueError(f"--scenes and --starts must be >= 1, got {args.scenes}, {args.starts}")
         if not 0 <= args.distance[0] < args.distance[1]:
             raise ValueError(f"--distance must be 0 <= LO < HI, got {args.distance}")
-        check_training_seeds(seeds, "--first-seed/--scenes")
-        check_training_range([seeds[0], seeds[-1]])
+        check_training_seeds(seeds, "--first-seed/--scenes", within=TRAINING_SEEDS)
         check_output_dir(args.out)
     except ValueError as e:
         ap.error(str(e))

@@ -90,7 +90,8 @@ def test_train_classifier_several_datasets_and_easy_share(dataset, tmp_path):
     assert 0 < n_train < total - side["split"]["val_segments"]  # some easy negatives were dropped
     out = run("train_classifier.py", "--data", dataset, dataset, "--out", tmp_path / "t2", check=False)
     assert out.returncode != 0 and "overlap" in out.stderr
-    out = run("train_classifier.py", "--data", dataset, "--out", tmp_path / "t3", "--keep-easy", 0, check=False)
+    out = run("train_classifier.py", "--data", dataset, "--out", tmp_path / "t3", "--keep-easy", 0,
+              check=False)  # fmt: skip
     assert out.returncode == 2 and "--keep-easy" in out.stderr
 
 
