@@ -20,6 +20,7 @@ def test_recalibrated_copy_keeps_the_weights(tmp_path):
         0.5 * (th["values"][0] + th["values"][2])
     )
     assert set(th["info"]["per_level"]) == {"0.0", "0.005", "0.01", "0.02"}
+    assert th["values"][0] <= th["values"][2]  # the noise-free threshold never above the 0.5 % one
     new, old = LearnedKinDetector(out, reports=False), LearnedKinDetector(reports=False)
     assert new.checkpoint["thresholds"]["values"] == th["values"]  # loaded from the checkpoint
     scan = World(scenes.paper_scenario(2, distance=0.8), seed=0).scan()
