@@ -261,12 +261,15 @@ class SegmentFeatures:
             (``v`` axis = ``u`` rotated by ``s * 90 deg``). See :func:`local_to_observer`.
         fit_centre: ``(S, 2)`` known-radius circle-fit centre, observer frame ``x, y``, m.
         min_beam: ``(S,)`` beam index of ``min(d_i)``.
+        scan_x: ``(B, 2)`` float32 the per-scan features ``log_scan_noise``, ``log_scan_noise_n`` of
+            each scan (the values in its segments' rows of ``x``); ``None`` for an empty batch.
     """
 
     x: np.ndarray
     frames: np.ndarray
     fit_centre: np.ndarray
     min_beam: np.ndarray
+    scan_x: np.ndarray | None = None
 
 
 def local_to_observer(frames: np.ndarray, uv: np.ndarray) -> np.ndarray:
@@ -320,12 +323,15 @@ def _features_kernel(
     gn_iters,
     scan_noise,
     noise_n,
+    which,
     x,
     frames,
     fit_centre,
     min_beam,
+    scan_cols,
 ):
-    """One pass over the segments; writes row ``i`` of every output for segment ``i``.
+    """One pass over the segments ``which``: row ``o`` of every output for segment ``which[o]``,
+    and each scan's two noise features into ``scan_cols`` (B, 2).
 
     Points are gathered into scratch buffers, then every feature is a short loop over them: with
     ~3-10 points per segment this is ~50x faster than the equivalent flat numpy expressions
@@ -339,7 +345,12 @@ def _features_kernel(
     pe = np.empty(n_beams)
     two_pi = 2.0 * math.pi
     kp = n_points
-    for i in range(scan.shape[0]):
+    # the per-scan features once per scan, not once per segment (the same expressions: same bits)
+    for b in range(scan_noise.shape[0]):
+        scan_cols[b, 0] = math.log(scan_noise[b] + 1e-4)
+        scan_cols[b, 1] = math.log1p(float(noise_n[b]))
+    for o in range(which.shape[0]):
+        i = which[o]
         n = count[i]
         f = first[i]
         row = scan[i] * n_beams
@@ -349,7 +360,9 @@ def _features_kernel(
         sd = 0.0
         kmin = 0
         for k in range(n):
-            b = (f + k) % n_beams
+            b = f + k  # < 2 n_beams: a compare instead of an integer division
+            if b >= n_beams:
+                b -= n_beams
             dk = d_flat[row + b]
             pd[k] = dk
             px[k] = dk * cos_a[b]
@@ -373,18 +386,18 @@ def _features_kernel(
             pv[k] = sweep * (-dx * sphi + dy * cphi)
             umin = min(umin, pu[k])
             umax = max(umax, pu[k])
-        frames[i, 0] = ox
-        frames[i, 1] = oy
-        frames[i, 2] = phi
-        frames[i, 3] = sweep
+        frames[o, 0] = ox
+        frames[o, 1] = oy
+        frames[o, 2] = phi
+        frames[o, 3] = sweep
         # shape: resampled along the beam order
         for j in range(kp):
             t = j * (n - 1) / (kp - 1)
             lo = min(int(math.floor(t)), n - 1)
             hi = min(lo + 1, n - 1)
             w = t - lo
-            x[i, j] = min(max(pu[lo] * (1.0 - w) + pu[hi] * w, -_PT_CLIP), _PT_CLIP)
-            x[i, kp + j] = min(max(pv[lo] * (1.0 - w) + pv[hi] * w, -_PT_CLIP), _PT_CLIP)
+            x[o, j] = min(max(pu[lo] * (1.0 - w) + pu[hi] * w, -_PT_CLIP), _PT_CLIP)
+            x[o, kp + j] = min(max(pv[lo] * (1.0 - w) + pv[hi] * w, -_PT_CLIP), _PT_CLIP)
         col = 2 * kp
         # context beams
         last = f + n - 1
@@ -404,11 +417,11 @@ def _features_kernel(
                     dc = d_flat[row + idx]
                     if dc < d_max:
                         val = min(max(dc - d_edge, -_CTX_CLIP), _CTX_CLIP)
-                x[i, col] = val
+                x[o, col] = val
                 col += 1
         # eqs. 2-5 (detectors.geometric.filter_by_diameter)
         bmin = (f + kmin) % n_beams
-        min_beam[i] = bmin
+        min_beam[o] = bmin
         d_min = pd[kmin]
         d_cest = d_min + r
         a_m = ang[bmin]
@@ -474,8 +487,8 @@ def _features_kernel(
             e = abs(pe[k])
             F_sum += e
             e_max = max(e_max, e)
-        fit_centre[i, 0] = cx
-        fit_centre[i, 1] = cy
+        fit_centre[o, 0] = cx
+        fit_centre[o, 1] = cy
         fdx = cx - ox
         fdy = cy - oy
         fit_u = fdx * cphi + fdy * sphi
@@ -532,11 +545,11 @@ def _features_kernel(
             curv,
             1.0 if kasa_ok else 0.0,
             _log_err(line_rms),
-            math.log(scan_noise[scan[i]] + 1e-4),
-            math.log1p(float(noise_n[scan[i]])),
+            scan_cols[scan[i], 0],
+            scan_cols[scan[i], 1],
         )
         for val in g:
-            x[i, col] = val
+            x[o, col] = val
             col += 1
         # signed residual profile of the fit, resampled like the points (0 without a fit)
         for j in range(kp):
@@ -545,7 +558,7 @@ def _features_kernel(
             hi = min(lo + 1, n - 1)
             w = t - lo
             e = pe[lo] * (1.0 - w) + pe[hi] * w if fit_ok else 0.0
-            x[i, col + j] = min(max(e, -_RES_CLIP), _RES_CLIP)
+            x[o, col + j] = min(max(e, -_RES_CLIP), _RES_CLIP)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -598,17 +611,34 @@ def scan_noise(batch: SegmentBatch, config: FeatureConfig | None = None) -> tupl
     return out, count
 
 
-def segment_features(batch: SegmentBatch, config: FeatureConfig | None = None) -> SegmentFeatures:
-    """The feature vectors of every segment in ``batch`` (see the module docstring)."""
+def segment_features(
+    batch: SegmentBatch, config: FeatureConfig | None = None, which: np.ndarray | None = None
+) -> SegmentFeatures:
+    """The feature vectors of every segment in ``batch`` (see the module docstring), or of the
+    segments ``which`` (int indices), row ``o`` for segment ``which[o]``: each row is the same as
+    without ``which`` (every segment's features are its own; only the scan noise is per scan)."""
     c = config or FeatureConfig()
-    n_seg = batch.n_segments
+    if which is None:
+        which = np.arange(batch.n_segments, dtype=np.int64)
+    else:
+        which = np.asarray(which)
+        if which.ndim != 1 or which.dtype.kind not in "iu" or (
+            which.size and (which.min() < 0 or which.max() >= batch.n_segments)
+        ):
+            raise ValueError(
+                f"segment_features: which must be a 1-D array of segment indices in [0, "
+                f"{batch.n_segments}), got {which!r}"
+            )
+        which = which.astype(np.int64, copy=False)
+    n_seg = which.shape[0]
     n_feat = len(_feature_names(c))
     x = np.empty((n_seg, n_feat), dtype=np.float32)
     frames = np.empty((n_seg, 4))
     fit_centre = np.empty((n_seg, 2))
     min_beam = np.empty(n_seg, dtype=np.int64)
-    if n_seg == 0:
-        return SegmentFeatures(x, frames, fit_centre, min_beam)
+    scan_cols = np.empty((batch.ranges.shape[0], 2))
+    if batch.n_segments == 0:
+        return SegmentFeatures(x, frames, fit_centre, min_beam, None)
     ang = np.ascontiguousarray(batch.angles, dtype=np.float64)
     n_beams = ang.shape[0]
     sweep = 1.0 if wrap_angle(float(ang[1] - ang[0])) > 0 else -1.0
@@ -634,9 +664,13 @@ def segment_features(batch: SegmentBatch, config: FeatureConfig | None = None) -
         c.n_context,
         c.gn_iters,
         *scan_noise(batch, c),
+        which,
         x,
         frames,
         fit_centre,
         min_beam,
+        scan_cols,
     )
-    return SegmentFeatures(x=x, frames=frames, fit_centre=fit_centre, min_beam=min_beam)
+    return SegmentFeatures(
+        x=x, frames=frames, fit_centre=fit_centre, min_beam=min_beam, scan_x=scan_cols.astype(np.float32)
+    )

@@ -79,6 +79,12 @@ DEFAULT_CHECKPOINT = Path(__file__).resolve().parent / "checkpoints" / "learned_
 POSITIONING = ("regression", "fit")
 INFERENCE = ("torch", "numba")
 _CHUNK = 4096  # segments per forward chunk
+#: Pre-gate bounds (``LearnedKinDetector(pre_gate=True)``): a segment is dropped before the network
+#: when it has more beams than a housing can return, computed with the housing's centre at
+#: ``PRE_GATE_SLACK * min(d_i)`` (readings up to 25 % too long: 12 sigma of 2 % noise) plus
+#: ``PRE_GATE_MARGIN`` beams.
+PRE_GATE_SLACK = 0.8
+PRE_GATE_MARGIN = 2
 
 
 # --------------------------------------------------------------------------- model
@@ -392,6 +398,16 @@ class LearnedKinDetector(KinDetector):
             inside each call, the caller's torch setting restored afterwards) or ``"numba"`` (the
             exported weights in a compiled float32 kernel; CPU only).
         torch_threads: torch intra-op threads during inference (``"torch"``).
+        pre_gate: drop segments that cannot be a housing from their geometry alone before the
+            features and the network (default True): a segment with more beams than a circle of
+            radius ``r`` (7 cm wide) returns at its range, computed generously (the centre at
+            :data:`PRE_GATE_SLACK` ``* min(d_i)``, i.e. readings up to 25 % too long, plus
+            :data:`PRE_GATE_MARGIN` beams; :func:`detectors._kernels.housing_max_beams`). These
+            are walls and large obstacles (in a dense 64-robot arena ~9 % of the segments but half
+            of the beams); on training-seed scenes it drops no kin segment the network accepts
+            (README, "Learned detector speed"). Dropped segments get stage ``"diameter"``,
+            ``p_kin`` NaN and the bound in ``seg_values["max_beams"]``. With ``False`` the
+            outputs are those of every segment through the network.
 
     ``Detection.score`` is ``p(kin)`` (higher = more kin-like). Each :class:`SegmentReport` has
     stage ``"accepted"`` or ``"learned"`` (rejected by the classifier) and ``metrics["p_kin"]``.
@@ -411,7 +427,10 @@ class LearnedKinDetector(KinDetector):
         reports: bool = True,
         inference: str = "numba",
         torch_threads: int = 1,
+        pre_gate: bool = True,
     ) -> None:
+        if not isinstance(pre_gate, bool):
+            raise ValueError(f"LearnedKinDetector: pre_gate must be True or False, got {pre_gate!r}")
         if inference not in INFERENCE:
             raise ValueError(f"LearnedKinDetector: inference must be one of {INFERENCE}, got {inference!r}")
         if isinstance(torch_threads, bool) or not isinstance(torch_threads, int) or torch_threads < 1:
@@ -450,8 +469,10 @@ class LearnedKinDetector(KinDetector):
                     f"LearnedKinDetector: inference='numba' runs on the CPU, got device {device!r}"
                 )
             self._numba_weights = _export_weights(self.model)
+        self.pre_gate = pre_gate
         self._angles_key: np.ndarray | None = None
         self._circular = True
+        self._step = float(self.checkpoint["angular_resolution"])
 
     # -- input checks ---------------------------------------------------------------------------
     def _check(self, ranges, angles) -> tuple[np.ndarray, np.ndarray]:
@@ -469,6 +490,7 @@ class LearnedKinDetector(KinDetector):
                     "train one for this lidar (scripts/make_dataset.py, scripts/train_classifier.py)"
                 )
             self._circular = is_circular_sweep(a)
+            self._step = step
             self._angles_key = a.copy()
         bad = rb < 0.0  # NaN / +inf mean "no return" and are fine
         if bad.any():
@@ -486,22 +508,27 @@ class LearnedKinDetector(KinDetector):
         """Stages 1-4 for ``B`` scans without building results.
 
         Returns ``(batch, features, p_kin (S,), centres (S, 2))``: the segments of all scans, their
-        features, the kin probability of each segment and the kin centre each would have (observer
-        frame ``x, y``, m; with this detector's ``positioning``; regression for every segment,
-        circle fit only where ``p_kin >= threshold``, NaN elsewhere).
+        features (of every segment, pre-gated or not), the kin probability of each segment (NaN
+        where the pre-gate dropped it) and the kin centre each would have (observer frame ``x, y``,
+        m; with this detector's ``positioning``; regression for every segment that reached the
+        network, circle fit only where ``p_kin >= threshold``, NaN elsewhere).
         """
-        batch, feats, p, centres, _ = self._predict(ranges, angles)
+        batch, feats, p, centres, _, _ = self._predict(ranges, angles, all_features=True)
         return batch, feats, p, centres
 
     def segment_thresholds(self, feats: SegmentFeatures) -> np.ndarray:
         """``(S,)`` the ``p(kin)`` threshold of each segment: ``threshold``, or the checkpoint's for
         the noise level its scan's noise estimate falls in."""
-        n = feats.x.shape[0]
+        return self._thresholds(feats.x[:, self._noise_col])
+
+    def _thresholds(self, log_noise: np.ndarray) -> np.ndarray:
+        """Thresholds for float32 ``log_scan_noise`` feature values."""
+        n = log_noise.shape[0]
         if self.threshold is not None:
             return np.full(n, self.threshold)
         if self._noise_edges.size == 0:
             return np.full(n, float(self._noise_thresholds[0]))
-        sigma = np.exp(feats.x[:, self._noise_col].astype(np.float64)) - 1e-4
+        sigma = np.exp(log_noise.astype(np.float64)) - 1e-4
         return self._noise_thresholds[np.searchsorted(self._noise_edges, sigma, side="right")]
 
     def _forward(self, x: np.ndarray) -> np.ndarray:
@@ -515,27 +542,60 @@ class LearnedKinDetector(KinDetector):
             # row chunks keep the activations in cache (2x faster than one 26k-row chain)
             return torch.cat([self.model(c) for c in xt.split(_CHUNK)]).cpu().numpy().astype(np.float64)
 
-    def _predict(self, ranges, angles, all_centres: bool = True):
+    def gate(self, batch: SegmentBatch) -> np.ndarray:
+        """``(S,)`` the pre-gate's bound: the most beams a housing can return at each segment's range
+        (see ``pre_gate``); segments with more are dropped."""
+        out = np.empty(batch.n_segments)
+        _k.housing_max_beams(
+            batch.ranges, batch.scan, batch.first, batch.count, self._step, float(self.feature_config.r),
+            PRE_GATE_SLACK, float(PRE_GATE_MARGIN), out,
+        )  # fmt: skip
+        return out
+
+    def _predict(self, ranges, angles, all_centres: bool = True, all_features: bool = False):
+        """``(batch, feats, p, centres, thr, max_beams)``; ``feats`` holds the rows of the segments
+        that reached the network unless ``all_features``; ``max_beams`` is None without pre-gate."""
         rb, a = self._check(ranges, angles)
         batch = segment_batch(rb, a, self.feature_config, circular=self._circular)
-        feats = segment_features(batch, self.feature_config)
-        if batch.n_segments == 0:
-            return batch, feats, np.zeros(0), np.zeros((0, 2)), np.zeros(0)
-        out = self._forward(feats.x)
-        p = 1.0 / (1.0 + np.exp(-out[:, 0]))
-        thr = self.segment_thresholds(feats)
-        acc = p >= thr
+        n_seg = batch.n_segments
+        if n_seg == 0:
+            feats = segment_features(batch, self.feature_config)
+            return batch, feats, np.zeros(0), np.zeros((0, 2)), np.zeros(0), None
+        max_beams = rows = None
+        if self.pre_gate:
+            max_beams = self.gate(batch)
+            rows = np.flatnonzero(batch.count <= max_beams)
+        feats = segment_features(batch, self.feature_config, None if all_features else rows)
+        x, frames = feats.x, feats.frames
+        if rows is not None and all_features:
+            x, frames = x[rows], frames[rows]
+        # every scan's threshold once (the same float32 feature value as in its segments' rows)
+        thr = self._thresholds(feats.scan_x[:, 0])[batch.scan]
+        out = self._forward(x)
+        p_rows = 1.0 / (1.0 + np.exp(-out[:, 0]))
+        if rows is None:
+            p = p_rows
+            acc_rows = p >= thr
+        else:
+            p = np.full(n_seg, np.nan)
+            p[rows] = p_rows
+            acc_rows = p_rows >= thr[rows]
         if self.positioning == "regression":
             nrm = self.checkpoint["normalisation"]
             uv = np.asarray(nrm["t_mean"]) + np.asarray(nrm["t_std"]) * out[:, 1:3]
             if all_centres:
-                centres = local_to_observer(feats.frames, uv)
+                if rows is None:
+                    centres = local_to_observer(frames, uv)
+                else:
+                    centres = np.full((n_seg, 2), np.nan)
+                    centres[rows] = local_to_observer(frames, uv)
             else:  # only the accepted segments' centres are used: NaN elsewhere
-                centres = np.full((batch.n_segments, 2), np.nan)
-                centres[acc] = local_to_observer(feats.frames[acc], uv[acc])
+                centres = np.full((n_seg, 2), np.nan)
+                sel = np.flatnonzero(acc_rows)
+                centres[sel if rows is None else rows[sel]] = local_to_observer(frames[sel], uv[sel])
         else:
-            centres = self._fit_centres(batch, acc)
-        return batch, feats, p, centres, thr
+            centres = self._fit_centres(batch, p >= thr)
+        return batch, feats, p, centres, thr, max_beams
 
     def _fit_centres(self, batch: SegmentBatch, which: np.ndarray) -> np.ndarray:
         """Geometric stage 4 for the segments ``which``: LM circle fit from eq. 7, else NaN.
@@ -566,7 +626,7 @@ class LearnedKinDetector(KinDetector):
         are no return; a negative range raises ``ValueError`` naming its scan row and beam.
         ``seg_values`` holds ``p_kin`` and ``threshold`` for every segment.
         """
-        batch, _, p, centres, thr = self._predict(ranges, angles, all_centres=False)
+        batch, _, p, centres, thr, max_beams = self._predict(ranges, angles, all_centres=False)
         acc = p >= thr
         idx = np.flatnonzero(acc)
         xs, ys = centres[idx, 0], centres[idx, 1]
@@ -592,9 +652,19 @@ class LearnedKinDetector(KinDetector):
             seg_next=batch.next_beam,
             seg_prev_nearer=batch.prev_nearer,
             seg_next_nearer=batch.next_nearer,
-            seg_stage=np.where(acc, _k.ACCEPTED, _k.LEARNED).astype(np.int8),
-            seg_values={"p_kin": p, "threshold": np.asarray(thr, dtype=np.float64)},
+            seg_stage=self._stages(acc, p),
+            seg_values=(
+                {"p_kin": p, "threshold": np.asarray(thr, dtype=np.float64)}
+                if max_beams is None
+                else {"p_kin": p, "threshold": np.asarray(thr, dtype=np.float64), "max_beams": max_beams}
+            ),
         )
+
+    def _stages(self, acc: np.ndarray, p: np.ndarray) -> np.ndarray:
+        stage = np.where(acc, _k.ACCEPTED, _k.LEARNED).astype(np.int8)
+        if self.pre_gate:
+            stage[np.isnan(p)] = _k.DIAMETER
+        return stage
 
     def results(self, arrays: BatchDetections, reports: bool | None = None) -> list[DetectionResult]:
         """:class:`DetectionResult` per scan of ``arrays`` (from :meth:`detect_arrays`), with
@@ -608,25 +678,39 @@ class LearnedKinDetector(KinDetector):
         return [DetectionResult.lazy(ds, build, b) for b, ds in enumerate(dets)]
 
     def segment_reports(self, arrays: BatchDetections) -> list[list[SegmentReport]]:
-        """The :class:`SegmentReport` of every segment of ``arrays``, per scan (stage ``"accepted"``
-        or ``"learned"``, ``metrics`` ``p_kin`` and ``threshold``)."""
+        """The :class:`SegmentReport` of every segment of ``arrays``, per scan (stage ``"accepted"``,
+        ``"learned"`` (rejected by the classifier) or ``"diameter"`` (dropped by the pre-gate),
+        ``metrics`` ``p_kin`` and ``threshold``, plus ``max_beams`` with the pre-gate)."""
         with _gc_paused():
             p, thr = arrays.seg_values["p_kin"], arrays.seg_values["threshold"]
-            accl = (arrays.seg_stage == _k.ACCEPTED).tolist()
-            # the numbers are in metrics["p_kin"]; two shared reason strings keep ~100 reports per
+            gate = arrays.seg_values.get("max_beams")
+            stl = arrays.seg_stage.tolist()
+            # the numbers are in metrics["p_kin"]; shared reason strings keep ~100 reports per
             # cluttered scan cheap
             why = {
-                t: (f"p(kin) < threshold {t:g}", f"p(kin) >= threshold {t:g}")
+                t: {
+                    _k.LEARNED: f"p(kin) < threshold {t:g}",
+                    _k.ACCEPTED: f"p(kin) >= threshold {t:g}",
+                    _k.DIAMETER: f"pre-gate: more beams than a {2 * self.feature_config.r:g} m housing "
+                    "returns at this range",
+                }
                 for t in np.unique(thr).tolist()
             }
             tl = thr.tolist()
+            if gate is None:
+                metrics = [{"p_kin": v, "threshold": t} for v, t in zip(p.tolist(), tl, strict=True)]
+            else:
+                metrics = [
+                    {"p_kin": v, "threshold": t, "max_beams": m}
+                    for v, t, m in zip(p.tolist(), tl, gate.tolist(), strict=True)
+                ]
             reps = list(
                 map(
                     SegmentReport,
                     arrays.segments(),
-                    [STAGES[_k.ACCEPTED] if a else STAGES[_k.LEARNED] for a in accl],
-                    [why[t][a] for t, a in zip(tl, accl, strict=True)],
-                    [{"p_kin": v, "threshold": t} for v, t in zip(p.tolist(), tl, strict=True)],
+                    [STAGES[st] for st in stl],
+                    [why[t][st] for t, st in zip(tl, stl, strict=True)],
+                    metrics,
                 )
             )
             bounds = np.searchsorted(arrays.seg_scan, np.arange(arrays.n_scans + 1)).tolist()

@@ -219,14 +219,26 @@ def torch_mod():
 
 @pytest.mark.parametrize("inference", ["torch", "numba"])
 @pytest.mark.parametrize("positioning", ["regression", "fit"])
-def test_learned_matches_the_previous_implementation(torch_mod, inference, positioning):
+@pytest.mark.parametrize("pre_gate", [False, True])
+def test_learned_matches_the_previous_implementation(torch_mod, inference, positioning, pre_gate):
     from detectors.learned import LearnedKinDetector
     from tests.detectors.reference_detectors import reference_learned_predict
 
-    det = LearnedKinDetector(inference=inference, positioning=positioning)
+    det = LearnedKinDetector(inference=inference, positioning=positioning, pre_gate=pre_gate)
+    n_gated = 0
     for _, ranges, angles in SCANS[::2] + SCANS[-2:]:
         arr = det.detect_arrays(ranges, angles)
         batch, p, centres, thr = reference_learned_predict(det, ranges, angles)
+        gated = np.isnan(arr.seg_values["p_kin"])
+        if pre_gate:
+            # the pre-gate drops only segments the network rejects, with the "diameter" stage
+            assert (p[gated] < thr[gated]).all()
+            np.testing.assert_array_equal(arr.seg_stage[gated], 1)
+            np.testing.assert_array_equal(gated, batch.count > arr.seg_values["max_beams"])
+            n_gated += int(gated.sum())
+            p = np.where(gated, np.nan, p)
+        else:
+            assert "max_beams" not in arr.seg_values
         np.testing.assert_array_equal(arr.seg_scan, batch.scan)
         np.testing.assert_array_equal(arr.seg_first, batch.first)
         np.testing.assert_array_equal(arr.seg_count, batch.count)
@@ -242,6 +254,7 @@ def test_learned_matches_the_previous_implementation(torch_mod, inference, posit
         sel = ~near[arr.segment]
         np.testing.assert_allclose(arr.x[sel], centres[acc, 0], atol=1e-6)
         np.testing.assert_allclose(arr.y[sel], centres[acc, 1], atol=1e-6)
+    assert (n_gated > 0) == pre_gate
 
 
 def test_learned_inference_leaves_the_callers_torch_threads_alone(torch_mod):
