@@ -25,6 +25,7 @@ import gc
 import hashlib
 import json
 import math
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -77,8 +78,12 @@ CHECKPOINT_FORMAT_VERSION = 1
 #: The shipped model (trained by ``scripts/train_classifier.py``; see ``learned_default.json``).
 DEFAULT_CHECKPOINT = Path(__file__).resolve().parent / "checkpoints" / "learned_default.pt"
 POSITIONING = ("regression", "fit")
-INFERENCE = ("torch", "numba")
+INFERENCE = ("auto", "blas", "numba", "torch")
 _CHUNK = 4096  # segments per forward chunk
+_BLAS_CHUNK = 1024  # rows per BLAS chain: the activations stay in cache
+#: "auto" inference: fewer rows than this go through the compiled kernel (as fast there, and no
+#: thread-scoping cost per call: a single scan has ~10-150 segments), more through BLAS.
+_BLAS_MIN_ROWS = 256
 #: Pre-gate bounds (``LearnedKinDetector(pre_gate=True)``): a segment is dropped before the network
 #: when it has more beams than a housing can return, computed with the housing's centre at
 #: ``PRE_GATE_SLACK * min(d_i)`` (readings up to 25 % too long: 12 sigma of 2 % noise) plus
@@ -394,9 +399,13 @@ class LearnedKinDetector(KinDetector):
         positioning: ``"regression"`` or ``"fit"``; default: the checkpoint's choice.
         reports: build one :class:`SegmentReport` per segment in ``detect`` / ``detect_batch``
             (pass False when only detections are needed; ``reports`` is then empty).
-        inference: ``"torch"`` (default: the checkpoint's module, run on ``torch_threads`` threads
-            inside each call, the caller's torch setting restored afterwards) or ``"numba"`` (the
-            exported weights in a compiled float32 kernel; CPU only).
+        inference: ``"blas"`` (the exported float32 weights as numpy matrix products, BLAS on
+            one thread inside each call (threadpoolctl), the caller's setting restored afterwards),
+            ``"numba"`` (the exported weights in a compiled float32 kernel), ``"auto"`` (default:
+            ``"numba"`` below 256 segments per call, ``"blas"`` above, or ``"numba"`` throughout
+            without threadpoolctl; the two agree to float32 rounding, ~1e-6 in ``p(kin)``) or
+            ``"torch"`` (the checkpoint's module, run on ``torch_threads`` threads inside each call,
+            the caller's torch setting restored afterwards). Only ``"torch"`` runs on ``device``.
         torch_threads: torch intra-op threads during inference (``"torch"``).
         pre_gate: drop segments that cannot be a housing from their geometry alone before the
             features and the network (default True): a segment with more beams than a circle of
@@ -413,8 +422,9 @@ class LearnedKinDetector(KinDetector):
     stage ``"accepted"`` or ``"learned"`` (rejected by the classifier) and ``metrics["p_kin"]``.
     :meth:`detect_arrays` returns a :class:`~detectors.base.BatchDetections` of flat arrays
     (``seg_values``: ``p_kin``, ``threshold``); ``detect_batch`` / ``detect`` build objects from it.
-    The speed does not depend on the caller's torch settings: inference runs on
-    ``torch_threads`` (1) threads and restores the caller's count afterwards.
+    The speed does not depend on the caller's torch or BLAS thread settings: inference runs on one
+    BLAS thread (``"blas"``), in a compiled kernel (``"numba"``) or on ``torch_threads`` (1) torch
+    threads, and the caller's counts are restored afterwards.
     """
 
     def __init__(
@@ -425,7 +435,7 @@ class LearnedKinDetector(KinDetector):
         *,
         positioning: str | None = None,
         reports: bool = True,
-        inference: str = "numba",
+        inference: str = "auto",
         torch_threads: int = 1,
         pre_gate: bool = True,
     ) -> None:
@@ -463,12 +473,19 @@ class LearnedKinDetector(KinDetector):
         self.reports = bool(reports)
         self.inference = inference
         self.torch_threads = torch_threads
-        if inference == "numba":
+        if inference != "torch":
             if self.device.type != "cpu":
                 raise ValueError(
-                    f"LearnedKinDetector: inference='numba' runs on the CPU, got device {device!r}"
+                    f"LearnedKinDetector: inference={inference!r} runs on the CPU, got device {device!r}; "
+                    "use inference='torch'"
                 )
             self._numba_weights = _export_weights(self.model)
+            self._blas_weights = _export_blas_weights(self.model)
+            if inference == "blas" and _blas_controller() is None:
+                raise ImportError(
+                    "LearnedKinDetector: inference='blas' needs threadpoolctl (pip install threadpoolctl) "
+                    "to run BLAS on one thread; use inference='auto' or 'numba'"
+                )
         self.pre_gate = pre_gate
         self._angles_key: np.ndarray | None = None
         self._circular = True
@@ -533,7 +550,12 @@ class LearnedKinDetector(KinDetector):
 
     def _forward(self, x: np.ndarray) -> np.ndarray:
         """``(S, 3)`` float64 network outputs for ``(S, F)`` float32 features."""
-        if self.inference == "numba":
+        inf = self.inference
+        if inf == "auto":
+            inf = "blas" if x.shape[0] >= _BLAS_MIN_ROWS and _blas_controller() is not None else "numba"
+        if inf == "blas":
+            return _blas_forward(x, self._blas_weights)
+        if inf == "numba":
             out = np.empty((x.shape[0], 3), dtype=np.float32)
             _k.mlp_forward(np.ascontiguousarray(x), *self._numba_weights, out)
             return out.astype(np.float64)
@@ -747,6 +769,87 @@ def _export_weights(model: SegmentNet) -> tuple:
     mean = model.x_mean.detach().cpu().numpy().astype(np.float32)
     std = model.x_std.detach().cpu().numpy().astype(np.float32)
     return mean, std, weights, biases, sizes
+
+
+def _export_blas_weights(model: SegmentNet) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The network as float32 ``(W (in, out), b)`` per layer (head last) for :func:`_blas_forward`,
+    the input standardisation folded into the first layer (computed in float64)."""
+    linears = [m for m in model.body if isinstance(m, nn.Linear)] + [model.head]
+    f64 = lambda t: t.detach().cpu().numpy().astype(np.float64)  # noqa: E731
+    layers = [(f64(lin.weight).T, f64(lin.bias)) for lin in linears]
+    mean = model.x_mean.detach().cpu().numpy().astype(np.float64)
+    std = model.x_std.detach().cpu().numpy().astype(np.float64)
+    w0, b0 = layers[0]
+    layers[0] = (w0 / std[:, None], b0 - (mean / std) @ w0)
+    return [(np.ascontiguousarray(w, dtype=np.float32), b.astype(np.float32)) for w, b in layers]
+
+
+def _blas_forward(x: np.ndarray, layers) -> np.ndarray:
+    """``(S, 3)`` float64 outputs: float32 matrix products in row chunks, BLAS on one thread."""
+    out = np.empty((x.shape[0], layers[-1][0].shape[1]))
+    last = len(layers) - 1
+    with _one_blas_thread():
+        for s in range(0, x.shape[0], _BLAS_CHUNK):
+            h = x[s : s + _BLAS_CHUNK]
+            for i, (w, b) in enumerate(layers):
+                h = h @ w
+                h += b
+                if i < last:
+                    np.maximum(h, 0.0, out=h)
+            out[s : s + h.shape[0]] = h
+    return out
+
+
+_BLAS = {"libs": None, "loaded": False, "depth": 0, "saved": []}
+_BLAS_LOCK = threading.Lock()
+
+
+def _blas_controller():
+    """threadpoolctl's controllers of the loaded BLAS libraries (found once), or None without
+    threadpoolctl."""
+    if not _BLAS["loaded"]:
+        with _BLAS_LOCK:
+            if not _BLAS["loaded"]:
+                try:
+                    from threadpoolctl import ThreadpoolController
+                except ImportError:
+                    libs = None
+                else:
+                    libs = ThreadpoolController().select(user_api="blas").lib_controllers
+                _BLAS["libs"], _BLAS["loaded"] = libs, True
+    return _BLAS["libs"]
+
+
+@contextlib.contextmanager
+def _one_blas_thread():
+    """BLAS on one thread inside the block, the caller's thread counts restored afterwards.
+
+    Matrix products of a few thousand 64-wide rows gain nothing from a second thread, and on a
+    busy 2-core machine OpenBLAS's default of one thread per core made them ~8x slower (25 ms
+    instead of 3 for a 64-robot batch). Nested and concurrent calls (threads) share one limit,
+    set by the first to enter and restored by the last to leave. The library controllers are
+    called directly: ``ThreadpoolController.limit`` costs ~25 us a call, this ~2 us.
+    """
+    libs = _blas_controller()
+    with _BLAS_LOCK:
+        if _BLAS["depth"] == 0:
+            saved = []
+            for lib in libs:
+                n = lib.get_num_threads()
+                if n != 1:
+                    lib.set_num_threads(1)
+                    saved.append((lib, n))
+            _BLAS["saved"] = saved
+        _BLAS["depth"] += 1
+    try:
+        yield
+    finally:
+        with _BLAS_LOCK:
+            _BLAS["depth"] -= 1
+            if _BLAS["depth"] == 0:
+                for lib, n in _BLAS["saved"]:
+                    lib.set_num_threads(n)
+                _BLAS["saved"] = []
 
 
 @contextlib.contextmanager
