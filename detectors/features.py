@@ -69,6 +69,7 @@ _NOISE_Q = 0.3  # quantile of |second differences| used by scan_noise ...
 _NOISE_SCALE = 0.385 * math.sqrt(20.0)  # ... and its value for unit noise: 0.3-quantile of |N(0, 20)|
 _CURV_CLIP = 60.0  # 1/m: curvature of circles below 1.7 cm radius; a kin is 28.6
 _GN_MAX_STEP = 0.05  # m: cap on one Gauss-Newton step (keeps 2-point fits from flying off)
+_TWO_PI = 2.0 * math.pi
 
 
 @dataclass(frozen=True)
@@ -294,6 +295,29 @@ def _log_err(e):
 
 
 @numba.njit(cache=True, inline="always")
+def _wrap_index(i, n):
+    # i % n for -n <= i < 2n without an integer division (the same value)
+    if i >= n:
+        return i - n
+    if i < 0:
+        return i + n
+    return i
+
+
+@numba.njit(cache=True, inline="always")
+def _mod_two_pi(x):
+    # Python's x % 2 pi: for |x| < 2 pi fmod returns x exactly, so the same value without fmod
+    # (and +0.0 for -0.0, as Python)
+    if x > 0.0:
+        return x if x < _TWO_PI else x % _TWO_PI
+    if x == 0.0:
+        return 0.0
+    if x > -_TWO_PI:
+        return x + _TWO_PI
+    return x % _TWO_PI
+
+
+@numba.njit(cache=True, inline="always")
 def _half_width(d_cest, alpha):
     # eqs. 4-5 half-widths; an angle >= 90 deg from the min beam bounds no finite diameter
     return d_cest * math.tan(alpha) if alpha < 0.5 * math.pi else math.inf
@@ -343,8 +367,23 @@ def _features_kernel(
     pu = np.empty(n_beams)
     pv = np.empty(n_beams)
     pe = np.empty(n_beams)
-    two_pi = 2.0 * math.pi
     kp = n_points
+    # resampling positions t = j (n - 1) / (kp - 1) per segment length n, once per call instead of
+    # a division and a floor per point and segment (the same expressions: same bits)
+    n_top = 1
+    for o in range(which.shape[0]):
+        n_top = max(n_top, count[which[o]])
+    rs_lo = np.empty((n_top + 1, kp), dtype=np.int64)
+    rs_hi = np.empty((n_top + 1, kp), dtype=np.int64)
+    rs_w = np.empty((n_top + 1, kp))
+    for n in range(1, n_top + 1):
+        for j in range(kp):
+            t = j * (n - 1) / (kp - 1)
+            lo = min(int(math.floor(t)), n - 1)
+            rs_lo[n, j] = lo
+            rs_hi[n, j] = min(lo + 1, n - 1)
+            rs_w[n, j] = t - lo
+    log_err0 = _log_err(0.0)
     # the per-scan features once per scan, not once per segment (the same expressions: same bits)
     for b in range(scan_noise.shape[0]):
         scan_cols[b, 0] = math.log(scan_noise[b] + 1e-4)
@@ -392,10 +431,9 @@ def _features_kernel(
         frames[o, 3] = sweep
         # shape: resampled along the beam order
         for j in range(kp):
-            t = j * (n - 1) / (kp - 1)
-            lo = min(int(math.floor(t)), n - 1)
-            hi = min(lo + 1, n - 1)
-            w = t - lo
+            lo = rs_lo[n, j]
+            hi = rs_hi[n, j]
+            w = rs_w[n, j]
             x[o, j] = min(max(pu[lo] * (1.0 - w) + pu[hi] * w, -_PT_CLIP), _PT_CLIP)
             x[o, kp + j] = min(max(pv[lo] * (1.0 - w) + pv[hi] * w, -_PT_CLIP), _PT_CLIP)
         col = 2 * kp
@@ -409,7 +447,7 @@ def _features_kernel(
                 idx = base + step * j
                 inside = True
                 if circular:
-                    idx = idx % n_beams
+                    idx = _wrap_index(idx, n_beams)
                 elif idx < 0 or idx >= n_beams:
                     inside = False
                 val = _CTX_CLIP
@@ -420,24 +458,24 @@ def _features_kernel(
                 x[o, col] = val
                 col += 1
         # eqs. 2-5 (detectors.geometric.filter_by_diameter)
-        bmin = (f + kmin) % n_beams
+        bmin = _wrap_index(f + kmin, n_beams)
         min_beam[o] = bmin
         d_min = pd[kmin]
         d_cest = d_min + r
         a_m = ang[bmin]
-        a_first = ang[f % n_beams]
-        a_last = ang[last % n_beams]
+        a_first = ang[f]
+        a_last = ang[_wrap_index(last, n_beams)]
         pb = prev_beam[i]
         nb = next_beam[i]
         unb_f = pb < 0 or (occlusion_unbounded and prev_nearer[i])
         unb_l = nb < 0 or (occlusion_unbounded and next_nearer[i])
-        omega_min = _half_width(d_cest, (sweep * (a_m - a_first)) % two_pi) + _half_width(
-            d_cest, (sweep * (a_last - a_m)) % two_pi
+        omega_min = _half_width(d_cest, _mod_two_pi(sweep * (a_m - a_first))) + _half_width(
+            d_cest, _mod_two_pi(sweep * (a_last - a_m))
         )
         omega_max = math.inf
         if not (unb_f or unb_l):
-            omega_max = _half_width(d_cest, (sweep * (a_m - ang[pb])) % two_pi) + _half_width(
-                d_cest, (sweep * (ang[nb] - a_m)) % two_pi
+            omega_max = _half_width(d_cest, _mod_two_pi(sweep * (a_m - ang[pb]))) + _half_width(
+                d_cest, _mod_two_pi(sweep * (ang[nb] - a_m))
             )
         chord = math.hypot(px[n - 1] - px[0], py[n - 1] - py[0])
         # known-radius circle fit (eqs. 6-7): Gauss-Newton from the eq. 7 centre
@@ -535,9 +573,9 @@ def _features_kernel(
             min(chord, _LEN_CLIP),
             min(umax - umin, _LEN_CLIP),
             _log_err(F0),
-            _log_err(F_sum) if fit_ok else _log_err(0.0),
-            _log_err(F_sum / n) if fit_ok else _log_err(0.0),
-            _log_err(e_max) if fit_ok else _log_err(0.0),
+            _log_err(F_sum) if fit_ok else log_err0,
+            _log_err(F_sum / n) if fit_ok else log_err0,
+            _log_err(e_max) if fit_ok else log_err0,
             min(max(fit_dr, -_OFF_CLIP), _OFF_CLIP) if fit_ok else 0.0,
             min(max(fit_u, -_OFF_CLIP), _OFF_CLIP) if fit_ok else 0.0,
             min(max(fit_v, -_OFF_CLIP), _OFF_CLIP) if fit_ok else 0.0,
@@ -553,10 +591,9 @@ def _features_kernel(
             col += 1
         # signed residual profile of the fit, resampled like the points (0 without a fit)
         for j in range(kp):
-            t = j * (n - 1) / (kp - 1)
-            lo = min(int(math.floor(t)), n - 1)
-            hi = min(lo + 1, n - 1)
-            w = t - lo
+            lo = rs_lo[n, j]
+            hi = rs_hi[n, j]
+            w = rs_w[n, j]
             e = pe[lo] * (1.0 - w) + pe[hi] * w if fit_ok else 0.0
             x[o, col + j] = min(max(e, -_RES_CLIP), _RES_CLIP)
 
@@ -569,9 +606,9 @@ def _scan_noise_kernel(d, d_th, d_max, circular, out, count):
         k = 0
         for i in range(n if circular else n - 3):
             a0 = d[b, i]
-            a1 = d[b, (i + 1) % n]
-            a2 = d[b, (i + 2) % n]
-            a3 = d[b, (i + 3) % n]
+            a1 = d[b, _wrap_index(i + 1, n)]
+            a2 = d[b, _wrap_index(i + 2, n)]
+            a3 = d[b, _wrap_index(i + 3, n)]
             if max(a0, a1, a2, a3) >= d_max:
                 continue
             if abs(a1 - a0) > d_th or abs(a2 - a1) > d_th or abs(a3 - a2) > d_th:
