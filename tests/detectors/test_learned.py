@@ -290,3 +290,56 @@ def test_every_detector_checks_batch_shapes_the_same_way():
             det.detect_batch(np.ones((2, 360)), angles[:359])
     r, a = validate_batch([[1.0, 2.0, 3.0]], [0.0, -2.0, -4.0])
     assert r.dtype == a.dtype == np.float64 and r.shape == (1, 3)
+
+
+def _scan_of_circles(circles, noise, rng, n=360, d_max=12.0):
+    """One 360-beam scan (beam i at +i deg) of circles ``(x, y, radius)`` in an empty world,
+    exact ray-circle ranges times ``1 + noise * N(0, 1)``."""
+    ang = np.arange(n) * (2 * math.pi / n)
+    ux, uy = np.cos(ang), np.sin(ang)
+    r = np.full(n, np.inf)
+    for cx, cy, rad in circles:
+        b = ux * cx + uy * cy
+        disc = b * b - (cx * cx + cy * cy - rad * rad)
+        hit = (disc >= 0) & (b - np.sqrt(np.maximum(disc, 0)) > 0)
+        r = np.where(hit, np.minimum(r, b - np.sqrt(np.maximum(disc, 0))), r)
+    r = np.where(np.isfinite(r), r * (1 + noise * rng.standard_normal(n)), d_max)
+    return r[None, :], ang
+
+
+def test_pre_gate_keeps_every_housing_and_drops_wide_objects(shipped):
+    from detectors.features import segment_batch
+
+    rng = np.random.default_rng(7)
+    r = shipped.feature_config.r
+    # a lone housing anywhere from touching the lidar's minimum range to 10 m, 0-3 % noise: never dropped
+    n_checked = 0
+    for dist in (0.2, 0.25, 0.3, 0.5, 0.8, 1.2, 2.0, 3.5, 6.0, 10.0):
+        for noise in (0.0, 0.01, 0.02, 0.03):
+            for _ in range(5):
+                bearing = rng.uniform(0, 2 * math.pi)
+                centre = (dist * math.cos(bearing), dist * math.sin(bearing), r)
+                ranges, ang = _scan_of_circles([centre], noise, rng)
+                batch = segment_batch(ranges, ang, shipped.feature_config)
+                bound = shipped.gate(batch)
+                assert (batch.count <= bound).all(), (dist, noise, batch.count, bound)
+                n_checked += batch.n_segments
+    assert n_checked >= 150  # at 10 m a housing falls between beams now and then
+    # a 60 cm cylinder at 1 m and 3 m (a bin, another robot's chassis) is dropped, a 7 cm one kept
+    for dist in (1.0, 3.0):
+        ranges, ang = _scan_of_circles([(dist, 0.0, 0.3), (0.0, dist, r)], 0.01, rng)
+        batch = segment_batch(ranges, ang, shipped.feature_config)
+        gated = batch.count > shipped.gate(batch)
+        assert batch.n_segments == 2 and gated.sum() == 1 and batch.count[gated][0] > 10
+    # the detector's outputs: dropped segments are "diameter" with p_kin NaN, the housing is detected
+    ranges, ang = _scan_of_circles([(1.0, 0.0, 0.3), (0.0, 1.0, r)], 0.0, rng)
+    arr = shipped.detect_arrays(ranges, ang)
+    gated = np.isnan(arr.seg_values["p_kin"])
+    assert gated.sum() == 1 and arr.seg_stage[gated][0] == 1
+    assert arr.seg_count[gated][0] > arr.seg_values["max_beams"][gated][0]
+    assert len(arr.x) == 1 and math.hypot(arr.x[0], arr.y[0] - 1.0) < 0.02
+    off = LearnedKinDetector(pre_gate=False).detect_arrays(ranges, ang)
+    assert "max_beams" not in off.seg_values and np.isfinite(off.seg_values["p_kin"]).all()
+    np.testing.assert_array_equal(off.seg_values["p_kin"][~gated], arr.seg_values["p_kin"][~gated])
+    with pytest.raises(ValueError, match="pre_gate"):
+        LearnedKinDetector(pre_gate=1)
