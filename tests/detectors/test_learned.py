@@ -343,3 +343,19 @@ def test_pre_gate_keeps_every_housing_and_drops_wide_objects(shipped):
     np.testing.assert_array_equal(off.seg_values["p_kin"][~gated], arr.seg_values["p_kin"][~gated])
     with pytest.raises(ValueError, match="pre_gate"):
         LearnedKinDetector(pre_gate=1)
+
+
+@pytest.mark.parametrize("hidden", [(16, 8), (40,), (24, 16, 8)])
+def test_every_inference_path_runs_any_model_shape(tmp_path, hidden):
+    torch.manual_seed(len(hidden))
+    m = SegmentNet(ModelConfig(N_FEATURES, hidden))
+    m.set_normalisation(np.zeros(N_FEATURES), np.ones(N_FEATURES), [0.03, 0.0], [0.01, 0.01])
+    path = save_checkpoint(tmp_path / "m.pt", m.eval(), FeatureConfig())
+    scene = scenes.random_arena(12, 20, seed=3).replace(lidar=LidarSpec(noise_sigma=0.01))
+    scan = World(scene, seed=3).scan()
+    r, a = scan.ranges, scan.angles
+    ref = LearnedKinDetector(path, inference="torch", pre_gate=False).detect_arrays(r, a)
+    assert ref.seg_scan.shape[0] > 300  # enough segments for "auto" to take the BLAS path
+    for inference in ("numba", "blas", "auto"):
+        arr = LearnedKinDetector(path, inference=inference, pre_gate=False).detect_arrays(r, a)
+        np.testing.assert_allclose(arr.seg_values["p_kin"], ref.seg_values["p_kin"], rtol=0, atol=1e-5)
