@@ -667,6 +667,20 @@ def segment_features(
                 f"{batch.n_segments}), got {which!r}"
             )
         which = which.astype(np.int64, copy=False)
+    return _segment_features(batch, c, which, beam_trig(batch.angles))
+
+
+def beam_trig(angles) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """``(angles, cos, sin, sweep sign)`` of a scan's beams as the feature kernel takes them (a
+    detector computes them once per beam layout)."""
+    ang = np.ascontiguousarray(angles, dtype=np.float64)
+    sweep = 1.0 if ang.shape[0] > 1 and wrap_angle(float(ang[1] - ang[0])) > 0 else -1.0
+    return ang, np.cos(ang), np.sin(ang), sweep
+
+
+def _segment_features(batch: SegmentBatch, c: FeatureConfig, which: np.ndarray, trig) -> SegmentFeatures:
+    """:func:`segment_features` without argument checks: ``which`` int64 indices, ``trig`` from
+    :func:`beam_trig` of ``batch.angles``."""
     n_seg = which.shape[0]
     n_feat = len(_feature_names(c))
     x = np.empty((n_seg, n_feat), dtype=np.float32)
@@ -676,13 +690,11 @@ def segment_features(
     scan_cols = np.empty((batch.ranges.shape[0], 2))
     if batch.n_segments == 0:
         return SegmentFeatures(x, frames, fit_centre, min_beam, None)
-    ang = np.ascontiguousarray(batch.angles, dtype=np.float64)
-    n_beams = ang.shape[0]
-    sweep = 1.0 if wrap_angle(float(ang[1] - ang[0])) > 0 else -1.0
+    ang, cos_a, sin_a, sweep = trig
     _features_kernel(
         np.ascontiguousarray(batch.ranges, dtype=np.float64).reshape(-1),
-        np.cos(ang),
-        np.sin(ang),
+        cos_a,
+        sin_a,
         ang,
         batch.scan,
         batch.first,
@@ -691,7 +703,7 @@ def segment_features(
         batch.next_beam,
         batch.prev_nearer,
         batch.next_nearer,
-        n_beams,
+        ang.shape[0],
         batch.circular,
         sweep,
         float(c.r),

@@ -51,6 +51,8 @@ from .features import (
     FeatureConfig,
     SegmentBatch,
     SegmentFeatures,
+    _segment_features,
+    beam_trig,
     feature_names,
     local_to_observer,
     segment_batch,
@@ -490,6 +492,10 @@ class LearnedKinDetector(KinDetector):
         self._angles_key: np.ndarray | None = None
         self._circular = True
         self._step = float(self.checkpoint["angular_resolution"])
+        self._trig = None
+        nrm = self.checkpoint["normalisation"]
+        self._t_mean = np.asarray(nrm["t_mean"], dtype=np.float64)
+        self._t_std = np.asarray(nrm["t_std"], dtype=np.float64)
 
     # -- input checks ---------------------------------------------------------------------------
     def _check(self, ranges, angles) -> tuple[np.ndarray, np.ndarray]:
@@ -509,6 +515,7 @@ class LearnedKinDetector(KinDetector):
             self._circular = is_circular_sweep(a)
             self._step = step
             self._angles_key = a.copy()
+            self._trig = beam_trig(self._angles_key)
         bad = rb < 0.0  # NaN / +inf mean "no return" and are fine
         if bad.any():
             b = int(np.flatnonzero(bad.any(axis=1))[0])
@@ -587,7 +594,8 @@ class LearnedKinDetector(KinDetector):
         if self.pre_gate:
             max_beams = self.gate(batch)
             rows = np.flatnonzero(batch.count <= max_beams)
-        feats = segment_features(batch, self.feature_config, None if all_features else rows)
+        which = rows if (rows is not None and not all_features) else np.arange(n_seg, dtype=np.int64)
+        feats = _segment_features(batch, self.feature_config, which, self._trig)
         x, frames = feats.x, feats.frames
         if rows is not None and all_features:
             x, frames = x[rows], frames[rows]
@@ -603,8 +611,7 @@ class LearnedKinDetector(KinDetector):
             p[rows] = p_rows
             acc_rows = p_rows >= thr[rows]
         if self.positioning == "regression":
-            nrm = self.checkpoint["normalisation"]
-            uv = np.asarray(nrm["t_mean"]) + np.asarray(nrm["t_std"]) * out[:, 1:3]
+            uv = self._t_mean + self._t_std * out[:, 1:3]
             if all_centres:
                 if rows is None:
                     centres = local_to_observer(frames, uv)
