@@ -5,11 +5,14 @@ Pipeline (same interface and output types as :class:`detectors.GeometricKinDetec
 1. pre-processing and segmentation: the geometric detector's own stages (paper 4.1-4.2, the compiled
    kernels behind its ``detect_arrays``, equal to :func:`detectors.geometric.preprocess` and
    :func:`detectors.geometric.segment`), so both detectors see the same segments;
-2. one feature vector per segment (:mod:`detectors.features`, ``FEATURE_VERSION``);
-3. **classification** (replaces the paper's diameter and shape filters, 4.3): an MLP gives
-   ``p(kin)`` for every segment of every scan of a batch in one pass (the checkpoint's weights in a
-   compiled kernel by default, or its torch module);
-4. **positioning** (4.4): the same network regresses the kin's centre in the segment's local frame
+2. a conservative geometric **pre-gate** (``pre_gate=True``): segments with more beams than a 7 cm
+   housing can return at their range (generous bounds, :data:`PRE_GATE_SLACK`,
+   :data:`PRE_GATE_MARGIN`) stop here, with stage ``"diameter"``;
+3. one feature vector per segment (:mod:`detectors.features`, ``FEATURE_VERSION``);
+4. **classification** (replaces the paper's diameter and shape filters, 4.3): an MLP gives
+   ``p(kin)`` for every segment of every scan of a batch in one pass (the checkpoint's weights as
+   float32 matrix products on one BLAS thread, or in a compiled kernel, or its torch module);
+5. **positioning** (4.4): the same network regresses the kin's centre in the segment's local frame
    (``positioning="regression"``), or the geometric detector's circle fit is used
    (``positioning="fit"``: the Levenberg-Marquardt fit of :func:`detectors.geometric.fit_circle` from
    the eq. 7 start). The checkpoint names the better one on held-out data.
