@@ -333,14 +333,14 @@ def bench_memory(min_time: float, steps: int = 1000, n_robots: int = 256) -> lis
     noise): RSS after 10 % of the steps (warm) and at the end, and the process's peak RSS."""
     import resource
 
-    from kin_envs import aggregation_v0
+    from kin_envs import aggregation_v1
 
     try:
         import detectors.learned  # noqa: F401
     except ImportError as e:
         print(f"  memory: skipped ({e})")
         return []
-    penv = aggregation_v0.parallel_env(n_robots=n_robots, detector="learned", noise_sigma=0.01)
+    penv = aggregation_v1.parallel_env(n_robots=n_robots, detector="learned", noise_sigma=0.01)
     penv.reset(seed=0)
     rng = np.random.default_rng(0)
     warm_at = max(1, steps // 10)
