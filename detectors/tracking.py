@@ -158,6 +158,7 @@ class TrackerParams:
     shape_n_cap: int = 60
     shape_min_points: int = 8
     shape_clamp: float = 2.0
+    resid_clamp: float = 0.0
     odom_heading_rate: float = 0.045
     odom_position_rate: float = 0.005
     wheel_base: float = 0.16
@@ -327,7 +328,8 @@ class KinTracker:
 
     _FIELDS = ("_id", "_obs", "_x", "_P", "_exist", "_lo_score", "_lo_shape", "_lo_motion", "_seen", "_age",
                "_static_t", "_moved", "_confirmed", "_anchor", "_anchor_var", "_alive", "_pts", "_npts",
-               "_head", "_fit_c", "_anchor_odo", "_anchor_rng")  # fmt: skip
+               "_head", "_fit_c", "_anchor_odo", "_anchor_rng", "_lo_resid", "_res_chi2", "_res_dof",
+               "_score_sum", "_n_scored")  # fmt: skip
 
     def __init__(self, params: TrackerParams | None = None, n_observers: int = 1) -> None:
         if isinstance(n_observers, bool) or not isinstance(n_observers, int | np.integer) or n_observers < 1:
@@ -369,6 +371,14 @@ class KinTracker:
         self._npts = np.zeros(cap, np.int64)
         self._head = np.zeros(cap, np.int64)
         self._fit_c = np.zeros((cap, 2))  # the outline fit's centre, odometry frame (warm start)
+        # per-frame circle-fit residual cue: its log-odds, and the summed noise-normalised chi-square and
+        # its degrees of freedom (drift-free: each frame's points share one pose)
+        self._lo_resid = np.zeros(cap)
+        self._res_chi2 = np.zeros(cap)
+        self._res_dof = np.zeros(cap)
+        # the detector's score log-odds summed over the track's frames, and how many
+        self._score_sum = np.zeros(cap)
+        self._n_scored = np.zeros(cap)
 
     @property
     def pose(self) -> np.ndarray:
@@ -629,6 +639,8 @@ class KinTracker:
         self._P[ti, 2, 2] = self._P[ti, 3, 3] = pr.init_speed_sigma**2
         self._exist[ti] = pr.birth_existence
         self._lo_score[ti] = self._lo_shape[ti] = self._lo_motion[ti] = 0.0
+        self._lo_resid[ti] = self._res_chi2[ti] = self._res_dof[ti] = 0.0
+        self._score_sum[ti] = self._n_scored[ti] = 0.0
         self._seen[ti] = 1
         self._age[ti] = 0
         self._static_t[ti] = 0.0
@@ -647,6 +659,8 @@ class KinTracker:
     def _score_cue(self, ti: np.ndarray, scores: np.ndarray, accepted) -> None:
         # (a) the detector's score: correlated frames -> weight < 1, clamped sum
         pr = self.params
+        self._score_sum[ti] += np.clip(_logit(scores), -6.0, 6.0)
+        self._n_scored[ti] += 1
         if accepted is None:
             step = pr.score_weight * (_logit(scores) - _logit(pr.score_prior))
         else:
@@ -676,6 +690,7 @@ class KinTracker:
             self._pts, self._npts, self._head, self._fit_c, self._lo_shape, self._x, self._P, self.time,
             pr.r, pr.shape_delta**2, float(pr.shape_n_cap), int(pr.shape_min_points),
             pr.shape_clamp, pr.odom_heading_rate**2, pr.odom_position_rate**2,
+            self.poses, self._lo_resid, self._res_chi2, self._res_dof, pr.resid_clamp,
         )  # fmt: skip
 
     def _existence(self, rows: np.ndarray, hit: np.ndarray) -> None:
@@ -785,15 +800,48 @@ class KinTracker:
 
 @numba.njit(cache=True, nogil=True)
 def _outline_kernel(ti, ci, pts, sig, dist, cstart, obs, odometer, moved, buf, npts, head, fit_c, lo_shape,
-                    x, P, now, r, delta2, n_cap, min_points, clamp, head_rate2, pos_rate2):  # fmt: skip
+                    x, P, now, r, delta2, n_cap, min_points, clamp, head_rate2, pos_rate2, poses, lo_resid,
+                    res_chi2, res_dof, resid_clamp):  # fmt: skip
     """Append each updated track's candidate points (odometry frame) to its ring buffer, then refit its
     outline (warm-started at the last fit's centre) and set its shape cue. A track that has moved keeps
     its last shape cue: its points no longer share one frame, and the motion cue has decided it anyway."""
     m_max = buf.shape[1]
     e, var, wgt, pp = np.empty(m_max), np.empty(m_max), np.empty(m_max), np.empty((m_max, 2))
+    m_frame = 0
+    for j in range(ti.shape[0]):
+        m_frame = max(m_frame, cstart[ci[j] + 1] - cstart[ci[j]])
+    fe, fw, fc = np.empty(m_frame), np.empty(m_frame), np.empty(2)
     for j in range(ti.shape[0]):
         t, c = ti[j], ci[j]
         a, b = cstart[c], cstart[c + 1]
+        mf = b - a
+        if mf >= 3:
+            # per-frame known-radius fit: one pose, so no odometry drift and valid while the object moves;
+            # start r behind the points' middle as seen from the observer
+            mx = my = 0.0
+            for p in range(a, b):
+                mx += pts[p, 0]
+                my += pts[p, 1]
+                fw[p - a] = 1.0 / (sig[p] * sig[p])
+            mx /= mf
+            my /= mf
+            ux, uy = mx - poses[obs[t], 0], my - poses[obs[t], 1]
+            un = max(math.sqrt(ux * ux + uy * uy), 1e-9)
+            fc[0] = mx + ux / un * r * 0.7
+            fc[1] = my + uy / un * r * 0.7
+            _fit_known_circle(pts[a:b], fw[:mf], r, fc, 6, fe[:mf])
+            # Gaussian LLR "on the circle" vs "off it by delta", the fit's 2 dof taken out of the log term
+            llr = 0.0
+            chi2 = 0.0
+            for p in range(a, b):
+                v0 = sig[p] * sig[p]
+                v1 = v0 + delta2
+                ee = fe[p - a] * fe[p - a]
+                chi2 += ee / v0
+                llr += 0.5 * math.log(v1 / v0) * (mf - 2) / mf - 0.5 * ee * (1.0 / v0 - 1.0 / v1)
+            res_chi2[t] += chi2
+            res_dof[t] += mf - 2
+            lo_resid[t] = min(max(lo_resid[t] + llr, -resid_clamp), resid_clamp)
         if moved[t]:  # a moving object's points share no frame: its outline is no evidence
             lo_shape[t] = 0.0
             continue
