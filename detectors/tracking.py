@@ -77,7 +77,6 @@ from dataclasses import dataclass, field, fields
 
 import numba
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
 from .base import DetectionResult, wrap_angle
 from .features import scan_noise, segment_batch
@@ -152,6 +151,8 @@ class TrackerParams:
     score_clamp: float = 4.0
     accept_llr: float = 1.0
     reject_llr: float = -1.0
+    score_gain: float = 4.0
+    score_n0: float = 0.0
     shape_delta: float = 0.002
     shape_sigma: float = 0.0005
     range_noise: float = 0.01
@@ -495,23 +496,17 @@ class KinTracker:
         cos, sin = np.cos(self.poses[:, 2]), np.sin(self.poses[:, 2])
         z = self._to_odom(xy, obs, cos, sin)  # candidates in their observer's odometry frame
         rng = np.hypot(xy[:, 0], xy[:, 1])
-        rows = np.flatnonzero(self._alive)
-        self._predict(rows, dt)
-        ti, ci = self._associate(rows, z, obs, rng)
-        hit = np.zeros(self._alive.shape[0], bool)
-        hit[ti] = True
-        self._kalman_update(ti, z[ci], rng[ci])
-        born = np.setdiff1d(np.arange(k), ci, assume_unique=True)
-        tb = self._birth(z[born], obs[born], rng[born])
+        if int(self._alive.sum()) + k > self._alive.shape[0]:  # room for every candidate to start a track
+            self._grow(int(self._alive.sum()) + k)
+        pre = self._alive.copy()  # the tracks before this frame's births (existence: hit or miss)
+        ti, ci, tb, born = self._associate_and_birth(z, obs, rng, dt)
         tracks, cands = np.concatenate([ti, tb]), np.concatenate([ci, born])
         self._score_cue(tracks, scores[cands], None if accepted is None else accepted[cands])
         if points is not None and len(tracks):
             self._outline_cue(tracks, cands, points, owner, obs, noise, cos, sin, k)
-        self._existence(rows, hit[rows])
-        rows = np.flatnonzero(self._alive)
-        self._motion(rows, dt)
-        self._age[rows] += 1
-        self._alive[rows] = self._exist[rows] >= pr.delete_existence
+        hit = np.zeros(self._alive.shape[0], bool)
+        hit[ti] = True
+        self._finish(pre, hit, dt)
 
     def update_from_result(self, result: DetectionResult, ranges, angles, odom_delta, dt: float) -> None:
         """:meth:`update` from a detector's :class:`DetectionResult` on scan ``(ranges, angles)``: each
@@ -534,81 +529,8 @@ class KinTracker:
         c, s = cos[obs], sin[obs]
         return np.c_[c * xy[:, 0] - s * xy[:, 1], s * xy[:, 0] + c * xy[:, 1]] + self.poses[obs, :2]
 
-    def _predict(self, rows: np.ndarray, dt: float) -> None:
-        if not rows.size:
-            return
-        F = np.eye(4)
-        F[0, 2] = F[1, 3] = dt
-        q = self.params.process_accel**2
-        Q1 = q * np.array([[dt**4 / 4, dt**3 / 2], [dt**3 / 2, dt**2]])
-        Q = np.zeros((4, 4))
-        Q[np.ix_([0, 2], [0, 2])] = Q1
-        Q[np.ix_([1, 3], [1, 3])] = Q1
-        self._x[rows] = self._x[rows] @ F.T
-        self._P[rows] = F @ self._P[rows] @ F.T + Q
-
     def _meas_var(self, rng: np.ndarray) -> np.ndarray:
         return (self.params.meas_sigma + self.params.meas_sigma_rel * rng) ** 2
-
-    def _associate(self, rows, z, obs, rng) -> tuple[np.ndarray, np.ndarray]:
-        """(track rows, candidate indices) of each observer's jointly optimal gated assignment."""
-        none = np.zeros(0, np.int64)
-        if not rows.size or not z.shape[0]:
-            return none, none
-        # every (track, candidate) pair of the same observer
-        order = np.argsort(self._obs[rows], kind="stable")
-        trk = rows[order]
-        n_t = np.bincount(self._obs[trk], minlength=self.n_observers)
-        start = np.cumsum(n_t) - n_t
-        per_c = n_t[obs]
-        if not per_c.sum():
-            return none, none
-        cand = np.repeat(np.arange(z.shape[0]), per_c)
-        within = np.arange(cand.size) - np.repeat(np.cumsum(per_c) - per_c, per_c)
-        tr = trk[start[obs[cand]] + within]
-        S = self._P[tr, :2, :2] + np.eye(2) * self._meas_var(rng[cand])[:, None, None]
-        d = z[cand] - self._x[tr, :2]
-        det = S[:, 0, 0] * S[:, 1, 1] - S[:, 0, 1] * S[:, 1, 0]
-        m2 = (
-            S[:, 1, 1] * d[:, 0] ** 2 - 2 * S[:, 0, 1] * d[:, 0] * d[:, 1] + S[:, 0, 0] * d[:, 1] ** 2
-        ) / det
-        ok = m2 <= self.params.gate_chi2
-        tr, cand, m2 = tr[ok], cand[ok], m2[ok]
-        if not tr.size:
-            return none, none
-        # a pair whose track and candidate are in no other gate is forced; the rest is solved per observer
-        cap = self._alive.shape[0]
-        forced = (np.bincount(tr, minlength=cap)[tr] == 1) & (
-            np.bincount(cand, minlength=z.shape[0])[cand] == 1
-        )
-        ti, ci = [tr[forced]], [cand[forced]]
-        amb = ~forced
-        for o in np.unique(obs[cand[amb]]):
-            sel = amb & (obs[cand] == o)
-            ut, t_inv = np.unique(tr[sel], return_inverse=True)
-            uc, c_inv = np.unique(cand[sel], return_inverse=True)
-            cost = np.full((ut.size, uc.size), 1e6)
-            cost[t_inv, c_inv] = m2[sel]
-            r, c = linear_sum_assignment(cost)
-            keep = cost[r, c] < 1e6
-            ti.append(ut[r[keep]])
-            ci.append(uc[c[keep]])
-        return np.concatenate(ti).astype(np.int64), np.concatenate(ci).astype(np.int64)
-
-    def _kalman_update(self, ti: np.ndarray, z: np.ndarray, rng: np.ndarray) -> None:
-        """Batched Kalman update of tracks ``ti`` with candidates ``z`` (Joseph form)."""
-        if not ti.size:
-            return
-        x, P = self._x[ti], self._P[ti]
-        Rm = np.eye(2) * self._meas_var(rng)[:, None, None]  # (m, 2, 2)
-        S = P[:, :2, :2] + Rm
-        K = P[:, :, :2] @ np.linalg.inv(S)  # (m, 4, 2)
-        x += np.einsum("mij,mj->mi", K, z - x[:, :2])
-        IKH = np.broadcast_to(np.eye(4), P.shape).copy()
-        IKH[:, :, :2] -= K
-        self._P[ti] = IKH @ P @ IKH.transpose(0, 2, 1) + K @ Rm @ K.transpose(0, 2, 1)
-        self._x[ti] = x
-        self._seen[ti] += 1
 
     def _grow(self, need: int) -> None:
         cap = self._alive.shape[0]
@@ -620,52 +542,45 @@ class KinTracker:
             b[: a.shape[0]] = a
             setattr(self, name, b)
 
-    def _birth(self, z: np.ndarray, obs: np.ndarray, rng: np.ndarray) -> np.ndarray:
-        """Start tentative tracks at candidates ``z`` (k, 2) of observers ``obs``; returns their rows."""
-        k, pr = z.shape[0], self.params
-        free = np.flatnonzero(~self._alive)
-        if free.size < k:
-            self._grow(self._alive.shape[0] + k)
-            free = np.flatnonzero(~self._alive)
-        ti = free[:k]
-        self._alive[ti] = True
-        self._id[ti] = np.arange(self._next_id, self._next_id + k)
-        self._next_id += k
-        self._obs[ti] = obs
-        var = self._meas_var(rng)
-        self._x[ti] = np.c_[z, np.zeros((k, 2))]
-        self._P[ti] = 0.0
-        self._P[ti, 0, 0] = self._P[ti, 1, 1] = var
-        self._P[ti, 2, 2] = self._P[ti, 3, 3] = pr.init_speed_sigma**2
-        self._exist[ti] = pr.birth_existence
-        self._lo_score[ti] = self._lo_shape[ti] = self._lo_motion[ti] = 0.0
-        self._lo_resid[ti] = self._res_chi2[ti] = self._res_dof[ti] = 0.0
-        self._score_sum[ti] = self._n_scored[ti] = 0.0
-        self._seen[ti] = 1
-        self._age[ti] = 0
-        self._static_t[ti] = 0.0
-        self._moved[ti] = False
-        self._confirmed[ti] = pr.birth_existence >= pr.confirm_existence
-        self._npts[ti] = self._head[ti] = 0
-        # the housing's centre is r behind the visible arc's middle, seen from the observer
-        away = z - self.poses[obs, :2]
-        self._fit_c[ti] = z + away / np.maximum(np.hypot(away[:, 0], away[:, 1]), 1e-9)[:, None] * pr.r * 0.5
-        self._anchor[ti] = z
-        self._anchor_var[ti] = var
-        self._anchor_odo[ti] = self.odometer[obs]
-        self._anchor_rng[ti] = rng
-        return ti
+    def _associate_and_birth(self, z, obs, rng, dt):
+        """Predict, gate, assign, Kalman-update and start tracks for unmatched candidates (one compiled
+        kernel). Returns (matched track rows, their candidates, born track rows, their candidates)."""
+        pr = self.params
+        ti, ci, tb, born, next_id = _frame_kernel(
+            np.ascontiguousarray(z), obs, rng, float(dt), self.n_observers, self._alive, self._obs, self._id,
+            self._next_id, self._x, self._P, self.poses, self._exist, self._lo_score, self._lo_shape,
+            self._lo_motion, self._lo_resid, self._res_chi2, self._res_dof, self._score_sum, self._n_scored,
+            self._seen, self._age, self._static_t, self._moved, self._confirmed, self._npts, self._head,
+            self._fit_c, self._anchor, self._anchor_var, self._anchor_odo, self._anchor_rng, self.odometer,
+            pr.process_accel**2, pr.meas_sigma, pr.meas_sigma_rel, pr.init_speed_sigma**2, pr.gate_chi2,
+            pr.birth_existence, pr.confirm_existence, pr.r,
+        )  # fmt: skip
+        self._next_id = int(next_id)
+        return ti, ci, tb, born
+
+    def _finish(self, pre, hit, dt) -> None:
+        """Existence (hit / miss of the tracks before this frame's births), motion, age, confirm / delete."""
+        pr = self.params
+        _finish_kernel(
+            pre, hit, float(dt), self._alive, self._obs, self._x, self._P, self.poses, self._exist,
+            self._confirmed, self._moved, self._lo_motion, self._static_t, self._age, self._seen,
+            self._anchor, self._anchor_var, self._anchor_odo, self._anchor_rng, self.odometer, pr.p_detect,
+            pr.clutter_ratio, pr.max_range, pr.confirm_existence, pr.delete_existence, pr.motion_dist,
+            pr.motion_gain, pr.odom_heading_rate**2, pr.odom_position_rate**2,
+        )  # fmt: skip
 
     def _score_cue(self, ti: np.ndarray, scores: np.ndarray, accepted) -> None:
         # (a) the detector's score: correlated frames -> weight < 1, clamped sum
         pr = self.params
-        self._score_sum[ti] += np.clip(_logit(scores), -6.0, 6.0)
+        step = pr.score_weight * (np.clip(_logit(scores), -6.0, 6.0) - _logit(pr.score_prior))
+        if accepted is not None:
+            step = step + np.where(accepted, pr.accept_llr, pr.reject_llr)
+        self._score_sum[ti] += step
         self._n_scored[ti] += 1
-        if accepted is None:
-            step = pr.score_weight * (_logit(scores) - _logit(pr.score_prior))
-        else:
-            step = np.where(accepted, pr.accept_llr, pr.reject_llr)
-        self._lo_score[ti] = np.clip(self._lo_score[ti] + step, -pr.score_clamp, pr.score_clamp)
+        # the mean evidence per frame (shrunk towards 0 by score_n0 pseudo-frames), times score_gain: frames
+        # of one object are strongly correlated, so the evidence grows with their consistency, not count
+        mean = self._score_sum[ti] / (self._n_scored[ti] + pr.score_n0)
+        self._lo_score[ti] = np.clip(pr.score_gain * mean, -pr.score_clamp, pr.score_clamp)
 
     def _outline_cue(self, ti, ci, points, owner, obs, noise, cos, sin, k) -> None:
         # (b) the accumulated outline relative to the track centre (ego-motion compensated)
@@ -692,30 +607,6 @@ class KinTracker:
             pr.shape_clamp, pr.odom_heading_rate**2, pr.odom_position_rate**2,
             self.poses, self._lo_resid, self._res_chi2, self._res_dof, pr.resid_clamp,
         )  # fmt: skip
-
-    def _existence(self, rows: np.ndarray, hit: np.ndarray) -> None:
-        pr = self.params
-        p = self._exist[rows]
-        in_range = np.hypot(*(self._x[rows, :2] - self.poses[self._obs[rows], :2]).T) <= pr.max_range
-        p_hit = p / (p + (1 - p) * pr.clutter_ratio)
-        p_miss = p * (1 - pr.p_detect) / (1 - p * pr.p_detect)
-        self._exist[rows] = np.where(hit, p_hit, np.where(in_range, p_miss, p))
-        alive = np.flatnonzero(self._alive)
-        self._confirmed[alive] |= self._exist[alive] >= pr.confirm_existence
-
-    def _motion(self, rows: np.ndarray, dt: float) -> None:
-        pr = self.params
-        if not rows.size:
-            return
-        disp = np.hypot(*(self._x[rows, :2] - self._anchor[rows]).T)
-        # odometry drift makes static objects slide in the odometry frame: allow for it
-        aged = self.odometer[self._obs[rows]] - self._anchor_odo[rows]
-        drift = aged * (pr.odom_heading_rate**2 * self._anchor_rng[rows] ** 2 + pr.odom_position_rate**2)
-        var = self._anchor_var[rows] + 0.5 * (self._P[rows, 0, 0] + self._P[rows, 1, 1]) + drift
-        moving = (disp > pr.motion_dist) & (disp > 3.0 * np.sqrt(var)) & (self._seen[rows] > 2)
-        self._moved[rows] |= moving
-        self._lo_motion[rows] = np.where(self._moved[rows], pr.motion_gain, 0.0)
-        self._static_t[rows] += dt
 
     # -- outputs -----------------------------------------------------------------------------------------
     def _rows(self, observer: int | None) -> np.ndarray:
@@ -796,6 +687,318 @@ class KinTracker:
             mask[o, rank] = True
         count = mask.sum(axis=1).astype(np.int64)
         return {"tracks": out, "mask": mask, "count": count}
+
+
+@numba.njit(cache=True, nogil=True)
+def _hungarian(cost):
+    """Minimum-cost assignment of the rows of ``cost`` (n, m), n <= m, to distinct columns (shortest
+    augmenting paths with potentials, O(n^2 m)); returns each row's column."""
+    n, m = cost.shape
+    inf = 1e300
+    u = np.zeros(n + 1)
+    v = np.zeros(m + 1)
+    p = np.zeros(m + 1, np.int64)
+    way = np.zeros(m + 1, np.int64)
+    minv = np.empty(m + 1)
+    used = np.empty(m + 1, np.bool_)
+    for i in range(1, n + 1):
+        p[0] = i
+        j0 = 0
+        minv[:] = inf
+        used[:] = False
+        while True:
+            used[j0] = True
+            i0 = p[j0]
+            delta = inf
+            j1 = 0
+            for j in range(1, m + 1):
+                if not used[j]:
+                    cur = cost[i0 - 1, j - 1] - u[i0] - v[j]
+                    if cur < minv[j]:
+                        minv[j] = cur
+                        way[j] = j0
+                    if minv[j] < delta:
+                        delta = minv[j]
+                        j1 = j
+            for j in range(m + 1):
+                if used[j]:
+                    u[p[j]] += delta
+                    v[j] -= delta
+                else:
+                    minv[j] -= delta
+            j0 = j1
+            if p[j0] == 0:
+                break
+        while True:
+            j1 = way[j0]
+            p[j0] = p[j1]
+            j0 = j1
+            if j0 == 0:
+                break
+    ans = np.full(n, -1, np.int64)
+    for j in range(1, m + 1):
+        if p[j] != 0:
+            ans[p[j] - 1] = j - 1
+    return ans
+
+
+@numba.njit(cache=True, nogil=True)
+def _frame_kernel(z, obs, rng, dt, n_obs, alive, tobs, tid, next_id, x, P, poses, exist, lo_score, lo_shape,
+                  lo_motion, lo_resid, res_chi2, res_dof, score_sum, n_scored, seen, age, static_t, moved,
+                  confirmed, npts, head, fit_c, anchor, anchor_var, anchor_odo, anchor_rng, odometer, q,
+                  meas_sigma, meas_sigma_rel, speed_var, gate, birth_exist, confirm_exist, r):  # fmt: skip
+    """One frame's predict (constant velocity), Mahalanobis gating, assignment (a pair alone in both its
+    gates is forced; the rest per observer by :func:`_hungarian`), Joseph-form Kalman update, and births."""
+    cap = alive.shape[0]
+    k = z.shape[0]
+    # predict
+    q11, q12, q22 = q * dt**4 / 4, q * dt**3 / 2, q * dt * dt
+    for t in range(cap):
+        if not alive[t]:
+            continue
+        x[t, 0] += dt * x[t, 2]
+        x[t, 1] += dt * x[t, 3]
+        # P <- F P F^T + Q with F = [[I, dt I], [0, I]]
+        Pt = P[t]  # P F^T: columns 0, 1 += dt * columns 2, 3; then F (P F^T): rows likewise
+        for i in range(4):
+            Pt[i, 0] += dt * Pt[i, 2]
+            Pt[i, 1] += dt * Pt[i, 3]
+        for j in range(4):
+            Pt[0, j] += dt * Pt[2, j]
+            Pt[1, j] += dt * Pt[3, j]
+        Pt[0, 0] += q11
+        Pt[1, 1] += q11
+        Pt[0, 2] += q12
+        Pt[2, 0] += q12
+        Pt[1, 3] += q12
+        Pt[3, 1] += q12
+        Pt[2, 2] += q22
+        Pt[3, 3] += q22
+    # group tracks and candidates by observer (stable counting sort)
+    t_cnt = np.zeros(n_obs + 1, np.int64)
+    c_cnt = np.zeros(n_obs + 1, np.int64)
+    for t in range(cap):
+        if alive[t]:
+            t_cnt[tobs[t] + 1] += 1
+    for c in range(k):
+        c_cnt[obs[c] + 1] += 1
+    for o in range(n_obs):
+        t_cnt[o + 1] += t_cnt[o]
+        c_cnt[o + 1] += c_cnt[o]
+    t_ord = np.empty(t_cnt[n_obs], np.int64)
+    c_ord = np.empty(k, np.int64)
+    fill = t_cnt[:-1].copy()
+    for t in range(cap):
+        if alive[t]:
+            t_ord[fill[tobs[t]]] = t
+            fill[tobs[t]] += 1
+    fill = c_cnt[:-1].copy()
+    for c in range(k):
+        c_ord[fill[obs[c]]] = c
+        fill[obs[c]] += 1
+    # gating: squared Mahalanobis distance under the innovation covariance
+    n_pairs = 0
+    for o in range(n_obs):
+        n_pairs += (t_cnt[o + 1] - t_cnt[o]) * (c_cnt[o + 1] - c_cnt[o])
+    pt = np.empty(n_pairs, np.int64)
+    pc = np.empty(n_pairs, np.int64)
+    pm = np.empty(n_pairs)
+    deg_t = np.zeros(cap, np.int64)
+    deg_c = np.zeros(k, np.int64)
+    n_g = 0
+    for o in range(n_obs):
+        for a in range(c_cnt[o], c_cnt[o + 1]):
+            c = c_ord[a]
+            mv = (meas_sigma + meas_sigma_rel * rng[c]) ** 2
+            for b in range(t_cnt[o], t_cnt[o + 1]):
+                t = t_ord[b]
+                s00, s01, s10, s11 = P[t, 0, 0] + mv, P[t, 0, 1], P[t, 1, 0], P[t, 1, 1] + mv
+                d0, d1 = z[c, 0] - x[t, 0], z[c, 1] - x[t, 1]
+                det = s00 * s11 - s01 * s10
+                m2 = (s11 * d0 * d0 - 2 * s01 * d0 * d1 + s00 * d1 * d1) / det
+                if m2 <= gate:
+                    pt[n_g] = t
+                    pc[n_g] = c
+                    pm[n_g] = m2
+                    deg_t[t] += 1
+                    deg_c[c] += 1
+                    n_g += 1
+    ti = np.empty(min(n_g, k), np.int64)
+    ci = np.empty(min(n_g, k), np.int64)
+    n_m = 0
+    # forced pairs; the rest of each observer's gated pairs (grouped by observer already) by the Hungarian
+    t_loc = np.full(cap, -1, np.int64)
+    c_loc = np.full(k, -1, np.int64)
+    a = 0
+    while a < n_g:
+        o = tobs[pt[a]]
+        b = a
+        while b < n_g and tobs[pt[b]] == o:
+            b += 1
+        nt = nc = 0
+        for g in range(a, b):
+            t, c = pt[g], pc[g]
+            if deg_t[t] == 1 and deg_c[c] == 1:
+                ti[n_m] = t
+                ci[n_m] = c
+                n_m += 1
+            else:
+                if t_loc[t] < 0:
+                    t_loc[t] = nt
+                    nt += 1
+                if c_loc[c] < 0:
+                    c_loc[c] = nc
+                    nc += 1
+        if nt:
+            ut = np.empty(nt, np.int64)
+            uc = np.empty(nc, np.int64)
+            for g in range(a, b):
+                if t_loc[pt[g]] >= 0:
+                    ut[t_loc[pt[g]]] = pt[g]
+                if c_loc[pc[g]] >= 0:
+                    uc[c_loc[pc[g]]] = pc[g]
+            # np.unique's order (ascending rows / candidates), as the numpy implementation
+            ut_s, uc_s = np.sort(ut), np.sort(uc)
+            for i in range(nt):
+                t_loc[ut_s[i]] = i
+            for i in range(nc):
+                c_loc[uc_s[i]] = i
+            cost = np.full((nt, nc), 1e6)
+            for g in range(a, b):
+                if t_loc[pt[g]] >= 0 and c_loc[pc[g]] >= 0 and not (deg_t[pt[g]] == 1 and deg_c[pc[g]] == 1):
+                    cost[t_loc[pt[g]], c_loc[pc[g]]] = pm[g]
+            if nt <= nc:
+                col = _hungarian(cost)
+                for i in range(nt):
+                    if col[i] >= 0 and cost[i, col[i]] < 1e6:
+                        ti[n_m] = ut_s[i]
+                        ci[n_m] = uc_s[col[i]]
+                        n_m += 1
+            else:
+                row = _hungarian(cost.T.copy())
+                for j in range(nc):
+                    if row[j] >= 0 and cost[row[j], j] < 1e6:
+                        ti[n_m] = ut_s[row[j]]
+                        ci[n_m] = uc_s[j]
+                        n_m += 1
+            for i in range(nt):
+                t_loc[ut_s[i]] = -1
+            for i in range(nc):
+                c_loc[uc_s[i]] = -1
+        a = b
+    ti, ci = ti[:n_m], ci[:n_m]
+    # Joseph-form Kalman update, position measured with isotropic noise
+    taken = np.zeros(k, np.bool_)
+    K = np.empty((4, 2))
+    A = np.empty((4, 4))
+    B = np.empty((4, 4))
+    for j in range(n_m):
+        t, c = ti[j], ci[j]
+        taken[c] = True
+        mv = (meas_sigma + meas_sigma_rel * rng[c]) ** 2
+        Pt = P[t]
+        s00, s01, s10, s11 = Pt[0, 0] + mv, Pt[0, 1], Pt[1, 0], Pt[1, 1] + mv
+        det = s00 * s11 - s01 * s10
+        i00, i01, i10, i11 = s11 / det, -s01 / det, -s10 / det, s00 / det
+        for i in range(4):
+            K[i, 0] = Pt[i, 0] * i00 + Pt[i, 1] * i10
+            K[i, 1] = Pt[i, 0] * i01 + Pt[i, 1] * i11
+        d0, d1 = z[c, 0] - x[t, 0], z[c, 1] - x[t, 1]
+        for i in range(4):
+            x[t, i] += K[i, 0] * d0 + K[i, 1] * d1
+        for i in range(4):  # A = I - K H
+            for jj in range(4):
+                A[i, jj] = (1.0 if i == jj else 0.0) - (K[i, jj] if jj < 2 else 0.0)
+        for i in range(4):  # B = A P
+            for jj in range(4):
+                acc = 0.0
+                for l in range(4):
+                    acc += A[i, l] * Pt[l, jj]
+                B[i, jj] = acc
+        for i in range(4):  # P = B A^T + mv K K^T
+            for jj in range(4):
+                acc = 0.0
+                for l in range(4):
+                    acc += B[i, l] * A[jj, l]
+                Pt[i, jj] = acc + mv * (K[i, 0] * K[jj, 0] + K[i, 1] * K[jj, 1])
+        seen[t] += 1
+    # births: unmatched candidates in index order take the first free rows
+    n_b = k - n_m
+    born = np.empty(n_b, np.int64)
+    tb = np.empty(n_b, np.int64)
+    j = 0
+    for c in range(k):
+        if not taken[c]:
+            born[j] = c
+            j += 1
+    t = 0
+    for j in range(n_b):
+        while alive[t]:
+            t += 1
+        c = born[j]
+        tb[j] = t
+        alive[t] = True
+        tid[t] = next_id
+        next_id += 1
+        o = obs[c]
+        tobs[t] = o
+        mv = (meas_sigma + meas_sigma_rel * rng[c]) ** 2
+        x[t, 0], x[t, 1], x[t, 2], x[t, 3] = z[c, 0], z[c, 1], 0.0, 0.0
+        P[t] = 0.0
+        P[t, 0, 0] = P[t, 1, 1] = mv
+        P[t, 2, 2] = P[t, 3, 3] = speed_var
+        exist[t] = birth_exist
+        lo_score[t] = lo_shape[t] = lo_motion[t] = 0.0
+        lo_resid[t] = res_chi2[t] = res_dof[t] = 0.0
+        score_sum[t] = n_scored[t] = 0.0
+        seen[t] = 1
+        age[t] = 0
+        static_t[t] = 0.0
+        moved[t] = False
+        confirmed[t] = birth_exist >= confirm_exist
+        npts[t] = head[t] = 0
+        # the housing's centre is r behind the visible arc's middle, seen from the observer
+        ax, ay = z[c, 0] - poses[o, 0], z[c, 1] - poses[o, 1]
+        an = max(math.sqrt(ax * ax + ay * ay), 1e-9)
+        fit_c[t, 0] = z[c, 0] + ax / an * r * 0.5
+        fit_c[t, 1] = z[c, 1] + ay / an * r * 0.5
+        anchor[t, 0], anchor[t, 1] = z[c, 0], z[c, 1]
+        anchor_var[t] = mv
+        anchor_odo[t] = odometer[o]
+        anchor_rng[t] = rng[c]
+    return ti, ci, tb, born, next_id
+
+
+@numba.njit(cache=True, nogil=True)
+def _finish_kernel(pre, hit, dt, alive, tobs, x, P, poses, exist, confirmed, moved, lo_motion, static_t, age,
+                   seen, anchor, anchor_var, anchor_odo, anchor_rng, odometer, p_detect, clutter, max_range,
+                   confirm_exist, delete_exist, motion_dist, motion_gain, head_rate2, pos_rate2):  # fmt: skip
+    """Existence (Bayes: hit, or a miss when in range), confirm; the motion cue; age; delete."""
+    for t in range(alive.shape[0]):
+        if pre[t]:
+            p = exist[t]
+            if hit[t]:
+                exist[t] = p / (p + (1 - p) * clutter)
+            else:
+                o = tobs[t]
+                if math.hypot(x[t, 0] - poses[o, 0], x[t, 1] - poses[o, 1]) <= max_range:
+                    exist[t] = p * (1 - p_detect) / (1 - p * p_detect)
+    for t in range(alive.shape[0]):
+        if not alive[t]:
+            continue
+        if exist[t] >= confirm_exist:
+            confirmed[t] = True
+        # motion: displaced from where first seen beyond 3 sigma, sigma including the odometry drift since
+        disp = math.hypot(x[t, 0] - anchor[t, 0], x[t, 1] - anchor[t, 1])
+        aged = odometer[tobs[t]] - anchor_odo[t]
+        drift = aged * (head_rate2 * anchor_rng[t] ** 2 + pos_rate2)
+        var = anchor_var[t] + 0.5 * (P[t, 0, 0] + P[t, 1, 1]) + drift
+        if disp > motion_dist and disp > 3.0 * math.sqrt(var) and seen[t] > 2:
+            moved[t] = True
+        lo_motion[t] = motion_gain if moved[t] else 0.0
+        static_t[t] += dt
+        age[t] += 1
+        alive[t] = exist[t] >= delete_exist
 
 
 @numba.njit(cache=True, nogil=True)

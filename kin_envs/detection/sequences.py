@@ -432,12 +432,14 @@ def evaluate_sequences(
     record: int | None = None,
     diagnose: bool = False,
     mot: bool = True,
+    singles: bool = True,
 ) -> dict:
     """Run the tracker over recorded episodes and score it and the single-scan detectors (the tables of
-    :func:`run_sequences`). ``mot=False`` skips CLEAR MOT (the slowest metric; for tuning)."""
+    :func:`run_sequences`). ``mot=False`` skips CLEAR MOT and ``singles=False`` the single-scan detectors'
+    scores (for tuning)."""
     if mot:
         import motmetrics as mm
-    spec, methods = recorded.spec, recorded.methods
+    spec, methods = recorded.spec, recorded.methods if singles else ["tracker"]
     by_age = {m: [_Counts() for _ in AGE_EDGES] for m in methods}
     by_dist = {m: [_Counts() for _ in DISTANCE_EDGES[:-1]] for m in methods}
     by_age_dist = {m: defaultdict(_Counts) for m in methods}
@@ -486,7 +488,8 @@ def evaluate_sequences(
                 is_kin = (tr[:, 8] > 0) & (tr[:, 6] >= tracker.params.kin_threshold)
                 dets = {"tracker": (tr[is_kin, 1:3], tr[is_kin, 0].astype(np.int64))}
                 for name, per_obs in fr.singles.items():
-                    dets[name] = (per_obs[row], None)
+                    if singles:
+                        dets[name] = (per_obs[row], None)
                 for name, (dxy, ids) in dets.items():
                     m = match(dxy, gt_xy, GATE, gt_ignore=gt_ignore)
                     matched_gt = np.zeros(gt_xy.shape[0], bool)
@@ -724,3 +727,74 @@ def target_window(result: dict, min_frames: int = 10, distance: tuple[float, flo
             rows[f"{DISTANCE_EDGES[b]:g}-{DISTANCE_EDGES[b + 1]:g}"] = c.row()
         out[m] = {"all": tot.row(), **rows}
     return out
+
+
+#: What :func:`tune_tracker` searches by default: the kin-probability cues' weights and the thresholds, the
+#: parameters whose best values depend on the detector feeding the tracker (its score calibration).
+TUNING_GRID: dict[str, tuple] = {
+    "score_prior": (0.3, 0.5, 0.7, 0.85),
+    "score_weight": (0.0, 0.5, 1.0),
+    "accept_llr": (0.0, 1.0, 2.0),
+    "reject_llr": (0.0, -1.0, -2.0),
+    "score_gain": (2.0, 4.0, 8.0),
+    "static_penalty": (0.0, -2.0, -4.0, -8.0),
+    "resid_clamp": (0.0, 2.0),
+    "shape_clamp": (0.0, 2.0),
+    "kin_threshold": (0.3, 0.5, 0.7),
+}
+
+
+def tune_objective(result: dict) -> float:
+    """The tuning objective of one split: the tracker's F1 on kin in view >= 10 frames at 0.3-2 m."""
+    f = target_window(result)["tracker"]["all"]["f1"]
+    return 0.0 if math.isnan(f) else float(f)
+
+
+def tune_tracker(
+    recorded: list[RecordedEpisodes],
+    grid: Mapping[str, tuple] | None = None,
+    base: TrackerParams | None = None,
+    passes: int = 2,
+    progress: bool = False,
+) -> tuple[TrackerParams, list[dict]]:
+    """Coordinate descent over ``grid`` (default :data:`TUNING_GRID`) from ``base``: each parameter in turn
+    takes the grid value that maximises the mean :func:`tune_objective` over the ``recorded`` episode sets
+    (training seeds: :func:`training_split`), ``passes`` times. Re-run it for a new detector checkpoint.
+
+    Returns the best parameters and the log of every evaluation (``params``, ``objective``, per split).
+    """
+    grid = dict(TUNING_GRID if grid is None else grid)
+    names = {f.name for f in fields(TrackerParams)}
+    if set(grid) - names:
+        raise ValueError(f"tune_tracker: unknown parameter(s) {sorted(set(grid) - names)}")
+    if not recorded:
+        raise ValueError("tune_tracker: need at least one RecordedEpisodes")
+    best = base or TrackerParams()
+    log: list[dict] = []
+    cache: dict = {}
+
+    def score(p: TrackerParams) -> float:
+        key = tuple(getattr(p, n) for n in sorted(names))
+        if key not in cache:
+            per = [tune_objective(evaluate_sequences(r, p, mot=False, singles=False)) for r in recorded]
+            cache[key] = float(np.mean(per))
+            log.append({"params": {n: getattr(p, n) for n in grid}, "objective": cache[key],
+                        "per_split": {f"{r.spec.name}@{r.noise:g}": v for r, v in zip(recorded, per, strict=True)}})  # fmt: skip
+        return cache[key]
+
+    best_score = score(best)
+    steps = [(n, v) for _ in range(passes) for n in grid for v in grid[n]]
+    it = steps
+    if progress:
+        from tqdm import tqdm
+
+        it = tqdm(steps, desc="tune tracker", leave=False)
+    for name, value in it:
+        try:
+            cand = replace(best, **{name: value})
+        except ValueError:
+            continue  # an invalid combination (e.g. thresholds out of order)
+        s = score(cand)
+        if s > best_score + 1e-9:
+            best, best_score = cand, s
+    return best, log

@@ -276,3 +276,51 @@ def test_segment_points_match_a_per_segment_loop():
         ref = np.c_[r[ok] * np.cos(angles[idx][ok]), r[ok] * np.sin(angles[idx][ok])]
         np.testing.assert_allclose(pts[own == k], ref)
     assert (own == 0).sum() == 4 and (own == 1).sum() == 7 and (own == 2).sum() == 4  # 0.0, inf, 12 dropped
+
+
+def _compare(a: KinTracker, b: KinTracker) -> None:
+    for o in range(a.n_observers):
+        ta, tb = a.tracks(o), b.tracks(o)
+        assert [t.id for t in ta] == [t.id for t in tb]
+        for x, y in zip(ta, tb, strict=True):
+            np.testing.assert_allclose([x.x, x.y, x.vx, x.vy, x.existence, x.kin_prob],
+                                       [y.x, y.y, y.vx, y.vy, y.existence, y.kin_prob], atol=1e-9)  # fmt: skip
+            np.testing.assert_allclose(x.covariance, y.covariance, atol=1e-12)
+            assert (x.confirmed, x.moved, x.frames_seen, x.age) == (y.confirmed, y.moved, y.frames_seen, y.age)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_compiled_frame_kernels_match_the_numpy_implementation(seed):
+    """The compiled predict / gate / assign / update / birth / existence / motion kernels give the same
+    tracks as the previous numpy implementation (tests/detectors/reference_tracking.py) on crowded
+    sequences: crossing movers, clutter, missed detections, ambiguous gates, 4 observers."""
+    from tests.detectors.reference_tracking import ReferenceKinTracker
+
+    rng = np.random.default_rng(seed)
+    n_obs, n_obj = 4, 12
+    fast, ref = KinTracker(n_observers=n_obs), ReferenceKinTracker(n_observers=n_obs)
+    pos = rng.uniform(-1.5, 1.5, (n_obs, n_obj, 2))
+    pos[:, n_obj // 2 :] = pos[:, : n_obj // 2] + rng.normal(0, 0.04, (n_obs, n_obj // 2, 2))  # close pairs
+    vel = rng.normal(0, 0.3, (n_obs, n_obj, 2)) * (rng.random((n_obs, n_obj, 1)) < 0.5)
+    arc = 0.035 * np.c_[np.cos(np.linspace(2.5, 3.8, 3)), np.sin(np.linspace(2.5, 3.8, 3))]
+    for _ in range(40):
+        pos += vel * DT
+        obs, xy, sc, pts, own = [], [], [], [], []
+        for o in range(n_obs):
+            keep = rng.random(n_obj) < 0.75
+            z = pos[o][keep] + rng.normal(0, 0.01, (keep.sum(), 2))
+            z = np.r_[z, rng.uniform(-2, 2, (rng.integers(0, 4), 2))]  # clutter
+            for zz in z:
+                own.append(np.full(3, len(xy)))
+                pts.append(zz + arc + rng.normal(0, 0.002, (3, 2)))
+                xy.append(zz)
+                obs.append(o)
+            sc += list(rng.uniform(0.15, 0.95, z.shape[0]))
+        delta = rng.normal(0, 0.01, (n_obs, 3))
+        acc = rng.random(len(xy)) < 0.5
+        args = (np.array(obs), np.array(xy), np.array(sc), delta, DT, np.concatenate(pts), np.concatenate(own),
+                np.full(n_obs, 0.01))  # fmt: skip
+        fast.update_batch(*args, accepted=acc)
+        ref.update_batch(*args, accepted=acc)
+        _compare(fast, ref)
+    assert len(fast) > 20
