@@ -526,8 +526,11 @@ class KinTracker:
 
     # -- steps ----------------------------------------------------------------------------------------
     def _to_odom(self, xy, obs, cos, sin) -> np.ndarray:
-        c, s = cos[obs], sin[obs]
-        return np.c_[c * xy[:, 0] - s * xy[:, 1], s * xy[:, 0] + c * xy[:, 1]] + self.poses[obs, :2]
+        c, s, p = cos[obs], sin[obs], self.poses[obs]
+        out = np.empty((xy.shape[0], 2))
+        out[:, 0] = c * xy[:, 0] - s * xy[:, 1] + p[:, 0]
+        out[:, 1] = s * xy[:, 0] + c * xy[:, 1] + p[:, 1]
+        return out
 
     def _meas_var(self, rng: np.ndarray) -> np.ndarray:
         return (self.params.meas_sigma + self.params.meas_sigma_rel * rng) ** 2
@@ -593,8 +596,9 @@ class KinTracker:
             )
         if not np.all(np.isfinite(pts)):
             raise ValueError("KinTracker: points must be finite")
-        order = np.argsort(owner, kind="stable")
-        pts, owner = pts[order], owner[order]
+        if owner.size > 1 and np.any(owner[1:] < owner[:-1]):  # segment_points gives them sorted already
+            order = np.argsort(owner, kind="stable")
+            pts, owner = pts[order], owner[order]
         po = obs[owner]
         d = np.hypot(pts[:, 0], pts[:, 1])
         sig = np.sqrt(pr.shape_sigma**2 + (noise[po] * d) ** 2)
@@ -1062,7 +1066,7 @@ def _outline_kernel(ti, ci, pts, sig, dist, cstart, obs, odometer, moved, buf, n
             if npts[t] < m_max:
                 npts[t] += 1
         m = npts[t]
-        if m < min_points:
+        if m < min_points or clamp <= 0.0:  # clamp 0: the cue is off, skip the (costly) refit
             continue
         acc = buf[t, :m]
         odo = odometer[obs[t]]

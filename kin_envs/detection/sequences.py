@@ -76,6 +76,8 @@ __all__ = [
     "record_sequences",
     "run_sequences",
     "target_window",
+    "tracking_cost",
+    "tune_tracker",
     "training_split",
 ]
 
@@ -798,3 +800,58 @@ def tune_tracker(
         if s > best_score + 1e-9:
             best, best_score = cand, s
     return best, log
+
+
+def tracking_cost(
+    detector: KinDetector,
+    n_robots: int = 64,
+    frames: int = 30,
+    tracker_params: TrackerParams | None = None,
+    seed: int = 7,
+    repeats: int = 3,
+) -> dict:
+    """Time the tracker against the per-frame detector feeding it, ``n_robots`` observers batched: one
+    swarm episode (a training seed, a ``n_robots``-robot arena) is recorded once, then the permissive
+    detector's ``detect_batch`` on each frame's scans and the tracker's ``update_batch`` on its candidates
+    are timed alternately, warm (compile time reported apart), best of ``repeats`` passes (a shared machine
+    slows passes unevenly; both sides of the ratio come from the same passes).
+
+    Returns seconds per frame for both, their ratio, the warm-up and the mean candidates per frame."""
+    if isinstance(n_robots, bool) or not isinstance(n_robots, int) or n_robots < 2:
+        raise ValueError(f"n_robots must be an integer >= 2, got {n_robots!r}")
+    side = max(6.0, 1.1 * math.sqrt(n_robots))  # the swarm split's density
+    spec = training_split("swarm", seed)
+    spec = replace(spec, scenes=replace(spec.scenes, n_robots=(n_robots, n_robots), arena_size=(side, side)),
+                   run=replace(spec.run, frames=int(frames)))  # fmt: skip
+    ep = episode(spec, spec.first_seed, 0.01)
+    w = ep.world
+    scans, deltas = [], []
+    for frame in range(spec.run.frames):
+        if frame:
+            ep.step(frame)
+        deltas.append(w.odometry_delta.copy() if frame else np.zeros((w.n_robots, 3)))
+        scans.append(ep.scan())
+    perm = permissive(detector)
+    t0 = time.perf_counter()
+    _warm_up([perm], tracker_params)
+    warm = time.perf_counter() - t0
+    best_det = best_trk = math.inf
+    n_cand = 0
+    for _ in range(max(1, int(repeats))):
+        tracker = KinTracker(tracker_params, n_observers=w.n_robots)
+        t_det = t_trk = 0.0
+        n_cand = 0
+        for scan, delta in zip(scans, deltas, strict=True):
+            t = time.perf_counter()
+            res = perm.detect_batch(scan.ranges, scan.angles)
+            t_det += time.perf_counter() - t
+            ob, xy, sc, pts, own, _ = _candidates(res, scan)
+            n_cand += ob.size
+            t = time.perf_counter()
+            tracker.update_batch(ob, xy, sc, delta, _FRAME_S, pts, own)
+            t_trk += time.perf_counter() - t
+        best_det, best_trk = min(best_det, t_det), min(best_trk, t_trk)
+    n = len(scans)
+    return {"n_robots": w.n_robots, "frames": n, "detector_per_frame": best_det / n,
+            "tracker_per_frame": best_trk / n, "ratio": best_trk / best_det, "warm_up": warm,
+            "candidates_per_frame": n_cand / n}  # fmt: skip
