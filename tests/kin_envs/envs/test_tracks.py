@@ -104,7 +104,7 @@ def test_swarm_env_tracks_every_agent_with_fixed_shape_info():
                 break
             acts = {a: rng.uniform(-1, 1, 2).astype(np.float32) for a in env.agents}
             _, _, _, _, infos = env.step(acts)
-            for a, info in infos.items():
+            for info in infos.values():
                 assert set(info["kin_tracks"]) == set(TRACK_FIELDS)
                 assert all(v.shape == (6,) and v.dtype == np.float64 for v in info["kin_tracks"].values())
                 assert 0 <= info["kin_tracks_count"] <= 6
