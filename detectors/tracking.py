@@ -139,26 +139,26 @@ class TrackerParams:
     meas_sigma_rel: float = 0.01
     init_speed_sigma: float = 0.3
     gate_chi2: float = 9.21
-    p_detect: float = 0.8
-    clutter_ratio: float = 0.2
+    p_detect: float = 0.6
+    clutter_ratio: float = 0.4
     birth_existence: float = 0.8
     confirm_existence: float = 0.8
     delete_existence: float = 0.1
     max_range: float = 5.0
     kin_prior: float = 0.5
-    score_prior: float = 0.5
-    score_weight: float = 0.4
+    score_prior: float = 0.93
+    score_weight: float = 0.5
     score_clamp: float = 4.0
     accept_llr: float = 1.0
-    reject_llr: float = -1.0
-    score_gain: float = 4.0
+    reject_llr: float = 0.0
+    score_gain: float = 8.0
     score_n0: float = 0.0
     shape_delta: float = 0.002
     shape_sigma: float = 0.0005
     range_noise: float = 0.01
     shape_n_cap: int = 60
     shape_min_points: int = 8
-    shape_clamp: float = 2.0
+    shape_clamp: float = 0.0
     resid_clamp: float = 0.0
     odom_heading_rate: float = 0.045
     odom_position_rate: float = 0.005
@@ -167,8 +167,8 @@ class TrackerParams:
     motion_dist: float = 0.1
     motion_gain: float = 6.0
     static_time: float = 3.0
-    static_penalty: float = -6.0
-    kin_threshold: float = 0.5
+    static_penalty: float = 0.0
+    kin_threshold: float = 0.3
     min_score: float = 0.1
 
     def __post_init__(self) -> None:

@@ -714,7 +714,8 @@ def target_window(result: dict, min_frames: int = 10, distance: tuple[float, flo
     if AGE_EDGES[a0] != min_frames:
         raise ValueError(f"min_frames must be one of {AGE_EDGES}, got {min_frames!r}")
     lo, hi = distance[0] - 1e-9, distance[1] + 1e-9
-    bins = [b for b in range(len(DISTANCE_EDGES) - 1) if DISTANCE_EDGES[b] >= lo and DISTANCE_EDGES[b + 1] <= hi]
+    E = DISTANCE_EDGES
+    bins = [b for b in range(len(E) - 1) if E[b] >= lo and E[b + 1] <= hi]
     out = {}
     for m, cells in result["by_age_distance"].items():
         tot = _Counts()
@@ -763,7 +764,8 @@ def tune_tracker(
     takes the grid value that maximises the mean :func:`tune_objective` over the ``recorded`` episode sets
     (training seeds: :func:`training_split`), ``passes`` times. Re-run it for a new detector checkpoint.
 
-    Returns the best parameters and the log of every evaluation (``params``, ``objective``, per split).
+    Returns the best parameters and the log of every evaluation (``params``, ``objective``, and
+    ``per_set``: the objective on each recorded set, in order).
     """
     grid = dict(TUNING_GRID if grid is None else grid)
     names = {f.name for f in fields(TrackerParams)}
@@ -780,8 +782,7 @@ def tune_tracker(
         if key not in cache:
             per = [tune_objective(evaluate_sequences(r, p, mot=False, singles=False)) for r in recorded]
             cache[key] = float(np.mean(per))
-            log.append({"params": {n: getattr(p, n) for n in grid}, "objective": cache[key],
-                        "per_split": {f"{r.spec.name}@{r.noise:g}": v for r, v in zip(recorded, per, strict=True)}})  # fmt: skip
+            log.append({"params": {n: getattr(p, n) for n in grid}, "objective": cache[key], "per_set": per})
         return cache[key]
 
     best_score = score(best)
