@@ -27,15 +27,27 @@ absorbs.
    it falls below ``delete_existence``.
 5. *Kin probability*, in log-odds, from three cues (each documented in :class:`TrackerParams`):
 
-   a. **detector score**: the frame's candidate score ``s`` (higher = more kin-like, in (0, 1)) adds
-      ``score_weight * (logit(s) - logit(score_prior))``; or, when the caller passes the detector's own
-      decisions at its operating point (``accepted``), ``accept_llr`` / ``reject_llr``: the detector's
-      operating point is then the calibration (a learned detector's thresholds depend on the noise).
-      Frames of a static scene are strongly correlated (the same object seen from almost the same place
-      gives the same evidence), so the steps are small and their sum is clamped to ``±score_clamp``:
-      repeating one ambiguous view cannot make a track certain.
-   b. **accumulated outline**: the candidate's scan points, moved into the odometry frame (ego-motion
-      compensated), accumulate (up to ``max_points``, newest kept) with their expected noise
+   a. **detector score**: each frame adds the evidence ``score_weight * (logit(s) - logit(score_prior))``
+      of its candidate score ``s`` (higher = more kin-like, in (0, 1); logit clipped to ±6), plus, when
+      the caller passes the detector's own decisions at its operating point (``accepted``),
+      ``accept_llr`` / ``reject_llr``. The cue is the *mean* evidence per frame times ``score_gain``
+      (shrunk towards 0 by ``score_n0`` pseudo-frames), clamped to ``±score_clamp``: frames of one object
+      are strongly correlated (the same object seen from almost the same place gives the same score), so
+      the evidence is how consistently the detector calls it kin, not how often it has been seen; the
+      mean still averages out the per-frame score noise as the beam pattern slides over the object.
+   r. **per-frame residual** (off by default, ``resid_clamp = 0``): each frame's points of the candidate
+      (one pose: no odometry drift, valid while the object moves) get a circle of the housing radius
+      fitted; the Gaussian log-likelihood ratio of the noise-normalised residuals, "on the circle"
+      (``N(0, sigma_i^2)``) vs "off it by ``shape_delta``", with the fit's 2 degrees of freedom taken out,
+      is summed over the track's frames (clamped to ``±resid_clamp``). For a circle it is pure noise; for
+      a look-alike a systematic term accumulates (the noise of the sum grows as ``sqrt(N)``, the
+      systematic part as ``N``). Its information per point is ~``(shape_delta / sigma)^4``: decisive at
+      millimetre noise, ~0 at 1 % range noise beyond 0.3 m (measured on the sequence benchmark's
+      training episodes, where it did not help), hence off.
+   b. **accumulated outline** (off by default, ``shape_clamp = 0``: blurred by heading drift beyond
+      ~1 m, no help on the training episodes, and its refit is the tracker's costliest step): the
+      candidate's scan points, moved into the odometry frame (ego-motion compensated), accumulate
+      (up to ``max_points``, newest kept) with their expected noise
       ``sigma_i = sqrt(shape_sigma**2 + (noise * d_i)**2)`` (``noise``: the frame's relative range noise,
       estimated from the scan itself by :func:`detectors.features.scan_noise` in
       :meth:`KinTracker.update_from_result`). A circle of the housing radius ``r`` is fitted to all of
@@ -61,9 +73,11 @@ absorbs.
       frames, while its displacement grows. Conversely, a track seen for longer than ``static_time``
       without ever moving, while some other track of the same observer *has* moved (so the swarm around
       it is active), gets ``static_penalty``: a circle that stays put among moving kin is more likely a
-      same-radius cylinder than a parked kin (set 0 where kin often park).
+      same-radius cylinder than a parked kin. Off by default (``static_penalty = 0``): a parked kin and a
+      same-radius cylinder are indistinguishable, and in the swarm episodes parked kin far outnumber
+      same-radius cylinders; set it (e.g. -4) where same-radius cylinders are the bigger risk.
 
-   ``kin_prob = sigmoid(prior + score part + shape part + motion part)``.
+   ``kin_prob = sigmoid(prior + score part + residual part + shape part + motion part)``.
 
 Tracks are plain arrays inside (the hot path); :meth:`KinTracker.tracks` builds :class:`Track` objects and
 :meth:`KinTracker.track_arrays` fixed-shape padded arrays (for vector envs) on demand.
@@ -109,15 +123,19 @@ class TrackerParams:
         max_range: m; a track beyond it is not expected to be seen (no miss counted).
         kin_prior: prior kin probability of a new track.
         score_prior: the score a candidate carries no evidence at (the detector's operating point).
-        score_weight, score_clamp: weight of one frame's score log-odds, and the clamp of their sum.
+        score_weight: weight of one frame's score log-odds (relative to ``score_prior``'s).
         accept_llr, reject_llr: with the detector's own decisions at its operating point (``accepted`` in
-            :meth:`KinTracker.update_batch`), the log-odds a frame adds for an accepted / rejected
-            candidate instead of the score's (detector-agnostic: no score calibration needed).
+            :meth:`KinTracker.update_batch`), the evidence a frame adds for an accepted / rejected
+            candidate (on top of the score's).
+        score_gain, score_n0, score_clamp: the score cue is ``score_gain`` times the mean evidence per
+            frame (``score_n0`` pseudo-frames of zero evidence in the mean), clamped to ``±score_clamp``.
+        resid_clamp: clamp of the per-frame residual cue's sum (0: off).
         shape_delta: RMS deviation of a 7 cm look-alike's outline from the housing circle, m (a hexagon's
             is ~2 mm, a triangle's ~8 mm).
         shape_sigma: per-point noise floor, m; range_noise: relative range noise used when a frame gives
             none.
-        shape_n_cap, shape_min_points, shape_clamp: the outline cue's point cap, minimum points, clamp.
+        shape_n_cap, shape_min_points, shape_clamp: the outline cue's point cap, minimum points, clamp
+            (0: off, and its refit skipped).
         odom_heading_rate, odom_position_rate: the odometry's random-walk heading (rad/sqrt(m)) and position
             (m/sqrt(m)) error per metre of wheel travel; a point seen ``L`` m of travel ago has drifted by
             ``sqrt(L) * (odom_heading_rate * range + odom_position_rate)``. Defaults match
@@ -126,7 +144,11 @@ class TrackerParams:
         max_points: accumulated outline points kept per track (newest).
         motion_dist, motion_gain: the motion cue (m; log-odds once moved).
         static_time, static_penalty: a track seen this long (s) without moving, while another track has
-            moved, gets this log-odds.
+            moved, gets this log-odds (0: off).
+
+    The defaults were tuned (:func:`kin_envs.detection.sequences.tune_tracker`,
+    ``scripts/tune_tracker.py``) on training-seed sequence episodes (swarm and lookalike, 1 % noise) for
+    the shipped learned and the geometric detector jointly; re-run it for another detector or checkpoint.
         kin_threshold: a confirmed track with ``kin_prob >= kin_threshold`` is reported as kin.
         min_score: candidates scoring below this are dropped before association: a permissive detector
             scores every segment, and those of walls slide along the wall as the observer moves, which
