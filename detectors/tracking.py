@@ -621,13 +621,11 @@ class KinTracker:
         if owner.size > 1 and np.any(owner[1:] < owner[:-1]):  # segment_points gives them sorted already
             order = np.argsort(owner, kind="stable")
             pts, owner = pts[order], owner[order]
-        po = obs[owner]
-        d = np.hypot(pts[:, 0], pts[:, 1])
-        sig = np.sqrt(pr.shape_sigma**2 + (noise[po] * d) ** 2)
-        odom = self._to_odom(pts, po, cos, sin)
+        odom, sig, d = _points_prep(np.ascontiguousarray(pts), owner, obs, noise, cos, sin, self.poses,
+                                    pr.shape_sigma**2)  # fmt: skip
         cstart = np.searchsorted(owner, np.arange(k + 1))
         _outline_kernel(
-            ti, ci, np.ascontiguousarray(odom), sig, d, cstart, self._obs, self.odometer, self._moved,
+            ti, ci, odom, sig, d, cstart, self._obs, self.odometer, self._moved,
             self._pts, self._npts, self._head, self._fit_c, self._lo_shape, self._x, self._P, self.time,
             pr.r, pr.shape_delta**2, float(pr.shape_n_cap), int(pr.shape_min_points),
             pr.shape_clamp, pr.odom_heading_rate**2, pr.odom_position_rate**2,
@@ -1028,6 +1026,22 @@ def _finish_kernel(pre, hit, dt, alive, tobs, x, P, poses, exist, confirmed, mov
 
 
 @numba.njit(cache=True, nogil=True)
+def _points_prep(pts, owner, obs, noise, cos, sin, poses, sigma2):
+    """Each candidate point in its observer's odometry frame, its expected noise and its range."""
+    n = pts.shape[0]
+    odom, sig, dist = np.empty((n, 2)), np.empty(n), np.empty(n)
+    for i in range(n):
+        o = obs[owner[i]]
+        px, py = pts[i, 0], pts[i, 1]
+        d = math.sqrt(px * px + py * py)
+        dist[i] = d
+        sig[i] = math.sqrt(sigma2 + (noise[o] * d) ** 2)
+        odom[i, 0] = cos[o] * px - sin[o] * py + poses[o, 0]
+        odom[i, 1] = sin[o] * px + cos[o] * py + poses[o, 1]
+    return odom, sig, dist
+
+
+@numba.njit(cache=True, nogil=True)
 def _outline_kernel(ti, ci, pts, sig, dist, cstart, obs, odometer, moved, buf, npts, head, fit_c, lo_shape,
                     x, P, now, r, delta2, n_cap, min_points, clamp, head_rate2, pos_rate2, poses, lo_resid,
                     res_chi2, res_dof, resid_clamp):  # fmt: skip
@@ -1044,7 +1058,7 @@ def _outline_kernel(ti, ci, pts, sig, dist, cstart, obs, odometer, moved, buf, n
         t, c = ti[j], ci[j]
         a, b = cstart[c], cstart[c + 1]
         mf = b - a
-        if mf >= 3:
+        if mf >= 3 and resid_clamp > 0.0:
             # per-frame known-radius fit: one pose, so no odometry drift and valid while the object moves;
             # start r behind the points' middle as seen from the observer
             mx = my = 0.0
