@@ -714,6 +714,15 @@ class KinTracker:
 
 
 @numba.njit(cache=True, nogil=True)
+def _find(parent, i):
+    """Union-find root of ``i`` (with path halving)."""
+    while parent[i] != i:
+        parent[i] = parent[parent[i]]
+        i = parent[i]
+    return i
+
+
+@numba.njit(cache=True, nogil=True)
 def _hungarian(cost):
     """Minimum-cost assignment of the rows of ``cost`` (n, m), n <= m, to distinct columns (shortest
     augmenting paths with potentials, O(n^2 m)); returns each row's column."""
@@ -853,6 +862,8 @@ def _frame_kernel(z, obs, rng, dt, n_obs, alive, tobs, tid, next_id, x, P, poses
     # forced pairs; the rest of each observer's gated pairs (grouped by observer already) by the Hungarian
     t_loc = np.full(cap, -1, np.int64)
     c_loc = np.full(k, -1, np.int64)
+    t_q = np.full(cap, -1, np.int64)
+    c_q = np.full(k, -1, np.int64)
     a = 0
     while a < n_g:
         o = tobs[pt[a]]
@@ -881,30 +892,92 @@ def _frame_kernel(z, obs, rng, dt, n_obs, alive, tobs, tid, next_id, x, P, poses
                     ut[t_loc[pt[g]]] = pt[g]
                 if c_loc[pc[g]] >= 0:
                     uc[c_loc[pc[g]]] = pc[g]
-            # np.unique's order (ascending rows / candidates), as the numpy implementation
-            ut_s, uc_s = np.sort(ut), np.sort(uc)
-            for i in range(nt):
-                t_loc[ut_s[i]] = i
-            for i in range(nc):
-                c_loc[uc_s[i]] = i
-            cost = np.full((nt, nc), 1e6)
+            # connected components of the ambiguous gates (tracks and candidates as nodes): the optimal
+            # assignment (most pairs, then least cost) decomposes over them, so each is solved on its own
+            # (in a swarm one observer's gates form many small clusters, not one big matrix)
+            nn = nt + nc
+            parent = np.arange(nn)
             for g in range(a, b):
-                if t_loc[pt[g]] >= 0 and c_loc[pc[g]] >= 0 and not (deg_t[pt[g]] == 1 and deg_c[pc[g]] == 1):
-                    cost[t_loc[pt[g]], c_loc[pc[g]]] = pm[g]
-            if nt <= nc:
-                col = _hungarian(cost)
-                for i in range(nt):
-                    if col[i] >= 0 and cost[i, col[i]] < 1e6:
-                        ti[n_m] = ut_s[i]
-                        ci[n_m] = uc_s[col[i]]
-                        n_m += 1
-            else:
-                row = _hungarian(cost.T.copy())
-                for j in range(nc):
-                    if row[j] >= 0 and cost[row[j], j] < 1e6:
-                        ti[n_m] = ut_s[row[j]]
-                        ci[n_m] = uc_s[j]
-                        n_m += 1
+                if not (deg_t[pt[g]] == 1 and deg_c[pc[g]] == 1):
+                    u, v = _find(parent, t_loc[pt[g]]), _find(parent, nt + c_loc[pc[g]])
+                    if u != v:
+                        parent[u] = v
+            comp = np.empty(nn, np.int64)
+            cid = np.full(nn, -1, np.int64)
+            n_comp = 0
+            for i in range(nn):
+                root = _find(parent, i)
+                if cid[root] < 0:
+                    cid[root] = n_comp
+                    n_comp += 1
+                comp[i] = cid[root]
+            # pairs bucketed by component (counting sort)
+            p_cnt = np.zeros(n_comp + 1, np.int64)
+            for g in range(a, b):
+                if not (deg_t[pt[g]] == 1 and deg_c[pc[g]] == 1):
+                    p_cnt[comp[t_loc[pt[g]]] + 1] += 1
+            for q in range(n_comp):
+                p_cnt[q + 1] += p_cnt[q]
+            p_ord = np.empty(p_cnt[n_comp], np.int64)
+            fill = p_cnt[:-1].copy()
+            for g in range(a, b):
+                if not (deg_t[pt[g]] == 1 and deg_c[pc[g]] == 1):
+                    q = comp[t_loc[pt[g]]]
+                    p_ord[fill[q]] = g
+                    fill[q] += 1
+            for q in range(n_comp):
+                # the component's tracks and candidates in ascending order (as np.unique in the reference)
+                mt = mc = 0
+                for z_ in range(p_cnt[q], p_cnt[q + 1]):
+                    g = p_ord[z_]
+                    if t_q[pt[g]] < 0:
+                        t_q[pt[g]] = 0
+                        mt += 1
+                    if c_q[pc[g]] < 0:
+                        c_q[pc[g]] = 0
+                        mc += 1
+                qt = np.empty(mt, np.int64)
+                qc = np.empty(mc, np.int64)
+                it = ic = 0
+                for z_ in range(p_cnt[q], p_cnt[q + 1]):
+                    g = p_ord[z_]
+                    if t_q[pt[g]] == 0:
+                        t_q[pt[g]] = 1
+                        qt[it] = pt[g]
+                        it += 1
+                    if c_q[pc[g]] == 0:
+                        c_q[pc[g]] = 1
+                        qc[ic] = pc[g]
+                        ic += 1
+                qt.sort()
+                qc.sort()
+                for i in range(mt):
+                    t_q[qt[i]] = i
+                for i in range(mc):
+                    c_q[qc[i]] = i
+                cost = np.full((mt, mc), 1e6)
+                for z_ in range(p_cnt[q], p_cnt[q + 1]):
+                    g = p_ord[z_]
+                    cost[t_q[pt[g]], c_q[pc[g]]] = pm[g]
+                if mt <= mc:
+                    col = _hungarian(cost)
+                    for i in range(mt):
+                        if col[i] >= 0 and cost[i, col[i]] < 1e6:
+                            ti[n_m] = qt[i]
+                            ci[n_m] = qc[col[i]]
+                            n_m += 1
+                else:
+                    row = _hungarian(cost.T.copy())
+                    for j in range(mc):
+                        if row[j] >= 0 and cost[row[j], j] < 1e6:
+                            ti[n_m] = qt[row[j]]
+                            ci[n_m] = qc[j]
+                            n_m += 1
+                for i in range(mt):
+                    t_q[qt[i]] = -1
+                for i in range(mc):
+                    c_q[qc[i]] = -1
+            ut_s, uc_s = ut, uc
             for i in range(nt):
                 t_loc[ut_s[i]] = -1
             for i in range(nc):
