@@ -25,7 +25,8 @@ absorbs.
    ``clutter_ratio`` (hit: ``p <- p / (p + (1 - p) * clutter_ratio)``; miss: ``p <- p (1 - P_D) /
    (1 - p P_D)``). A track is *confirmed* once its existence reaches ``confirm_existence`` and deleted when
    it falls below ``delete_existence``.
-5. *Kin probability*, in log-odds, from these cues (each documented in :class:`TrackerParams`; which are on by default, and why, in the README):
+5. *Kin probability*, in log-odds, from these cues (each documented in :class:`TrackerParams`; which
+   are on by default, and why: the README):
 
    a. **detector score**: each frame adds the evidence ``score_weight * (logit(s) - logit(score_prior))``
       of its candidate score ``s`` (higher = more kin-like, in (0, 1); logit clipped to ±6), plus, when
