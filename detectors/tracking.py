@@ -128,6 +128,9 @@ class TrackerParams:
         accept_llr, reject_llr: with the detector's own decisions at its operating point (``accepted`` in
             :meth:`KinTracker.update_batch`), the evidence a frame adds for an accepted / rejected
             candidate (on top of the score's).
+        score_per_metre: how much the score bar ``logit(score_prior)`` (the bar at 1 m) falls per metre
+            of range, log-odds/m: a detector's scores fall with range (fewer beams), kin's and
+            look-alikes' alike.
         score_gain, score_n0, score_clamp: the score cue is ``score_gain`` times the mean evidence per
             frame (``score_n0`` pseudo-frames of zero evidence in the mean), clamped to ``±score_clamp``.
         resid_clamp: clamp of the per-frame residual cue's sum (0: off).
@@ -175,6 +178,7 @@ class TrackerParams:
     accept_llr: float = 1.0
     reject_llr: float = 0.0
     score_gain: float = 8.0
+    score_per_metre: float = 0.0
     score_n0: float = 0.0
     shape_delta: float = 0.002
     shape_sigma: float = 0.0005
@@ -524,7 +528,7 @@ class KinTracker:
         pre = self._alive.copy()  # the tracks before this frame's births (existence: hit or miss)
         ti, ci, tb, born = self._associate_and_birth(z, obs, rng, dt)
         tracks, cands = np.concatenate([ti, tb]), np.concatenate([ci, born])
-        self._score_cue(tracks, scores[cands], None if accepted is None else accepted[cands])
+        self._score_cue(tracks, scores[cands], None if accepted is None else accepted[cands], rng[cands])
         if points is not None and len(tracks):
             self._outline_cue(tracks, cands, points, owner, obs, noise, cos, sin, k)
         hit = np.zeros(self._alive.shape[0], bool)
@@ -595,10 +599,12 @@ class KinTracker:
             pr.motion_gain, pr.odom_heading_rate**2, pr.odom_position_rate**2,
         )  # fmt: skip
 
-    def _score_cue(self, ti: np.ndarray, scores: np.ndarray, accepted) -> None:
+    def _score_cue(self, ti: np.ndarray, scores: np.ndarray, accepted, rng: np.ndarray) -> None:
         # (a) the detector's score: correlated frames -> weight < 1, clamped sum
         pr = self.params
-        step = pr.score_weight * (np.clip(_logit(scores), -6.0, 6.0) - _logit(pr.score_prior))
+        # a far object gets fewer beams and lower scores, kin and look-alikes alike: the bar falls with range
+        bar = _logit(pr.score_prior) - pr.score_per_metre * (rng - 1.0)
+        step = pr.score_weight * (np.clip(_logit(scores), -6.0, 6.0) - bar)
         if accepted is not None:
             step = step + np.where(accepted, pr.accept_llr, pr.reject_llr)
         self._score_sum[ti] += step
@@ -647,8 +653,8 @@ class KinTracker:
         # some track of the same observer moved: the swarm around it is active
         active = np.bincount(self._obs[rows][self._moved[rows]], minlength=self.n_observers) > 0
         idle = active[self._obs[rows]] & ~self._moved[rows] & (self._static_t[rows] >= pr.static_time)
-        lo = (_logit(pr.kin_prior) + self._lo_score[rows] + self._lo_shape[rows] + self._lo_motion[rows]
-              + np.where(idle, pr.static_penalty, 0.0))  # fmt: skip
+        lo = (_logit(pr.kin_prior) + self._lo_score[rows] + self._lo_resid[rows] + self._lo_shape[rows]
+              + self._lo_motion[rows] + np.where(idle, pr.static_penalty, 0.0))  # fmt: skip
         return 1.0 / (1.0 + np.exp(-lo))
 
     def kin_prob(self, observer: int | None = 0) -> np.ndarray:

@@ -740,6 +740,7 @@ TUNING_GRID: dict[str, tuple] = {
     "accept_llr": (0.0, 1.0, 2.0),
     "reject_llr": (0.0, -1.0, -2.0),
     "score_gain": (2.0, 4.0, 8.0),
+    "score_per_metre": (0.0, 0.5, 1.0),
     "static_penalty": (0.0, -2.0, -4.0, -8.0),
     "resid_clamp": (0.0, 2.0),
     "shape_clamp": (0.0, 2.0),

@@ -176,7 +176,7 @@ def test_per_frame_residual_cue_separates_a_circle_from_a_hexagon_over_frames():
     overlap over seeds), 25 frames of sliding beams do (every circle above every hexagon); the circle's
     residuals stay at the noise (chi-square per degree of freedom <= 1)."""
     centre, noise = np.array([0.8, 0.0]), 0.002
-    first, final, chi = ({"circle": [], "hexagon": []} for _ in range(3))
+    first, final, chi, kp = ({"circle": [], "hexagon": []} for _ in range(4))
     for kind in ("circle", "hexagon"):
         for seed in range(8):
             tr = KinTracker(TrackerParams(resid_clamp=50.0, score_prior=0.5))
@@ -187,9 +187,11 @@ def test_per_frame_residual_cue_separates_a_circle_from_a_hexagon_over_frames():
                     first[kind].append(tr._lo_resid[row])
             final[kind].append(tr._lo_resid[row])
             chi[kind].append(tr._res_chi2[row] / tr._res_dof[row])
+            kp[kind].append(tr.kin_prob()[0])
     assert min(first["circle"]) < max(first["hexagon"])  # one frame: ambiguous
     assert min(final["circle"]) > max(final["hexagon"]) and min(final["circle"]) > 2.0  # 25 frames: separated
     assert max(chi["circle"]) <= 1.0 < np.median(chi["hexagon"])
+    assert min(kp["circle"]) > max(kp["hexagon"])  # the cue enters the kin probability
 
 
 def test_parked_track_keeps_its_kin_probability_by_default():
