@@ -23,15 +23,11 @@ import argparse
 import dataclasses
 import json
 import math
-import sys
 import time
 from pathlib import Path
 
 from detectors.fileio import atomic_write, write_json
 from kin_envs.cli import add_logging_args, check_output_dir, setup_logging, write_run_info
-
-SCRIPTS = Path(__file__).resolve().parent
-sys.path.insert(0, str(SCRIPTS))
 
 
 def _fmt(v: float) -> str:
@@ -68,9 +64,8 @@ def main(argv: list[str] | None = None) -> dict:
         import torch
 
         torch.set_num_threads(args.torch_threads)
-    from benchmark_tracking import resolve_detector
-
     from detectors.tracking import TrackerParams
+    from kin_envs.cli import detector_from_name
     from kin_envs.detection import sequences as S
 
     grid = S.TUNING_GRID if args.grid is None else {k: tuple(v) for k, v in args.grid.items()}
@@ -79,7 +74,7 @@ def main(argv: list[str] | None = None) -> dict:
     from tqdm import tqdm
 
     for det_name in tqdm(args.detectors, desc="record episodes"):
-        det = resolve_detector(det_name)
+        det = detector_from_name(det_name, what="--detectors")
         for split, n in (("swarm", args.swarm_episodes), ("lookalike", args.lookalike_episodes)):
             recorded.append(S.record_sequences(det, S.training_split(split, args.first_seed), n, args.noise))
             names.append(f"{det_name} / {split}")
