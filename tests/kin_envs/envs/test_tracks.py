@@ -117,6 +117,10 @@ def test_swarm_env_tracks_every_agent_with_fixed_shape_info():
     seen, a = run(5)
     assert seen > 0
     np.testing.assert_array_equal(a, run(5)[1])
+    env = aggregation_v1.parallel_env(n_robots=4, tracker=True, render_mode="rgb_array")
+    env.reset(seed=1)
+    env.step({ag: np.zeros(2, np.float32) for ag in env.agents})
+    assert env.render().shape == (512, 512, 3)  # the track overlay of render_agent
     with pytest.raises(ValueError, match="obs_tracks"):
         aggregation_v1.parallel_env(tracker=True, obs_detections="topk", obs_tracks=True)
     with pytest.raises(ValueError, match="needs a detector"):
