@@ -602,33 +602,32 @@ class KinTracker:
     def _score_cue(self, ti: np.ndarray, scores: np.ndarray, accepted, rng: np.ndarray) -> None:
         # (a) the detector's score: correlated frames -> weight < 1, clamped sum
         pr = self.params
-        # a far object gets fewer beams and lower scores, kin and look-alikes alike: the bar falls with range
-        bar = _logit(pr.score_prior) - pr.score_per_metre * (rng - 1.0)
-        step = pr.score_weight * (np.clip(_logit(scores), -6.0, 6.0) - bar)
-        if accepted is not None:
-            step = step + np.where(accepted, pr.accept_llr, pr.reject_llr)
-        self._score_sum[ti] += step
-        self._n_scored[ti] += 1
-        # the mean evidence per frame (shrunk towards 0 by score_n0 pseudo-frames), times score_gain: frames
-        # of one object are strongly correlated, so the evidence grows with their consistency, not count
-        mean = self._score_sum[ti] / (self._n_scored[ti] + pr.score_n0)
-        self._lo_score[ti] = np.clip(pr.score_gain * mean, -pr.score_clamp, pr.score_clamp)
+        # a far object gets fewer beams and lower scores, kin and look-alikes alike: the bar falls with range.
+        # The cue is the mean evidence per frame (shrunk towards 0 by score_n0 pseudo-frames) times
+        # score_gain: frames of one object are strongly correlated, so the evidence grows with their
+        # consistency, not their count (one compiled loop over the updated tracks)
+        acc = np.zeros(0, np.bool_) if accepted is None else np.asarray(accepted, np.bool_)
+        _score_kernel(ti, np.asarray(scores, np.float64), acc, rng, self._score_sum, self._n_scored,
+                      self._lo_score, float(_logit(pr.score_prior)), pr.score_per_metre, pr.score_weight,
+                      pr.accept_llr, pr.reject_llr, pr.score_n0, pr.score_gain, pr.score_clamp)  # fmt: skip
 
     def _outline_cue(self, ti, ci, points, owner, obs, noise, cos, sin, k) -> None:
         # (b) the accumulated outline relative to the track centre (ego-motion compensated)
         pr = self.params
         pts = np.asarray(points, np.float64).reshape(-1, 2)
         owner = np.asarray(owner).reshape(-1).astype(np.int64)
-        if owner.shape[0] != pts.shape[0] or (owner.size and (owner.min() < 0 or owner.max() >= k)):
+        pts = np.ascontiguousarray(pts)
+        status = _points_check(pts, owner, k) if owner.shape[0] == pts.shape[0] else 1
+        if status == 1:
             raise ValueError(
                 f"KinTracker: owner must give each of the {pts.shape[0]} points a candidate in [0, {k})"
             )
-        if not np.all(np.isfinite(pts)):
+        if status == 2:
             raise ValueError("KinTracker: points must be finite")
-        if owner.size > 1 and np.any(owner[1:] < owner[:-1]):  # segment_points gives them sorted already
+        if status == 3:  # not grouped by candidate (segment_points gives them sorted already)
             order = np.argsort(owner, kind="stable")
-            pts, owner = pts[order], owner[order]
-        odom, sig, d = _points_prep(np.ascontiguousarray(pts), owner, obs, noise, cos, sin, self.poses,
+            pts, owner = np.ascontiguousarray(pts[order]), owner[order]
+        odom, sig, d = _points_prep(pts, owner, obs, noise, cos, sin, self.poses,
                                     pr.shape_sigma**2)  # fmt: skip
         cstart = np.searchsorted(owner, np.arange(k + 1))
         _outline_kernel(
@@ -1103,6 +1102,36 @@ def _finish_kernel(pre, hit, dt, alive, tobs, x, P, poses, exist, confirmed, mov
         static_t[t] += dt
         age[t] += 1
         alive[t] = exist[t] >= delete_exist
+
+
+@numba.njit(cache=True, nogil=True)
+def _score_kernel(ti, scores, accepted, rng, score_sum, n_scored, lo_score, bar1, per_metre, weight, acc_llr,
+                  rej_llr, n0, gain, clamp):  # fmt: skip
+    """The score cue of the updated tracks ``ti`` (candidate ``j`` of this frame for ``ti[j]``)."""
+    for j in range(ti.shape[0]):
+        t = ti[j]
+        p = min(max(scores[j], 1e-6), 1 - 1e-6)
+        lg = min(max(math.log(p / (1 - p)), -6.0), 6.0)
+        step = weight * (lg - (bar1 - per_metre * (rng[j] - 1.0)))
+        if accepted.shape[0]:
+            step += acc_llr if accepted[j] else rej_llr
+        score_sum[t] += step
+        n_scored[t] += 1
+        lo_score[t] = min(max(gain * score_sum[t] / (n_scored[t] + n0), -clamp), clamp)
+
+
+@numba.njit(cache=True, nogil=True)
+def _points_check(pts, owner, k):
+    """0: fine; 1: an owner outside [0, k); 2: a non-finite point; 3: fine but not sorted by owner."""
+    status = 0
+    for i in range(pts.shape[0]):
+        if owner[i] < 0 or owner[i] >= k:
+            return 1
+        if not (np.isfinite(pts[i, 0]) and np.isfinite(pts[i, 1])):
+            return 2
+        if i and owner[i] < owner[i - 1]:
+            status = 3
+    return status
 
 
 @numba.njit(cache=True, nogil=True)

@@ -104,7 +104,8 @@ def report(results: list[dict], cost: dict | None = None) -> str:
     if cost:
         lines += [
             "", f"## Tracking cost at {cost['n_robots']} observers", "",
-            f"Per frame ({cost['frames']} frames of a {cost['n_robots']}-robot swarm, "
+            f"Per frame ({cost['frames']} frames of a {cost['n_robots']}-robot swarm after the first "
+            f"{cost['skipped']} (steady state), "
             f"{cost['candidates_per_frame']:.0f} candidates per frame, best of the passes, warm): permissive "
             f"detector {1e3 * cost['detector_per_frame']:.2f} ms, "
             f"tracker {1e3 * cost['tracker_per_frame']:.2f} ms "
