@@ -1,5 +1,5 @@
-"""The tracker's frame steps as they were before the compiled kernels (numpy, one array operation per step):
-the reference the compiled :class:`detectors.tracking.KinTracker` must reproduce (same tracks)."""
+"""The tracker's frame steps and score cue as they were before the compiled kernels (numpy, one array
+operation per step): the reference the compiled :class:`detectors.tracking.KinTracker` must reproduce (same tracks)."""
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -161,3 +161,15 @@ class ReferenceKinTracker(KinTracker):
         self._moved[rows] |= moving
         self._lo_motion[rows] = np.where(self._moved[rows], pr.motion_gain, 0.0)
         self._static_t[rows] += dt
+
+    def _score_cue(self, ti, scores, accepted, rng):
+        pr = self.params
+        logit = lambda p: np.log(np.clip(p, 1e-6, 1 - 1e-6) / (1 - np.clip(p, 1e-6, 1 - 1e-6)))  # noqa: E731
+        bar = logit(pr.score_prior) - pr.score_per_metre * (rng - 1.0)
+        step = pr.score_weight * (np.clip(logit(scores), -6.0, 6.0) - bar)
+        if accepted is not None:
+            step = step + np.where(accepted, pr.accept_llr, pr.reject_llr)
+        self._score_sum[ti] += step
+        self._n_scored[ti] += 1
+        mean = self._score_sum[ti] / (self._n_scored[ti] + pr.score_n0)
+        self._lo_score[ti] = np.clip(pr.score_gain * mean, -pr.score_clamp, pr.score_clamp)

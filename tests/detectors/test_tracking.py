@@ -335,7 +335,8 @@ def test_compiled_frame_kernels_match_the_numpy_implementation(seed):
 
     rng = np.random.default_rng(seed)
     n_obs, n_obj = 4, 12
-    fast, ref = KinTracker(n_observers=n_obs), ReferenceKinTracker(n_observers=n_obs)
+    pr = TrackerParams(score_per_metre=0.5, score_n0=1.0, score_prior=0.7)  # every term of the score cue
+    fast, ref = KinTracker(pr, n_observers=n_obs), ReferenceKinTracker(pr, n_observers=n_obs)
     pos = rng.uniform(-1.5, 1.5, (n_obs, n_obj, 2))
     pos[:, n_obj // 2 :] = pos[:, : n_obj // 2] + rng.normal(0, 0.04, (n_obs, n_obj // 2, 2))  # close pairs
     vel = rng.normal(0, 0.3, (n_obs, n_obj, 2)) * (rng.random((n_obs, n_obj, 1)) < 0.5)
