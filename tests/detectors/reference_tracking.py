@@ -1,5 +1,6 @@
 """The tracker's frame steps and score cue as they were before the compiled kernels (numpy, one array
-operation per step): the reference the compiled :class:`detectors.tracking.KinTracker` must reproduce (same tracks)."""
+operation per step): the reference the compiled :class:`detectors.tracking.KinTracker` must reproduce
+(same tracks)."""
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
