@@ -392,9 +392,10 @@ def _multi_kernel(ox, oy, heading, n_beams, range_min, range_max, circles, c_lo,
     cos_tab, sin_tab = _beam_tables(n_beams)
     best_d = np.empty(n_beams)
     best_p = np.empty(n_beams, dtype=np.int32)
+    ids = np.arange(max(circles.shape[0], segments.shape[0]))
     for n in range(ox.shape[0]):
         _cast_one(ox[n], oy[n], heading[n], skip[n], range_max, circles[c_lo[n] : c_hi[n]],
-                  segments[s_lo[n] : s_hi[n]], cos_tab, sin_tab, best_d, best_p)
+                  segments[s_lo[n] : s_hi[n]], cos_tab, sin_tab, best_d, best_p, ids)
         base = p_lo[n]
         for i in range(n_beams):
             p = best_p[i] + 1
