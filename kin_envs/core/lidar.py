@@ -316,12 +316,26 @@ def _beam_tables(n_beams):
     return cos_tab, sin_tab
 
 
+_TABLES: dict[int, np.ndarray] = {}
+
+
+def beam_tables(n_beams: int) -> np.ndarray:
+    """``(2, n_beams)`` cos and sin of ``i * 2pi / n_beams``, computed once per beam count (by the same
+    compiled code as before: 360 sin/cos per kernel call were a quarter of a one-robot scan)."""
+    tabs = _TABLES.get(n_beams)
+    if tabs is None:
+        tabs = np.stack(_beam_tables(n_beams))
+        tabs.flags.writeable = False
+        _TABLES[n_beams] = tabs
+    return tabs
+
+
 @numba.njit(cache=True, nogil=True)
 def _scan_kernel(
     ox,
     oy,
     heading,
-    n_beams,
+    tabs,
     range_min,
     range_max,
     circles,
@@ -339,8 +353,11 @@ def _scan_kernel(
     Per robot the work happens in small buffers that stay in L1 cache and each output row is written
     once, sequentially (no intermediate arrays to evict the caches between robots).
     ``prim_kind`` / ``prim_index`` are owner tables indexed by primitive id + 1 (slot 0 = no hit).
+    ``tabs``: :func:`beam_tables`.
     """
-    cos_tab, sin_tab = _beam_tables(n_beams)
+    n_beams = tabs.shape[1]
+    cos_tab = tabs[0]
+    sin_tab = tabs[1]
     best_d = np.empty(n_beams)
     best_p = np.empty(n_beams, dtype=np.int32)
     ids = np.arange(max(circles.shape[0], segments.shape[0]))
@@ -661,11 +678,13 @@ def _grid_cast_one(
 
 @numba.njit(cache=True, nogil=True)
 def _scan_kernel_grid(
-    ox, oy, heading, n_beams, range_min, range_max, circles, circle_skip, segments, prim_kind,
+    ox, oy, heading, tabs, range_min, range_max, circles, circle_skip, segments, prim_kind,
     prim_index, gx, gy, cs, nx, ny, c_start, c_items, s_start, s_items, dyn_c, dyn_s, out_ranges,
     out_true, out_kind, out_index,
 ):  # fmt: skip
-    cos_tab, sin_tab = _beam_tables(n_beams)
+    n_beams = tabs.shape[1]
+    cos_tab = tabs[0]
+    sin_tab = tabs[1]
     n_c = circles.shape[0]
     box = _boxes(circles, segments, dyn_c, dyn_s)
     dc_start, dc_items, c_over = _bin(box[: dyn_c.shape[0]], dyn_c, gx, gy, cs, nx, ny, True)
@@ -738,7 +757,7 @@ def cast_scan(
         origins[:, 0].copy(),
         origins[:, 1].copy(),
         np.ascontiguousarray(headings, dtype=np.float64).reshape(n),
-        int(nb),
+        beam_tables(nb),
         float(spec.range_min),
         float(spec.range_max),
         circles,
