@@ -79,9 +79,11 @@ def test_lidar_scaling_section(bench, tmp_path):
     res = bench.main(
         [
             "--sections", "lidar_scaling", "--min-time", "0.03", "--scaling-robots", "1", "3",
-            "--scaling-obstacles", "0", "5", "--out", str(tmp_path),
+            "--scaling-obstacles", "0", "5", "--out", str(tmp_path), "--clock", "cpu",
         ]
     )  # fmt: skip
+    assert res["config"]["clock"] == "cpu" and bench._clock is bench.CLOCKS["cpu"]
+    bench._clock = bench.CLOCKS["wall"]
     rows = res["lidar_scaling"]
     assert [(r["robots"], r["obstacles"]) for r in rows] == [(1, 0), (3, 0), (1, 5), (3, 5)]
     for r in rows:
