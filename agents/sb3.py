@@ -6,11 +6,11 @@ SB3, SuperSuit and torch are imported lazily, inside the functions that need the
 Example::
 
     policy = SB3Policy.load("runs/seek/model.zip")            # PPO or SAC, read from the zip
-    env = gymnasium.make("kin_envs/KinSeek-v0", obs_detections="topk")
+    env = gymnasium.make("kin_envs/KinSeek-v1", obs_detections="topk")
     policy.check_env(env)                                     # ValueError if the spaces differ
     obs, info = env.reset(seed=0); action = policy.act(obs, info)
 
-    par = aggregation_v0.parallel_env(n_robots=8, obs_detections="topk")
+    par = aggregation_v1.parallel_env(n_robots=8, obs_detections="topk")
     group = PolicyGroup.shared(policy.check_env(par), par.possible_agents)  # one batched call per step
 """
 
@@ -32,6 +32,8 @@ __all__ = [
     "resolve_policy_kwargs",
     "SeededSB3VecEnv",
     "algo_class",
+    "atomic_checkpoints",
+    "atomic_save_callback",
     "detect_algo",
     "shared_vec_env",
 ]
@@ -196,6 +198,43 @@ def shared_vec_env(parallel_env: Any, n_copies: int = 1, seed: int | None = None
 
 
 # --- a 1-D convolutional feature extractor over the scan ----------------------------------------
+
+
+def atomic_checkpoints(save_freq: int, save_path, name_prefix: str = "model"):
+    """SB3's ``CheckpointCallback`` (``{name_prefix}_{steps}_steps.zip`` every ``save_freq`` calls) with
+    each checkpoint written through :func:`detectors.fileio.atomic_write`: a Ctrl-C or a crash while
+    saving leaves no half-written zip under a checkpoint's name (SB3 writes straight to it)."""
+    from stable_baselines3.common.callbacks import CheckpointCallback
+
+    from detectors.fileio import atomic_write
+
+    class AtomicCheckpointCallback(CheckpointCallback):
+        def _on_step(self) -> bool:
+            if self.n_calls % self.save_freq == 0:
+                with atomic_write(self._checkpoint_path(extension="zip")) as f:
+                    self.model.save(f)
+            return True
+
+    return AtomicCheckpointCallback(save_freq=save_freq, save_path=str(save_path), name_prefix=name_prefix)
+
+
+def atomic_save_callback(path):
+    """A callback that saves the model to ``path`` atomically each time it is called: for
+    ``EvalCallback(callback_on_new_best=...)`` instead of its ``best_model_save_path`` (a plain save)."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    from detectors.fileio import atomic_write
+
+    path = Path(path)
+
+    class AtomicSave(BaseCallback):
+        def _on_step(self) -> bool:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            with atomic_write(path) as f:
+                self.model.save(f)
+            return True
+
+    return AtomicSave()
 
 
 def resolve_policy_kwargs(policy_kwargs: dict | None) -> dict | None:

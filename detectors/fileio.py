@@ -5,6 +5,10 @@ through :func:`atomic_write`: the data goes to a temporary file in the same dire
 then renamed over the final name (``os.replace`` is atomic on POSIX and Windows). An exception or Ctrl-C
 inside the block removes the temporary file and leaves any previous file untouched. Simulator-free, so
 both ``detectors`` (checkpoints) and ``kin_envs`` / the scripts use it.
+
+A log that grows during a run (a training log read with ``tail -f``) cannot be written in one go:
+:class:`LiveLog` flushes every line as it is written, and on closing - after success, an exception or
+Ctrl-C - atomically replaces the file with every whole line written, so that no torn last line is left.
 """
 
 from __future__ import annotations
@@ -18,7 +22,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import IO, Any
 
-__all__ = ["atomic_write", "write_json", "write_text", "sha256_file"]
+__all__ = ["LiveLog", "atomic_write", "write_json", "write_text", "sha256_file"]
 
 
 @contextlib.contextmanager
@@ -44,6 +48,44 @@ def atomic_write(path, mode: str = "wb") -> Iterator[IO[Any]]:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
         raise
+
+
+class LiveLog:
+    """A text log written line by line under its final name, made whole when it is closed.
+
+    ``write(s)`` (callers write whole lines, e.g. ``csv.writer`` rows or JSON lines) writes and flushes at
+    once, so the file can be followed while the run goes. ``close()`` (also on leaving a ``with`` block by
+    an exception or ``KeyboardInterrupt``) rewrites the file atomically from memory with the whole lines
+    written, so an interrupted write leaves no torn last line. Logs are small (one line per epoch or
+    iteration), so keeping them in memory costs nothing. Newlines are written as given (``newline=""``).
+    """
+
+    def __init__(self, path) -> None:
+        self.path = Path(path)
+        self._parts: list[str] = []
+        self._f = open(self.path, "w", encoding="utf-8", newline="")  # noqa: SIM115  (closed in close())
+
+    def write(self, s: str) -> int:
+        if not isinstance(s, str):
+            raise TypeError(f"LiveLog.write: expected str, got {type(s).__name__}")
+        self._parts.append(s)
+        self._f.write(s)
+        self._f.flush()
+        return len(s)
+
+    def close(self) -> None:
+        if self._f.closed:
+            return
+        self._f.close()
+        text = "".join(self._parts)
+        with atomic_write(self.path, "wb") as f:
+            f.write(text[: text.rfind("\n") + 1].encode("utf-8"))  # whole lines only
+
+    def __enter__(self) -> LiveLog:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
 
 
 def _umask() -> int:

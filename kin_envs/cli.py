@@ -5,7 +5,9 @@
 * :func:`progress`: a tqdm bar when tqdm is installed (the ``train`` / ``distributed`` extras), else the
   plain iterable, so that the scripts run on the core install;
 * :func:`write_run_info`: the ``run.json`` every script writes next to its outputs (command, config,
-  seed, package versions, git commit), written atomically.
+  seed, package versions, git commit), written atomically;
+* :func:`detector_from_name`: a ``--detector`` value (``geometric``, ``learned``, ``beam`` or
+  ``module:Class``) -> a detector object (the detectors are imported lazily).
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ from detectors.fileio import write_json
 
 __all__ = [
     "add_logging_args",
+    "detector_from_name",
     "package_versions",
     "parse_json_object",
     "progress",
@@ -135,6 +138,62 @@ def parse_json_object(text: str | None, what: str) -> dict | None:
 
 
 # --- logging ------------------------------------------------------------------------------------
+
+
+def detector_from_name(name: str, *, checkpoint=None, reports: bool = False, what: str = "--detector"):
+    """``"geometric"``, ``"learned"``, ``"beam"`` or ``"module:Class"`` -> a detector instance.
+
+    ``checkpoint`` (a path; default: the shipped one) applies to ``learned`` and ``beam`` only.
+    ``reports`` builds the per-segment reports of the geometric and learned detectors (they cost time
+    and no script scores them). Raises ``ValueError`` naming ``what`` for an unknown name, a detector
+    that cannot be imported or built (no torch, no or a bad checkpoint), or an object without
+    ``detect_batch``.
+    """
+    if not isinstance(name, str):
+        raise TypeError(f"{what}: expected a detector name (str), got {type(name).__name__}")
+    if checkpoint is not None and name not in ("learned", "beam"):
+        raise ValueError(f"{what} {name!r}: a checkpoint applies to 'learned' and 'beam' only")
+    if name == "geometric":
+        from detectors import GeometricKinDetector
+
+        return GeometricKinDetector(reports=reports)
+    if name == "learned":
+        try:
+            from detectors.learned import LearnedKinDetector
+        except ImportError as e:  # torch missing (the train extra)
+            raise ValueError(
+                f"detector 'learned' is unavailable: cannot import detectors.learned ({e})"
+            ) from e
+        try:
+            return LearnedKinDetector(checkpoint, reports=reports)
+        except (OSError, ValueError) as e:  # no or bad checkpoint
+            raise ValueError(f"detector 'learned' is unavailable: {e}") from e
+    if name == "beam":
+        from detectors.beam_detector import BeamKinDetector
+
+        try:
+            return BeamKinDetector(checkpoint)
+        except (OSError, ValueError) as e:
+            raise ValueError(f"detector 'beam' is unavailable: {e}") from e
+    if ":" in name:
+        import importlib
+
+        module, _, cls_name = name.partition(":")
+        try:
+            cls = getattr(importlib.import_module(module), cls_name)
+        except (ImportError, AttributeError) as e:
+            raise ValueError(f"detector {name!r}: cannot import {cls_name} from {module} ({e})") from e
+        try:
+            det = cls()
+        except Exception as e:  # whatever the constructor raises, say which detector failed
+            raise ValueError(f"detector {name!r}: {cls_name}() failed ({type(e).__name__}: {e})") from e
+        if not callable(getattr(det, "detect_batch", None)):
+            raise ValueError(f"detector {name!r}: {cls_name} has no detect_batch(ranges, angles)")
+        return det
+    raise ValueError(
+        f"unknown detector {name!r} ({what}); expected 'geometric', 'learned', 'beam' or a "
+        "'module:Class' path"
+    )
 
 
 def add_logging_args(parser: argparse.ArgumentParser) -> None:

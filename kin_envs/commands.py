@@ -1,6 +1,6 @@
 """The ``kin-envs`` console script: kin detection on ROS bags, and simulated episodes recorded as bags.
 
-``kin-envs detect BAG --topic /scan [--detector geometric|learned] [--odom /odom] [--out FILE.jsonl|.csv]
+``kin-envs detect BAG --topic /scan [--detector geometric|learned|beam] [--odom /odom] [--out FILE.jsonl|.csv]
 [--markers OUT_BAG]`` runs a detector on every ``sensor_msgs/LaserScan`` of a ROS 1 or ROS 2 bag and
 writes the detections per scan with their stamps; ``kin-envs record OUT --env ID`` records one env
 episode to a bag (:func:`kin_envs.ros.record_episode`). Run ``kin-envs COMMAND --help`` for the options.
@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from detectors.fileio import atomic_write, write_json
+from kin_envs.cli import detector_from_name
 
 __all__ = ["main"]
 
@@ -32,20 +33,15 @@ _CSV_FIELDS = (
 
 
 def _make_detector(name: str, checkpoint: str | None):
-    if name == "geometric":
-        if checkpoint:
-            raise ValueError("--checkpoint applies to --detector learned only")
-        from detectors import GeometricKinDetector
-
-        return GeometricKinDetector()
+    if checkpoint and name not in ("learned", "beam"):
+        raise ValueError("--checkpoint applies to --detector learned or beam only")
     if name == "learned":
-        import torch
+        with contextlib.suppress(ImportError):  # no torch: detector_from_name says so
+            import torch
 
-        torch.set_num_threads(1)  # a tiny network: more threads only add contention
-        from detectors.learned import LearnedKinDetector
-
-        return LearnedKinDetector(checkpoint)
-    raise ValueError(f"--detector must be 'geometric' or 'learned', got {name!r}")
+            torch.set_num_threads(1)  # a tiny network: more threads only add contention
+    # per-segment reports are not written out: skip building them
+    return detector_from_name(name, checkpoint=checkpoint, reports=False)
 
 
 def _output_format(out: str | None) -> str:
@@ -202,10 +198,12 @@ def record(args: argparse.Namespace) -> int:
     from kin_envs.ros import record_episode
 
     kwargs = parse_json_object(args.env_kwargs, "--env-kwargs") or {}
-    if args.env in ("aggregation_v0", "kin_envs.aggregation_v0"):
-        from kin_envs import aggregation_v0
+    from kin_envs import aggregation_v0, aggregation_v1
 
-        env = aggregation_v0.parallel_env(**kwargs)
+    swarms = {"aggregation_v1": aggregation_v1, "aggregation_v0": aggregation_v0}
+    swarm = swarms.get(args.env.removeprefix("kin_envs."))
+    if swarm is not None:
+        env = swarm.parallel_env(**kwargs)
     else:
         import gymnasium as gym
 
@@ -253,10 +251,13 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("bag", help="ROS 1 .bag file or ROS 2 bag directory (sqlite3 or MCAP)")
     d.add_argument("--topic", required=True, help="sensor_msgs/LaserScan topic, e.g. /scan")
     d.add_argument(
-        "--detector", default="geometric", choices=("geometric", "learned"), help="detector to run"
+        "--detector",
+        default="geometric",
+        choices=("geometric", "learned", "beam"),
+        help="detector to run (beam: the per-beam DROW-style detector, numpy only)",
     )
     d.add_argument(
-        "--checkpoint", default=None, help="learned detector checkpoint (default: the shipped one)"
+        "--checkpoint", default=None, help="learned or beam detector checkpoint (default: the shipped one)"
     )
     d.add_argument(
         "--odom",
@@ -299,7 +300,9 @@ def build_parser() -> argparse.ArgumentParser:
     r = sub.add_parser("record", help="record one simulated episode to a ROS bag")
     r.add_argument("out", help="bag to create: a ROS 2 bag directory, or OUT.bag for ROS 1")
     r.add_argument(
-        "--env", default="kin_envs/KinSeek-v0", help="Gymnasium id, or aggregation_v0 (PettingZoo)"
+        "--env",
+        default="kin_envs/KinSeek-v1",
+        help="Gymnasium id, or aggregation_v1 / aggregation_v0 (PettingZoo)",
     )
     r.add_argument("--env-kwargs", default=None, help="env keyword arguments: a JSON object or a JSON file")
     r.add_argument(
@@ -315,11 +318,11 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument(
         "--detector",
         default="geometric",
-        choices=("geometric", "learned", "none"),
+        choices=("geometric", "learned", "beam", "none"),
         help="detector whose output is recorded as markers",
     )
     r.add_argument(
-        "--checkpoint", default=None, help="learned detector checkpoint (default: the shipped one)"
+        "--checkpoint", default=None, help="learned or beam detector checkpoint (default: the shipped one)"
     )
     r.add_argument("--quiet", action="store_true", help="no progress bar")
     r.set_defaults(func=record)

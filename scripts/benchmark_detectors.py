@@ -26,7 +26,6 @@ Example::
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import math
 import platform
 import sys
@@ -36,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from detectors.fileio import atomic_write, write_json
-from kin_envs.cli import add_logging_args, check_output_dir, noise_level, setup_logging
+from kin_envs.cli import add_logging_args, check_output_dir, detector_from_name, noise_level, setup_logging
 from kin_envs.detection.benchmark import (
     BENCHMARK_VERSION,
     CONDITIONS,
@@ -47,22 +46,6 @@ from kin_envs.detection.benchmark import (
     Condition,
     run_benchmark,
 )
-
-SCRIPTS = Path(__file__).resolve().parent
-
-
-def resolve_detector(name: str):
-    """``geometric``, ``learned`` or ``module:Class`` (``scripts/evaluate_detectors.py``'s rule)."""
-    spec = importlib.util.spec_from_file_location(
-        "kin_envs_script_evaluate_detectors", SCRIPTS / "evaluate_detectors.py"
-    )
-    mod = sys.modules.get(spec.name)
-    if mod is None:
-        mod = importlib.util.module_from_spec(spec)
-        sys.modules[spec.name] = mod
-        spec.loader.exec_module(mod)
-    return mod.resolve_detector(name)
-
 
 # --------------------------------------------------------------------------- report
 
@@ -248,7 +231,7 @@ def main(argv: list[str] | None = None) -> BenchmarkResults:
         p.error("--resamples and --seed-offset must be >= 0")
     try:
         detectors = {
-            name.rsplit(":", 1)[-1] if ":" in name else name: resolve_detector(name)
+            name.rsplit(":", 1)[-1] if ":" in name else name: detector_from_name(name, what="--detectors")
             for name in args.detectors
         }
     except ValueError as e:

@@ -23,7 +23,6 @@ Example::
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import math
 import sys
 import time
@@ -32,26 +31,12 @@ from pathlib import Path
 import numpy as np
 
 from detectors.fileio import atomic_write, write_json
-from kin_envs.cli import add_logging_args, check_output_dir, setup_logging, write_run_info
+from kin_envs.cli import add_logging_args, check_output_dir, detector_from_name, setup_logging, write_run_info
 from kin_envs.detection.sequences import AGE_EDGES, SEQUENCE_SPLITS, SEQUENCE_VERSION, run_sequences
 
-SCRIPTS = Path(__file__).resolve().parent
 _AGE_NAMES = [
     f"{a}" if b - a == 1 else f"{a}-{b - 1}" for a, b in zip(AGE_EDGES[:-1], AGE_EDGES[1:], strict=True)
 ] + [f"{AGE_EDGES[-1]}+"]
-
-
-def resolve_detector(name: str):
-    """``geometric``, ``learned`` or ``module:Class`` (``scripts/evaluate_detectors.py``'s rule)."""
-    spec = importlib.util.spec_from_file_location(
-        "kin_envs_script_evaluate_detectors", SCRIPTS / "evaluate_detectors.py"
-    )
-    mod = sys.modules.get(spec.name)
-    if mod is None:
-        mod = importlib.util.module_from_spec(spec)
-        sys.modules[spec.name] = mod
-        spec.loader.exec_module(mod)
-    return mod.resolve_detector(name)
 
 
 def _f(v) -> str:
@@ -199,8 +184,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
         import torch
 
         torch.set_num_threads(args.torch_threads)
-    detector = resolve_detector(args.detector)
-    baselines = {name: resolve_detector(name) for name in args.baselines if name != args.detector}
+    detector = detector_from_name(args.detector)
+    baselines = {n: detector_from_name(n, what="--baselines") for n in args.baselines if n != args.detector}
     from tqdm import tqdm
 
     t0 = time.perf_counter()

@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import importlib
 import json
 import math
 import sys
@@ -49,6 +48,7 @@ from kin_envs import World, scenes
 from kin_envs.cli import (
     add_logging_args,
     check_output_dir,
+    detector_from_name,
     noise_level,
     script_logger,
     setup_logging,
@@ -69,52 +69,6 @@ BEAM_EDGES = (1, 2, 3, 4, 5, 7, 10, 361)
 
 
 # --------------------------------------------------------------------------- detectors
-
-
-def resolve_detector(name: str) -> KinDetector:
-    """``"geometric"``, ``"learned"``, ``"beam"`` or ``"module:Class"`` -> a detector instance.
-
-    Raises ``ValueError`` for an unknown name, a class that cannot be imported or built, or an
-    object without ``detect_batch``.
-    """
-    if name == "geometric":
-        from detectors import GeometricKinDetector
-
-        return GeometricKinDetector(reports=False)  # reports are not scored; they cost time
-    if name == "learned":
-        try:
-            from detectors.learned import LearnedKinDetector
-        except ImportError as e:  # torch missing, or the module not there yet
-            raise ValueError(
-                f"detector 'learned' is unavailable: cannot import detectors.learned ({e})"
-            ) from e
-        try:
-            return LearnedKinDetector(reports=False)
-        except (OSError, ValueError) as e:  # no or bad checkpoint
-            raise ValueError(f"detector 'learned' is unavailable: {e}") from e
-    if name == "beam":
-        from detectors.beam_detector import BeamKinDetector
-
-        try:
-            return BeamKinDetector()
-        except (OSError, ValueError) as e:  # no or bad checkpoint
-            raise ValueError(f"detector 'beam' is unavailable: {e}") from e
-    if ":" in name:
-        module, _, cls_name = name.partition(":")
-        try:
-            cls = getattr(importlib.import_module(module), cls_name)
-        except (ImportError, AttributeError) as e:
-            raise ValueError(f"detector {name!r}: cannot import {cls_name} from {module} ({e})") from e
-        try:
-            det = cls()
-        except Exception as e:  # whatever the constructor raises, say which detector failed
-            raise ValueError(f"detector {name!r}: {cls_name}() failed ({type(e).__name__}: {e})") from e
-        if not callable(getattr(det, "detect_batch", None)):
-            raise ValueError(f"detector {name!r}: {cls_name} has no detect_batch(ranges, angles)")
-        return det
-    raise ValueError(
-        f"unknown detector {name!r}; expected 'geometric', 'learned', 'beam' or a 'module:Class' path"
-    )
 
 
 # --------------------------------------------------------------------------- data
@@ -168,7 +122,7 @@ def build_detectors(names, torch_threads: int = 1) -> tuple[dict[str, KinDetecto
     detectors, startup = {}, {}
     for name in names:
         t0 = time.perf_counter()
-        detectors[name] = resolve_detector(name)
+        detectors[name] = detector_from_name(name, what="--detectors")
         built = time.perf_counter() - t0
         if "torch" in sys.modules:
             sys.modules["torch"].set_num_threads(torch_threads)

@@ -39,16 +39,17 @@ from detectors.samples import category_code
 from kin_envs.cli import add_logging_args, check_output_dir, parse_json_object, setup_logging
 from kin_envs.cli import progress as tqdm
 from kin_envs.detection.beam_dataset import BEAM_DATASET_CONFIG, beam_records
-from kin_envs.detection.swarm_scenes import check_training_seeds
+from kin_envs.detection.seeds import TRAINING_SEEDS, check_training_seeds
 
 
 def make_data(out: Path, first_seed: int, n_scenes: int, shard_scenes: int, progress: bool) -> dict:
     """Write ``n_scenes`` scenes' beam records as shards, then the manifest (with checksums)."""
-    seeds = check_training_seeds(range(first_seed, first_seed + n_scenes))
+    seeds = range(first_seed, first_seed + n_scenes)
+    check_training_seeds(seeds, "--first-seed/--scenes", within=TRAINING_SEEDS)
     out.mkdir(parents=True, exist_ok=True)
     shards, parts = [], []
     t0 = time.perf_counter()
-    for k, seed in enumerate(tqdm(seeds.tolist(), desc="scenes", unit="scene", disable=not progress)):
+    for k, seed in enumerate(tqdm(seeds, desc="scenes", unit="scene", disable=not progress)):
         parts.append(beam_records(seed))
         if len(parts) == shard_scenes or k == n_scenes - 1:
             name = f"shard_{len(shards):05d}.npz"
@@ -204,7 +205,7 @@ def main(argv: list[str] | None = None) -> dict:
         make_data(data_dir, args.first_seed, args.scenes, args.shard_scenes, not args.no_progress)
     t_data = time.perf_counter() - t0
     records, manifest = load_beam_dataset(data_dir)
-    check_training_seeds(records["seed"])
+    check_training_seeds(records["seed"], f"seeds in {data_dir}", within=TRAINING_SEEDS)
     tr, va = split_rows(records, args.val_fraction)
     rng = np.random.default_rng(args.seed)
     x, y, t, w = beam_training_set(subset(records, tr), bcfg, tcfg.easy_keep, rng)

@@ -47,7 +47,7 @@ import numpy as np
 
 import detectors
 from detectors.features import feature_names, observer_to_local
-from detectors.fileio import write_json, write_text
+from detectors.fileio import LiveLog, write_json, write_text
 from detectors.geometric import GeometricKinDetector
 from kin_envs import World, scenes
 from kin_envs.cli import (
@@ -593,7 +593,7 @@ def main(argv=None) -> dict:
         return {"x": segs["x"][m], "y": segs["label"][m], "target": tgt[m], "weight": weight[m]}
 
     log_path = args.out / "train_log.csv"
-    with log_path.open("w", newline="") as f:
+    with LiveLog(log_path) as f:  # flushed per row; whole rows only, even after Ctrl-C
         writer = None
 
         def log(rec):
@@ -602,7 +602,6 @@ def main(argv=None) -> dict:
                 writer = csv.DictWriter(f, fieldnames=list(rec))
                 writer.writeheader()
             writer.writerow(rec)
-            f.flush()
 
         t0 = time.perf_counter()
         model, history = train_segment_net(

@@ -12,7 +12,7 @@ and ``run.json`` (command, config, seed, versions, timing, final evaluation).
 
 Example::
 
-    python scripts/train_single.py --env kin_envs/KinSeek-v0 --env-kwargs '{"obs_detections": "topk"}' \\
+    python scripts/train_single.py --env kin_envs/KinSeek-v1 --env-kwargs '{"obs_detections": "topk"}' \\
         --timesteps 300000 --out runs/seek_topk
     python scripts/train_single.py --env-kwargs '{"detector": null}' --out runs/seek_scan
 """
@@ -23,6 +23,8 @@ import argparse
 import dataclasses
 import inspect
 import json
+import os
+import shutil
 import sys
 import time
 from dataclasses import dataclass, field
@@ -38,7 +40,7 @@ if str(ROOT) not in sys.path:  # run as a file: make agents / kin_envs importabl
 
 import kin_envs  # noqa: E402,F401  (registers the env ids)
 from agents.hyperparams import hyperparams_for  # noqa: E402
-from agents.sb3 import ALGOS, algo_class, resolve_policy_kwargs  # noqa: E402
+from agents.sb3 import ALGOS, algo_class, atomic_checkpoints, atomic_save_callback, resolve_policy_kwargs  # noqa: E402
 from kin_envs.cli import (  # noqa: E402
     add_logging_args,
     parse_json_object,
@@ -49,13 +51,15 @@ from kin_envs.cli import (  # noqa: E402
 
 VEC_ENVS = ("dummy", "subproc")
 EVAL_SEED_OFFSET = 10_000
+#: where SB3's EvalCallback writes its log before it is renamed into eval/ (see make_callbacks)
+LIVE_EVAL_DIR = ".live"
 
 
 @dataclass(frozen=True)
 class TrainConfig:
     """Validated settings of one training run (``from_dict`` rejects unknown keys)."""
 
-    env_id: str = "kin_envs/KinSeek-v0"
+    env_id: str = "kin_envs/KinSeek-v1"
     env_kwargs: dict = field(default_factory=dict)
     algo: str = "ppo"
     total_timesteps: int = 300_000
@@ -136,19 +140,25 @@ def build_config(args: argparse.Namespace) -> TrainConfig:
 
 
 def make_callbacks(cfg: TrainConfig, out: Path, progress: bool):
-    from stable_baselines3.common.callbacks import BaseCallback, CheckpointCallback, EvalCallback
+    from stable_baselines3.common.callbacks import BaseCallback, EvalCallback
     from stable_baselines3.common.env_util import make_vec_env
 
     from kin_envs.cli import progress as tqdm
 
     class SeededEvalCallback(EvalCallback):
         """Reseeds the eval env before each evaluation: every point of the curve plays the same
-        episodes, so the curve shows the policy improving rather than layout luck."""
+        episodes, so the curve shows the policy improving rather than layout luck. SB3 rewrites its log
+        in place (``np.savez``); it writes it to ``eval/.live/`` here and each evaluation's log is
+        renamed over ``eval/evaluations.npz``, so the file under the final name is always whole."""
 
         def _on_step(self) -> bool:
             if self.eval_freq > 0 and self.n_calls % self.eval_freq == 0:
                 self.eval_env.seed(cfg.seed + EVAL_SEED_OFFSET)
-            return super()._on_step()
+            keep_going = super()._on_step()
+            live = out / "eval" / LIVE_EVAL_DIR / "evaluations.npz"
+            if live.is_file():
+                os.replace(live, out / "eval" / "evaluations.npz")
+            return keep_going
 
     class TqdmCallback(BaseCallback):
         """Progress bar (SB3's progress_bar=True needs rich, which is not a dependency)."""
@@ -170,12 +180,11 @@ def make_callbacks(cfg: TrainConfig, out: Path, progress: bool):
                                 env_kwargs=cfg.env_kwargs)
         callbacks.append(SeededEvalCallback(
             eval_env, n_eval_episodes=cfg.eval_episodes, eval_freq=max(cfg.eval_freq // cfg.n_envs, 1),
-            log_path=str(out / "eval"), best_model_save_path=str(out / "best"), deterministic=True,
-            verbose=0,
+            log_path=str(out / "eval" / LIVE_EVAL_DIR), deterministic=True, verbose=0,
+            callback_on_new_best=atomic_save_callback(out / "best" / "best_model.zip"),
         ))
     if cfg.checkpoint_freq > 0:
-        callbacks.append(CheckpointCallback(save_freq=max(cfg.checkpoint_freq // cfg.n_envs, 1),
-                                            save_path=str(out / "checkpoints"), name_prefix="model"))
+        callbacks.append(atomic_checkpoints(max(cfg.checkpoint_freq // cfg.n_envs, 1), out / "checkpoints"))
     return callbacks
 
 
@@ -196,7 +205,7 @@ def final_evaluation(out: Path) -> dict[str, Any] | None:
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--env", default="kin_envs/KinSeek-v0", help="registered Gymnasium id")
+    p.add_argument("--env", default="kin_envs/KinSeek-v1", help="registered Gymnasium id")
     p.add_argument("--env-kwargs", default=None, help="env kwargs as a JSON object (or a JSON file)")
     p.add_argument("--algo", default="ppo", choices=ALGOS, help="SB3 algorithm (default: %(default)s)")
     p.add_argument("--timesteps", type=int, default=None, help="total env steps (default: shipped)")
@@ -249,8 +258,11 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     model = algo_class(cfg.algo)("MlpPolicy", env, seed=cfg.seed, tensorboard_log=str(out / "tb"),
                                  device="cpu", verbose=0, **algo_kwargs)
     t0 = time.perf_counter()
-    model.learn(total_timesteps=cfg.total_timesteps, callback=make_callbacks(cfg, out, not args.no_progress),
-                tb_log_name=cfg.algo)
+    try:
+        callbacks = make_callbacks(cfg, out, not args.no_progress)
+        model.learn(total_timesteps=cfg.total_timesteps, callback=callbacks, tb_log_name=cfg.algo)
+    finally:  # also after Ctrl-C: the evaluation log's scratch copy (maybe half-written) goes
+        shutil.rmtree(out / "eval" / LIVE_EVAL_DIR, ignore_errors=True)
     elapsed = time.perf_counter() - t0
     model_path = out / "model.zip"
     from detectors.fileio import atomic_write

@@ -1,4 +1,4 @@
-"""Train one PPO policy shared by every robot of the ``aggregation_v0`` swarm with RLlib (Ray).
+"""Train one PPO policy shared by every robot of the ``aggregation_v1`` swarm with RLlib (Ray).
 
 The RLlib counterpart of ``scripts/train_swarm.py`` for runs that outgrow one machine: the
 PettingZoo parallel env goes through RLlib's ``ParallelPettingZooEnv``; every robot maps to the
@@ -45,12 +45,13 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:  # run as a file: make kin_envs importable from the checkout
     sys.path.insert(0, str(ROOT))
 
-from kin_envs import aggregation_v0  # noqa: E402
+from detectors.fileio import LiveLog  # noqa: E402
+from kin_envs import aggregation_v1  # noqa: E402
 from kin_envs.cli import add_logging_args, script_logger, setup_logging, write_run_info  # noqa: E402
 from kin_envs.cli import progress as tqdm  # noqa: E402
 from kin_envs.distributed import ray_session, ship_by_value  # noqa: E402
 
-ENV_NAME = "kin_envs_aggregation_v0"
+ENV_NAME = "kin_envs_aggregation_v1"
 POLICY_ID = "shared"
 #: env kwargs unless --env-kwargs says otherwise: as scripts/train_swarm.py (detector channel on)
 DEFAULT_ENV_KWARGS = {"obs_detections": "topk"}
@@ -60,7 +61,7 @@ def make_env(env_config: dict):
     """RLlib env creator (top level: env runners on other machines rebuild the env from it)."""
     from ray.rllib.env.wrappers.pettingzoo_env import ParallelPettingZooEnv
 
-    return ParallelPettingZooEnv(aggregation_v0.parallel_env(**env_config))
+    return ParallelPettingZooEnv(aggregation_v1.parallel_env(**env_config))
 
 
 def policy_mapping_fn(agent_id, episode=None, **kwargs) -> str:
@@ -75,7 +76,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument(
         "--env-kwargs",
         default=None,
-        help=f"more aggregation_v0 kwargs, JSON (default {json.dumps(DEFAULT_ENV_KWARGS)})",
+        help=f"more aggregation_v1 kwargs, JSON (default {json.dumps(DEFAULT_ENV_KWARGS)})",
     )
     p.add_argument("--iterations", type=int, default=100, help="PPO iterations (train() calls)")
     p.add_argument("--env-runners", type=int, default=2, help="Ray env-runner actors (0: sample here)")
@@ -136,7 +137,7 @@ def parse_args(argv=None) -> argparse.Namespace:
         "max_cycles": args.max_cycles,
     }
     try:  # fail here, not inside an env runner: unknown names and bad values raise ValueError
-        aggregation_v0.parallel_env(**args.env_config).close()
+        aggregation_v1.parallel_env(**args.env_config).close()
     except ValueError as e:
         p.error(f"--env-kwargs: {e}")
     return args
@@ -218,15 +219,14 @@ def main(argv=None) -> dict:
         register_env(ENV_NAME, make_env)
         config = build_config(args)
         algo = config.build_algo()
+        metrics = LiveLog(out / "metrics.jsonl")  # flushed per line; whole lines only, even after Ctrl-C
         try:
-            metrics = (out / "metrics.jsonl").open("w")
             bar = tqdm(range(1, args.iterations + 1), desc="iterations", unit="it", disable=args.no_progress)
             for it in bar:
                 t_it = time.perf_counter()
                 row = _iteration_row(it, algo.train(), time.perf_counter() - t_it)
                 rows.append(row)
                 metrics.write(json.dumps(row) + "\n")
-                metrics.flush()
                 ret = row["episode_return_mean"]
                 bar.set_postfix(env_steps=row["env_steps"], ret="–" if ret is None else f"{ret:.2f}")
                 if args.checkpoint_every and it % args.checkpoint_every == 0 and it < args.iterations:
@@ -234,11 +234,12 @@ def main(argv=None) -> dict:
             metrics.close()
             checkpoint = Path(algo.save_to_path(str((out / "checkpoint").resolve())))
         finally:
+            metrics.close()
             algo.stop()  # ends the env-runner actors before Ray shuts down
             with contextlib.suppress(OSError):  # the empty ~/ray_results/<time> every Algorithm makes
                 Path(algo.logdir).rmdir()
         run = {
-            "env": "aggregation_v0",
+            "env": "aggregation_v1",
             "env_config": args.env_config,
             "python_hash_seed": os.environ.get("PYTHONHASHSEED"),
             "ray": {"address": args.address, "num_cpus": args.num_cpus, "cluster_cpus": cpus},

@@ -22,7 +22,7 @@ from detectors.samples import category_code
 from ..core.lidar import HitKind
 from ..core.world import World
 from .dataset import DatasetConfig, _obstacle_table, make_scene
-from .swarm_scenes import check_training_seeds
+from .seeds import TRAINING_SEEDS, check_training_seeds
 
 __all__ = ["BEAM_DATASET_CONFIG", "beam_records"]
 
@@ -37,9 +37,9 @@ BEAM_DATASET_CONFIG = DatasetConfig(
 def beam_records(seed: int, config: DatasetConfig | None = None) -> dict[str, np.ndarray]:
     """Scan one seeded scene from its observers and label every beam (see the module docstring).
 
-    ``seed`` must be a training seed (:func:`kin_envs.detection.swarm_scenes.check_training_seeds`).
+    ``seed`` must lie in :data:`kin_envs.detection.seeds.TRAINING_SEEDS`.
     """
-    check_training_seeds([seed])
+    check_training_seeds([seed], "beam_records(seed)", within=TRAINING_SEEDS)
     cfg = config or BEAM_DATASET_CONFIG
     scene, rng, info = make_scene(seed, cfg)
     world = info.pop("world", None) or World(scene, seed=rng)

@@ -8,7 +8,8 @@ beams with its neighbour's. Robots can then drive for a few control steps (rando
 end up pushed against walls and each other by the physics, at arbitrary headings.
 
 Seeds: the benchmark (:mod:`kin_envs.detection.benchmark`, when present) reserves its own seed range;
-training data drawn with this module uses :data:`TRAINING_SEEDS` only (``check_training_seeds``).
+training data drawn with this module uses :data:`kin_envs.detection.seeds.TRAINING_SEEDS` only
+(``check_training_seeds(..., within=TRAINING_SEEDS)``).
 """
 
 from __future__ import annotations
@@ -23,23 +24,7 @@ from ..core.lidar import LidarSpec
 from ..core.scenes import Arena, RandomArenaConfig, Robot, RobotSpec, Scene, _Placer, _random_obstacle
 from ..core.world import World
 
-__all__ = ["TRAINING_SEEDS", "SwarmSceneConfig", "check_training_seeds", "swarm_scene", "swarm_world"]
-
-#: Seeds the learned detectors' training and validation data may use: [0, 1,000,000). The detector
-#: evaluation sweep starts at 1,000,000 and the benchmark's splits lie above it.
-TRAINING_SEEDS = range(0, 1_000_000)
-
-
-def check_training_seeds(seeds) -> np.ndarray:
-    """``seeds`` as an int64 array; ``ValueError`` if any lies outside :data:`TRAINING_SEEDS`."""
-    s = np.asarray(seeds, dtype=np.int64).reshape(-1)
-    bad = (s < TRAINING_SEEDS.start) | (s >= TRAINING_SEEDS.stop)
-    if bad.any():
-        raise ValueError(
-            f"training seed {int(s[bad][0])} is outside the training range [{TRAINING_SEEDS.start}, "
-            f"{TRAINING_SEEDS.stop}); seeds from {TRAINING_SEEDS.stop} on are reserved for evaluation"
-        )
-    return s
+__all__ = ["SwarmSceneConfig", "swarm_scene", "swarm_world"]
 
 
 def _pair(name, v, cast):

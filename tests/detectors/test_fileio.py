@@ -1,6 +1,7 @@
 """detectors.fileio: atomic writes leave either the old file or the new one, never a partial one."""
 
 import hashlib
+import json
 import os
 import stat
 
@@ -32,3 +33,47 @@ def test_atomic_write_errors(tmp_path):
         pass
     with pytest.raises(ValueError, match="mode"), atomic_write(tmp_path / "a", "a"):
         pass
+
+
+def test_live_log_is_readable_while_written_and_whole_after_an_error(tmp_path):
+    from detectors.fileio import LiveLog
+
+    p = tmp_path / "log.csv"
+    with pytest.raises(KeyboardInterrupt), LiveLog(p) as log:
+        log.write("a,b\r\n")
+        log.write("1,2\r\n")
+        assert p.read_bytes() == b"a,b\r\n1,2\r\n"  # flushed at once: a reader follows the run
+        log.write("3,")  # a row cut short (as by a partial write)
+        raise KeyboardInterrupt
+    assert p.read_bytes() == b"a,b\r\n1,2\r\n"  # whole lines only, newlines as written
+    assert sorted(q.name for q in tmp_path.iterdir()) == ["log.csv"]
+    with pytest.raises(TypeError, match="expected str"), LiveLog(p) as log:
+        log.write(b"bytes")
+    assert p.read_bytes() == b""
+
+
+def test_live_log_interrupted_by_ctrl_c_leaves_whole_lines(tmp_path):
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    p = tmp_path / "metrics.jsonl"
+    code = (
+        "import json, itertools\n"
+        "from detectors.fileio import LiveLog\n"
+        f"with LiveLog({str(p)!r}) as log:\n"
+        "    for i in itertools.count():\n"
+        "        log.write(json.dumps({'i': i, 'pad': 'x' * 5000}) + '\\n')\n"  # lines beyond one buffer
+    )
+    proc = subprocess.Popen([sys.executable, "-c", code], stderr=subprocess.PIPE)
+    deadline = time.monotonic() + 60
+    while (not p.exists() or p.stat().st_size < 200_000) and time.monotonic() < deadline:
+        time.sleep(0.02)
+    proc.send_signal(signal.SIGINT)
+    proc.communicate(timeout=60)
+    raw = p.read_bytes()
+    assert raw.endswith(b"\n")
+    rows = [json.loads(line) for line in raw.splitlines()]
+    assert [r["i"] for r in rows] == list(range(len(rows))) and len(rows) >= 40
+    assert sorted(q.name for q in tmp_path.iterdir()) == ["metrics.jsonl"]

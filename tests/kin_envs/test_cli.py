@@ -100,3 +100,28 @@ def test_library_packages_log_and_never_print():
             calls = [n.lineno for n in ast.walk(tree) if isinstance(n, ast.Call)
                      and isinstance(n.func, ast.Name) and n.func.id == "print"]
             assert calls == [], f"{path.relative_to(ROOT)} calls print() at lines {calls}: use logging"
+
+
+def test_detector_from_name(monkeypatch):
+    from detectors import GeometricKinDetector
+    from detectors.beam_detector import BeamKinDetector
+
+    geo = cli.detector_from_name("geometric")
+    assert isinstance(geo, GeometricKinDetector) and not geo.reports  # reports cost time, unused
+    assert cli.detector_from_name("geometric", reports=True).reports
+    assert isinstance(cli.detector_from_name("beam"), BeamKinDetector)
+    with pytest.raises(ValueError, match=r"unknown detector 'nope' \(--detector\)"):
+        cli.detector_from_name("nope")
+    with pytest.raises(TypeError, match="expected a detector name"):
+        cli.detector_from_name(None)
+    with pytest.raises(ValueError, match="checkpoint applies to 'learned' and 'beam' only"):
+        cli.detector_from_name("geometric", checkpoint="x.pt")
+    with pytest.raises(ValueError, match="detector 'beam' is unavailable"):
+        cli.detector_from_name("beam", checkpoint="/nonexistent/beam.npz")
+    with pytest.raises(ValueError, match="cannot import Missing"):
+        cli.detector_from_name("detectors.geometric:Missing")
+    with pytest.raises(ValueError, match="has no detect_batch"):
+        cli.detector_from_name("detectors.geometric:GeometricParams")
+    monkeypatch.setitem(sys.modules, "detectors.learned", None)  # as if the module were not there
+    with pytest.raises(ValueError, match="detector 'learned' is unavailable"):
+        cli.detector_from_name("learned")

@@ -26,7 +26,7 @@ def swarm_bag(tmp_path_factory):
         "record",
         str(bag),
         "--env",
-        "aggregation_v0",
+        "aggregation_v1",
         "--env-kwargs",
         '{"n_robots": 3, "arena_size": 2.0}',
     ]
@@ -45,7 +45,7 @@ def test_entry_point_is_declared():
 
 def test_record_writes_the_bag_and_its_run_record(swarm_bag):
     run = json.loads(Path(str(swarm_bag) + ".run.json").read_text())
-    assert run["env"] == "aggregation_v0" and run["seed"] == 1 and run["steps"] == 4
+    assert run["env"] == "aggregation_v1" and run["seed"] == 1 and run["steps"] == 4
     assert run["command"].startswith("kin-envs record")
     assert (swarm_bag / "metadata.yaml").is_file() and list(swarm_bag.glob("*.mcap"))
 
@@ -124,6 +124,35 @@ def test_detect_learned_runs(swarm_bag, tmp_path):
     assert len(out.read_text().splitlines()) == 5
 
 
+def test_detect_beam_has_the_same_fields_and_matches_the_detector(swarm_bag, tmp_path):
+    from detectors.beam_detector import BeamKinDetector
+    from detectors.ros import read_scans
+
+    argv = ["detect", str(swarm_bag), "--topic", "/robot_1/scan", "--odom", "/robot_1/ground_truth"]
+    argv.append("--quiet")
+    rows = {}
+    for name in ("geometric", "beam"):
+        out = tmp_path / f"{name}.jsonl"
+        assert main([*argv, "--detector", name, "--out", str(out)]) == 0
+        rows[name] = [json.loads(line) for line in out.read_text().splitlines()]
+    assert [r.keys() for r in rows["beam"]] == [r.keys() for r in rows["geometric"]]
+    scans = list(read_scans(swarm_bag, "/robot_1/scan"))
+    direct = BeamKinDetector().detect_batch(np.stack([s.ranges for s in scans]), scans[0].angles)
+    n = 0
+    for row, res in zip(rows["beam"], direct, strict=True):
+        assert [d["n_beams"] for d in row["detections"]] == [d.n_beams for d in res.detections]
+        got = [v for d in row["detections"] for v in (d["x"], d["y"], d["score"])]
+        assert got == pytest.approx([v for d in res.detections for v in (d.x, d.y, d.score)], abs=1e-9)
+        for d in row["detections"]:
+            assert set(d) == {*"range bearing x y score first_beam last_beam n_beams wx wy".split()}
+            n += 1
+    assert n >= 1  # robots 0 and 2 are in view: the beam detector finds at least one of them
+    csv_out = tmp_path / "beam.csv"
+    assert main([*argv, "--detector", "beam", "--out", str(csv_out)]) == 0
+    with csv_out.open() as f:
+        assert len(list(csv.DictReader(f))) == n
+
+
 @pytest.mark.parametrize(
     "extra, message",
     [
@@ -137,7 +166,10 @@ def test_detect_learned_runs(swarm_bag, tmp_path):
             "expected nav_msgs/msg/Odometry or tf2_msgs",
         ),
         (["--topic", "/robot_0/scan", "--out", "x.txt"], "--out must end in .jsonl or .csv"),
-        (["--topic", "/robot_0/scan", "--checkpoint", "x.pt"], "--checkpoint applies to --detector learned"),
+        (
+            ["--topic", "/robot_0/scan", "--checkpoint", "x.pt"],
+            "--checkpoint applies to --detector learned or beam",
+        ),
         (["--topic", "/robot_0/scan", "--truth", "/ground_truth/kin"], "--truth needs --odom"),
         (
             ["--topic", "/robot_0/scan", "--odom", "/tf", "--truth", "/tf"],
@@ -162,7 +194,7 @@ def test_detect_corrupt_and_missing_bags(tmp_path, capsys):
 
 
 def test_record_errors(tmp_path, capsys, swarm_bag):
-    assert main(["record", str(swarm_bag), "--env", "aggregation_v0", "--quiet"]) == 2
+    assert main(["record", str(swarm_bag), "--env", "aggregation_v1", "--quiet"]) == 2
     assert "already exists" in capsys.readouterr().err
     assert main(["record", str(tmp_path / "x"), "--env", "kin_envs/Nope-v0", "--quiet"]) == 2
     assert "--env 'kin_envs/Nope-v0'" in capsys.readouterr().err

@@ -66,21 +66,6 @@ def test_sweep_is_seeded(mod):
     assert (one[0][0].ranges != one[1][0].ranges).any()  # the noisy scan differs
 
 
-def test_detector_names(mod, monkeypatch):
-    from detectors import GeometricKinDetector
-
-    assert isinstance(mod.resolve_detector("geometric"), GeometricKinDetector)
-    with pytest.raises(ValueError, match="unknown detector 'nope'"):
-        mod.resolve_detector("nope")
-    with pytest.raises(ValueError, match="cannot import Missing"):
-        mod.resolve_detector("detectors.geometric:Missing")
-    with pytest.raises(ValueError, match="has no detect_batch"):
-        mod.resolve_detector("detectors.geometric:GeometricParams")
-    monkeypatch.setitem(sys.modules, "detectors.learned", None)  # as if the module were not there
-    with pytest.raises(ValueError, match="detector 'learned' is unavailable"):
-        mod.resolve_detector("learned")
-
-
 @pytest.mark.parametrize("argv, match", [
     (["--gate", "0"], "gate must be a finite distance > 0 m"),
     (["--gate", "nan"], "gate must be a finite distance > 0 m"),
@@ -114,7 +99,8 @@ def test_scene_units_merge_into_the_one_call_evaluation(mod):
     sweep = mod.Sweep(1_000_000, noise, cfg, ("geometric",), mod.DEFAULT_GATE, False, 1)
     units = [mod.scene_unit(i, sweep)[0]["geometric"] for i in range(3)]
     merged = mod.merge_scenes(units, len(noise))
-    whole = mod.evaluate(mod.resolve_detector("geometric"), mod.sweep_pairs(3, 1_000_000, noise, cfg, False))
+    pairs = mod.sweep_pairs(3, 1_000_000, noise, cfg, False)
+    whole = mod.evaluate(mod.detector_from_name("geometric"), pairs)
     assert merged.n_scans == whole.n_scans == 6 and merged.noise_levels == whole.noise_levels
     key_k = [(k.scan, k.row, k.noise, k.truth.robot, k.detection) for k in merged.kin]
     assert key_k == [(k.scan, k.row, k.noise, k.truth.robot, k.detection) for k in whole.kin]

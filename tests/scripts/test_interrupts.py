@@ -4,12 +4,15 @@ moments; KIN_INTERRUPT_TRIES=20 for the issue's full check (about 10 minutes on 
 
 from __future__ import annotations
 
+import csv
+import io
 import json
 import os
 import signal
 import subprocess
 import sys
 import time
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -33,8 +36,8 @@ run_main(main)
 """
 
 
-def _interrupt(cmd: list[str], ready, delay: float) -> subprocess.CompletedProcess:
-    p = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+def _interrupt(cmd: list[str], ready, delay: float, env: dict | None = None) -> subprocess.CompletedProcess:
+    p = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     deadline = time.monotonic() + 120
     while not ready() and p.poll() is None and time.monotonic() < deadline:
         time.sleep(0.05)
@@ -100,11 +103,22 @@ LONG_SCRIPTS = {
                             4.0),
     "train_classifier": (["--config", '{"epochs": 3, "hidden": [8], "batch_size": 64}', "--eval-scenes", "1",
                           "--no-progress"], 4.0),
+    # SB3: checkpoints every 64 steps, evaluations (best model, eval log) every 64 (runs of ~5-10 s)
+    "train_single": (["--env-kwargs", '{"max_steps": 15}', "--timesteps", "2048", "--n-envs", "1",
+                      "--hyperparams", '{"n_steps": 32, "batch_size": 32, "n_epochs": 1}',
+                      "--eval-freq", "64", "--eval-episodes", "1", "--checkpoint-freq", "64",
+                      "--no-progress"], 10.0),
+    "train_swarm": (["--n-robots", "2", "--n-copies", "1", "--timesteps", "2048",
+                     "--env-kwargs", '{"max_cycles": 16}', "--checkpoint-freq", "64",
+                     "--hyperparams", '{"n_steps": 16, "batch_size": 32, "n_epochs": 1}',
+                     "--no-progress"], 10.0),
 }  # fmt: skip
 # the record each script writes last: present after a finished run (exit 0)
 FINAL_RECORD = {"train_classifier": "config.json"}
-# written epoch by epoch on purpose (a live log of the epochs done), so not atomically
+# written line by line on purpose (detectors.fileio.LiveLog: followable during the run), made whole on exit
 LIVE_LOGS = {"train_log.csv"}
+# sub-directories whose files are checked too (SB3's checkpoints, best model and evaluation log)
+CHECKED_DIRS = ("checkpoints", "best", "eval")
 
 
 @pytest.fixture(scope="module")
@@ -119,13 +133,26 @@ def tiny_dataset(tmp_path_factory):
 def _check_complete_outputs(out: Path) -> None:
     """Every file under a final name is whole: no temporary left, JSON parses, images end with their
     trailer, a checkpoint passes its checksum."""
-    for f in sorted(out.iterdir()):
-        assert not f.name.startswith(".") and not f.name.endswith(".tmp"), f"left behind: {f.name}"
-        if f.name in LIVE_LOGS:
-            continue
+    files = [f for f in sorted(out.iterdir()) if not f.is_dir() or f.name not in CHECKED_DIRS]
+    files += [f for d in CHECKED_DIRS if (out / d).is_dir() for f in sorted((out / d).iterdir())]
+    for f in files:
+        assert not f.name.startswith(".") and not f.name.endswith(".tmp"), f"left behind: {f}"
+        if f.is_dir():
+            continue  # SB3's monitor/ and tb/ (its own live logs)
         raw = f.read_bytes()
+        if f.name in LIVE_LOGS:  # possibly empty (interrupted before the first row), never a torn row
+            assert raw == b"" or raw.endswith(b"\n"), f"{f.name}: torn last line"
+            rows = list(csv.reader(io.StringIO(raw.decode())))
+            assert all(len(r) == len(rows[0]) for r in rows), f"{f.name}: torn row"
+            continue
         assert raw, f"{f.name} is empty"
-        if f.suffix == ".json":
+        if f.suffix == ".zip":
+            with zipfile.ZipFile(f) as z:
+                assert z.testzip() is None, f"{f}: corrupt zip"
+        elif f.suffix == ".npz":
+            with np.load(f) as d:
+                assert len(d["timesteps"]) >= 1
+        elif f.suffix == ".json":
             json.loads(raw)
         elif f.suffix == ".png":
             assert raw.endswith(b"IEND\xaeB`\x82"), f"{f.name}: truncated PNG"
@@ -141,13 +168,20 @@ def _check_complete_outputs(out: Path) -> None:
 @pytest.mark.parametrize("script", sorted(LONG_SCRIPTS))
 def test_ctrl_c_in_long_scripts_leaves_only_whole_outputs(script, k, tmp_path, request):
     argv, window = LONG_SCRIPTS[script]
+    if script in ("train_single", "train_swarm"):
+        pytest.importorskip("stable_baselines3")
+        pytest.importorskip("supersuit")
     if script == "train_classifier":
         pytest.importorskip("torch")
         argv = ["--data", str(request.getfixturevalue("tiny_dataset")), *argv]
     rng = np.random.default_rng([sorted(LONG_SCRIPTS).index(script), k])
     out = tmp_path / "out"
     cmd = [sys.executable, str(ROOT / "scripts" / f"{script}.py"), *argv, "--out", str(out)]
-    res = _interrupt(cmd, out.exists, float(rng.uniform(0, window)))  # --out is made once args are checked
+    env = None
+    if script in ("train_single", "train_swarm"):  # SB3 warns about SuperSuit's vec env (render_mode)
+        env = {**os.environ, "PYTHONWARNINGS": "ignore::UserWarning"}
+    # --out is made once the arguments are checked
+    res = _interrupt(cmd, out.exists, float(rng.uniform(0, window)), env)
     _check_clean_stop(res)
     _check_complete_outputs(out)
     if res.returncode != 130:  # it had finished

@@ -47,6 +47,7 @@ def test_train_single_outputs(trained):
     for f in ("model.zip", "best/best_model.zip", "eval/evaluations.npz", "run.json"):
         assert (single / f).is_file(), f
     assert list((single / "checkpoints").glob("*.zip"))
+    assert sorted(q.name for q in (single / "eval").iterdir()) == ["evaluations.npz"]  # no scratch copy left
     assert list((single / "monitor").glob("*.monitor.csv"))
     assert any((single / "tb").rglob("events.out.tfevents*"))
     r = json.loads((single / "run.json").read_text())
@@ -63,7 +64,7 @@ def test_train_swarm_outputs(trained):
     _, swarm = trained
     assert (swarm / "model.zip").is_file() and list((swarm / "checkpoints").glob("*.zip"))
     r = json.loads((swarm / "run.json").read_text())
-    assert r["status"] == "done" and r["env_id"] == "aggregation_v0"
+    assert r["status"] == "done" and r["env_id"] == "aggregation_v1"
     assert r["env_kwargs"] == {"n_robots": 2, "obs_detections": "topk", "max_cycles": 16}
     assert r["timesteps"] >= 128
     lines = (swarm / "monitor.csv").read_text().splitlines()
@@ -87,7 +88,7 @@ def test_evaluate_single_and_swarm(trained, tmp_path):
 
     # the swarm, in a subprocess (the command line as a user runs it)
     out = tmp_path / "swarm"
-    run("evaluate_policies.py", "--env", "aggregation_v0", "--n-robots", "3", "--episodes", "2",
+    run("evaluate_policies.py", "--env", "aggregation_v1", "--n-robots", "3", "--episodes", "2",
         "--max-cycles", "12", "--metric-cycles", "4", "--model", f"shared={swarm / 'model.zip'}",
         "--out", str(out))
     res = json.loads((out / "results.json").read_text())["results"]

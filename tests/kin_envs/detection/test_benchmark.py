@@ -10,8 +10,11 @@ from detectors import GeometricKinDetector, GeometricParams
 from detectors.base import Detection, DetectionResult, KinDetector
 from kin_envs import World, scenes
 from kin_envs.detection import benchmark as B
+from kin_envs.detection.beam_dataset import beam_records
 from kin_envs.detection.dataset import make_scene
 from kin_envs.detection.evaluation import kin_truth
+from kin_envs.detection.seeds import TRAINING_SEEDS
+from kin_envs.detection.sequences import SEQUENCE_SPLITS
 
 # --------------------------------------------------------------------------- configs
 
@@ -56,11 +59,17 @@ def test_benchmark_seeds_are_reserved_and_disjoint_from_training():
     # sweep and evaluate_detectors: from 1,000,000) are accepted, the benchmark's refused
     B.check_training_seeds(range(0, 10_000_000))
     B.check_training_seeds(np.arange(1_000_000, 1_100_000))
-    for s in B.SPLITS.values():
+    # every generator of training data refuses every benchmark split's seeds (single scans, sequences)
+    assert TRAINING_SEEDS.stop <= B.BENCHMARK_SEEDS.start
+    for s in [*B.SPLITS.values(), *SEQUENCE_SPLITS.values()]:
         with pytest.raises(ValueError, match="reserved"):
             B.check_training_seeds(s.seeds(1))
         with pytest.raises(ValueError, match="reserved"):
+            B.check_training_seeds(s.seeds(1), within=TRAINING_SEEDS)
+        with pytest.raises(ValueError, match="reserved"):
             make_scene(s.first_seed)
+        with pytest.raises(ValueError, match="reserved"):
+            beam_records(s.first_seed)
     with pytest.raises(ValueError, match="overlap"):
         B.check_training_seeds(range(B.BENCHMARK_SEEDS.start - 5, B.BENCHMARK_SEEDS.start + 5))
 

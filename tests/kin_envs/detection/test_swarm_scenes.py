@@ -6,13 +6,8 @@ import pytest
 from kin_envs.core.lidar import HitKind, LidarSpec
 from kin_envs.detection.beam_dataset import beam_records
 from kin_envs.detection.dataset import DatasetConfig, scene_records
-from kin_envs.detection.swarm_scenes import (
-    TRAINING_SEEDS,
-    SwarmSceneConfig,
-    check_training_seeds,
-    swarm_scene,
-    swarm_world,
-)
+from kin_envs.detection.seeds import TRAINING_SEEDS, check_training_seeds
+from kin_envs.detection.swarm_scenes import SwarmSceneConfig, swarm_scene, swarm_world
 
 
 def test_swarm_scene_is_seeded_and_has_clusters_and_robots_at_walls():
@@ -65,9 +60,15 @@ def test_dataset_swarm_family_and_dropout():
 
 def test_training_seeds_are_disjoint_from_evaluation_seeds():
     assert TRAINING_SEEDS.stop <= 1_000_000  # the evaluation sweep and the benchmark start here
-    check_training_seeds([0, 999_999])
+    check_training_seeds([0, 999_999], within=TRAINING_SEEDS)
+    check_training_seeds(TRAINING_SEEDS, within=TRAINING_SEEDS)
     with pytest.raises(ValueError, match="reserved for evaluation"):
-        check_training_seeds([1_000_000])
+        check_training_seeds([1_000_000], within=TRAINING_SEEDS)
+    with pytest.raises(ValueError, match="training seed -1 "):
+        check_training_seeds(range(-1, 5), within=TRAINING_SEEDS)
+    with pytest.raises(ValueError, match="training seed 1000000 "):
+        check_training_seeds(range(999_990, 1_000_001), within=TRAINING_SEEDS)
+    check_training_seeds([1_000_000])  # without ``within`` only the benchmark's seeds are refused
     with pytest.raises(ValueError, match="training seed"):
         beam_records(1_000_123)
 
