@@ -60,7 +60,14 @@ from kin_envs.cli import (
     write_run_info,
 )
 from kin_envs.cli import progress as tqdm
-from kin_envs.detection.dataset import CATEGORIES, DatasetConfig, label_scan, load_dataset, make_scene
+from kin_envs.detection.dataset import (
+    CATEGORIES,
+    DatasetConfig,
+    concat_records,
+    label_scan,
+    load_dataset,
+    make_scene,
+)
 
 GATE = 0.1  # m: a detection matches a kin whose centre is this close
 DISTANCE_BINS = (0.2, 0.3, 0.5, 1.0, 1.5, 2.0, 3.0, 4.0)
@@ -153,7 +160,7 @@ def scan_noise_of(x: np.ndarray, fcfg) -> np.ndarray:
 
 def calibrate_thresholds(p, y, sigma, edges) -> dict:
     """Per noise bin (``sigma`` binned by ``edges``), the grid threshold with the best segment F1
-    (every non-kin segment, same-radius cylinders included, is a negative, as in the evaluation)."""
+    (every non-kin segment given is a negative; the caller chooses which segments to pass)."""
     edges = [float(e) for e in edges]
     b = np.searchsorted(np.asarray(edges), sigma, side="right")
     values, info = [], []
@@ -499,7 +506,13 @@ def evaluate(ckpt: Path, args, progress: bool) -> dict:
 
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--data", required=True, type=Path, help="dataset directory (scripts/make_dataset.py)")
+    ap.add_argument("--data", required=True, type=Path, nargs="+",
+                    help="dataset directory or directories (scripts/make_dataset.py; same feature config, "
+                    "disjoint seeds), concatenated")
+    ap.add_argument("--keep-easy", type=float, default=1.0,
+                    help="keep this random fraction of the arena-boundary and wall segments in training, "
+                    "each weighted 1 / fraction (they are most of the data and the easiest negatives: a "
+                    "smaller share trains faster at the same expected loss); validation keeps them all")
     ap.add_argument("--out", type=Path, default=Path("outputs/train_classifier"),
                     help="output directory for the checkpoint, logs and evaluation (default: %(default)s)")
     ap.add_argument("--checkpoint", type=Path, default=None,
@@ -526,6 +539,16 @@ def main(argv=None) -> dict:
         help="scan-noise bin edges of the threshold calibration (relative sigma)",
     )
     ap.add_argument(
+        "--calib-families", type=int, nargs="+", default=[0, 2, 3, 4, 5],
+        help="scene families whose validation segments choose the thresholds (0 detection scene, 1 random "
+        "arena, 2 open detection scene, 3 swarm scene, 4 / 5 the benchmark's swarm / lookalike generators)",
+    )
+    ap.add_argument(
+        "--calib-same-radius", choices=("apart", "negative"), default="apart",
+        help="same-radius cylinder segments in the calibration: left out, as the benchmark counts them apart "
+        "(apart), or negatives (the previous rule)",
+    )
+    ap.add_argument(
         "--positioning",
         choices=("auto", "regression", "fit"),
         default="auto",
@@ -542,6 +565,8 @@ def main(argv=None) -> dict:
     setup_logging(args)
     if not 0 < args.val_fraction < 1:
         ap.error(f"--val-fraction must be in (0, 1), got {args.val_fraction}")
+    if not 0 < args.keep_easy <= 1:
+        ap.error(f"--keep-easy must be in (0, 1], got {args.keep_easy}")
     if args.eval_scenes < 0 or args.threads < 1:
         ap.error("--eval-scenes must be >= 0 and --threads >= 1")
     try:
@@ -578,7 +603,7 @@ def main(argv=None) -> dict:
     t_start = time.perf_counter()
 
     try:
-        segs, objs, manifest = load_dataset(args.data)
+        segs, objs, manifest, manifests = load_datasets(args.data)
     except (FileNotFoundError, ValueError) as e:
         raise SystemExit(f"train_classifier.py: {e}") from None
     fcfg = _feature_config(manifest)
@@ -588,6 +613,11 @@ def main(argv=None) -> dict:
     keep = ~segs["same_radius"]  # indistinguishable from kin in one scan: not a training negative
 
     weight = sample_weights(segs["label"], segs["category"], tcfg)
+    if args.keep_easy < 1:  # a share of the easy negatives, up-weighted (validation keeps them all)
+        easy = np.isin(segs["category"], [CATEGORIES.index("boundary"), CATEGORIES.index("wall")])
+        drop = easy & ~is_val & (rng.random(easy.shape[0]) >= args.keep_easy)
+        keep &= ~drop
+        weight = np.where(easy & ~is_val, weight / args.keep_easy, weight).astype(np.float32)
 
     def part(m):
         return {"x": segs["x"][m], "y": segs["label"][m], "target": tgt[m], "weight": weight[m]}
@@ -616,7 +646,9 @@ def main(argv=None) -> dict:
     sigma = scan_noise_of(vs["x"], fcfg)
     if args.calibrate:
         args.threshold = None  # the detectors of the sweep use the checkpoint's thresholds
-        detection = vs["family"] != 1  # detection scenes (with or without boundary wall)
+        detection = np.isin(vs["family"], args.calib_families)
+        if args.calib_same_radius == "apart":  # as the benchmark: not a false positive
+            detection &= ~vs["same_radius"]
         thresholds = calibrate_thresholds(
             p[detection], vs["label"][detection] == 1, sigma[detection], sorted(args.calib_noise_edges)
         )
@@ -633,14 +665,18 @@ def main(argv=None) -> dict:
         "command": command,
         "seed": args.seed,
         "train_config": tcfg.to_dict(),
-        "data": {
-            "path": str(args.data),
-            "seeds": manifest["seeds"],
-            "counts": manifest["counts"],
-            "dataset_config": manifest["dataset_config"],
-            "command": manifest.get("command"),
-            "seconds": manifest.get("seconds"),
-        },
+        "data": [
+            {
+                "path": str(path),
+                "seeds": m["seeds"],
+                "counts": m["counts"],
+                "dataset_config": m["dataset_config"],
+                "command": m.get("command"),
+                "seconds": m.get("seconds"),
+            }
+            for path, m in zip(args.data, manifests, strict=True)
+        ],
+        "keep_easy": args.keep_easy,
         "split": {
             "val_fraction": args.val_fraction,
             "val_scenes": int(len(val_seeds)),
@@ -698,6 +734,27 @@ def main(argv=None) -> dict:
             f"learned {t['learned_scans_per_s']:.0f} scans/s"
         )
     return sidecar
+
+
+def load_datasets(paths) -> tuple[dict, dict, dict, list[dict]]:
+    """Several datasets as one: ``(segments, objects, first manifest, manifests)``. They must share
+    the feature config and use disjoint scene seeds (rows are keyed by seed)."""
+    parts = [load_dataset(p) for p in paths]
+    manifests = [m for _, _, m in parts]
+    for p, m in zip(paths[1:], manifests[1:], strict=True):
+        if m["feature_config"] != manifests[0]["feature_config"]:
+            raise ValueError(f"{p}: feature config {m['feature_config']} differs from {paths[0]}'s")
+    seen: set = set()
+    for p, (segs, _, _) in zip(paths, parts, strict=True):
+        s = set(np.unique(segs["seed"]).tolist())
+        if s & seen:
+            raise ValueError(f"{p}: scene seeds overlap another --data directory's (e.g. {min(s & seen)})")
+        seen |= s
+    if len(parts) == 1:
+        return parts[0][0], parts[0][1], manifests[0], manifests
+    segs = concat_records([s for s, _, _ in parts])
+    objs = concat_records([o for _, o, _ in parts])
+    return segs, objs, manifests[0], manifests
 
 
 def _feature_config(manifest: dict):

@@ -38,9 +38,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--scenes", type=int, default=400, help="scenes to draw (each scans several robots)")
     p.add_argument(
-        "--first-seed", type=int, default=100_000,
-        help="first scene seed (the shipped checkpoint trained on seeds 0-2999; the benchmark's "
-        "reserved seeds are refused)",
+        "--first-seed", type=int, default=200_000,
+        help="first scene seed (the shipped checkpoint trained on seeds 0-2999 and 100000-103599; the "
+        "benchmark's reserved seeds are refused)",
     )  # fmt: skip
     p.add_argument(
         "--checkpoint", type=Path, default=None, help="learned checkpoint (default: the shipped one)"
@@ -61,7 +61,10 @@ def _dataset_config(checkpoint):
 
     card = Path(checkpoint["path"]).with_suffix(".json")
     if card.is_file():
-        d = json.loads(card.read_text()).get("data", {}).get("dataset_config")
+        data = json.loads(card.read_text()).get("data", {})
+        if isinstance(data, list):  # several --data directories: the first (base) mix
+            data = data[0] if data else {}
+        d = data.get("dataset_config")
         if d:
             return DatasetConfig.from_dict(d)
     return DatasetConfig(swarm_prob=0.35, dropout_share=0.25)

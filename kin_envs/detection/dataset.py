@@ -101,6 +101,15 @@ class DatasetConfig:
         dropout: (min, max) beam dropout probability, drawn per scene with probability
             ``dropout_share`` (else 0); nothing is drawn when ``dropout_share`` is 0.
         dropout_share: share of scenes with beam dropout.
+        bench_swarm_prob: probability of a scene from the benchmark's ``swarm`` generator
+            (:func:`kin_envs.detection.benchmark.swarm_scene`, its default :class:`SwarmConfig`:
+            8-32 robots driven into clusters and against walls), with a training seed;
+        lookalike_prob: probability of a scene from the benchmark's ``lookalike`` generator
+            (:func:`kin_envs.detection.benchmark.lookalike_scene`: kin among 7 cm prisms, boxes and
+            cylinders). Both 0 (the default) draw nothing extra, so older configs give the same
+            scenes as before. These two families are scanned noise-free, then the scene's noise and
+            dropout are applied as the benchmark's conditions do
+            (:func:`kin_envs.detection.benchmark.apply_condition`).
     """
 
     detection_prob: float = 0.8
@@ -118,9 +127,14 @@ class DatasetConfig:
     swarm_prob: float = 0.0
     dropout: tuple[float, float] = (0.0, 0.1)
     dropout_share: float = 0.0
+    bench_swarm_prob: float = 0.0
+    lookalike_prob: float = 0.0
 
     def __post_init__(self) -> None:
-        for name in ("detection_prob", "zero_noise_prob", "open_prob", "swarm_prob", "dropout_share"):
+        for name in (
+            "detection_prob", "zero_noise_prob", "open_prob", "swarm_prob", "dropout_share",
+            "bench_swarm_prob", "lookalike_prob",
+        ):  # fmt: skip
             v = getattr(self, name)
             if not (isinstance(v, int | float) and 0.0 <= v <= 1.0):
                 raise ValueError(f"DatasetConfig.{name} must be a probability in [0, 1], got {v!r}")
@@ -134,6 +148,11 @@ class DatasetConfig:
             raise ValueError(f"DatasetConfig.dropout must be < 1, got {self.dropout!r}")
         if self.noise[1] > 0.5:
             raise ValueError(f"DatasetConfig.noise must be <= 0.5 (relative), got {self.noise!r}")
+        if self.bench_swarm_prob + self.lookalike_prob > 1.0:
+            raise ValueError(
+                f"DatasetConfig.bench_swarm_prob + lookalike_prob must be <= 1, got "
+                f"{self.bench_swarm_prob!r} + {self.lookalike_prob!r}"
+            )
         if self.arena_robots[0] < 1:
             raise ValueError(f"DatasetConfig.arena_robots must be >= 1, got {self.arena_robots!r}")
         if isinstance(self.max_observers, bool) or not isinstance(self.max_observers, int):
@@ -163,9 +182,11 @@ def make_scene(seed: int, config: DatasetConfig | None = None, noise: float | No
     noise. ``noise`` overrides the drawn noise level (evaluation sweeps at fixed noise). Seeds
     reserved for the benchmark (:data:`kin_envs.detection.benchmark.BENCHMARK_SEEDS`) raise
     ``ValueError``.
-    ``info``: ``family`` (0 detection scene, 1 random arena, 3 swarm scene), ``open`` (no boundary
-    wall), ``noise``, ``dropout``, ``observers``, and for swarm scenes ``world`` (the driven world:
-    its robots have moved away from ``scene``'s poses).
+    ``info``: ``family`` (0 detection scene, 1 random arena, 3 swarm scene, 4 the benchmark's swarm
+    generator, 5 its lookalike generator), ``open`` (no boundary wall), ``noise``, ``dropout``,
+    ``observers``, and for swarm scenes ``world`` (the driven world: its robots have moved away from
+    ``scene``'s poses; for family 4 it scans noise-free and ``noise_free_world`` is set, the noise is
+    applied afterwards as the benchmark does).
     """
     c = config or DatasetConfig()
     # training and validation data never use the benchmark's reserved seeds
@@ -178,11 +199,27 @@ def make_scene(seed: int, config: DatasetConfig | None = None, noise: float | No
     dropout = 0.0
     if c.dropout_share > 0 and rng.random() < c.dropout_share:
         dropout = float(rng.uniform(*c.dropout))
+    bench = None  # drawn last and only when asked for: older configs keep their scenes
+    if c.bench_swarm_prob > 0 or c.lookalike_prob > 0:
+        u = rng.random()
+        if u < c.bench_swarm_prob:
+            bench = "swarm"
+        elif u < c.bench_swarm_prob + c.lookalike_prob:
+            bench = "lookalike"
     if noise is not None:
         sigma = float(noise)
     lidar = LidarSpec(noise_sigma=sigma, dropout_prob=dropout)
     world = None
-    if swarm:
+    if bench is not None:
+        from . import benchmark  # lazy: the benchmark module is only needed for these families
+
+        detection = open_world = swarm = False
+        if bench == "swarm":
+            world = benchmark.swarm_scene(rng)
+            scene = world.scene
+        else:
+            scene = benchmark.lookalike_scene(rng).replace(lidar=lidar)
+    elif swarm:
         detection = open_world = False
         world = swarm_world(rng, SwarmSceneConfig(), lidar)
         scene = world.scene
@@ -212,10 +249,12 @@ def make_scene(seed: int, config: DatasetConfig | None = None, noise: float | No
         observers = np.concatenate(([0], 1 + rng.choice(n - 1, c.max_observers - 1, replace=False)))
     else:
         observers = np.sort(rng.choice(n, c.max_observers, replace=False))
-    family = 3 if swarm else 0 if detection else 1
+    family = {"swarm": 4, "lookalike": 5}[bench] if bench else 3 if swarm else 0 if detection else 1
     info = {"family": family, "open": open_world, "noise": sigma, "dropout": dropout, "observers": observers}
     if world is not None:
         info["world"] = world  # already driven: scan this world, not a new one built from ``scene``
+    if bench == "swarm":
+        info["noise_free_world"] = True
     return scene, rng, info
 
 
@@ -392,7 +431,8 @@ def scene_records(
     Returns ``(segments, objects, info)``: the :func:`label_scan` dicts plus ``x`` (features),
     ``frames`` (local frames), ``fit_centre`` (the features' circle-fit centre) and the columns
     ``observer``, ``noise``, ``seed``, ``family`` (0 detection scene, 1 random arena, 2 detection
-    scene without boundary wall, 3 swarm scene); ``info`` as :func:`make_scene` plus ``scan``, ``scene`` and
+    scene without boundary wall, 3 swarm scene, 4 / 5 the benchmark's swarm / lookalike generators);
+    ``info`` as :func:`make_scene` plus ``scan``, ``scene`` and
     ``batch``. ``observers`` overrides the scanned robots.
     """
     fc = feature_config or FeatureConfig()
@@ -400,7 +440,15 @@ def scene_records(
     if observers is not None:
         info["observers"] = np.asarray(observers, dtype=np.int64)
     world = info.pop("world", None) or World(scene, seed=rng)
-    scan = world.scan(robots=info["observers"])
+    if info.pop("noise_free_world", False):  # the benchmark's swarm world: its lidar has no noise
+        from .benchmark import Condition, apply_condition
+
+        scan = apply_condition(
+            world.scan(robots=info["observers"], noise=False),
+            Condition(info["noise"], info["dropout"]), rng, scene.lidar,
+        )  # fmt: skip
+    else:
+        scan = world.scan(robots=info["observers"])
     batch = segment_batch(scan.ranges, scan.angles, fc)
     feats = segment_features(batch, fc)
     segs, objs = label_scan(scan, scene, batch, world.poses)

@@ -71,6 +71,30 @@ def test_train_classifier_tiny_budget(dataset, tmp_path):
     assert len(det.detect_batch(scan.ranges, scan.angles)) == 2
 
 
+def test_train_classifier_several_datasets_and_easy_share(dataset, tmp_path):
+    """Two ``--data`` directories are trained on together; seeds must not overlap; ``--keep-easy``
+    and the calibration options are recorded and validated."""
+    pytest.importorskip("torch")
+    bench = tmp_path / "bench"
+    run("make_dataset.py", "--out", bench, "--scenes", 3, "--first-seed", 40, "--config",
+        '{"bench_swarm_prob": 0.5, "lookalike_prob": 0.5}')  # fmt: skip
+    ckpt = tmp_path / "two.pt"
+    cfg = json.dumps({"epochs": 1, "hidden": [8], "batch_size": 256})
+    run("train_classifier.py", "--data", dataset, bench, "--out", tmp_path / "train", "--checkpoint", ckpt,
+        "--config", cfg, "--val-fraction", 0.3, "--calibrate", "--keep-easy", 0.5,
+        "--calib-families", 0, 3, 4, 5)  # fmt: skip
+    side = json.loads(ckpt.with_suffix(".json").read_text())
+    assert [d["seeds"]["first"] for d in side["data"]] == [10, 40] and side["keep_easy"] == 0.5
+    n_train = side["split"]["train_segments"]
+    total = sum(d["counts"]["segments"] - d["counts"]["same_radius_cylinder"] for d in side["data"])
+    assert 0 < n_train < total - side["split"]["val_segments"]  # some easy negatives were dropped
+    out = run("train_classifier.py", "--data", dataset, dataset, "--out", tmp_path / "t2", check=False)
+    assert out.returncode != 0 and "overlap" in out.stderr
+    out = run("train_classifier.py", "--data", dataset, "--out", tmp_path / "t3", "--keep-easy", 0,
+              check=False)  # fmt: skip
+    assert out.returncode == 2 and "--keep-easy" in out.stderr
+
+
 def test_scripts_reject_bad_configs(dataset, tmp_path):
     pytest.importorskip("torch")
     out = run("make_dataset.py", "--out", tmp_path, "--config", '{"n_kin": [1, 2], "colour": 3}', check=False)

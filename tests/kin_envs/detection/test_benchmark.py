@@ -74,6 +74,24 @@ def test_benchmark_seeds_are_reserved_and_disjoint_from_training():
         B.check_training_seeds(range(B.BENCHMARK_SEEDS.start - 5, B.BENCHMARK_SEEDS.start + 5))
 
 
+def test_training_data_from_the_benchmark_generators_refuses_benchmark_seeds():
+    """The training families drawn from the benchmark's own generators (``bench_swarm_prob``,
+    ``lookalike_prob``) run only on training seeds: each split's reserved seeds are refused."""
+    from kin_envs.detection.dataset import DatasetConfig
+
+    for cfg in (DatasetConfig(bench_swarm_prob=1.0), DatasetConfig(lookalike_prob=1.0)):
+        for s in B.SPLITS.values():
+            with pytest.raises(ValueError, match="reserved"):
+                make_scene(s.first_seed, cfg)
+            with pytest.raises(ValueError, match="reserved"):
+                make_scene(s.first_seed + s.n_scenes - 1, cfg)
+    # a training seed draws a scene of the benchmark's generator, not the benchmark's own scene
+    scene, _, info = make_scene(7, DatasetConfig(lookalike_prob=1.0))
+    assert info["family"] == 5
+    own = B.lookalike_scene(B.SPLITS["lookalike"].first_seed)
+    assert scene.obstacles != own.obstacles
+
+
 def test_make_dataset_refuses_benchmark_seeds(tmp_path, capsys):
     from tests.scripts.helpers import load_script
 

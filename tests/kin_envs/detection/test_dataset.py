@@ -141,3 +141,32 @@ def test_load_dataset_round_trip_and_errors(tmp_path):
     (tmp_path / "s.npz").unlink()
     with pytest.raises(FileNotFoundError, match="s.npz"):
         load_dataset(tmp_path)
+
+
+def test_benchmark_generator_families():
+    """``bench_swarm_prob`` / ``lookalike_prob`` draw scenes from the benchmark's generators
+    (families 4 / 5), with the scene's noise and dropout applied to a noise-free scan as the
+    benchmark does; both 0 leave every older config's scenes unchanged."""
+    from kin_envs.detection.benchmark import LookalikeConfig
+
+    old = scene_records(11, DatasetConfig())[0]
+    same = scene_records(11, DatasetConfig(bench_swarm_prob=0.0, lookalike_prob=0.0))[0]
+    assert all(np.array_equal(old[k], same[k], equal_nan=True) for k in ("x", "label", "category"))
+    cfg = DatasetConfig(lookalike_prob=1.0, zero_noise_prob=0.0, noise=(0.01, 0.01))
+    segs, objs, info = scene_records(3, cfg)
+    assert info["family"] == 5 and (segs["family"] == 5).all() and info["noise"] == 0.01
+    lo, hi = LookalikeConfig().distance
+    kin = segs["label"] == 1
+    assert kin.any() and ((segs["distance"][kin] > lo - 0.05) & (segs["distance"][kin] < hi + 0.05)).all()
+    a = scene_records(3, cfg)[0]
+    assert np.array_equal(a["x"], segs["x"])  # deterministic
+    segs, _, info = scene_records(4, DatasetConfig(bench_swarm_prob=1.0, zero_noise_prob=1.0))
+    assert info["family"] == 4 and len(info["observers"]) == DatasetConfig().max_observers
+    assert segs["label"].sum() > 0
+    scan = info["scan"]  # noise-free: every valid reading is the true range
+    valid = scan.ranges < scan.range_max
+    assert info["noise"] == 0.0 and np.allclose(scan.ranges[valid], scan.true_ranges[valid])
+    with pytest.raises(ValueError, match="bench_swarm_prob"):
+        DatasetConfig(bench_swarm_prob=0.7, lookalike_prob=0.5)
+    with pytest.raises(ValueError, match="lookalike_prob"):
+        DatasetConfig(lookalike_prob=1.5)
