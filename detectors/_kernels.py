@@ -363,3 +363,27 @@ def mlp_forward(x, mean, std, weights, biases, sizes, out):
         for r_ in range(m):
             for j in range(n_out):
                 out[s + r_, j] = a[j, r_]
+
+
+@numba.njit(cache=True, nogil=True)
+def housing_max_beams(d, scan, first, count, step, r, slack, margin, out):
+    """Most beams (``step`` rad apart) a circle of radius ``r`` can return, plus ``margin``, for
+    every segment, from its nearest reading ``d_min``: the circle's centre is at least ``slack *
+    d_min`` away (every visible point is nearer than the centre, and ``slack = 1 / (1 + k sigma)``
+    allows each reading to be ``k sigma`` too long), where it spans ``2 asin(r / D)``, so at most
+    ``floor(2 asin(r / D) / step) + 1`` beams. Writes ``out[i]`` (float64; a segment with more
+    beams cannot be a housing)."""
+    n_beams = d.shape[1]
+    for i in range(scan.shape[0]):
+        b = scan[i]
+        j = first[i]
+        dmin = d[b, j]
+        for _ in range(count[i]):
+            if d[b, j] < dmin:
+                dmin = d[b, j]
+            j += 1
+            if j >= n_beams:
+                j = 0
+        dc = slack * dmin
+        half = _HALF_PI if dc <= r else math.asin(r / dc)
+        out[i] = math.floor(2.0 * half / step) + 1.0 + margin

@@ -69,6 +69,7 @@ _NOISE_Q = 0.3  # quantile of |second differences| used by scan_noise ...
 _NOISE_SCALE = 0.385 * math.sqrt(20.0)  # ... and its value for unit noise: 0.3-quantile of |N(0, 20)|
 _CURV_CLIP = 60.0  # 1/m: curvature of circles below 1.7 cm radius; a kin is 28.6
 _GN_MAX_STEP = 0.05  # m: cap on one Gauss-Newton step (keeps 2-point fits from flying off)
+_TWO_PI = 2.0 * math.pi
 
 
 @dataclass(frozen=True)
@@ -261,12 +262,15 @@ class SegmentFeatures:
             (``v`` axis = ``u`` rotated by ``s * 90 deg``). See :func:`local_to_observer`.
         fit_centre: ``(S, 2)`` known-radius circle-fit centre, observer frame ``x, y``, m.
         min_beam: ``(S,)`` beam index of ``min(d_i)``.
+        scan_x: ``(B, 2)`` float32 the per-scan features ``log_scan_noise``, ``log_scan_noise_n`` of
+            each scan (the values in its segments' rows of ``x``); ``None`` for an empty batch.
     """
 
     x: np.ndarray
     frames: np.ndarray
     fit_centre: np.ndarray
     min_beam: np.ndarray
+    scan_x: np.ndarray | None = None
 
 
 def local_to_observer(frames: np.ndarray, uv: np.ndarray) -> np.ndarray:
@@ -288,6 +292,29 @@ def observer_to_local(frames: np.ndarray, xy: np.ndarray) -> np.ndarray:
 @numba.njit(cache=True, inline="always")
 def _log_err(e):
     return math.log(min(e, _ERR_CLIP) + _ERR_FLOOR)
+
+
+@numba.njit(cache=True, inline="always")
+def _wrap_index(i, n):
+    # i % n for -n <= i < 2n without an integer division (the same value)
+    if i >= n:
+        return i - n
+    if i < 0:
+        return i + n
+    return i
+
+
+@numba.njit(cache=True, inline="always")
+def _mod_two_pi(x):
+    # Python's x % 2 pi: for |x| < 2 pi fmod returns x exactly, so the same value without fmod
+    # (and +0.0 for -0.0, as Python)
+    if x > 0.0:
+        return x if x < _TWO_PI else x % _TWO_PI
+    if x == 0.0:
+        return 0.0
+    if x > -_TWO_PI:
+        return x + _TWO_PI
+    return x % _TWO_PI
 
 
 @numba.njit(cache=True, inline="always")
@@ -320,12 +347,15 @@ def _features_kernel(
     gn_iters,
     scan_noise,
     noise_n,
+    which,
     x,
     frames,
     fit_centre,
     min_beam,
+    scan_cols,
 ):
-    """One pass over the segments; writes row ``i`` of every output for segment ``i``.
+    """One pass over the segments ``which``: row ``o`` of every output for segment ``which[o]``,
+    and each scan's two noise features into ``scan_cols`` (B, 2).
 
     Points are gathered into scratch buffers, then every feature is a short loop over them: with
     ~3-10 points per segment this is ~50x faster than the equivalent flat numpy expressions
@@ -337,9 +367,29 @@ def _features_kernel(
     pu = np.empty(n_beams)
     pv = np.empty(n_beams)
     pe = np.empty(n_beams)
-    two_pi = 2.0 * math.pi
     kp = n_points
-    for i in range(scan.shape[0]):
+    # resampling positions t = j (n - 1) / (kp - 1) per segment length n, once per call instead of
+    # a division and a floor per point and segment (the same expressions: same bits)
+    n_top = 1
+    for o in range(which.shape[0]):
+        n_top = max(n_top, count[which[o]])
+    rs_lo = np.empty((n_top + 1, kp), dtype=np.int64)
+    rs_hi = np.empty((n_top + 1, kp), dtype=np.int64)
+    rs_w = np.empty((n_top + 1, kp))
+    for n in range(1, n_top + 1):
+        for j in range(kp):
+            t = j * (n - 1) / (kp - 1)
+            lo = min(int(math.floor(t)), n - 1)
+            rs_lo[n, j] = lo
+            rs_hi[n, j] = min(lo + 1, n - 1)
+            rs_w[n, j] = t - lo
+    log_err0 = _log_err(0.0)
+    # the per-scan features once per scan, not once per segment (the same expressions: same bits)
+    for b in range(scan_noise.shape[0]):
+        scan_cols[b, 0] = math.log(scan_noise[b] + 1e-4)
+        scan_cols[b, 1] = math.log1p(float(noise_n[b]))
+    for o in range(which.shape[0]):
+        i = which[o]
         n = count[i]
         f = first[i]
         row = scan[i] * n_beams
@@ -349,7 +399,9 @@ def _features_kernel(
         sd = 0.0
         kmin = 0
         for k in range(n):
-            b = (f + k) % n_beams
+            b = f + k  # < 2 n_beams: a compare instead of an integer division
+            if b >= n_beams:
+                b -= n_beams
             dk = d_flat[row + b]
             pd[k] = dk
             px[k] = dk * cos_a[b]
@@ -373,18 +425,17 @@ def _features_kernel(
             pv[k] = sweep * (-dx * sphi + dy * cphi)
             umin = min(umin, pu[k])
             umax = max(umax, pu[k])
-        frames[i, 0] = ox
-        frames[i, 1] = oy
-        frames[i, 2] = phi
-        frames[i, 3] = sweep
+        frames[o, 0] = ox
+        frames[o, 1] = oy
+        frames[o, 2] = phi
+        frames[o, 3] = sweep
         # shape: resampled along the beam order
         for j in range(kp):
-            t = j * (n - 1) / (kp - 1)
-            lo = min(int(math.floor(t)), n - 1)
-            hi = min(lo + 1, n - 1)
-            w = t - lo
-            x[i, j] = min(max(pu[lo] * (1.0 - w) + pu[hi] * w, -_PT_CLIP), _PT_CLIP)
-            x[i, kp + j] = min(max(pv[lo] * (1.0 - w) + pv[hi] * w, -_PT_CLIP), _PT_CLIP)
+            lo = rs_lo[n, j]
+            hi = rs_hi[n, j]
+            w = rs_w[n, j]
+            x[o, j] = min(max(pu[lo] * (1.0 - w) + pu[hi] * w, -_PT_CLIP), _PT_CLIP)
+            x[o, kp + j] = min(max(pv[lo] * (1.0 - w) + pv[hi] * w, -_PT_CLIP), _PT_CLIP)
         col = 2 * kp
         # context beams
         last = f + n - 1
@@ -396,7 +447,7 @@ def _features_kernel(
                 idx = base + step * j
                 inside = True
                 if circular:
-                    idx = idx % n_beams
+                    idx = _wrap_index(idx, n_beams)
                 elif idx < 0 or idx >= n_beams:
                     inside = False
                 val = _CTX_CLIP
@@ -404,27 +455,27 @@ def _features_kernel(
                     dc = d_flat[row + idx]
                     if dc < d_max:
                         val = min(max(dc - d_edge, -_CTX_CLIP), _CTX_CLIP)
-                x[i, col] = val
+                x[o, col] = val
                 col += 1
         # eqs. 2-5 (detectors.geometric.filter_by_diameter)
-        bmin = (f + kmin) % n_beams
-        min_beam[i] = bmin
+        bmin = _wrap_index(f + kmin, n_beams)
+        min_beam[o] = bmin
         d_min = pd[kmin]
         d_cest = d_min + r
         a_m = ang[bmin]
-        a_first = ang[f % n_beams]
-        a_last = ang[last % n_beams]
+        a_first = ang[f]
+        a_last = ang[_wrap_index(last, n_beams)]
         pb = prev_beam[i]
         nb = next_beam[i]
         unb_f = pb < 0 or (occlusion_unbounded and prev_nearer[i])
         unb_l = nb < 0 or (occlusion_unbounded and next_nearer[i])
-        omega_min = _half_width(d_cest, (sweep * (a_m - a_first)) % two_pi) + _half_width(
-            d_cest, (sweep * (a_last - a_m)) % two_pi
+        omega_min = _half_width(d_cest, _mod_two_pi(sweep * (a_m - a_first))) + _half_width(
+            d_cest, _mod_two_pi(sweep * (a_last - a_m))
         )
         omega_max = math.inf
         if not (unb_f or unb_l):
-            omega_max = _half_width(d_cest, (sweep * (a_m - ang[pb])) % two_pi) + _half_width(
-                d_cest, (sweep * (ang[nb] - a_m)) % two_pi
+            omega_max = _half_width(d_cest, _mod_two_pi(sweep * (a_m - ang[pb]))) + _half_width(
+                d_cest, _mod_two_pi(sweep * (ang[nb] - a_m))
             )
         chord = math.hypot(px[n - 1] - px[0], py[n - 1] - py[0])
         # known-radius circle fit (eqs. 6-7): Gauss-Newton from the eq. 7 centre
@@ -474,8 +525,8 @@ def _features_kernel(
             e = abs(pe[k])
             F_sum += e
             e_max = max(e_max, e)
-        fit_centre[i, 0] = cx
-        fit_centre[i, 1] = cy
+        fit_centre[o, 0] = cx
+        fit_centre[o, 1] = cy
         fdx = cx - ox
         fdy = cy - oy
         fit_u = fdx * cphi + fdy * sphi
@@ -522,9 +573,9 @@ def _features_kernel(
             min(chord, _LEN_CLIP),
             min(umax - umin, _LEN_CLIP),
             _log_err(F0),
-            _log_err(F_sum) if fit_ok else _log_err(0.0),
-            _log_err(F_sum / n) if fit_ok else _log_err(0.0),
-            _log_err(e_max) if fit_ok else _log_err(0.0),
+            _log_err(F_sum) if fit_ok else log_err0,
+            _log_err(F_sum / n) if fit_ok else log_err0,
+            _log_err(e_max) if fit_ok else log_err0,
             min(max(fit_dr, -_OFF_CLIP), _OFF_CLIP) if fit_ok else 0.0,
             min(max(fit_u, -_OFF_CLIP), _OFF_CLIP) if fit_ok else 0.0,
             min(max(fit_v, -_OFF_CLIP), _OFF_CLIP) if fit_ok else 0.0,
@@ -532,20 +583,19 @@ def _features_kernel(
             curv,
             1.0 if kasa_ok else 0.0,
             _log_err(line_rms),
-            math.log(scan_noise[scan[i]] + 1e-4),
-            math.log1p(float(noise_n[scan[i]])),
+            scan_cols[scan[i], 0],
+            scan_cols[scan[i], 1],
         )
         for val in g:
-            x[i, col] = val
+            x[o, col] = val
             col += 1
         # signed residual profile of the fit, resampled like the points (0 without a fit)
         for j in range(kp):
-            t = j * (n - 1) / (kp - 1)
-            lo = min(int(math.floor(t)), n - 1)
-            hi = min(lo + 1, n - 1)
-            w = t - lo
+            lo = rs_lo[n, j]
+            hi = rs_hi[n, j]
+            w = rs_w[n, j]
             e = pe[lo] * (1.0 - w) + pe[hi] * w if fit_ok else 0.0
-            x[i, col + j] = min(max(e, -_RES_CLIP), _RES_CLIP)
+            x[o, col + j] = min(max(e, -_RES_CLIP), _RES_CLIP)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -556,9 +606,9 @@ def _scan_noise_kernel(d, d_th, d_max, circular, out, count):
         k = 0
         for i in range(n if circular else n - 3):
             a0 = d[b, i]
-            a1 = d[b, (i + 1) % n]
-            a2 = d[b, (i + 2) % n]
-            a3 = d[b, (i + 3) % n]
+            a1 = d[b, _wrap_index(i + 1, n)]
+            a2 = d[b, _wrap_index(i + 2, n)]
+            a3 = d[b, _wrap_index(i + 3, n)]
             if max(a0, a1, a2, a3) >= d_max:
                 continue
             if abs(a1 - a0) > d_th or abs(a2 - a1) > d_th or abs(a3 - a2) > d_th:
@@ -598,24 +648,53 @@ def scan_noise(batch: SegmentBatch, config: FeatureConfig | None = None) -> tupl
     return out, count
 
 
-def segment_features(batch: SegmentBatch, config: FeatureConfig | None = None) -> SegmentFeatures:
-    """The feature vectors of every segment in ``batch`` (see the module docstring)."""
+def segment_features(
+    batch: SegmentBatch, config: FeatureConfig | None = None, which: np.ndarray | None = None
+) -> SegmentFeatures:
+    """The feature vectors of every segment in ``batch`` (see the module docstring), or of the
+    segments ``which`` (int indices), row ``o`` for segment ``which[o]``: each row is the same as
+    without ``which`` (every segment's features are its own; only the scan noise is per scan)."""
     c = config or FeatureConfig()
-    n_seg = batch.n_segments
+    if which is None:
+        which = np.arange(batch.n_segments, dtype=np.int64)
+    else:
+        which = np.asarray(which)
+        if which.ndim != 1 or which.dtype.kind not in "iu" or (
+            which.size and (which.min() < 0 or which.max() >= batch.n_segments)
+        ):
+            raise ValueError(
+                f"segment_features: which must be a 1-D array of segment indices in [0, "
+                f"{batch.n_segments}), got {which!r}"
+            )
+        which = which.astype(np.int64, copy=False)
+    return _segment_features(batch, c, which, beam_trig(batch.angles))
+
+
+def beam_trig(angles) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """``(angles, cos, sin, sweep sign)`` of a scan's beams as the feature kernel takes them (a
+    detector computes them once per beam layout)."""
+    ang = np.ascontiguousarray(angles, dtype=np.float64)
+    sweep = 1.0 if ang.shape[0] > 1 and wrap_angle(float(ang[1] - ang[0])) > 0 else -1.0
+    return ang, np.cos(ang), np.sin(ang), sweep
+
+
+def _segment_features(batch: SegmentBatch, c: FeatureConfig, which: np.ndarray, trig) -> SegmentFeatures:
+    """:func:`segment_features` without argument checks: ``which`` int64 indices, ``trig`` from
+    :func:`beam_trig` of ``batch.angles``."""
+    n_seg = which.shape[0]
     n_feat = len(_feature_names(c))
     x = np.empty((n_seg, n_feat), dtype=np.float32)
     frames = np.empty((n_seg, 4))
     fit_centre = np.empty((n_seg, 2))
     min_beam = np.empty(n_seg, dtype=np.int64)
-    if n_seg == 0:
-        return SegmentFeatures(x, frames, fit_centre, min_beam)
-    ang = np.ascontiguousarray(batch.angles, dtype=np.float64)
-    n_beams = ang.shape[0]
-    sweep = 1.0 if wrap_angle(float(ang[1] - ang[0])) > 0 else -1.0
+    scan_cols = np.empty((batch.ranges.shape[0], 2))
+    if batch.n_segments == 0:
+        return SegmentFeatures(x, frames, fit_centre, min_beam, None)
+    ang, cos_a, sin_a, sweep = trig
     _features_kernel(
         np.ascontiguousarray(batch.ranges, dtype=np.float64).reshape(-1),
-        np.cos(ang),
-        np.sin(ang),
+        cos_a,
+        sin_a,
         ang,
         batch.scan,
         batch.first,
@@ -624,7 +703,7 @@ def segment_features(batch: SegmentBatch, config: FeatureConfig | None = None) -
         batch.next_beam,
         batch.prev_nearer,
         batch.next_nearer,
-        n_beams,
+        ang.shape[0],
         batch.circular,
         sweep,
         float(c.r),
@@ -634,9 +713,13 @@ def segment_features(batch: SegmentBatch, config: FeatureConfig | None = None) -
         c.n_context,
         c.gn_iters,
         *scan_noise(batch, c),
+        which,
         x,
         frames,
         fit_centre,
         min_beam,
+        scan_cols,
     )
-    return SegmentFeatures(x=x, frames=frames, fit_centre=fit_centre, min_beam=min_beam)
+    return SegmentFeatures(
+        x=x, frames=frames, fit_centre=fit_centre, min_beam=min_beam, scan_x=scan_cols.astype(np.float32)
+    )

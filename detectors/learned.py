@@ -5,11 +5,14 @@ Pipeline (same interface and output types as :class:`detectors.GeometricKinDetec
 1. pre-processing and segmentation: the geometric detector's own stages (paper 4.1-4.2, the compiled
    kernels behind its ``detect_arrays``, equal to :func:`detectors.geometric.preprocess` and
    :func:`detectors.geometric.segment`), so both detectors see the same segments;
-2. one feature vector per segment (:mod:`detectors.features`, ``FEATURE_VERSION``);
-3. **classification** (replaces the paper's diameter and shape filters, 4.3): an MLP gives
-   ``p(kin)`` for every segment of every scan of a batch in one pass (the checkpoint's weights in a
-   compiled kernel by default, or its torch module);
-4. **positioning** (4.4): the same network regresses the kin's centre in the segment's local frame
+2. a conservative geometric **pre-gate** (``pre_gate=True``): segments with more beams than a 7 cm
+   housing can return at their range (generous bounds, :data:`PRE_GATE_SLACK`,
+   :data:`PRE_GATE_MARGIN`) stop here, with stage ``"diameter"``;
+3. one feature vector per segment (:mod:`detectors.features`, ``FEATURE_VERSION``);
+4. **classification** (replaces the paper's diameter and shape filters, 4.3): an MLP gives
+   ``p(kin)`` for every segment of every scan of a batch in one pass (the checkpoint's weights as
+   float32 matrix products on one BLAS thread, or in a compiled kernel, or its torch module);
+5. **positioning** (4.4): the same network regresses the kin's centre in the segment's local frame
    (``positioning="regression"``), or the geometric detector's circle fit is used
    (``positioning="fit"``: the Levenberg-Marquardt fit of :func:`detectors.geometric.fit_circle` from
    the eq. 7 start). The checkpoint names the better one on held-out data.
@@ -25,6 +28,7 @@ import gc
 import hashlib
 import json
 import math
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -50,6 +54,8 @@ from .features import (
     FeatureConfig,
     SegmentBatch,
     SegmentFeatures,
+    _segment_features,
+    beam_trig,
     feature_names,
     local_to_observer,
     segment_batch,
@@ -77,8 +83,18 @@ CHECKPOINT_FORMAT_VERSION = 1
 #: The shipped model (trained by ``scripts/train_classifier.py``; see ``learned_default.json``).
 DEFAULT_CHECKPOINT = Path(__file__).resolve().parent / "checkpoints" / "learned_default.pt"
 POSITIONING = ("regression", "fit")
-INFERENCE = ("torch", "numba")
+INFERENCE = ("auto", "blas", "numba", "torch")
 _CHUNK = 4096  # segments per forward chunk
+_BLAS_CHUNK = 1024  # rows per BLAS chain: the activations stay in cache
+#: "auto" inference: fewer rows than this go through the compiled kernel (as fast there, and no
+#: thread-scoping cost per call: a single scan has ~10-150 segments), more through BLAS.
+_BLAS_MIN_ROWS = 256
+#: Pre-gate bounds (``LearnedKinDetector(pre_gate=True)``): a segment is dropped before the network
+#: when it has more beams than a housing can return, computed with the housing's centre at
+#: ``PRE_GATE_SLACK * min(d_i)`` (readings up to 25 % too long: 12 sigma of 2 % noise) plus
+#: ``PRE_GATE_MARGIN`` beams.
+PRE_GATE_SLACK = 0.8
+PRE_GATE_MARGIN = 2
 
 
 # --------------------------------------------------------------------------- model
@@ -388,17 +404,33 @@ class LearnedKinDetector(KinDetector):
         positioning: ``"regression"`` or ``"fit"``; default: the checkpoint's choice.
         reports: build one :class:`SegmentReport` per segment in ``detect`` / ``detect_batch``
             (pass False when only detections are needed; ``reports`` is then empty).
-        inference: ``"torch"`` (default: the checkpoint's module, run on ``torch_threads`` threads
-            inside each call, the caller's torch setting restored afterwards) or ``"numba"`` (the
-            exported weights in a compiled float32 kernel; CPU only).
+        inference: ``"blas"`` (the exported float32 weights as numpy matrix products, BLAS on
+            one thread inside each call (threadpoolctl), the caller's setting restored afterwards),
+            ``"numba"`` (the exported weights in a compiled float32 kernel), ``"auto"`` (default:
+            ``"numba"`` below 256 segments per call, ``"blas"`` above, or ``"numba"`` throughout
+            without threadpoolctl; the two agree to float32 rounding, ~1e-6 in ``p(kin)``) or
+            ``"torch"`` (the checkpoint's module, run on ``torch_threads`` threads inside each call,
+            the caller's torch setting restored afterwards). Only ``"torch"`` runs on ``device``.
         torch_threads: torch intra-op threads during inference (``"torch"``).
+        pre_gate: drop segments that cannot be a housing from their geometry alone before the
+            features and the network (default True): a segment with more beams than a circle of
+            radius ``r`` (7 cm wide) returns at its range, computed generously (the centre at
+            :data:`PRE_GATE_SLACK` ``* min(d_i)``, i.e. readings up to 25 % too long, plus
+            :data:`PRE_GATE_MARGIN` beams; :func:`detectors._kernels.housing_max_beams`). These
+            are walls and large obstacles (in a dense 64-robot arena ~9 % of the segments but half
+            of the beams); on 1,000 training-seed scenes it dropped 1 of the 27,323 kin segments
+            the network accepts (``scripts/validate_pre_gate.py``; README, "The learned segment
+            classifier"). Dropped segments get stage ``"diameter"``, ``p_kin`` NaN and the bound in
+            ``seg_values["max_beams"]``. With ``False`` the outputs are those of every segment
+            through the network.
 
     ``Detection.score`` is ``p(kin)`` (higher = more kin-like). Each :class:`SegmentReport` has
     stage ``"accepted"`` or ``"learned"`` (rejected by the classifier) and ``metrics["p_kin"]``.
     :meth:`detect_arrays` returns a :class:`~detectors.base.BatchDetections` of flat arrays
     (``seg_values``: ``p_kin``, ``threshold``); ``detect_batch`` / ``detect`` build objects from it.
-    The speed does not depend on the caller's torch settings: inference runs on
-    ``torch_threads`` (1) threads and restores the caller's count afterwards.
+    The speed does not depend on the caller's torch or BLAS thread settings: inference runs on one
+    BLAS thread (``"blas"``), in a compiled kernel (``"numba"``) or on ``torch_threads`` (1) torch
+    threads, and the caller's counts are restored afterwards.
     """
 
     def __init__(
@@ -409,9 +441,12 @@ class LearnedKinDetector(KinDetector):
         *,
         positioning: str | None = None,
         reports: bool = True,
-        inference: str = "numba",
+        inference: str = "auto",
         torch_threads: int = 1,
+        pre_gate: bool = True,
     ) -> None:
+        if not isinstance(pre_gate, bool):
+            raise ValueError(f"LearnedKinDetector: pre_gate must be True or False, got {pre_gate!r}")
         if inference not in INFERENCE:
             raise ValueError(f"LearnedKinDetector: inference must be one of {INFERENCE}, got {inference!r}")
         if isinstance(torch_threads, bool) or not isinstance(torch_threads, int) or torch_threads < 1:
@@ -444,14 +479,27 @@ class LearnedKinDetector(KinDetector):
         self.reports = bool(reports)
         self.inference = inference
         self.torch_threads = torch_threads
-        if inference == "numba":
+        if inference != "torch":
             if self.device.type != "cpu":
                 raise ValueError(
-                    f"LearnedKinDetector: inference='numba' runs on the CPU, got device {device!r}"
+                    f"LearnedKinDetector: inference={inference!r} runs on the CPU, got device {device!r}; "
+                    "use inference='torch'"
                 )
             self._numba_weights = _export_weights(self.model)
+            self._blas_weights = _export_blas_weights(self.model)
+            if inference == "blas" and _blas_controller() is None:
+                raise ImportError(
+                    "LearnedKinDetector: inference='blas' needs threadpoolctl (pip install threadpoolctl) "
+                    "to run BLAS on one thread; use inference='auto' or 'numba'"
+                )
+        self.pre_gate = pre_gate
         self._angles_key: np.ndarray | None = None
         self._circular = True
+        self._step = float(self.checkpoint["angular_resolution"])
+        self._trig = None
+        nrm = self.checkpoint["normalisation"]
+        self._t_mean = np.asarray(nrm["t_mean"], dtype=np.float64)
+        self._t_std = np.asarray(nrm["t_std"], dtype=np.float64)
 
     # -- input checks ---------------------------------------------------------------------------
     def _check(self, ranges, angles) -> tuple[np.ndarray, np.ndarray]:
@@ -469,7 +517,9 @@ class LearnedKinDetector(KinDetector):
                     "train one for this lidar (scripts/make_dataset.py, scripts/train_classifier.py)"
                 )
             self._circular = is_circular_sweep(a)
+            self._step = step
             self._angles_key = a.copy()
+            self._trig = beam_trig(self._angles_key)
         bad = rb < 0.0  # NaN / +inf mean "no return" and are fine
         if bad.any():
             b = int(np.flatnonzero(bad.any(axis=1))[0])
@@ -486,27 +536,37 @@ class LearnedKinDetector(KinDetector):
         """Stages 1-4 for ``B`` scans without building results.
 
         Returns ``(batch, features, p_kin (S,), centres (S, 2))``: the segments of all scans, their
-        features, the kin probability of each segment and the kin centre each would have (observer
-        frame ``x, y``, m; with this detector's ``positioning``; regression for every segment,
-        circle fit only where ``p_kin >= threshold``, NaN elsewhere).
+        features (of every segment, pre-gated or not), the kin probability of each segment (NaN
+        where the pre-gate dropped it) and the kin centre each would have (observer frame ``x, y``,
+        m; with this detector's ``positioning``; regression for every segment that reached the
+        network, circle fit only where ``p_kin >= threshold``, NaN elsewhere).
         """
-        batch, feats, p, centres, _ = self._predict(ranges, angles)
+        batch, feats, p, centres, _, _ = self._predict(ranges, angles, all_features=True)
         return batch, feats, p, centres
 
     def segment_thresholds(self, feats: SegmentFeatures) -> np.ndarray:
         """``(S,)`` the ``p(kin)`` threshold of each segment: ``threshold``, or the checkpoint's for
         the noise level its scan's noise estimate falls in."""
-        n = feats.x.shape[0]
+        return self._thresholds(feats.x[:, self._noise_col])
+
+    def _thresholds(self, log_noise: np.ndarray) -> np.ndarray:
+        """Thresholds for float32 ``log_scan_noise`` feature values."""
+        n = log_noise.shape[0]
         if self.threshold is not None:
             return np.full(n, self.threshold)
         if self._noise_edges.size == 0:
             return np.full(n, float(self._noise_thresholds[0]))
-        sigma = np.exp(feats.x[:, self._noise_col].astype(np.float64)) - 1e-4
+        sigma = np.exp(log_noise.astype(np.float64)) - 1e-4
         return self._noise_thresholds[np.searchsorted(self._noise_edges, sigma, side="right")]
 
     def _forward(self, x: np.ndarray) -> np.ndarray:
         """``(S, 3)`` float64 network outputs for ``(S, F)`` float32 features."""
-        if self.inference == "numba":
+        inf = self.inference
+        if inf == "auto":
+            inf = "blas" if x.shape[0] >= _BLAS_MIN_ROWS and _blas_controller() is not None else "numba"
+        if inf == "blas":
+            return _blas_forward(x, self._blas_weights)
+        if inf == "numba":
             out = np.empty((x.shape[0], 3), dtype=np.float32)
             _k.mlp_forward(np.ascontiguousarray(x), *self._numba_weights, out)
             return out.astype(np.float64)
@@ -515,27 +575,60 @@ class LearnedKinDetector(KinDetector):
             # row chunks keep the activations in cache (2x faster than one 26k-row chain)
             return torch.cat([self.model(c) for c in xt.split(_CHUNK)]).cpu().numpy().astype(np.float64)
 
-    def _predict(self, ranges, angles, all_centres: bool = True):
+    def gate(self, batch: SegmentBatch) -> np.ndarray:
+        """``(S,)`` the pre-gate's bound: the most beams a housing can return at each segment's range
+        (see ``pre_gate``); segments with more are dropped."""
+        out = np.empty(batch.n_segments)
+        _k.housing_max_beams(
+            batch.ranges, batch.scan, batch.first, batch.count, self._step, float(self.feature_config.r),
+            PRE_GATE_SLACK, float(PRE_GATE_MARGIN), out,
+        )  # fmt: skip
+        return out
+
+    def _predict(self, ranges, angles, all_centres: bool = True, all_features: bool = False):
+        """``(batch, feats, p, centres, thr, max_beams)``; ``feats`` holds the rows of the segments
+        that reached the network unless ``all_features``; ``max_beams`` is None without pre-gate."""
         rb, a = self._check(ranges, angles)
         batch = segment_batch(rb, a, self.feature_config, circular=self._circular)
-        feats = segment_features(batch, self.feature_config)
-        if batch.n_segments == 0:
-            return batch, feats, np.zeros(0), np.zeros((0, 2)), np.zeros(0)
-        out = self._forward(feats.x)
-        p = 1.0 / (1.0 + np.exp(-out[:, 0]))
-        thr = self.segment_thresholds(feats)
-        acc = p >= thr
-        if self.positioning == "regression":
-            nrm = self.checkpoint["normalisation"]
-            uv = np.asarray(nrm["t_mean"]) + np.asarray(nrm["t_std"]) * out[:, 1:3]
-            if all_centres:
-                centres = local_to_observer(feats.frames, uv)
-            else:  # only the accepted segments' centres are used: NaN elsewhere
-                centres = np.full((batch.n_segments, 2), np.nan)
-                centres[acc] = local_to_observer(feats.frames[acc], uv[acc])
+        n_seg = batch.n_segments
+        if n_seg == 0:
+            feats = segment_features(batch, self.feature_config)
+            return batch, feats, np.zeros(0), np.zeros((0, 2)), np.zeros(0), None
+        max_beams = rows = None
+        if self.pre_gate:
+            max_beams = self.gate(batch)
+            rows = np.flatnonzero(batch.count <= max_beams)
+        which = rows if (rows is not None and not all_features) else np.arange(n_seg, dtype=np.int64)
+        feats = _segment_features(batch, self.feature_config, which, self._trig)
+        x, frames = feats.x, feats.frames
+        if rows is not None and all_features:
+            x, frames = x[rows], frames[rows]
+        # every scan's threshold once (the same float32 feature value as in its segments' rows)
+        thr = self._thresholds(feats.scan_x[:, 0])[batch.scan]
+        out = self._forward(x)
+        p_rows = 1.0 / (1.0 + np.exp(-out[:, 0]))
+        if rows is None:
+            p = p_rows
+            acc_rows = p >= thr
         else:
-            centres = self._fit_centres(batch, acc)
-        return batch, feats, p, centres, thr
+            p = np.full(n_seg, np.nan)
+            p[rows] = p_rows
+            acc_rows = p_rows >= thr[rows]
+        if self.positioning == "regression":
+            uv = self._t_mean + self._t_std * out[:, 1:3]
+            if all_centres:
+                if rows is None:
+                    centres = local_to_observer(frames, uv)
+                else:
+                    centres = np.full((n_seg, 2), np.nan)
+                    centres[rows] = local_to_observer(frames, uv)
+            else:  # only the accepted segments' centres are used: NaN elsewhere
+                centres = np.full((n_seg, 2), np.nan)
+                sel = np.flatnonzero(acc_rows)
+                centres[sel if rows is None else rows[sel]] = local_to_observer(frames[sel], uv[sel])
+        else:
+            centres = self._fit_centres(batch, p >= thr)
+        return batch, feats, p, centres, thr, max_beams
 
     def _fit_centres(self, batch: SegmentBatch, which: np.ndarray) -> np.ndarray:
         """Geometric stage 4 for the segments ``which``: LM circle fit from eq. 7, else NaN.
@@ -566,7 +659,7 @@ class LearnedKinDetector(KinDetector):
         are no return; a negative range raises ``ValueError`` naming its scan row and beam.
         ``seg_values`` holds ``p_kin`` and ``threshold`` for every segment.
         """
-        batch, _, p, centres, thr = self._predict(ranges, angles, all_centres=False)
+        batch, _, p, centres, thr, max_beams = self._predict(ranges, angles, all_centres=False)
         acc = p >= thr
         idx = np.flatnonzero(acc)
         xs, ys = centres[idx, 0], centres[idx, 1]
@@ -592,9 +685,19 @@ class LearnedKinDetector(KinDetector):
             seg_next=batch.next_beam,
             seg_prev_nearer=batch.prev_nearer,
             seg_next_nearer=batch.next_nearer,
-            seg_stage=np.where(acc, _k.ACCEPTED, _k.LEARNED).astype(np.int8),
-            seg_values={"p_kin": p, "threshold": np.asarray(thr, dtype=np.float64)},
+            seg_stage=self._stages(acc, p),
+            seg_values=(
+                {"p_kin": p, "threshold": np.asarray(thr, dtype=np.float64)}
+                if max_beams is None
+                else {"p_kin": p, "threshold": np.asarray(thr, dtype=np.float64), "max_beams": max_beams}
+            ),
         )
+
+    def _stages(self, acc: np.ndarray, p: np.ndarray) -> np.ndarray:
+        stage = np.where(acc, _k.ACCEPTED, _k.LEARNED).astype(np.int8)
+        if self.pre_gate:
+            stage[np.isnan(p)] = _k.DIAMETER
+        return stage
 
     def results(self, arrays: BatchDetections, reports: bool | None = None) -> list[DetectionResult]:
         """:class:`DetectionResult` per scan of ``arrays`` (from :meth:`detect_arrays`), with
@@ -608,25 +711,39 @@ class LearnedKinDetector(KinDetector):
         return [DetectionResult.lazy(ds, build, b) for b, ds in enumerate(dets)]
 
     def segment_reports(self, arrays: BatchDetections) -> list[list[SegmentReport]]:
-        """The :class:`SegmentReport` of every segment of ``arrays``, per scan (stage ``"accepted"``
-        or ``"learned"``, ``metrics`` ``p_kin`` and ``threshold``)."""
+        """The :class:`SegmentReport` of every segment of ``arrays``, per scan (stage ``"accepted"``,
+        ``"learned"`` (rejected by the classifier) or ``"diameter"`` (dropped by the pre-gate),
+        ``metrics`` ``p_kin`` and ``threshold``, plus ``max_beams`` with the pre-gate)."""
         with _gc_paused():
             p, thr = arrays.seg_values["p_kin"], arrays.seg_values["threshold"]
-            accl = (arrays.seg_stage == _k.ACCEPTED).tolist()
-            # the numbers are in metrics["p_kin"]; two shared reason strings keep ~100 reports per
+            gate = arrays.seg_values.get("max_beams")
+            stl = arrays.seg_stage.tolist()
+            # the numbers are in metrics["p_kin"]; shared reason strings keep ~100 reports per
             # cluttered scan cheap
             why = {
-                t: (f"p(kin) < threshold {t:g}", f"p(kin) >= threshold {t:g}")
+                t: {
+                    _k.LEARNED: f"p(kin) < threshold {t:g}",
+                    _k.ACCEPTED: f"p(kin) >= threshold {t:g}",
+                    _k.DIAMETER: f"pre-gate: more beams than a {2 * self.feature_config.r:g} m housing "
+                    "returns at this range",
+                }
                 for t in np.unique(thr).tolist()
             }
             tl = thr.tolist()
+            if gate is None:
+                metrics = [{"p_kin": v, "threshold": t} for v, t in zip(p.tolist(), tl, strict=True)]
+            else:
+                metrics = [
+                    {"p_kin": v, "threshold": t, "max_beams": m}
+                    for v, t, m in zip(p.tolist(), tl, gate.tolist(), strict=True)
+                ]
             reps = list(
                 map(
                     SegmentReport,
                     arrays.segments(),
-                    [STAGES[_k.ACCEPTED] if a else STAGES[_k.LEARNED] for a in accl],
-                    [why[t][a] for t, a in zip(tl, accl, strict=True)],
-                    [{"p_kin": v, "threshold": t} for v, t in zip(p.tolist(), tl, strict=True)],
+                    [STAGES[st] for st in stl],
+                    [why[t][st] for t, st in zip(tl, stl, strict=True)],
+                    metrics,
                 )
             )
             bounds = np.searchsorted(arrays.seg_scan, np.arange(arrays.n_scans + 1)).tolist()
@@ -663,6 +780,87 @@ def _export_weights(model: SegmentNet) -> tuple:
     mean = model.x_mean.detach().cpu().numpy().astype(np.float32)
     std = model.x_std.detach().cpu().numpy().astype(np.float32)
     return mean, std, weights, biases, sizes
+
+
+def _export_blas_weights(model: SegmentNet) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The network as float32 ``(W (in, out), b)`` per layer (head last) for :func:`_blas_forward`,
+    the input standardisation folded into the first layer (computed in float64)."""
+    linears = [m for m in model.body if isinstance(m, nn.Linear)] + [model.head]
+    f64 = lambda t: t.detach().cpu().numpy().astype(np.float64)  # noqa: E731
+    layers = [(f64(lin.weight).T, f64(lin.bias)) for lin in linears]
+    mean = model.x_mean.detach().cpu().numpy().astype(np.float64)
+    std = model.x_std.detach().cpu().numpy().astype(np.float64)
+    w0, b0 = layers[0]
+    layers[0] = (w0 / std[:, None], b0 - (mean / std) @ w0)
+    return [(np.ascontiguousarray(w, dtype=np.float32), b.astype(np.float32)) for w, b in layers]
+
+
+def _blas_forward(x: np.ndarray, layers) -> np.ndarray:
+    """``(S, 3)`` float64 outputs: float32 matrix products in row chunks, BLAS on one thread."""
+    out = np.empty((x.shape[0], layers[-1][0].shape[1]))
+    last = len(layers) - 1
+    with _one_blas_thread():
+        for s in range(0, x.shape[0], _BLAS_CHUNK):
+            h = x[s : s + _BLAS_CHUNK]
+            for i, (w, b) in enumerate(layers):
+                h = h @ w
+                h += b
+                if i < last:
+                    np.maximum(h, 0.0, out=h)
+            out[s : s + h.shape[0]] = h
+    return out
+
+
+_BLAS = {"libs": None, "loaded": False, "depth": 0, "saved": []}
+_BLAS_LOCK = threading.Lock()
+
+
+def _blas_controller():
+    """threadpoolctl's controllers of the loaded BLAS libraries (found once), or None without
+    threadpoolctl."""
+    if not _BLAS["loaded"]:
+        with _BLAS_LOCK:
+            if not _BLAS["loaded"]:
+                try:
+                    from threadpoolctl import ThreadpoolController
+                except ImportError:
+                    libs = None
+                else:
+                    libs = ThreadpoolController().select(user_api="blas").lib_controllers
+                _BLAS["libs"], _BLAS["loaded"] = libs, True
+    return _BLAS["libs"]
+
+
+@contextlib.contextmanager
+def _one_blas_thread():
+    """BLAS on one thread inside the block, the caller's thread counts restored afterwards.
+
+    Matrix products of a few thousand 64-wide rows gain nothing from a second thread, and on a
+    busy 2-core machine OpenBLAS's default of one thread per core made them ~8x slower (25 ms
+    instead of 3 for a 64-robot batch). Nested and concurrent calls (threads) share one limit,
+    set by the first to enter and restored by the last to leave. The library controllers are
+    called directly: ``ThreadpoolController.limit`` costs ~25 us a call, this ~2 us.
+    """
+    libs = _blas_controller()
+    with _BLAS_LOCK:
+        if _BLAS["depth"] == 0:
+            saved = []
+            for lib in libs:
+                n = lib.get_num_threads()
+                if n != 1:
+                    lib.set_num_threads(1)
+                    saved.append((lib, n))
+            _BLAS["saved"] = saved
+        _BLAS["depth"] += 1
+    try:
+        yield
+    finally:
+        with _BLAS_LOCK:
+            _BLAS["depth"] -= 1
+            if _BLAS["depth"] == 0:
+                for lib, n in _BLAS["saved"]:
+                    lib.set_num_threads(n)
+                _BLAS["saved"] = []
 
 
 @contextlib.contextmanager

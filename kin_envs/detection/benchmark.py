@@ -548,7 +548,7 @@ def permissive(detector: KinDetector) -> KinDetector:
     if learned is not None and isinstance(detector, learned.LearnedKinDetector):
         return learned.LearnedKinDetector(
             detector.checkpoint["path"], threshold=0.0, device=detector.device,
-            positioning=detector.positioning, reports=False,
+            positioning=detector.positioning, reports=False, pre_gate=getattr(detector, "pre_gate", True),
         )  # fmt: skip
     return detector
 

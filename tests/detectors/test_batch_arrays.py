@@ -217,22 +217,34 @@ def torch_mod():
     return pytest.importorskip("torch")
 
 
-@pytest.mark.parametrize("inference", ["torch", "numba"])
+@pytest.mark.parametrize("inference", ["torch", "numba", "blas"])
 @pytest.mark.parametrize("positioning", ["regression", "fit"])
-def test_learned_matches_the_previous_implementation(torch_mod, inference, positioning):
+@pytest.mark.parametrize("pre_gate", [False, True])
+def test_learned_matches_the_previous_implementation(torch_mod, inference, positioning, pre_gate):
     from detectors.learned import LearnedKinDetector
     from tests.detectors.reference_detectors import reference_learned_predict
 
-    det = LearnedKinDetector(inference=inference, positioning=positioning)
+    det = LearnedKinDetector(inference=inference, positioning=positioning, pre_gate=pre_gate)
+    n_gated = 0
     for _, ranges, angles in SCANS[::2] + SCANS[-2:]:
         arr = det.detect_arrays(ranges, angles)
         batch, p, centres, thr = reference_learned_predict(det, ranges, angles)
+        gated = np.isnan(arr.seg_values["p_kin"])
+        if pre_gate:
+            # the pre-gate drops only segments the network rejects, with the "diameter" stage
+            assert (p[gated] < thr[gated]).all()
+            np.testing.assert_array_equal(arr.seg_stage[gated], 1)
+            np.testing.assert_array_equal(gated, batch.count > arr.seg_values["max_beams"])
+            n_gated += int(gated.sum())
+            p = np.where(gated, np.nan, p)
+        else:
+            assert "max_beams" not in arr.seg_values
         np.testing.assert_array_equal(arr.seg_scan, batch.scan)
         np.testing.assert_array_equal(arr.seg_first, batch.first)
         np.testing.assert_array_equal(arr.seg_count, batch.count)
         np.testing.assert_array_equal(arr.seg_prev, batch.prev_beam)
         np.testing.assert_array_equal(arr.seg_next_nearer, batch.next_nearer)
-        # torch: the same module on the same rows; numba: float32 sums in another order
+        # torch: the same module on the same rows; numba / blas: float32 sums in another order
         np.testing.assert_allclose(
             arr.seg_values["p_kin"], p, rtol=0, atol=0 if inference == "torch" else 1e-5
         )
@@ -242,6 +254,7 @@ def test_learned_matches_the_previous_implementation(torch_mod, inference, posit
         sel = ~near[arr.segment]
         np.testing.assert_allclose(arr.x[sel], centres[acc, 0], atol=1e-6)
         np.testing.assert_allclose(arr.y[sel], centres[acc, 1], atol=1e-6)
+    assert (n_gated > 0) == pre_gate
 
 
 def test_learned_inference_leaves_the_callers_torch_threads_alone(torch_mod):
@@ -263,6 +276,34 @@ def test_learned_inference_leaves_the_callers_torch_threads_alone(torch_mod):
         LearnedKinDetector(inference="onnx")
     with pytest.raises(ValueError, match="torch_threads"):
         LearnedKinDetector(torch_threads=0)
+
+
+def test_learned_blas_inference_leaves_the_callers_blas_threads_alone():
+    threadpoolctl = pytest.importorskip("threadpoolctl")
+    from detectors.learned import _BLAS_MIN_ROWS, LearnedKinDetector
+
+    ranges, angles = _arena_scans(0.01, 3)
+    auto, blas, numba_ = (LearnedKinDetector(reports=False, inference=i) for i in ("auto", "blas", "numba"))
+    ctl = threadpoolctl.ThreadpoolController().select(user_api="blas")
+    if not ctl.lib_controllers:
+        pytest.skip("no BLAS library found by threadpoolctl")
+    results = {}
+    for n in (1, 2):
+        with ctl.limit(limits=n):
+            results[n] = blas.detect_arrays(ranges, angles)
+            # the caller's count is back after the call
+            assert {lib.num_threads for lib in ctl.lib_controllers} == {n}
+            assert {lib.get_num_threads() for lib in ctl.lib_controllers} == {n}
+    np.testing.assert_array_equal(results[1].seg_values["p_kin"], results[2].seg_values["p_kin"])
+    # "auto": the compiled kernel for small calls, BLAS for large ones; both within float32 rounding
+    ref = numba_.detect_arrays(ranges, angles)
+    assert ref.seg_scan.shape[0] >= _BLAS_MIN_ROWS  # this batch takes the BLAS path under "auto"
+    for res in (results[1], auto.detect_arrays(ranges, angles)):
+        np.testing.assert_allclose(res.seg_values["p_kin"], ref.seg_values["p_kin"], rtol=0, atol=1e-5)
+    np.testing.assert_array_equal(
+        auto.detect_arrays(ranges[:1], angles).seg_values["p_kin"],
+        numba_.detect_arrays(ranges[:1], angles).seg_values["p_kin"],
+    )
 
 
 @pytest.mark.parametrize("kind", ["geometric", "learned-numba"])

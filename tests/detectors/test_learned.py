@@ -245,6 +245,10 @@ def test_reports_detections_and_batch_consistency(shipped):
             assert det.score == rep.metrics["p_kin"] >= rep.metrics["threshold"]
             assert det.range == pytest.approx(math.hypot(det.x, det.y))
         for rep in res.reports:
+            if rep.stage == "diameter":  # dropped by the pre-gate: too many beams for a housing
+                assert math.isnan(rep.metrics["p_kin"]) and rep.segment.n_beams > rep.metrics["max_beams"]
+                assert rep.reason.startswith("pre-gate")
+                continue
             assert rep.stage in ("accepted", "learned") and 0.0 <= rep.metrics["p_kin"] <= 1.0
             assert (rep.stage == "accepted") == (rep.metrics["p_kin"] >= rep.metrics["threshold"])
     quiet = LearnedKinDetector(reports=False).detect_batch(scan.ranges, scan.angles)
@@ -286,3 +290,72 @@ def test_every_detector_checks_batch_shapes_the_same_way():
             det.detect_batch(np.ones((2, 360)), angles[:359])
     r, a = validate_batch([[1.0, 2.0, 3.0]], [0.0, -2.0, -4.0])
     assert r.dtype == a.dtype == np.float64 and r.shape == (1, 3)
+
+
+def _scan_of_circles(circles, noise, rng, n=360, d_max=12.0):
+    """One 360-beam scan (beam i at +i deg) of circles ``(x, y, radius)`` in an empty world,
+    exact ray-circle ranges times ``1 + noise * N(0, 1)``."""
+    ang = np.arange(n) * (2 * math.pi / n)
+    ux, uy = np.cos(ang), np.sin(ang)
+    r = np.full(n, np.inf)
+    for cx, cy, rad in circles:
+        b = ux * cx + uy * cy
+        disc = b * b - (cx * cx + cy * cy - rad * rad)
+        hit = (disc >= 0) & (b - np.sqrt(np.maximum(disc, 0)) > 0)
+        r = np.where(hit, np.minimum(r, b - np.sqrt(np.maximum(disc, 0))), r)
+    r = np.where(np.isfinite(r), r * (1 + noise * rng.standard_normal(n)), d_max)
+    return r[None, :], ang
+
+
+def test_pre_gate_keeps_every_housing_and_drops_wide_objects(shipped):
+    from detectors.features import segment_batch
+
+    rng = np.random.default_rng(7)
+    r = shipped.feature_config.r
+    # a lone housing anywhere from touching the lidar's minimum range to 10 m, 0-3 % noise: never dropped
+    n_checked = 0
+    for dist in (0.2, 0.25, 0.3, 0.5, 0.8, 1.2, 2.0, 3.5, 6.0, 10.0):
+        for noise in (0.0, 0.01, 0.02, 0.03):
+            for _ in range(5):
+                bearing = rng.uniform(0, 2 * math.pi)
+                centre = (dist * math.cos(bearing), dist * math.sin(bearing), r)
+                ranges, ang = _scan_of_circles([centre], noise, rng)
+                batch = segment_batch(ranges, ang, shipped.feature_config)
+                bound = shipped.gate(batch)
+                assert (batch.count <= bound).all(), (dist, noise, batch.count, bound)
+                n_checked += batch.n_segments
+    assert n_checked >= 150  # at 10 m a housing falls between beams now and then
+    # a 60 cm cylinder at 1 m and 3 m (a bin, another robot's chassis) is dropped, a 7 cm one kept
+    for dist in (1.0, 3.0):
+        ranges, ang = _scan_of_circles([(dist, 0.0, 0.3), (0.0, dist, r)], 0.01, rng)
+        batch = segment_batch(ranges, ang, shipped.feature_config)
+        gated = batch.count > shipped.gate(batch)
+        assert batch.n_segments == 2 and gated.sum() == 1 and batch.count[gated][0] > 10
+    # the detector's outputs: dropped segments are "diameter" with p_kin NaN, the housing is detected
+    ranges, ang = _scan_of_circles([(1.0, 0.0, 0.3), (0.0, 1.0, r)], 0.0, rng)
+    arr = shipped.detect_arrays(ranges, ang)
+    gated = np.isnan(arr.seg_values["p_kin"])
+    assert gated.sum() == 1 and arr.seg_stage[gated][0] == 1
+    assert arr.seg_count[gated][0] > arr.seg_values["max_beams"][gated][0]
+    assert len(arr.x) == 1 and math.hypot(arr.x[0], arr.y[0] - 1.0) < 0.02
+    off = LearnedKinDetector(pre_gate=False).detect_arrays(ranges, ang)
+    assert "max_beams" not in off.seg_values and np.isfinite(off.seg_values["p_kin"]).all()
+    np.testing.assert_array_equal(off.seg_values["p_kin"][~gated], arr.seg_values["p_kin"][~gated])
+    with pytest.raises(ValueError, match="pre_gate"):
+        LearnedKinDetector(pre_gate=1)
+
+
+@pytest.mark.parametrize("hidden", [(16, 8), (40,), (24, 16, 8)])
+def test_every_inference_path_runs_any_model_shape(tmp_path, hidden):
+    torch.manual_seed(len(hidden))
+    m = SegmentNet(ModelConfig(N_FEATURES, hidden))
+    m.set_normalisation(np.zeros(N_FEATURES), np.ones(N_FEATURES), [0.03, 0.0], [0.01, 0.01])
+    path = save_checkpoint(tmp_path / "m.pt", m.eval(), FeatureConfig())
+    scene = scenes.random_arena(12, 20, seed=3).replace(lidar=LidarSpec(noise_sigma=0.01))
+    scan = World(scene, seed=3).scan()
+    r, a = scan.ranges, scan.angles
+    ref = LearnedKinDetector(path, inference="torch", pre_gate=False).detect_arrays(r, a)
+    assert ref.seg_scan.shape[0] > 300  # enough segments for "auto" to take the BLAS path
+    for inference in ("numba", "blas", "auto"):
+        arr = LearnedKinDetector(path, inference=inference, pre_gate=False).detect_arrays(r, a)
+        np.testing.assert_allclose(arr.seg_values["p_kin"], ref.seg_values["p_kin"], rtol=0, atol=1e-5)

@@ -6,9 +6,6 @@ import pytest
 
 from tests.scripts.helpers import load_script
 
-# scripts/benchmark.py still times the v0 ids (its switch to v1 is separate work)
-pytestmark = pytest.mark.filterwarnings("ignore:.*The environment kin_envs/.* is out of date")
-
 
 @pytest.fixture(scope="module")
 def bench():
@@ -31,6 +28,18 @@ def test_lidar_and_detector_sections(bench, tmp_path):
     assert saved["config"]["robots"] == [1, 4]
     md = (tmp_path / "benchmark.md").read_text()
     assert "| robots |" in md and "previous implementation" in md and "Start-up" in md
+    assert saved["config"]["clock"] == "wall" and "wall clock" in md
+    if len(res["detector"]) > 1:  # with torch: the learned variants, the default first
+        names = [r["detector"] for r in res["detector"]]
+        assert names[1] == "learned (default)" and "learned (default, no pre-gate)" in names
+        assert all(r["arrays"] > 0 and r["single_scan"] > 0 for r in res["detector"])
+
+
+def test_cpu_clock(bench, tmp_path):
+    argv = ["--sections", "detector", "--min-time", "0.03", "--clock", "cpu"]
+    res = bench.main([*argv, "--out", str(tmp_path)])
+    assert res["config"]["clock"] == "cpu" and res["detector"][0]["arrays"] > 0
+    assert "cpu clock" in (tmp_path / "benchmark.md").read_text()
 
 
 def test_env_and_memory_sections(bench, tmp_path):
@@ -40,11 +49,11 @@ def test_env_and_memory_sections(bench, tmp_path):
     rows = {(r["env"], r["robots"], r["detector"]): r for r in res["envs"]}
     assert set(rows) == {
         (e, n, d)
-        for e, n in (("KinSeek-v0", 1), ("aggregation_v0", 4))
+        for e, n in (("KinSeek-v1", 1), ("aggregation_v1", 4))
         for d in ("None", "geometric", "learned")
     }
     assert all(r["steps_per_s"] > 0 for r in rows.values())
-    assert rows[("aggregation_v0", 4, "None")]["of_detector_off"] == 1.0
+    assert rows[("aggregation_v1", 4, "None")]["of_detector_off"] == 1.0
     (mem,) = res["memory"]
     assert mem["steps"] == 4 and mem["peak_rss_mb"] > 0 and mem["rss_end_mb"] > 0
     assert "of detector off" in (tmp_path / "benchmark.md").read_text()
