@@ -131,23 +131,25 @@ def polygon_edges(vertices: np.ndarray) -> np.ndarray:
 # rad: widens each primitive's beam interval. It covers the error of _fast_atan2 (< 1e-5 rad),
 # so a beam through a vertex or tangent is always tested; the exact intersection test decides.
 _EPS = 1e-4
+# m: slack on distance bounds (range cut, occlusion), far above the rounding error of a hit distance
+_TOL = 1e-6
 
 
 @numba.njit(cache=True, inline="always")
 def _fast_atan2(y, x):
-    """atan2 to within 1e-5 rad (minimax polynomial): only used to pick candidate beams."""
+    """atan2 to within 1e-5 rad (minimax polynomial): only used to pick candidate beams.
+
+    Written with min / max and conditional expressions so that it compiles without branches: the
+    signs of random bearings are unpredictable and mispredicted branches cost more than the
+    arithmetic (measured)."""
     ax = abs(x)
     ay = abs(y)
-    if ax == 0.0 and ay == 0.0:
-        return 0.0
-    swap = ay > ax
-    z = ax / ay if swap else ay / ax
+    # min/max: the same quotient as ay/ax or ax/ay; 0 at the origin (where the original returned 0)
+    z = min(ax, ay) / max(max(ax, ay), 1e-300)
     z2 = z * z
     a = z * (0.9998660 + z2 * (-0.3302995 + z2 * (0.1801410 + z2 * (-0.0851330 + z2 * 0.0208351))))
-    if swap:
-        a = 0.5 * math.pi - a
-    if x < 0.0:
-        a = math.pi - a
+    a = 0.5 * math.pi - a if ay > ax else a
+    a = math.pi - a if x < 0.0 else a
     return -a if y < 0.0 else a
 
 
@@ -157,50 +159,86 @@ def _ccw(v: np.ndarray) -> np.ndarray:
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _cast_one(x0, y0, h, skip, range_max, circles, segments, cos_tab, sin_tab, best_d, best_p):
+def _cast_one(x0, y0, h, skip, range_max, circles, segments, cos_tab, sin_tab, best_d, best_p, ids):
     """Cast one origin's beams into ``best_d`` / ``best_p`` (nearest distance and primitive id).
 
     Beams with no hit within ``range_max`` get distance ``range_max`` and primitive -1.
     Primitive ids: circles are ``0..C-1``, segments ``C..C+S-1``. Circle ``skip`` (the robot's own
-    housing) is ignored. Beam ``i`` has world direction ``h - i*res``.
+    housing) is ignored. Beam ``i`` has world direction ``h - i*res``. ``ids`` is ``arange(k)`` for
+    some ``k >= max(C, S)`` (every primitive is a candidate).
+    """
+    for i in range(best_d.shape[0]):
+        best_d[i] = range_max  # hits beyond range_max are never recorded
+        best_p[i] = -1
+    _cast_prims(x0, y0, h, skip, range_max, circles, segments, ids, circles.shape[0], ids,
+                segments.shape[0], cos_tab, sin_tab, best_d, best_p)  # fmt: skip
+
+
+@numba.njit(cache=True, nogil=True)
+def _cast_prims(x0, y0, h, skip, reach, circles, segments, c_ids, n_ci, s_ids, n_si, cos_tab, sin_tab,
+                best_d, best_p):  # fmt: skip
+    """Cast the circles ``c_ids[:n_ci]`` and segments ``s_ids[:n_si]`` into ``best_d`` / ``best_p``.
+
+    ``reach`` (at most ``range_max``, at least every current ``best_d``): nothing beyond it can change
+    the scan. A hit replaces the current one when it is nearer *or equally near with a lower primitive
+    id*: the result is the minimum of (distance, id) over the primitives whatever order they come in,
+    so the brute-force kernel (all primitives in id order) and the grid kernel (rings of cells, near
+    ones first) return the same scans bit for bit. Everything that only *selects* candidates (the
+    prefilters, the beam intervals, the occlusion test) keeps a margin; what a beam hits and at which
+    distance is decided by the same exact arithmetic in every kernel.
+
     Segments are one-sided: only a beam arriving from the segment's right-hand side (looking from
     its first to its second point) can hit it, i.e. the outside of a CCW polygon. A convex solid's
     back faces can never be the first hit, so culling them halves the work exactly.
+    The per-primitive code is written out here, not in helper functions: inlined helpers that take
+    the arrays cost reference counting per primitive and ran ~2x slower (measured).
     """
     n_beams = best_d.shape[0]
     res = 2.0 * math.pi / n_beams
+    inv_res = 1.0 / res
     n_c = circles.shape[0]
-    n_s = segments.shape[0]
-    rmax2 = range_max * range_max
     ch = math.cos(h)
     sh = math.sin(h)
-    for i in range(n_beams):
-        best_d[i] = range_max  # hits beyond range_max are never recorded
-        best_p[i] = -1
-    for c in range(n_c):
-        if c == skip:
-            continue
+    # the heading wrapped to [-pi, pi] for the beam intervals only (robots' angles are unbounded), so
+    # that a bearing minus it lies in [-2pi, 2pi] and its beam index needs no integer modulo
+    hw = h - 2.0 * math.pi * math.floor(h / (2.0 * math.pi) + 0.5)
+    rc = reach + _TOL
+    rc2 = rc * rc
+    for q in range(n_ci):
+        c = c_ids[q]
         dx = circles[c, 0] - x0
         dy = circles[c, 1] - y0
         r = circles[c, 2]
         d2 = dx * dx + dy * dy
-        d = math.sqrt(d2)
-        if d - r > range_max or d <= r:
-            # out of range, or the origin is inside the circle (not a physical state)
+        # branch-free prefilter (out of reach, with a margin), then the exact test: most circles of a
+        # large arena are out of reach, and a mispredicted branch costs more than the arithmetic
+        if not ((d2 <= (rc + r) * (rc + r)) & (c != skip)):
             continue
-        # half-angle subtended: asin(r/d) = atan(r / sqrt(d^2 - r^2))
-        half = _fast_atan2(r, math.sqrt(d2 - r * r)) + _EPS
-        phi = _fast_atan2(dy, dx) - h  # bearing of the centre relative to the heading
+        d = math.sqrt(d2)
+        cc = d2 - r * r
+        if d - r > reach or d <= r or cc <= 0.0:
+            continue  # out of reach, or the origin is inside the circle (not a physical state)
+        # half-angle subtended: asin(r/d) = atan(z), z = r / sqrt(d^2 - r^2); atan(z) <= z, so a small
+        # circle (most of them) takes z itself: a few more candidate beams at most, one atan2 less
+        sq = math.sqrt(cc)
+        z = r / sq
+        half = (z if z < 0.05 else _fast_atan2(r, sq)) + _EPS
+        phi = _fast_atan2(dy, dx) - hw  # bearing of the centre relative to the heading
         # beam i points at -i*res: beams within [phi-half, phi+half] have i in
         # [-(phi+half)/res, -(phi-half)/res]
-        k0 = int(math.ceil(-(phi + half) / res))
-        k1 = int(math.floor(-(phi - half) / res))
-        cc = d2 - r * r
-        i = k0 % n_beams - 1  # one modulo per primitive; the beam index then wraps by hand
+        k0 = int(math.ceil(-(phi + half) * inv_res))
+        k1 = int(math.floor(-(phi - half) * inv_res))
+        i = k0 + 2 * n_beams - 1  # >= -1: k0 >= -(2pi + pi/2) / res
+        while i >= n_beams - 1:
+            i -= n_beams
+        near = d - r - _TOL  # no hit on this circle is nearer
         for _ in range(k1 - k0 + 1):
             i += 1
             if i == n_beams:
                 i = 0
+            bd = best_d[i]
+            if bd < near:
+                continue  # occluded
             # direction of heading - i*res, by rotation (no trig in the inner loop)
             ux = ch * cos_tab[i] + sh * sin_tab[i]
             uy = sh * cos_tab[i] - ch * sin_tab[i]
@@ -209,37 +247,51 @@ def _cast_one(x0, y0, h, skip, range_max, circles, segments, cos_tab, sin_tab, b
             if disc < 0.0 or b <= 0.0:
                 continue
             t = b - math.sqrt(disc)
-            if t > 0.0 and t < best_d[i]:
+            if t > 0.0 and (t < bd or (t == bd and c < best_p[i])):
                 best_d[i] = t
                 best_p[i] = c
-    for s in range(n_s):
+    for q in range(n_si):
+        s = s_ids[q]
         ax = segments[s, 0] - x0
         ay = segments[s, 1] - y0
         bx = segments[s, 2] - x0
         by = segments[s, 3] - y0
         ex = bx - ax
         ey = by - ay
-        # back face: the origin is on the left of A->B (or on its line)
-        if ey * ax - ex * ay >= 0.0:
-            continue
+        # back face (the origin on the left of A->B or on its line) or out of reach, branch-free: the
+        # nearest point is A, B or the foot of the perpendicular (at distance^2 cr^2 / ee)
+        cr = ey * ax - ex * ay
         ee = ex * ex + ey * ey
-        u = -(ax * ex + ay * ey) / ee
-        u = min(1.0, max(0.0, u))
+        dot = -(ax * ex + ay * ey)
+        near = (((dot <= 0.0) & (ax * ax + ay * ay <= rc2))
+                | ((dot >= ee) & (bx * bx + by * by <= rc2))
+                | ((dot > 0.0) & (dot < ee) & (cr * cr <= rc2 * ee)))  # fmt: skip
+        if not ((cr < 0.0) & near):
+            continue
+        u = min(1.0, max(0.0, dot / ee))
         px = ax + u * ex
         py = ay + u * ey
-        if px * px + py * py > rmax2:
+        dm2 = px * px + py * py
+        if dm2 > reach * reach:
             continue
-        th_a = _fast_atan2(ay, ax) - h
-        span = _fast_atan2(ax * by - ay * bx, ax * bx + ay * by)  # signed angle A -> B
+        p = n_c + s
+        th_a = _fast_atan2(ay, ax) - hw
+        span = _fast_atan2(ax * by - ay * bx, ax * bx + ay * by)  # signed angle A -> B, |span| < pi
         lo = th_a + min(0.0, span) - _EPS
         hi = th_a + max(0.0, span) + _EPS
-        k0 = int(math.ceil(-hi / res))
-        k1 = int(math.floor(-lo / res))
-        i = k0 % n_beams - 1
+        k0 = int(math.ceil(-hi * inv_res))
+        k1 = int(math.floor(-lo * inv_res))
+        i = k0 + 2 * n_beams - 1  # >= -1: k0 >= -(2pi + pi) / res
+        while i >= n_beams - 1:
+            i -= n_beams
+        near_d = math.sqrt(dm2) - _TOL
         for _ in range(k1 - k0 + 1):
             i += 1
             if i == n_beams:
                 i = 0
+            bd = best_d[i]
+            if bd < near_d:
+                continue  # occluded
             ux = ch * cos_tab[i] + sh * sin_tab[i]
             uy = sh * cos_tab[i] - ch * sin_tab[i]
             den = ux * ey - uy * ex  # cross(u, e)
@@ -248,9 +300,9 @@ def _cast_one(x0, y0, h, skip, range_max, circles, segments, cos_tab, sin_tab, b
             # origin + t u = A + s e  ->  t = cross(A, e)/cross(u, e), s = cross(A, u)/cross(u, e)
             t = (ax * ey - ay * ex) / den
             sp = (ax * uy - ay * ux) / den
-            if t > 0.0 and 0.0 <= sp <= 1.0 and t < best_d[i]:
+            if t > 0.0 and 0.0 <= sp <= 1.0 and (t < bd or (t == bd and p < best_p[i])):
                 best_d[i] = t
-                best_p[i] = n_c + s
+                best_p[i] = p
 
 
 @numba.njit(cache=True, nogil=True)
@@ -264,12 +316,26 @@ def _beam_tables(n_beams):
     return cos_tab, sin_tab
 
 
+_TABLES: dict[int, np.ndarray] = {}
+
+
+def beam_tables(n_beams: int) -> np.ndarray:
+    """``(2, n_beams)`` cos and sin of ``i * 2pi / n_beams``, computed once per beam count (by the same
+    compiled code as before: 360 sin/cos per kernel call were a quarter of a one-robot scan)."""
+    tabs = _TABLES.get(n_beams)
+    if tabs is None:
+        tabs = np.stack(_beam_tables(n_beams))
+        tabs.flags.writeable = False
+        _TABLES[n_beams] = tabs
+    return tabs
+
+
 @numba.njit(cache=True, nogil=True)
 def _scan_kernel(
     ox,
     oy,
     heading,
-    n_beams,
+    tabs,
     range_min,
     range_max,
     circles,
@@ -287,24 +353,17 @@ def _scan_kernel(
     Per robot the work happens in small buffers that stay in L1 cache and each output row is written
     once, sequentially (no intermediate arrays to evict the caches between robots).
     ``prim_kind`` / ``prim_index`` are owner tables indexed by primitive id + 1 (slot 0 = no hit).
+    ``tabs``: :func:`beam_tables`.
     """
-    cos_tab, sin_tab = _beam_tables(n_beams)
+    n_beams = tabs.shape[1]
+    cos_tab = tabs[0]
+    sin_tab = tabs[1]
     best_d = np.empty(n_beams)
     best_p = np.empty(n_beams, dtype=np.int32)
+    ids = np.arange(max(circles.shape[0], segments.shape[0]))
     for n in range(ox.shape[0]):
-        _cast_one(
-            ox[n],
-            oy[n],
-            heading[n],
-            circle_skip[n],
-            range_max,
-            circles,
-            segments,
-            cos_tab,
-            sin_tab,
-            best_d,
-            best_p,
-        )
+        _cast_one(ox[n], oy[n], heading[n], circle_skip[n], range_max, circles, segments, cos_tab, sin_tab,
+                  best_d, best_p, ids)  # fmt: skip
         for i in range(n_beams):
             p = best_p[i] + 1
             d = best_d[i]
@@ -329,8 +388,6 @@ def _scan_kernel(
 # minimum of (distance, id) over the primitives, which is what the brute force's in-order strict ``<``
 # computes, so both kernels return bit-identical scans whatever order the cells are visited in.
 
-# m: slack on the cell distance bounds, far above the rounding error of a computed hit distance
-_GRID_TOL = 1e-6
 
 
 @dataclass(frozen=True, eq=False)
@@ -501,262 +558,157 @@ def build_lidar_grid(
     )
 
 
-@numba.njit(cache=True, nogil=True)
-def _cast_lists(
-    x0, y0, h, ch, sh, skip, range_max, circles, segments, cos_tab, sin_tab, best_d, best_p,
-    c_items, n_ci, s_items, n_si,
+@numba.njit(cache=True, nogil=True, inline="always")
+def _grid_cast_one(
+    x0, y0, h, skip, range_max, circles, segments, cos_tab, sin_tab, best_d, best_p, stamp, tag,
+    cand_c, cand_s, gx, gy, cs, nx, ny, c_start, c_items, s_start, s_items, dc_start, dc_items,
+    ds_start, ds_items, c_over, s_over,
 ):  # fmt: skip
-    """:func:`_cast_one`'s loops over the circles ``c_items[:n_ci]`` and the segments
-    ``s_items[:n_si]``, without re-initialising ``best_*``; the same arithmetic, except that an
-    equally near hit wins if its primitive id is lower. Called once per ring, not inlined: inlined into
-    the grid kernel it ran ~1.5x slower (measured)."""
+    """One origin's scan through the grid: rings of cells outwards, so near primitives come first and
+    :func:`_cast_prims`' per-beam occlusion test spares most of the far ones. Per ring, the primitives
+    of the cells that pass the distance and occlusion tests are gathered (each once: ``stamp``) and
+    cast in one call; everything per cell is written out here (a call per cell cost more than its
+    work)."""
     n_beams = best_d.shape[0]
     res = 2.0 * math.pi / n_beams
     n_c = circles.shape[0]
-    rmax2 = range_max * range_max
-    for q in range(n_ci):
-        c = c_items[q]
-        if c == skip:
-            continue
-        dx = circles[c, 0] - x0
-        dy = circles[c, 1] - y0
-        r = circles[c, 2]
-        d2 = dx * dx + dy * dy
-        d = math.sqrt(d2)
-        if d - r > range_max or d <= r:
-            continue
-        half = _fast_atan2(r, math.sqrt(d2 - r * r)) + _EPS
-        phi = _fast_atan2(dy, dx) - h
-        k0 = int(math.ceil(-(phi + half) / res))
-        k1 = int(math.floor(-(phi - half) / res))
-        cc = d2 - r * r
-        i = k0 % n_beams - 1
-        for _ in range(k1 - k0 + 1):
-            i += 1
-            if i == n_beams:
-                i = 0
-            ux = ch * cos_tab[i] + sh * sin_tab[i]
-            uy = sh * cos_tab[i] - ch * sin_tab[i]
-            b = dx * ux + dy * uy
-            disc = b * b - cc
-            if disc < 0.0 or b <= 0.0:
-                continue
-            t = b - math.sqrt(disc)
-            if t > 0.0 and (t < best_d[i] or (t == best_d[i] and c < best_p[i])):
-                best_d[i] = t
-                best_p[i] = c
-    for q in range(n_si):
-        s = s_items[q]
-        p = n_c + s
-        ax = segments[s, 0] - x0
-        ay = segments[s, 1] - y0
-        bx = segments[s, 2] - x0
-        by = segments[s, 3] - y0
-        ex = bx - ax
-        ey = by - ay
-        if ey * ax - ex * ay >= 0.0:
-            continue
-        ee = ex * ex + ey * ey
-        u = -(ax * ex + ay * ey) / ee
-        u = min(1.0, max(0.0, u))
-        px = ax + u * ex
-        py = ay + u * ey
-        if px * px + py * py > rmax2:
-            continue
-        th_a = _fast_atan2(ay, ax) - h
-        span = _fast_atan2(ax * by - ay * bx, ax * bx + ay * by)
-        lo = th_a + min(0.0, span) - _EPS
-        hi = th_a + max(0.0, span) + _EPS
-        k0 = int(math.ceil(-hi / res))
-        k1 = int(math.floor(-lo / res))
-        i = k0 % n_beams - 1
-        for _ in range(k1 - k0 + 1):
-            i += 1
-            if i == n_beams:
-                i = 0
-            ux = ch * cos_tab[i] + sh * sin_tab[i]
-            uy = sh * cos_tab[i] - ch * sin_tab[i]
-            den = ux * ey - uy * ex
-            if den == 0.0:
-                continue
-            t = (ax * ey - ay * ex) / den
-            sp = (ax * uy - ay * ux) / den
-            if t > 0.0 and 0.0 <= sp <= 1.0 and (t < best_d[i] or (t == best_d[i] and p < best_p[i])):
-                best_d[i] = t
-                best_p[i] = p
+    hw = h - 2.0 * math.pi * math.floor(h / (2.0 * math.pi) + 0.5)  # as in _cast_prims
+    for i in range(n_beams):
+        best_d[i] = range_max
+        best_p[i] = -1
+    far = range_max  # >= every current hit: nothing beyond it can change the scan
+    # the moving primitives outside the grid first (tested by every robot)
+    _cast_prims(x0, y0, h, skip, far, circles, segments, c_over, c_over.shape[0], s_over, s_over.shape[0],
+                cos_tab, sin_tab, best_d, best_p)  # fmt: skip
+    rc = 0.5 * cs * math.sqrt(2.0) * (1.0 + 1e-9)
+    ci = min(int((x0 - gx) / cs), nx - 1)
+    cj = min(int((y0 - gy) / cs), ny - 1)
+    ring = 0
+    while ci - ring >= 0 or cj - ring >= 0 or ci + ring < nx or cj + ring < ny:
+        if ring > 0:
+            inner = min(
+                min(x0 - (gx + (ci - ring + 1) * cs), gx + (ci + ring) * cs - x0),
+                min(y0 - (gy + (cj - ring + 1) * cs), gy + (cj + ring) * cs - y0),
+            )
+            if inner - _TOL > far:
+                break
+        n_ci = 0
+        n_si = 0
+        for side in range(4):
+            if side < 2:
+                j = cj - ring if side == 0 else cj + ring
+                if j < 0 or j >= ny or (side == 1 and ring == 0):
+                    continue
+                a, b = max(ci - ring, 0), min(ci + ring, nx - 1)
+            else:
+                i = ci - ring if side == 2 else ci + ring
+                if ring == 0 or i < 0 or i >= nx:
+                    continue
+                a, b = max(cj - ring + 1, 0), min(cj + ring - 1, ny - 1)
+            for m in range(a, b + 1):
+                if side < 2:
+                    i = m
+                else:
+                    j = m
+                cell = i * ny + j
+                if (c_start[cell + 1] == c_start[cell] and s_start[cell + 1] == s_start[cell]
+                        and dc_start[cell + 1] == dc_start[cell]
+                        and ds_start[cell + 1] == ds_start[cell]):  # fmt: skip
+                    continue
+                cx0 = gx + i * cs
+                cy0 = gy + j * cs
+                dx = max(max(cx0 - x0, 0.0), x0 - cx0 - cs)
+                dy = max(max(cy0 - y0, 0.0), y0 - cy0 - cs)
+                dmin = math.sqrt(dx * dx + dy * dy) - _TOL
+                if dmin > far:
+                    continue
+                if ring > 1:
+                    ex = cx0 + 0.5 * cs - x0
+                    ey = cy0 + 0.5 * cs - y0
+                    half = _fast_atan2(rc, math.sqrt(ex * ex + ey * ey - rc * rc)) + _EPS
+                    phi = _fast_atan2(ey, ex) - hw
+                    k0 = int(math.ceil(-(phi + half) / res))
+                    k1 = int(math.floor(-(phi - half) / res))
+                    bi = k0 + 2 * n_beams - 1
+                    while bi >= n_beams - 1:
+                        bi -= n_beams
+                    shut = True
+                    for _ in range(k1 - k0 + 1):
+                        bi += 1
+                        if bi == n_beams:
+                            bi = 0
+                        if best_d[bi] >= dmin:
+                            shut = False
+                            break
+                    if shut:
+                        continue
+                # a primitive listed in several cells is cast once per scan (``stamp``)
+                for q in range(c_start[cell], c_start[cell + 1]):
+                    c = c_items[q]
+                    if stamp[c] != tag:
+                        stamp[c] = tag
+                        cand_c[n_ci] = c
+                        n_ci += 1
+                for q in range(dc_start[cell], dc_start[cell + 1]):
+                    c = dc_items[q]
+                    if stamp[c] != tag:
+                        stamp[c] = tag
+                        cand_c[n_ci] = c
+                        n_ci += 1
+                for q in range(s_start[cell], s_start[cell + 1]):
+                    s = s_items[q]
+                    if stamp[n_c + s] != tag:
+                        stamp[n_c + s] = tag
+                        cand_s[n_si] = s
+                        n_si += 1
+                for q in range(ds_start[cell], ds_start[cell + 1]):
+                    s = ds_items[q]
+                    if stamp[n_c + s] != tag:
+                        stamp[n_c + s] = tag
+                        cand_s[n_si] = s
+                        n_si += 1
+        if n_ci or n_si:
+            _cast_prims(x0, y0, h, skip, far, circles, segments, cand_c, n_ci, cand_s, n_si, cos_tab,
+                        sin_tab, best_d, best_p)  # fmt: skip
+            far = 0.0
+            for i in range(n_beams):
+                far = max(far, best_d[i])
+        ring += 1
 
 
 @numba.njit(cache=True, nogil=True)
 def _scan_kernel_grid(
-    ox,
-    oy,
-    heading,
-    n_beams,
-    range_min,
-    range_max,
-    circles,
-    circle_skip,
-    segments,
-    prim_kind,
-    prim_index,
-    gx,
-    gy,
-    cs,
-    nx,
-    ny,
-    c_start,
-    c_items,
-    s_start,
-    s_items,
-    dyn_c,
-    dyn_s,
-    out_ranges,
-    out_true,
-    out_kind,
-    out_index,
-):
-    """:func:`_scan_kernel` with the grid broad phase: the same outputs, bit for bit.
-
-    Per robot and ring, the primitives of the cells that pass the distance and occlusion tests are
-    gathered (each once: ``stamp``) and cast in one :func:`_cast_lists` call. Everything per cell is
-    written out in this loop: a function call per cell costs more than the cell's work (reference
-    counting of the array arguments).
-    """
-    cos_tab, sin_tab = _beam_tables(n_beams)
-    res = 2.0 * math.pi / n_beams
+    ox, oy, heading, tabs, range_min, range_max, circles, circle_skip, segments, prim_kind,
+    prim_index, gx, gy, cs, nx, ny, c_start, c_items, s_start, s_items, dyn_c, dyn_s, out_ranges,
+    out_true, out_kind, out_index,
+):  # fmt: skip
+    n_beams = tabs.shape[1]
+    cos_tab = tabs[0]
+    sin_tab = tabs[1]
     n_c = circles.shape[0]
-    # the moving primitives, binned for this scan (those not inside the grid: tested by every robot)
     box = _boxes(circles, segments, dyn_c, dyn_s)
     dc_start, dc_items, c_over = _bin(box[: dyn_c.shape[0]], dyn_c, gx, gy, cs, nx, ny, True)
     ds_start, ds_items, s_over = _bin(box[dyn_c.shape[0] :], dyn_s, gx, gy, cs, nx, ny, True)
     stamp = np.zeros(n_c + segments.shape[0], np.int32)
     cand_c = np.empty(n_c, np.int32)
     cand_s = np.empty(segments.shape[0], np.int32)
+    ids = np.arange(max(n_c, segments.shape[0]))
     best_d = np.empty(n_beams)
     best_p = np.empty(n_beams, dtype=np.int32)
-    rc = 0.5 * cs * math.sqrt(2.0) * (1.0 + 1e-9)  # radius of a cell's bounding circle
     xmax = gx + nx * cs
     ymax = gy + ny * cs
     for n in range(ox.shape[0]):
         x0 = ox[n]
         y0 = oy[n]
-        h = heading[n]
-        skip = circle_skip[n]
         if not (x0 > gx and x0 < xmax and y0 > gy and y0 < ymax):
-            _cast_one(x0, y0, h, skip, range_max, circles, segments, cos_tab, sin_tab, best_d, best_p)
+            _cast_one(x0, y0, heading[n], circle_skip[n], range_max, circles, segments, cos_tab, sin_tab,
+                      best_d, best_p, ids)  # fmt: skip
         else:
-            ch = math.cos(h)
-            sh = math.sin(h)
-            for i in range(n_beams):
-                best_d[i] = range_max
-                best_p[i] = -1
-            tag = n + 1
-            n_ci = 0
-            n_si = 0
-            for q in range(c_over.shape[0]):
-                cand_c[n_ci] = c_over[q]
-                stamp[c_over[q]] = tag
-                n_ci += 1
-            for q in range(s_over.shape[0]):
-                cand_s[n_si] = s_over[q]
-                stamp[n_c + s_over[q]] = tag
-                n_si += 1
-            ci = min(int((x0 - gx) / cs), nx - 1)
-            cj = min(int((y0 - gy) / cs), ny - 1)
-            far = range_max  # the farthest current hit: nothing beyond it can change the scan
-            ring = 0
-            while ci - ring >= 0 or cj - ring >= 0 or ci + ring < nx or cj + ring < ny:
-                if ring > 0:
-                    inner = min(
-                        min(x0 - (gx + (ci - ring + 1) * cs), gx + (ci + ring) * cs - x0),
-                        min(y0 - (gy + (cj - ring + 1) * cs), gy + (cj + ring) * cs - y0),
-                    )
-                    if inner - _GRID_TOL > far:
-                        break
-                # the ring's cells: rows cj -+ ring in full, then columns ci -+ ring without corners
-                for side in range(4):
-                    if side < 2:
-                        j = cj - ring if side == 0 else cj + ring
-                        if j < 0 or j >= ny or (side == 1 and ring == 0):
-                            continue
-                        a, b = max(ci - ring, 0), min(ci + ring, nx - 1)
-                    else:
-                        i = ci - ring if side == 2 else ci + ring
-                        if ring == 0 or i < 0 or i >= nx:
-                            continue
-                        a, b = max(cj - ring + 1, 0), min(cj + ring - 1, ny - 1)
-                    for m in range(a, b + 1):
-                        if side < 2:
-                            i = m
-                        else:
-                            j = m
-                        cell = i * ny + j
-                        if (c_start[cell + 1] == c_start[cell] and s_start[cell + 1] == s_start[cell]
-                                and dc_start[cell + 1] == dc_start[cell]
-                                and ds_start[cell + 1] == ds_start[cell]):  # fmt: skip
-                            continue
-                        cx0 = gx + i * cs
-                        cy0 = gy + j * cs
-                        dx = max(max(cx0 - x0, 0.0), x0 - cx0 - cs)
-                        dy = max(max(cy0 - y0, 0.0), y0 - cy0 - cs)
-                        dmin = math.sqrt(dx * dx + dy * dy) - _GRID_TOL  # to the cell's nearest point
-                        if dmin > far:
-                            continue
-                        if ring > 1:
-                            # occlusion: does any beam that can cross the cell reach dmin? (from
-                            # ring 2 on the origin is outside the cell's bounding circle)
-                            ex = cx0 + 0.5 * cs - x0
-                            ey = cy0 + 0.5 * cs - y0
-                            half = _fast_atan2(rc, math.sqrt(ex * ex + ey * ey - rc * rc)) + _EPS
-                            phi = _fast_atan2(ey, ex) - h
-                            k0 = int(math.ceil(-(phi + half) / res))
-                            k1 = int(math.floor(-(phi - half) / res))
-                            bi = k0 % n_beams - 1
-                            shut = True
-                            for _ in range(k1 - k0 + 1):
-                                bi += 1
-                                if bi == n_beams:
-                                    bi = 0
-                                if best_d[bi] >= dmin:
-                                    shut = False
-                                    break
-                            if shut:
-                                continue
-                        for q in range(c_start[cell], c_start[cell + 1]):
-                            c = c_items[q]
-                            if stamp[c] != tag:
-                                stamp[c] = tag
-                                cand_c[n_ci] = c
-                                n_ci += 1
-                        for q in range(dc_start[cell], dc_start[cell + 1]):
-                            c = dc_items[q]
-                            if stamp[c] != tag:
-                                stamp[c] = tag
-                                cand_c[n_ci] = c
-                                n_ci += 1
-                        for q in range(s_start[cell], s_start[cell + 1]):
-                            s = s_items[q]
-                            if stamp[n_c + s] != tag:
-                                stamp[n_c + s] = tag
-                                cand_s[n_si] = s
-                                n_si += 1
-                        for q in range(ds_start[cell], ds_start[cell + 1]):
-                            s = ds_items[q]
-                            if stamp[n_c + s] != tag:
-                                stamp[n_c + s] = tag
-                                cand_s[n_si] = s
-                                n_si += 1
-                if n_ci or n_si:
-                    _cast_lists(
-                        x0, y0, h, ch, sh, skip, range_max, circles, segments, cos_tab, sin_tab,
-                        best_d, best_p, cand_c, n_ci, cand_s, n_si,
-                    )  # fmt: skip
-                    n_ci = 0
-                    n_si = 0
-                    far = 0.0
-                    for i in range(n_beams):
-                        far = max(far, best_d[i])
-                ring += 1
+            _grid_cast_one(
+                x0, y0, heading[n], circle_skip[n], range_max, circles, segments, cos_tab, sin_tab,
+                best_d, best_p, stamp, n + 1, cand_c, cand_s, gx, gy, cs, nx, ny, c_start, c_items,
+                s_start, s_items, dc_start, dc_items, ds_start, ds_items, c_over, s_over,
+            )  # fmt: skip
         for i in range(n_beams):
             p = best_p[i] + 1
             d = best_d[i]
@@ -805,7 +757,7 @@ def cast_scan(
         origins[:, 0].copy(),
         origins[:, 1].copy(),
         np.ascontiguousarray(headings, dtype=np.float64).reshape(n),
-        int(nb),
+        beam_tables(nb),
         float(spec.range_min),
         float(spec.range_max),
         circles,

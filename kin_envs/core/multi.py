@@ -20,7 +20,7 @@ import pymunk.batch as pmbatch
 from pymunk._chipmunk import lib as _cp
 
 from kin_envs.core.interrupts import atomic
-from kin_envs.core.lidar import _beam_tables, _cast_one
+from kin_envs.core.lidar import _cast_one, beam_tables, cast_scan
 from kin_envs.core.odometry import Odometry
 from kin_envs.core.world import _COMMAND_CAP, Contact, Scan, World, _buffers
 
@@ -354,13 +354,37 @@ class WorldBatch:
         true = np.empty((rows, nb), np.float32)
         kind = np.empty((rows, nb), np.int8)
         index = np.empty((rows, nb), np.int32)
-        _multi_kernel(
-            np.ascontiguousarray(origin[:, 0]), np.ascontiguousarray(origin[:, 1]),
-            np.ascontiguousarray(origin[:, 2]), int(nb), float(spec.range_min),
-            float(spec.range_max), self._circles, c_lo, c_hi, skip, self._segments, s_lo, s_hi,
-            self._prim_kind, self._prim_index, p_lo, ranges, true, kind, index,
-        )  # fmt: skip
         m = ix.size
+        # the same kernel choice as World.scan: worlds with a lidar grid (large arenas) are cast through
+        # it, one call per such world; all the others together in one call of the brute-force kernel
+        gridded = [r for r, j in enumerate(on) if ws[j]._lidar_grid is not None]
+        brute = np.ones(rows, dtype=bool)
+        for r in gridded:
+            brute[r * m : (r + 1) * m] = False
+        sub = slice(None) if not gridded else np.flatnonzero(brute)
+        if not gridded or sub.size:
+            outs = (ranges, true, kind, index) if not gridded else (
+                np.empty((sub.size, nb), np.float32), np.empty((sub.size, nb), np.float32),
+                np.empty((sub.size, nb), np.int8), np.empty((sub.size, nb), np.int32))  # fmt: skip
+            _multi_kernel(
+                np.ascontiguousarray(origin[sub, 0]), np.ascontiguousarray(origin[sub, 1]),
+                np.ascontiguousarray(origin[sub, 2]), beam_tables(nb), float(spec.range_min),
+                float(spec.range_max), self._circles, c_lo[sub], c_hi[sub], skip[sub], self._segments,
+                s_lo[sub], s_hi[sub], self._prim_kind, self._prim_index, p_lo[sub], *outs,
+            )  # fmt: skip
+            if gridded:
+                for a, b in zip((ranges, true, kind, index), outs, strict=True):
+                    a[sub] = b
+        for r in gridded:
+            j, rs = on[r], slice(r * m, (r + 1) * m)
+            w, c0, s0 = ws[j], self._c_off[j], self._s_off[j]
+            out = cast_scan(
+                origin[rs, :2], origin[rs, 2], self._circles[c0 : c0 + self._c_len[j]],
+                self._segments[s0 : s0 + self._s_len[j]], ix, w._prim_kind, w._prim_index, spec,
+                grid=w._lidar_grid,
+            )  # fmt: skip
+            for a, b in zip((ranges, true, kind, index), out, strict=True):
+                a[rs] = b
         if noise and (spec.noise_sigma > 0 or spec.dropout_prob > 0):
             # World.scan's noise; each world draws from its own RNG in the same order
             hit = np.isfinite(true)
@@ -383,18 +407,21 @@ class WorldBatch:
 
 
 @numba.njit(cache=True, nogil=True)
-def _multi_kernel(ox, oy, heading, n_beams, range_min, range_max, circles, c_lo, c_hi, skip,
+def _multi_kernel(ox, oy, heading, tabs, range_min, range_max, circles, c_lo, c_hi, skip,
                   segments, s_lo, s_hi, prim_kind, prim_index, p_lo, out_ranges, out_true,
                   out_kind, out_index):  # fmt: skip
     """``_scan_kernel`` with per-origin primitive ranges: origin ``n`` sees circles
     ``c_lo[n]:c_hi[n]`` and segments ``s_lo[n]:s_hi[n]`` (its own world's), and its owner table
     starts at ``p_lo[n]``."""
-    cos_tab, sin_tab = _beam_tables(n_beams)
+    n_beams = tabs.shape[1]
+    cos_tab = tabs[0]
+    sin_tab = tabs[1]
     best_d = np.empty(n_beams)
     best_p = np.empty(n_beams, dtype=np.int32)
+    ids = np.arange(max(circles.shape[0], segments.shape[0]))
     for n in range(ox.shape[0]):
         _cast_one(ox[n], oy[n], heading[n], skip[n], range_max, circles[c_lo[n] : c_hi[n]],
-                  segments[s_lo[n] : s_hi[n]], cos_tab, sin_tab, best_d, best_p)
+                  segments[s_lo[n] : s_hi[n]], cos_tab, sin_tab, best_d, best_p, ids)
         base = p_lo[n]
         for i in range(n_beams):
             p = best_p[i] + 1

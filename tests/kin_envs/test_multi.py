@@ -95,3 +95,34 @@ def test_bad_input():
         b.scan([5])
     with pytest.raises(TypeError, match="expected a World"):
         b[0] = "world"
+
+
+def test_worlds_with_a_lidar_grid_scan_through_it():
+    # WorldBatch makes World's kernel choice per world: gridded and brute-force worlds side by side
+    from kin_envs.core import multi
+    from kin_envs.core.world import WorldConfig
+
+    def make(s, grid):
+        scene = scenes.random_arena(3, 12, seed=s, size=6.0 + s, lidar=LIDAR)
+        return World(scene, seed=s, config=WorldConfig(lidar_grid=grid, lidar_cell_size=1.0))
+
+    grids = [True, False, True, False, True]
+    single = [make(s, g) for s, g in enumerate(grids)]
+    batch = WorldBatch([make(s, g) for s, g in enumerate(grids)])
+    assert [w._lidar_grid is not None for w in batch.worlds] == grids
+    calls = []
+    real = multi.cast_scan
+    multi.cast_scan = lambda *a, **kw: calls.append(kw["grid"]) or real(*a, **kw)
+    try:
+        rng = np.random.default_rng(1)
+        for t in range(12):
+            wheels = rng.uniform(-6.0, 12.0, (len(grids), 3, 2))
+            for w, x in zip(single, wheels, strict=True):
+                w.step(wheel_speeds=x)
+            batch.step(wheels)
+            assert_same(single, batch, [1, 2] if t % 2 else None)
+        active = np.array([True, False, False, True, True])
+        assert_same(single, batch, None, active=active)
+    finally:
+        multi.cast_scan = real
+    assert len(calls) == 12 * 3 + 2 and all(g is not None for g in calls)

@@ -101,11 +101,12 @@ def test_lidar_scaling_section(bench, tmp_path):
         assert min(r["grid_scans_per_s"], r["brute_force_scans_per_s"], r["naive_scans_per_s"]) > 0
         assert r["grid_vs_brute_force"] == pytest.approx(r["grid_scans_per_s"] / r["brute_force_scans_per_s"])
         assert r["default"] == "brute force" and r["default_scans_per_s"] == r["brute_force_scans_per_s"]
+        assert r["default_vs_naive"] == pytest.approx(r["brute_force_scans_per_s"] / r["naive_scans_per_s"])
     assert res["lidar_scaling_targets"]["min_default_vs_naive"] == pytest.approx(
         min(r["brute_force_scans_per_s"] / r["naive_scans_per_s"] for r in rows)
     )
     assert set(res["lidar_scaling_startup"]) == {"grid_first_scan_s", "brute_force_first_scan_s"}
-    assert "| grid / brute force |" in (tmp_path / "benchmark.md").read_text()
+    assert "| grid / brute force | default | default / naive |" in (tmp_path / "benchmark.md").read_text()
     assert bench.scaling_arena_side(64, 1000) == pytest.approx((1064 / 0.7) ** 0.5)
     with pytest.raises(SystemExit):
         bench.main(["--scaling-robots", "0", "--out", str(tmp_path)])
