@@ -17,7 +17,7 @@ import contextlib
 import hashlib
 import json
 import os
-import tempfile
+import secrets
 from collections.abc import Iterator
 from pathlib import Path
 from typing import IO, Any
@@ -36,18 +36,31 @@ def atomic_write(path, mode: str = "wb") -> Iterator[IO[Any]]:
     path = Path(path)
     if not path.parent.is_dir():
         raise FileNotFoundError(f"{path.parent}: output directory does not exist")
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    # The name is chosen before the file exists, so a Ctrl-C at any moment after its creation (even
+    # inside the open call) is covered by the cleanup below; mkstemp would leave that window open.
+    tmp = path.parent / f".{path.name}.{os.getpid()}.{secrets.token_hex(6)}.tmp"
     try:
-        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600; the final file gets the usual mode
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)  # the usual mode (umask applies)
         with os.fdopen(fd, mode, **({"encoding": "utf-8"} if mode == "w" else {})) as f:
             yield f
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)
     except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
+        _remove(tmp)
         raise
+
+
+def _remove(tmp: Path) -> None:
+    """Remove a temporary file, even if a second Ctrl-C lands during the removal."""
+    while True:
+        try:
+            os.unlink(tmp)
+            return
+        except FileNotFoundError:
+            return
+        except KeyboardInterrupt:
+            continue
 
 
 class LiveLog:
@@ -86,12 +99,6 @@ class LiveLog:
 
     def __exit__(self, *exc) -> None:
         self.close()
-
-
-def _umask() -> int:
-    mask = os.umask(0o022)  # read it (there is no getter) and restore it at once
-    os.umask(mask)
-    return mask
 
 
 def write_json(path, obj, **dump_kwargs) -> None:

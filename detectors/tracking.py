@@ -25,17 +25,30 @@ absorbs.
    ``clutter_ratio`` (hit: ``p <- p / (p + (1 - p) * clutter_ratio)``; miss: ``p <- p (1 - P_D) /
    (1 - p P_D)``). A track is *confirmed* once its existence reaches ``confirm_existence`` and deleted when
    it falls below ``delete_existence``.
-5. *Kin probability*, in log-odds, from three cues (each documented in :class:`TrackerParams`):
+5. *Kin probability*, in log-odds, from these cues (each documented in :class:`TrackerParams`; which
+   are on by default, and why: the README):
 
-   a. **detector score**: the frame's candidate score ``s`` (higher = more kin-like, in (0, 1)) adds
-      ``score_weight * (logit(s) - logit(score_prior))``; or, when the caller passes the detector's own
-      decisions at its operating point (``accepted``), ``accept_llr`` / ``reject_llr``: the detector's
-      operating point is then the calibration (a learned detector's thresholds depend on the noise).
-      Frames of a static scene are strongly correlated (the same object seen from almost the same place
-      gives the same evidence), so the steps are small and their sum is clamped to ``±score_clamp``:
-      repeating one ambiguous view cannot make a track certain.
-   b. **accumulated outline**: the candidate's scan points, moved into the odometry frame (ego-motion
-      compensated), accumulate (up to ``max_points``, newest kept) with their expected noise
+   a. **detector score**: each frame adds the evidence ``score_weight * (logit(s) - logit(score_prior))``
+      of its candidate score ``s`` (higher = more kin-like, in (0, 1); logit clipped to ±6), plus, when
+      the caller passes the detector's own decisions at its operating point (``accepted``),
+      ``accept_llr`` / ``reject_llr``. The cue is the *mean* evidence per frame times ``score_gain``
+      (shrunk towards 0 by ``score_n0`` pseudo-frames), clamped to ``±score_clamp``: frames of one object
+      are strongly correlated (the same object seen from almost the same place gives the same score), so
+      the evidence is how consistently the detector calls it kin, not how often it has been seen; the
+      mean still averages out the per-frame score noise as the beam pattern slides over the object.
+   r. **per-frame residual** (off by default, ``resid_clamp = 0``): each frame's points of the candidate
+      (one pose: no odometry drift, valid while the object moves) get a circle of the housing radius
+      fitted; the Gaussian log-likelihood ratio of the noise-normalised residuals, "on the circle"
+      (``N(0, sigma_i^2)``) vs "off it by ``shape_delta``", with the fit's 2 degrees of freedom taken out,
+      is summed over the track's frames (clamped to ``±resid_clamp``). For a circle it is pure noise; for
+      a look-alike a systematic term accumulates (the noise of the sum grows as ``sqrt(N)``, the
+      systematic part as ``N``). Its information per point is ~``(shape_delta / sigma)^4``: decisive at
+      millimetre noise, ~0 at 1 % range noise beyond 0.3 m (measured on the sequence benchmark's
+      training episodes, where it did not help), hence off.
+   b. **accumulated outline** (off by default, ``shape_clamp = 0``: blurred by heading drift beyond
+      ~1 m, no help on the training episodes, and its refit is the tracker's costliest step): the
+      candidate's scan points, moved into the odometry frame (ego-motion compensated), accumulate
+      (up to ``max_points``, newest kept) with their expected noise
       ``sigma_i = sqrt(shape_sigma**2 + (noise * d_i)**2)`` (``noise``: the frame's relative range noise,
       estimated from the scan itself by :func:`detectors.features.scan_noise` in
       :meth:`KinTracker.update_from_result`). A circle of the housing radius ``r`` is fitted to all of
@@ -61,9 +74,11 @@ absorbs.
       frames, while its displacement grows. Conversely, a track seen for longer than ``static_time``
       without ever moving, while some other track of the same observer *has* moved (so the swarm around
       it is active), gets ``static_penalty``: a circle that stays put among moving kin is more likely a
-      same-radius cylinder than a parked kin (set 0 where kin often park).
+      same-radius cylinder than a parked kin. Off by default (``static_penalty = 0``): a parked kin and a
+      same-radius cylinder are indistinguishable, and in the swarm episodes parked kin far outnumber
+      same-radius cylinders; set it (e.g. -4) where same-radius cylinders are the bigger risk.
 
-   ``kin_prob = sigmoid(prior + score part + shape part + motion part)``.
+   ``kin_prob = sigmoid(prior + score part + residual part + shape part + motion part)``.
 
 Tracks are plain arrays inside (the hot path); :meth:`KinTracker.tracks` builds :class:`Track` objects and
 :meth:`KinTracker.track_arrays` fixed-shape padded arrays (for vector envs) on demand.
@@ -77,7 +92,6 @@ from dataclasses import dataclass, field, fields
 
 import numba
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
 from .base import DetectionResult, wrap_angle
 from .features import scan_noise, segment_batch
@@ -110,15 +124,22 @@ class TrackerParams:
         max_range: m; a track beyond it is not expected to be seen (no miss counted).
         kin_prior: prior kin probability of a new track.
         score_prior: the score a candidate carries no evidence at (the detector's operating point).
-        score_weight, score_clamp: weight of one frame's score log-odds, and the clamp of their sum.
+        score_weight: weight of one frame's score log-odds (relative to ``score_prior``'s).
         accept_llr, reject_llr: with the detector's own decisions at its operating point (``accepted`` in
-            :meth:`KinTracker.update_batch`), the log-odds a frame adds for an accepted / rejected
-            candidate instead of the score's (detector-agnostic: no score calibration needed).
+            :meth:`KinTracker.update_batch`), the evidence a frame adds for an accepted / rejected
+            candidate (on top of the score's).
+        score_per_metre: how much the score bar ``logit(score_prior)`` (the bar at 1 m) falls per metre
+            of range, log-odds/m: a detector's scores fall with range (fewer beams), kin's and
+            look-alikes' alike.
+        score_gain, score_n0, score_clamp: the score cue is ``score_gain`` times the mean evidence per
+            frame (``score_n0`` pseudo-frames of zero evidence in the mean), clamped to ``±score_clamp``.
+        resid_clamp: clamp of the per-frame residual cue's sum (0: off).
         shape_delta: RMS deviation of a 7 cm look-alike's outline from the housing circle, m (a hexagon's
             is ~2 mm, a triangle's ~8 mm).
         shape_sigma: per-point noise floor, m; range_noise: relative range noise used when a frame gives
             none.
-        shape_n_cap, shape_min_points, shape_clamp: the outline cue's point cap, minimum points, clamp.
+        shape_n_cap, shape_min_points, shape_clamp: the outline cue's point cap, minimum points, clamp
+            (0: off, and its refit skipped).
         odom_heading_rate, odom_position_rate: the odometry's random-walk heading (rad/sqrt(m)) and position
             (m/sqrt(m)) error per metre of wheel travel; a point seen ``L`` m of travel ago has drifted by
             ``sqrt(L) * (odom_heading_rate * range + odom_position_rate)``. Defaults match
@@ -127,7 +148,11 @@ class TrackerParams:
         max_points: accumulated outline points kept per track (newest).
         motion_dist, motion_gain: the motion cue (m; log-odds once moved).
         static_time, static_penalty: a track seen this long (s) without moving, while another track has
-            moved, gets this log-odds.
+            moved, gets this log-odds (0: off).
+
+    The defaults were tuned (:func:`kin_envs.detection.sequences.tune_tracker`,
+    ``scripts/tune_tracker.py``) on training-seed sequence episodes (swarm and lookalike, 1 % noise) for
+    the shipped learned and the geometric detector jointly; re-run it for another detector or checkpoint.
         kin_threshold: a confirmed track with ``kin_prob >= kin_threshold`` is reported as kin.
         min_score: candidates scoring below this are dropped before association: a permissive detector
             scores every segment, and those of walls slide along the wall as the observer moves, which
@@ -140,24 +165,28 @@ class TrackerParams:
     meas_sigma_rel: float = 0.01
     init_speed_sigma: float = 0.3
     gate_chi2: float = 9.21
-    p_detect: float = 0.8
-    clutter_ratio: float = 0.2
+    p_detect: float = 0.6
+    clutter_ratio: float = 0.4
     birth_existence: float = 0.8
     confirm_existence: float = 0.8
     delete_existence: float = 0.1
     max_range: float = 5.0
     kin_prior: float = 0.5
-    score_prior: float = 0.5
-    score_weight: float = 0.4
+    score_prior: float = 0.93
+    score_weight: float = 0.5
     score_clamp: float = 4.0
     accept_llr: float = 1.0
-    reject_llr: float = -1.0
+    reject_llr: float = 0.0
+    score_gain: float = 8.0
+    score_per_metre: float = 0.0
+    score_n0: float = 0.0
     shape_delta: float = 0.002
     shape_sigma: float = 0.0005
     range_noise: float = 0.01
     shape_n_cap: int = 60
     shape_min_points: int = 8
-    shape_clamp: float = 2.0
+    shape_clamp: float = 0.0
+    resid_clamp: float = 0.0
     odom_heading_rate: float = 0.045
     odom_position_rate: float = 0.005
     wheel_base: float = 0.16
@@ -165,8 +194,8 @@ class TrackerParams:
     motion_dist: float = 0.1
     motion_gain: float = 6.0
     static_time: float = 3.0
-    static_penalty: float = -6.0
-    kin_threshold: float = 0.5
+    static_penalty: float = 0.0
+    kin_threshold: float = 0.3
     min_score: float = 0.1
 
     def __post_init__(self) -> None:
@@ -327,7 +356,8 @@ class KinTracker:
 
     _FIELDS = ("_id", "_obs", "_x", "_P", "_exist", "_lo_score", "_lo_shape", "_lo_motion", "_seen", "_age",
                "_static_t", "_moved", "_confirmed", "_anchor", "_anchor_var", "_alive", "_pts", "_npts",
-               "_head", "_fit_c", "_anchor_odo", "_anchor_rng")  # fmt: skip
+               "_head", "_fit_c", "_anchor_odo", "_anchor_rng", "_lo_resid", "_res_chi2", "_res_dof",
+               "_score_sum", "_n_scored")  # fmt: skip
 
     def __init__(self, params: TrackerParams | None = None, n_observers: int = 1) -> None:
         if isinstance(n_observers, bool) or not isinstance(n_observers, int | np.integer) or n_observers < 1:
@@ -369,6 +399,14 @@ class KinTracker:
         self._npts = np.zeros(cap, np.int64)
         self._head = np.zeros(cap, np.int64)
         self._fit_c = np.zeros((cap, 2))  # the outline fit's centre, odometry frame (warm start)
+        # per-frame circle-fit residual cue: its log-odds, and the summed noise-normalised chi-square and
+        # its degrees of freedom (drift-free: each frame's points share one pose)
+        self._lo_resid = np.zeros(cap)
+        self._res_chi2 = np.zeros(cap)
+        self._res_dof = np.zeros(cap)
+        # the detector's score log-odds summed over the track's frames, and how many
+        self._score_sum = np.zeros(cap)
+        self._n_scored = np.zeros(cap)
 
     @property
     def pose(self) -> np.ndarray:
@@ -485,23 +523,17 @@ class KinTracker:
         cos, sin = np.cos(self.poses[:, 2]), np.sin(self.poses[:, 2])
         z = self._to_odom(xy, obs, cos, sin)  # candidates in their observer's odometry frame
         rng = np.hypot(xy[:, 0], xy[:, 1])
-        rows = np.flatnonzero(self._alive)
-        self._predict(rows, dt)
-        ti, ci = self._associate(rows, z, obs, rng)
-        hit = np.zeros(self._alive.shape[0], bool)
-        hit[ti] = True
-        self._kalman_update(ti, z[ci], rng[ci])
-        born = np.setdiff1d(np.arange(k), ci, assume_unique=True)
-        tb = self._birth(z[born], obs[born], rng[born])
+        if int(self._alive.sum()) + k > self._alive.shape[0]:  # room for every candidate to start a track
+            self._grow(int(self._alive.sum()) + k)
+        pre = self._alive.copy()  # the tracks before this frame's births (existence: hit or miss)
+        ti, ci, tb, born = self._associate_and_birth(z, obs, rng, dt)
         tracks, cands = np.concatenate([ti, tb]), np.concatenate([ci, born])
-        self._score_cue(tracks, scores[cands], None if accepted is None else accepted[cands])
+        self._score_cue(tracks, scores[cands], None if accepted is None else accepted[cands], rng[cands])
         if points is not None and len(tracks):
             self._outline_cue(tracks, cands, points, owner, obs, noise, cos, sin, k)
-        self._existence(rows, hit[rows])
-        rows = np.flatnonzero(self._alive)
-        self._motion(rows, dt)
-        self._age[rows] += 1
-        self._alive[rows] = self._exist[rows] >= pr.delete_existence
+        hit = np.zeros(self._alive.shape[0], bool)
+        hit[ti] = True
+        self._finish(pre, hit, dt)
 
     def update_from_result(self, result: DetectionResult, ranges, angles, odom_delta, dt: float) -> None:
         """:meth:`update` from a detector's :class:`DetectionResult` on scan ``(ranges, angles)``: each
@@ -521,84 +553,14 @@ class KinTracker:
 
     # -- steps ----------------------------------------------------------------------------------------
     def _to_odom(self, xy, obs, cos, sin) -> np.ndarray:
-        c, s = cos[obs], sin[obs]
-        return np.c_[c * xy[:, 0] - s * xy[:, 1], s * xy[:, 0] + c * xy[:, 1]] + self.poses[obs, :2]
-
-    def _predict(self, rows: np.ndarray, dt: float) -> None:
-        if not rows.size:
-            return
-        F = np.eye(4)
-        F[0, 2] = F[1, 3] = dt
-        q = self.params.process_accel**2
-        Q1 = q * np.array([[dt**4 / 4, dt**3 / 2], [dt**3 / 2, dt**2]])
-        Q = np.zeros((4, 4))
-        Q[np.ix_([0, 2], [0, 2])] = Q1
-        Q[np.ix_([1, 3], [1, 3])] = Q1
-        self._x[rows] = self._x[rows] @ F.T
-        self._P[rows] = F @ self._P[rows] @ F.T + Q
+        c, s, p = cos[obs], sin[obs], self.poses[obs]
+        out = np.empty((xy.shape[0], 2))
+        out[:, 0] = c * xy[:, 0] - s * xy[:, 1] + p[:, 0]
+        out[:, 1] = s * xy[:, 0] + c * xy[:, 1] + p[:, 1]
+        return out
 
     def _meas_var(self, rng: np.ndarray) -> np.ndarray:
         return (self.params.meas_sigma + self.params.meas_sigma_rel * rng) ** 2
-
-    def _associate(self, rows, z, obs, rng) -> tuple[np.ndarray, np.ndarray]:
-        """(track rows, candidate indices) of each observer's jointly optimal gated assignment."""
-        none = np.zeros(0, np.int64)
-        if not rows.size or not z.shape[0]:
-            return none, none
-        # every (track, candidate) pair of the same observer
-        order = np.argsort(self._obs[rows], kind="stable")
-        trk = rows[order]
-        n_t = np.bincount(self._obs[trk], minlength=self.n_observers)
-        start = np.cumsum(n_t) - n_t
-        per_c = n_t[obs]
-        if not per_c.sum():
-            return none, none
-        cand = np.repeat(np.arange(z.shape[0]), per_c)
-        within = np.arange(cand.size) - np.repeat(np.cumsum(per_c) - per_c, per_c)
-        tr = trk[start[obs[cand]] + within]
-        S = self._P[tr, :2, :2] + np.eye(2) * self._meas_var(rng[cand])[:, None, None]
-        d = z[cand] - self._x[tr, :2]
-        det = S[:, 0, 0] * S[:, 1, 1] - S[:, 0, 1] * S[:, 1, 0]
-        m2 = (
-            S[:, 1, 1] * d[:, 0] ** 2 - 2 * S[:, 0, 1] * d[:, 0] * d[:, 1] + S[:, 0, 0] * d[:, 1] ** 2
-        ) / det
-        ok = m2 <= self.params.gate_chi2
-        tr, cand, m2 = tr[ok], cand[ok], m2[ok]
-        if not tr.size:
-            return none, none
-        # a pair whose track and candidate are in no other gate is forced; the rest is solved per observer
-        cap = self._alive.shape[0]
-        forced = (np.bincount(tr, minlength=cap)[tr] == 1) & (
-            np.bincount(cand, minlength=z.shape[0])[cand] == 1
-        )
-        ti, ci = [tr[forced]], [cand[forced]]
-        amb = ~forced
-        for o in np.unique(obs[cand[amb]]):
-            sel = amb & (obs[cand] == o)
-            ut, t_inv = np.unique(tr[sel], return_inverse=True)
-            uc, c_inv = np.unique(cand[sel], return_inverse=True)
-            cost = np.full((ut.size, uc.size), 1e6)
-            cost[t_inv, c_inv] = m2[sel]
-            r, c = linear_sum_assignment(cost)
-            keep = cost[r, c] < 1e6
-            ti.append(ut[r[keep]])
-            ci.append(uc[c[keep]])
-        return np.concatenate(ti).astype(np.int64), np.concatenate(ci).astype(np.int64)
-
-    def _kalman_update(self, ti: np.ndarray, z: np.ndarray, rng: np.ndarray) -> None:
-        """Batched Kalman update of tracks ``ti`` with candidates ``z`` (Joseph form)."""
-        if not ti.size:
-            return
-        x, P = self._x[ti], self._P[ti]
-        Rm = np.eye(2) * self._meas_var(rng)[:, None, None]  # (m, 2, 2)
-        S = P[:, :2, :2] + Rm
-        K = P[:, :, :2] @ np.linalg.inv(S)  # (m, 4, 2)
-        x += np.einsum("mij,mj->mi", K, z - x[:, :2])
-        IKH = np.broadcast_to(np.eye(4), P.shape).copy()
-        IKH[:, :, :2] -= K
-        self._P[ti] = IKH @ P @ IKH.transpose(0, 2, 1) + K @ Rm @ K.transpose(0, 2, 1)
-        self._x[ti] = x
-        self._seen[ti] += 1
 
     def _grow(self, need: int) -> None:
         cap = self._alive.shape[0]
@@ -610,97 +572,71 @@ class KinTracker:
             b[: a.shape[0]] = a
             setattr(self, name, b)
 
-    def _birth(self, z: np.ndarray, obs: np.ndarray, rng: np.ndarray) -> np.ndarray:
-        """Start tentative tracks at candidates ``z`` (k, 2) of observers ``obs``; returns their rows."""
-        k, pr = z.shape[0], self.params
-        free = np.flatnonzero(~self._alive)
-        if free.size < k:
-            self._grow(self._alive.shape[0] + k)
-            free = np.flatnonzero(~self._alive)
-        ti = free[:k]
-        self._alive[ti] = True
-        self._id[ti] = np.arange(self._next_id, self._next_id + k)
-        self._next_id += k
-        self._obs[ti] = obs
-        var = self._meas_var(rng)
-        self._x[ti] = np.c_[z, np.zeros((k, 2))]
-        self._P[ti] = 0.0
-        self._P[ti, 0, 0] = self._P[ti, 1, 1] = var
-        self._P[ti, 2, 2] = self._P[ti, 3, 3] = pr.init_speed_sigma**2
-        self._exist[ti] = pr.birth_existence
-        self._lo_score[ti] = self._lo_shape[ti] = self._lo_motion[ti] = 0.0
-        self._seen[ti] = 1
-        self._age[ti] = 0
-        self._static_t[ti] = 0.0
-        self._moved[ti] = False
-        self._confirmed[ti] = pr.birth_existence >= pr.confirm_existence
-        self._npts[ti] = self._head[ti] = 0
-        # the housing's centre is r behind the visible arc's middle, seen from the observer
-        away = z - self.poses[obs, :2]
-        self._fit_c[ti] = z + away / np.maximum(np.hypot(away[:, 0], away[:, 1]), 1e-9)[:, None] * pr.r * 0.5
-        self._anchor[ti] = z
-        self._anchor_var[ti] = var
-        self._anchor_odo[ti] = self.odometer[obs]
-        self._anchor_rng[ti] = rng
-        return ti
+    def _associate_and_birth(self, z, obs, rng, dt):
+        """Predict, gate, assign, Kalman-update and start tracks for unmatched candidates (one compiled
+        kernel). Returns (matched track rows, their candidates, born track rows, their candidates)."""
+        pr = self.params
+        ti, ci, tb, born, next_id = _frame_kernel(
+            np.ascontiguousarray(z), obs, rng, float(dt), self.n_observers, self._alive, self._obs, self._id,
+            self._next_id, self._x, self._P, self.poses, self._exist, self._lo_score, self._lo_shape,
+            self._lo_motion, self._lo_resid, self._res_chi2, self._res_dof, self._score_sum, self._n_scored,
+            self._seen, self._age, self._static_t, self._moved, self._confirmed, self._npts, self._head,
+            self._fit_c, self._anchor, self._anchor_var, self._anchor_odo, self._anchor_rng, self.odometer,
+            pr.process_accel**2, pr.meas_sigma, pr.meas_sigma_rel, pr.init_speed_sigma**2, pr.gate_chi2,
+            pr.birth_existence, pr.confirm_existence, pr.r,
+        )  # fmt: skip
+        self._next_id = int(next_id)
+        return ti, ci, tb, born
 
-    def _score_cue(self, ti: np.ndarray, scores: np.ndarray, accepted) -> None:
+    def _finish(self, pre, hit, dt) -> None:
+        """Existence (hit / miss of the tracks before this frame's births), motion, age, confirm / delete."""
+        pr = self.params
+        _finish_kernel(
+            pre, hit, float(dt), self._alive, self._obs, self._x, self._P, self.poses, self._exist,
+            self._confirmed, self._moved, self._lo_motion, self._static_t, self._age, self._seen,
+            self._anchor, self._anchor_var, self._anchor_odo, self._anchor_rng, self.odometer, pr.p_detect,
+            pr.clutter_ratio, pr.max_range, pr.confirm_existence, pr.delete_existence, pr.motion_dist,
+            pr.motion_gain, pr.odom_heading_rate**2, pr.odom_position_rate**2,
+        )  # fmt: skip
+
+    def _score_cue(self, ti: np.ndarray, scores: np.ndarray, accepted, rng: np.ndarray) -> None:
         # (a) the detector's score: correlated frames -> weight < 1, clamped sum
         pr = self.params
-        if accepted is None:
-            step = pr.score_weight * (_logit(scores) - _logit(pr.score_prior))
-        else:
-            step = np.where(accepted, pr.accept_llr, pr.reject_llr)
-        self._lo_score[ti] = np.clip(self._lo_score[ti] + step, -pr.score_clamp, pr.score_clamp)
+        # a far object gets fewer beams and lower scores, kin and look-alikes alike: the bar falls with range.
+        # The cue is the mean evidence per frame (shrunk towards 0 by score_n0 pseudo-frames) times
+        # score_gain: frames of one object are strongly correlated, so the evidence grows with their
+        # consistency, not their count (one compiled loop over the updated tracks)
+        acc = np.zeros(0, np.bool_) if accepted is None else np.asarray(accepted, np.bool_)
+        _score_kernel(ti, np.asarray(scores, np.float64), acc, rng, self._score_sum, self._n_scored,
+                      self._lo_score, float(_logit(pr.score_prior)), pr.score_per_metre, pr.score_weight,
+                      pr.accept_llr, pr.reject_llr, pr.score_n0, pr.score_gain, pr.score_clamp)  # fmt: skip
 
     def _outline_cue(self, ti, ci, points, owner, obs, noise, cos, sin, k) -> None:
         # (b) the accumulated outline relative to the track centre (ego-motion compensated)
         pr = self.params
         pts = np.asarray(points, np.float64).reshape(-1, 2)
         owner = np.asarray(owner).reshape(-1).astype(np.int64)
-        if owner.shape[0] != pts.shape[0] or (owner.size and (owner.min() < 0 or owner.max() >= k)):
+        pts = np.ascontiguousarray(pts)
+        status = _points_check(pts, owner, k) if owner.shape[0] == pts.shape[0] else 1
+        if status == 1:
             raise ValueError(
                 f"KinTracker: owner must give each of the {pts.shape[0]} points a candidate in [0, {k})"
             )
-        if not np.all(np.isfinite(pts)):
+        if status == 2:
             raise ValueError("KinTracker: points must be finite")
-        order = np.argsort(owner, kind="stable")
-        pts, owner = pts[order], owner[order]
-        po = obs[owner]
-        d = np.hypot(pts[:, 0], pts[:, 1])
-        sig = np.sqrt(pr.shape_sigma**2 + (noise[po] * d) ** 2)
-        odom = self._to_odom(pts, po, cos, sin)
+        if status == 3:  # not grouped by candidate (segment_points gives them sorted already)
+            order = np.argsort(owner, kind="stable")
+            pts, owner = np.ascontiguousarray(pts[order]), owner[order]
+        odom, sig, d = _points_prep(pts, owner, obs, noise, cos, sin, self.poses,
+                                    pr.shape_sigma**2)  # fmt: skip
         cstart = np.searchsorted(owner, np.arange(k + 1))
         _outline_kernel(
-            ti, ci, np.ascontiguousarray(odom), sig, d, cstart, self._obs, self.odometer, self._moved,
+            ti, ci, odom, sig, d, cstart, self._obs, self.odometer, self._moved,
             self._pts, self._npts, self._head, self._fit_c, self._lo_shape, self._x, self._P, self.time,
             pr.r, pr.shape_delta**2, float(pr.shape_n_cap), int(pr.shape_min_points),
             pr.shape_clamp, pr.odom_heading_rate**2, pr.odom_position_rate**2,
+            self.poses, self._lo_resid, self._res_chi2, self._res_dof, pr.resid_clamp,
         )  # fmt: skip
-
-    def _existence(self, rows: np.ndarray, hit: np.ndarray) -> None:
-        pr = self.params
-        p = self._exist[rows]
-        in_range = np.hypot(*(self._x[rows, :2] - self.poses[self._obs[rows], :2]).T) <= pr.max_range
-        p_hit = p / (p + (1 - p) * pr.clutter_ratio)
-        p_miss = p * (1 - pr.p_detect) / (1 - p * pr.p_detect)
-        self._exist[rows] = np.where(hit, p_hit, np.where(in_range, p_miss, p))
-        alive = np.flatnonzero(self._alive)
-        self._confirmed[alive] |= self._exist[alive] >= pr.confirm_existence
-
-    def _motion(self, rows: np.ndarray, dt: float) -> None:
-        pr = self.params
-        if not rows.size:
-            return
-        disp = np.hypot(*(self._x[rows, :2] - self._anchor[rows]).T)
-        # odometry drift makes static objects slide in the odometry frame: allow for it
-        aged = self.odometer[self._obs[rows]] - self._anchor_odo[rows]
-        drift = aged * (pr.odom_heading_rate**2 * self._anchor_rng[rows] ** 2 + pr.odom_position_rate**2)
-        var = self._anchor_var[rows] + 0.5 * (self._P[rows, 0, 0] + self._P[rows, 1, 1]) + drift
-        moving = (disp > pr.motion_dist) & (disp > 3.0 * np.sqrt(var)) & (self._seen[rows] > 2)
-        self._moved[rows] |= moving
-        self._lo_motion[rows] = np.where(self._moved[rows], pr.motion_gain, 0.0)
-        self._static_t[rows] += dt
 
     # -- outputs -----------------------------------------------------------------------------------------
     def _rows(self, observer: int | None) -> np.ndarray:
@@ -716,8 +652,8 @@ class KinTracker:
         # some track of the same observer moved: the swarm around it is active
         active = np.bincount(self._obs[rows][self._moved[rows]], minlength=self.n_observers) > 0
         idle = active[self._obs[rows]] & ~self._moved[rows] & (self._static_t[rows] >= pr.static_time)
-        lo = (_logit(pr.kin_prior) + self._lo_score[rows] + self._lo_shape[rows] + self._lo_motion[rows]
-              + np.where(idle, pr.static_penalty, 0.0))  # fmt: skip
+        lo = (_logit(pr.kin_prior) + self._lo_score[rows] + self._lo_resid[rows] + self._lo_shape[rows]
+              + self._lo_motion[rows] + np.where(idle, pr.static_penalty, 0.0))  # fmt: skip
         return 1.0 / (1.0 + np.exp(-lo))
 
     def kin_prob(self, observer: int | None = 0) -> np.ndarray:
@@ -784,16 +720,480 @@ class KinTracker:
 
 
 @numba.njit(cache=True, nogil=True)
+def _find(parent, i):
+    """Union-find root of ``i`` (with path halving)."""
+    while parent[i] != i:
+        parent[i] = parent[parent[i]]
+        i = parent[i]
+    return i
+
+
+@numba.njit(cache=True, nogil=True)
+def _hungarian(cost):
+    """Minimum-cost assignment of the rows of ``cost`` (n, m), n <= m, to distinct columns (shortest
+    augmenting paths with potentials, O(n^2 m)); returns each row's column."""
+    n, m = cost.shape
+    inf = 1e300
+    u = np.zeros(n + 1)
+    v = np.zeros(m + 1)
+    p = np.zeros(m + 1, np.int64)
+    way = np.zeros(m + 1, np.int64)
+    minv = np.empty(m + 1)
+    used = np.empty(m + 1, np.bool_)
+    for i in range(1, n + 1):
+        p[0] = i
+        j0 = 0
+        minv[:] = inf
+        used[:] = False
+        while True:
+            used[j0] = True
+            i0 = p[j0]
+            delta = inf
+            j1 = 0
+            for j in range(1, m + 1):
+                if not used[j]:
+                    cur = cost[i0 - 1, j - 1] - u[i0] - v[j]
+                    if cur < minv[j]:
+                        minv[j] = cur
+                        way[j] = j0
+                    if minv[j] < delta:
+                        delta = minv[j]
+                        j1 = j
+            for j in range(m + 1):
+                if used[j]:
+                    u[p[j]] += delta
+                    v[j] -= delta
+                else:
+                    minv[j] -= delta
+            j0 = j1
+            if p[j0] == 0:
+                break
+        while True:
+            j1 = way[j0]
+            p[j0] = p[j1]
+            j0 = j1
+            if j0 == 0:
+                break
+    ans = np.full(n, -1, np.int64)
+    for j in range(1, m + 1):
+        if p[j] != 0:
+            ans[p[j] - 1] = j - 1
+    return ans
+
+
+@numba.njit(cache=True, nogil=True)
+def _frame_kernel(z, obs, rng, dt, n_obs, alive, tobs, tid, next_id, x, P, poses, exist, lo_score, lo_shape,
+                  lo_motion, lo_resid, res_chi2, res_dof, score_sum, n_scored, seen, age, static_t, moved,
+                  confirmed, npts, head, fit_c, anchor, anchor_var, anchor_odo, anchor_rng, odometer, q,
+                  meas_sigma, meas_sigma_rel, speed_var, gate, birth_exist, confirm_exist, r):  # fmt: skip
+    """One frame's predict (constant velocity), Mahalanobis gating, assignment (a pair alone in both its
+    gates is forced; the rest per observer by :func:`_hungarian`), Joseph-form Kalman update, and births."""
+    cap = alive.shape[0]
+    k = z.shape[0]
+    # predict
+    q11, q12, q22 = q * dt**4 / 4, q * dt**3 / 2, q * dt * dt
+    for t in range(cap):
+        if not alive[t]:
+            continue
+        x[t, 0] += dt * x[t, 2]
+        x[t, 1] += dt * x[t, 3]
+        # P <- F P F^T + Q with F = [[I, dt I], [0, I]]
+        Pt = P[t]  # P F^T: columns 0, 1 += dt * columns 2, 3; then F (P F^T): rows likewise
+        for i in range(4):
+            Pt[i, 0] += dt * Pt[i, 2]
+            Pt[i, 1] += dt * Pt[i, 3]
+        for j in range(4):
+            Pt[0, j] += dt * Pt[2, j]
+            Pt[1, j] += dt * Pt[3, j]
+        Pt[0, 0] += q11
+        Pt[1, 1] += q11
+        Pt[0, 2] += q12
+        Pt[2, 0] += q12
+        Pt[1, 3] += q12
+        Pt[3, 1] += q12
+        Pt[2, 2] += q22
+        Pt[3, 3] += q22
+    # group tracks and candidates by observer (stable counting sort)
+    t_cnt = np.zeros(n_obs + 1, np.int64)
+    c_cnt = np.zeros(n_obs + 1, np.int64)
+    for t in range(cap):
+        if alive[t]:
+            t_cnt[tobs[t] + 1] += 1
+    for c in range(k):
+        c_cnt[obs[c] + 1] += 1
+    for o in range(n_obs):
+        t_cnt[o + 1] += t_cnt[o]
+        c_cnt[o + 1] += c_cnt[o]
+    t_ord = np.empty(t_cnt[n_obs], np.int64)
+    c_ord = np.empty(k, np.int64)
+    fill = t_cnt[:-1].copy()
+    for t in range(cap):
+        if alive[t]:
+            t_ord[fill[tobs[t]]] = t
+            fill[tobs[t]] += 1
+    fill = c_cnt[:-1].copy()
+    for c in range(k):
+        c_ord[fill[obs[c]]] = c
+        fill[obs[c]] += 1
+    # gating: squared Mahalanobis distance under the innovation covariance
+    n_pairs = 0
+    for o in range(n_obs):
+        n_pairs += (t_cnt[o + 1] - t_cnt[o]) * (c_cnt[o + 1] - c_cnt[o])
+    pt = np.empty(n_pairs, np.int64)
+    pc = np.empty(n_pairs, np.int64)
+    pm = np.empty(n_pairs)
+    deg_t = np.zeros(cap, np.int64)
+    deg_c = np.zeros(k, np.int64)
+    n_g = 0
+    for o in range(n_obs):
+        for a in range(c_cnt[o], c_cnt[o + 1]):
+            c = c_ord[a]
+            mv = (meas_sigma + meas_sigma_rel * rng[c]) ** 2
+            for b in range(t_cnt[o], t_cnt[o + 1]):
+                t = t_ord[b]
+                s00, s01, s10, s11 = P[t, 0, 0] + mv, P[t, 0, 1], P[t, 1, 0], P[t, 1, 1] + mv
+                d0, d1 = z[c, 0] - x[t, 0], z[c, 1] - x[t, 1]
+                det = s00 * s11 - s01 * s10
+                m2 = (s11 * d0 * d0 - 2 * s01 * d0 * d1 + s00 * d1 * d1) / det
+                if m2 <= gate:
+                    pt[n_g] = t
+                    pc[n_g] = c
+                    pm[n_g] = m2
+                    deg_t[t] += 1
+                    deg_c[c] += 1
+                    n_g += 1
+    ti = np.empty(min(n_g, k), np.int64)
+    ci = np.empty(min(n_g, k), np.int64)
+    n_m = 0
+    # forced pairs; the rest of each observer's gated pairs (grouped by observer already) by the Hungarian
+    t_loc = np.full(cap, -1, np.int64)
+    c_loc = np.full(k, -1, np.int64)
+    t_q = np.full(cap, -1, np.int64)
+    c_q = np.full(k, -1, np.int64)
+    a = 0
+    while a < n_g:
+        o = tobs[pt[a]]
+        b = a
+        while b < n_g and tobs[pt[b]] == o:
+            b += 1
+        nt = nc = 0
+        for g in range(a, b):
+            t, c = pt[g], pc[g]
+            if deg_t[t] == 1 and deg_c[c] == 1:
+                ti[n_m] = t
+                ci[n_m] = c
+                n_m += 1
+            else:
+                if t_loc[t] < 0:
+                    t_loc[t] = nt
+                    nt += 1
+                if c_loc[c] < 0:
+                    c_loc[c] = nc
+                    nc += 1
+        if nt:
+            ut = np.empty(nt, np.int64)
+            uc = np.empty(nc, np.int64)
+            for g in range(a, b):
+                if t_loc[pt[g]] >= 0:
+                    ut[t_loc[pt[g]]] = pt[g]
+                if c_loc[pc[g]] >= 0:
+                    uc[c_loc[pc[g]]] = pc[g]
+            # connected components of the ambiguous gates (tracks and candidates as nodes): the optimal
+            # assignment (most pairs, then least cost) decomposes over them, so each is solved on its own
+            # (in a swarm one observer's gates form many small clusters, not one big matrix)
+            nn = nt + nc
+            parent = np.arange(nn)
+            for g in range(a, b):
+                if not (deg_t[pt[g]] == 1 and deg_c[pc[g]] == 1):
+                    u, v = _find(parent, t_loc[pt[g]]), _find(parent, nt + c_loc[pc[g]])
+                    if u != v:
+                        parent[u] = v
+            comp = np.empty(nn, np.int64)
+            cid = np.full(nn, -1, np.int64)
+            n_comp = 0
+            for i in range(nn):
+                root = _find(parent, i)
+                if cid[root] < 0:
+                    cid[root] = n_comp
+                    n_comp += 1
+                comp[i] = cid[root]
+            # pairs bucketed by component (counting sort)
+            p_cnt = np.zeros(n_comp + 1, np.int64)
+            for g in range(a, b):
+                if not (deg_t[pt[g]] == 1 and deg_c[pc[g]] == 1):
+                    p_cnt[comp[t_loc[pt[g]]] + 1] += 1
+            for q in range(n_comp):
+                p_cnt[q + 1] += p_cnt[q]
+            p_ord = np.empty(p_cnt[n_comp], np.int64)
+            fill = p_cnt[:-1].copy()
+            for g in range(a, b):
+                if not (deg_t[pt[g]] == 1 and deg_c[pc[g]] == 1):
+                    q = comp[t_loc[pt[g]]]
+                    p_ord[fill[q]] = g
+                    fill[q] += 1
+            for q in range(n_comp):
+                # the component's tracks and candidates in ascending order (as np.unique in the reference)
+                mt = mc = 0
+                for z_ in range(p_cnt[q], p_cnt[q + 1]):
+                    g = p_ord[z_]
+                    if t_q[pt[g]] < 0:
+                        t_q[pt[g]] = 0
+                        mt += 1
+                    if c_q[pc[g]] < 0:
+                        c_q[pc[g]] = 0
+                        mc += 1
+                qt = np.empty(mt, np.int64)
+                qc = np.empty(mc, np.int64)
+                it = ic = 0
+                for z_ in range(p_cnt[q], p_cnt[q + 1]):
+                    g = p_ord[z_]
+                    if t_q[pt[g]] == 0:
+                        t_q[pt[g]] = 1
+                        qt[it] = pt[g]
+                        it += 1
+                    if c_q[pc[g]] == 0:
+                        c_q[pc[g]] = 1
+                        qc[ic] = pc[g]
+                        ic += 1
+                qt.sort()
+                qc.sort()
+                for i in range(mt):
+                    t_q[qt[i]] = i
+                for i in range(mc):
+                    c_q[qc[i]] = i
+                cost = np.full((mt, mc), 1e6)
+                for z_ in range(p_cnt[q], p_cnt[q + 1]):
+                    g = p_ord[z_]
+                    cost[t_q[pt[g]], c_q[pc[g]]] = pm[g]
+                if mt <= mc:
+                    col = _hungarian(cost)
+                    for i in range(mt):
+                        if col[i] >= 0 and cost[i, col[i]] < 1e6:
+                            ti[n_m] = qt[i]
+                            ci[n_m] = qc[col[i]]
+                            n_m += 1
+                else:
+                    row = _hungarian(cost.T.copy())
+                    for j in range(mc):
+                        if row[j] >= 0 and cost[row[j], j] < 1e6:
+                            ti[n_m] = qt[row[j]]
+                            ci[n_m] = qc[j]
+                            n_m += 1
+                for i in range(mt):
+                    t_q[qt[i]] = -1
+                for i in range(mc):
+                    c_q[qc[i]] = -1
+            ut_s, uc_s = ut, uc
+            for i in range(nt):
+                t_loc[ut_s[i]] = -1
+            for i in range(nc):
+                c_loc[uc_s[i]] = -1
+        a = b
+    ti, ci = ti[:n_m], ci[:n_m]
+    # Joseph-form Kalman update, position measured with isotropic noise
+    taken = np.zeros(k, np.bool_)
+    K = np.empty((4, 2))
+    A = np.empty((4, 4))
+    B = np.empty((4, 4))
+    for j in range(n_m):
+        t, c = ti[j], ci[j]
+        taken[c] = True
+        mv = (meas_sigma + meas_sigma_rel * rng[c]) ** 2
+        Pt = P[t]
+        s00, s01, s10, s11 = Pt[0, 0] + mv, Pt[0, 1], Pt[1, 0], Pt[1, 1] + mv
+        det = s00 * s11 - s01 * s10
+        i00, i01, i10, i11 = s11 / det, -s01 / det, -s10 / det, s00 / det
+        for i in range(4):
+            K[i, 0] = Pt[i, 0] * i00 + Pt[i, 1] * i10
+            K[i, 1] = Pt[i, 0] * i01 + Pt[i, 1] * i11
+        d0, d1 = z[c, 0] - x[t, 0], z[c, 1] - x[t, 1]
+        for i in range(4):
+            x[t, i] += K[i, 0] * d0 + K[i, 1] * d1
+        for i in range(4):  # A = I - K H
+            for jj in range(4):
+                A[i, jj] = (1.0 if i == jj else 0.0) - (K[i, jj] if jj < 2 else 0.0)
+        for i in range(4):  # B = A P
+            for jj in range(4):
+                acc = 0.0
+                for l in range(4):
+                    acc += A[i, l] * Pt[l, jj]
+                B[i, jj] = acc
+        for i in range(4):  # P = B A^T + mv K K^T
+            for jj in range(4):
+                acc = 0.0
+                for l in range(4):
+                    acc += B[i, l] * A[jj, l]
+                Pt[i, jj] = acc + mv * (K[i, 0] * K[jj, 0] + K[i, 1] * K[jj, 1])
+        seen[t] += 1
+    # births: unmatched candidates in index order take the first free rows
+    n_b = k - n_m
+    born = np.empty(n_b, np.int64)
+    tb = np.empty(n_b, np.int64)
+    j = 0
+    for c in range(k):
+        if not taken[c]:
+            born[j] = c
+            j += 1
+    t = 0
+    for j in range(n_b):
+        while alive[t]:
+            t += 1
+        c = born[j]
+        tb[j] = t
+        alive[t] = True
+        tid[t] = next_id
+        next_id += 1
+        o = obs[c]
+        tobs[t] = o
+        mv = (meas_sigma + meas_sigma_rel * rng[c]) ** 2
+        x[t, 0], x[t, 1], x[t, 2], x[t, 3] = z[c, 0], z[c, 1], 0.0, 0.0
+        P[t] = 0.0
+        P[t, 0, 0] = P[t, 1, 1] = mv
+        P[t, 2, 2] = P[t, 3, 3] = speed_var
+        exist[t] = birth_exist
+        lo_score[t] = lo_shape[t] = lo_motion[t] = 0.0
+        lo_resid[t] = res_chi2[t] = res_dof[t] = 0.0
+        score_sum[t] = n_scored[t] = 0.0
+        seen[t] = 1
+        age[t] = 0
+        static_t[t] = 0.0
+        moved[t] = False
+        confirmed[t] = birth_exist >= confirm_exist
+        npts[t] = head[t] = 0
+        # the housing's centre is r behind the visible arc's middle, seen from the observer
+        ax, ay = z[c, 0] - poses[o, 0], z[c, 1] - poses[o, 1]
+        an = max(math.sqrt(ax * ax + ay * ay), 1e-9)
+        fit_c[t, 0] = z[c, 0] + ax / an * r * 0.5
+        fit_c[t, 1] = z[c, 1] + ay / an * r * 0.5
+        anchor[t, 0], anchor[t, 1] = z[c, 0], z[c, 1]
+        anchor_var[t] = mv
+        anchor_odo[t] = odometer[o]
+        anchor_rng[t] = rng[c]
+    return ti, ci, tb, born, next_id
+
+
+@numba.njit(cache=True, nogil=True)
+def _finish_kernel(pre, hit, dt, alive, tobs, x, P, poses, exist, confirmed, moved, lo_motion, static_t, age,
+                   seen, anchor, anchor_var, anchor_odo, anchor_rng, odometer, p_detect, clutter, max_range,
+                   confirm_exist, delete_exist, motion_dist, motion_gain, head_rate2, pos_rate2):  # fmt: skip
+    """Existence (Bayes: hit, or a miss when in range), confirm; the motion cue; age; delete."""
+    for t in range(alive.shape[0]):
+        if pre[t]:
+            p = exist[t]
+            if hit[t]:
+                exist[t] = p / (p + (1 - p) * clutter)
+            else:
+                o = tobs[t]
+                if math.hypot(x[t, 0] - poses[o, 0], x[t, 1] - poses[o, 1]) <= max_range:
+                    exist[t] = p * (1 - p_detect) / (1 - p * p_detect)
+    for t in range(alive.shape[0]):
+        if not alive[t]:
+            continue
+        if exist[t] >= confirm_exist:
+            confirmed[t] = True
+        # motion: displaced from where first seen beyond 3 sigma, sigma including the odometry drift since
+        disp = math.hypot(x[t, 0] - anchor[t, 0], x[t, 1] - anchor[t, 1])
+        aged = odometer[tobs[t]] - anchor_odo[t]
+        drift = aged * (head_rate2 * anchor_rng[t] ** 2 + pos_rate2)
+        var = anchor_var[t] + 0.5 * (P[t, 0, 0] + P[t, 1, 1]) + drift
+        if disp > motion_dist and disp > 3.0 * math.sqrt(var) and seen[t] > 2:
+            moved[t] = True
+        lo_motion[t] = motion_gain if moved[t] else 0.0
+        static_t[t] += dt
+        age[t] += 1
+        alive[t] = exist[t] >= delete_exist
+
+
+@numba.njit(cache=True, nogil=True)
+def _score_kernel(ti, scores, accepted, rng, score_sum, n_scored, lo_score, bar1, per_metre, weight, acc_llr,
+                  rej_llr, n0, gain, clamp):  # fmt: skip
+    """The score cue of the updated tracks ``ti`` (candidate ``j`` of this frame for ``ti[j]``)."""
+    for j in range(ti.shape[0]):
+        t = ti[j]
+        p = min(max(scores[j], 1e-6), 1 - 1e-6)
+        lg = min(max(math.log(p / (1 - p)), -6.0), 6.0)
+        step = weight * (lg - (bar1 - per_metre * (rng[j] - 1.0)))
+        if accepted.shape[0]:
+            step += acc_llr if accepted[j] else rej_llr
+        score_sum[t] += step
+        n_scored[t] += 1
+        lo_score[t] = min(max(gain * score_sum[t] / (n_scored[t] + n0), -clamp), clamp)
+
+
+@numba.njit(cache=True, nogil=True)
+def _points_check(pts, owner, k):
+    """0: fine; 1: an owner outside [0, k); 2: a non-finite point; 3: fine but not sorted by owner."""
+    status = 0
+    for i in range(pts.shape[0]):
+        if owner[i] < 0 or owner[i] >= k:
+            return 1
+        if not (np.isfinite(pts[i, 0]) and np.isfinite(pts[i, 1])):
+            return 2
+        if i and owner[i] < owner[i - 1]:
+            status = 3
+    return status
+
+
+@numba.njit(cache=True, nogil=True)
+def _points_prep(pts, owner, obs, noise, cos, sin, poses, sigma2):
+    """Each candidate point in its observer's odometry frame, its expected noise and its range."""
+    n = pts.shape[0]
+    odom, sig, dist = np.empty((n, 2)), np.empty(n), np.empty(n)
+    for i in range(n):
+        o = obs[owner[i]]
+        px, py = pts[i, 0], pts[i, 1]
+        d = math.sqrt(px * px + py * py)
+        dist[i] = d
+        sig[i] = math.sqrt(sigma2 + (noise[o] * d) ** 2)
+        odom[i, 0] = cos[o] * px - sin[o] * py + poses[o, 0]
+        odom[i, 1] = sin[o] * px + cos[o] * py + poses[o, 1]
+    return odom, sig, dist
+
+
+@numba.njit(cache=True, nogil=True)
 def _outline_kernel(ti, ci, pts, sig, dist, cstart, obs, odometer, moved, buf, npts, head, fit_c, lo_shape,
-                    x, P, now, r, delta2, n_cap, min_points, clamp, head_rate2, pos_rate2):  # fmt: skip
+                    x, P, now, r, delta2, n_cap, min_points, clamp, head_rate2, pos_rate2, poses, lo_resid,
+                    res_chi2, res_dof, resid_clamp):  # fmt: skip
     """Append each updated track's candidate points (odometry frame) to its ring buffer, then refit its
     outline (warm-started at the last fit's centre) and set its shape cue. A track that has moved keeps
     its last shape cue: its points no longer share one frame, and the motion cue has decided it anyway."""
     m_max = buf.shape[1]
     e, var, wgt, pp = np.empty(m_max), np.empty(m_max), np.empty(m_max), np.empty((m_max, 2))
+    m_frame = 0
+    for j in range(ti.shape[0]):
+        m_frame = max(m_frame, cstart[ci[j] + 1] - cstart[ci[j]])
+    fe, fw, fc = np.empty(m_frame), np.empty(m_frame), np.empty(2)
     for j in range(ti.shape[0]):
         t, c = ti[j], ci[j]
         a, b = cstart[c], cstart[c + 1]
+        mf = b - a
+        if mf >= 3 and resid_clamp > 0.0:
+            # per-frame known-radius fit: one pose, so no odometry drift and valid while the object moves;
+            # start r behind the points' middle as seen from the observer
+            mx = my = 0.0
+            for p in range(a, b):
+                mx += pts[p, 0]
+                my += pts[p, 1]
+                fw[p - a] = 1.0 / (sig[p] * sig[p])
+            mx /= mf
+            my /= mf
+            ux, uy = mx - poses[obs[t], 0], my - poses[obs[t], 1]
+            un = max(math.sqrt(ux * ux + uy * uy), 1e-9)
+            fc[0] = mx + ux / un * r * 0.7
+            fc[1] = my + uy / un * r * 0.7
+            _fit_known_circle(pts[a:b], fw[:mf], r, fc, 6, fe[:mf])
+            # Gaussian LLR "on the circle" vs "off it by delta", the fit's 2 dof taken out of the log term
+            llr = 0.0
+            chi2 = 0.0
+            for p in range(a, b):
+                v0 = sig[p] * sig[p]
+                v1 = v0 + delta2
+                ee = fe[p - a] * fe[p - a]
+                chi2 += ee / v0
+                llr += 0.5 * math.log(v1 / v0) * (mf - 2) / mf - 0.5 * ee * (1.0 / v0 - 1.0 / v1)
+            res_chi2[t] += chi2
+            res_dof[t] += mf - 2
+            lo_resid[t] = min(max(lo_resid[t] + llr, -resid_clamp), resid_clamp)
         if moved[t]:  # a moving object's points share no frame: its outline is no evidence
             lo_shape[t] = 0.0
             continue
@@ -811,7 +1211,7 @@ def _outline_kernel(ti, ci, pts, sig, dist, cstart, obs, odometer, moved, buf, n
             if npts[t] < m_max:
                 npts[t] += 1
         m = npts[t]
-        if m < min_points:
+        if m < min_points or clamp <= 0.0:  # clamp 0: the cue is off, skip the (costly) refit
             continue
         acc = buf[t, :m]
         odo = odometer[obs[t]]

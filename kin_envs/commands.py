@@ -1,10 +1,11 @@
 """The ``kin-envs`` console script: kin detection on ROS bags, and simulated episodes recorded as bags.
 
-``kin-envs detect BAG --topic /scan [--detector geometric|learned|beam] [--odom /odom] [--out FILE.jsonl|.csv]
-[--markers OUT_BAG]`` runs a detector on every ``sensor_msgs/LaserScan`` of a ROS 1 or ROS 2 bag and
-writes the detections per scan with their stamps; ``kin-envs record OUT --env ID`` records one env
-episode to a bag (:func:`kin_envs.ros.record_episode`). Run ``kin-envs COMMAND --help`` for the options.
-Also runnable as ``python -m kin_envs.commands``.
+``kin-envs detect BAG --topic /scan [--detector geometric|learned|beam] [--odom /odom] [--track]
+[--out FILE.jsonl|.csv] [--markers OUT_BAG]`` runs a detector on every ``sensor_msgs/LaserScan`` of a ROS 1
+or ROS 2 bag and writes the detections per scan with their stamps (with ``--track``, also the multi-frame
+``detectors.KinTracker``'s tracks, fed with the detections and the odometry between scans);
+``kin-envs record OUT --env ID`` records one env episode to a bag (:func:`kin_envs.ros.record_episode`).
+Run ``kin-envs COMMAND --help`` for the options. Also runnable as ``python -m kin_envs.commands``.
 """
 
 from __future__ import annotations
@@ -29,6 +30,11 @@ __all__ = ["main"]
 _CSV_FIELDS = (
     *("scan", "stamp_ns", "stamp", "frame_id", "detection", "range", "bearing", "x", "y", "score"),
     *("first_beam", "last_beam", "n_beams", "pose_x", "pose_y", "pose_yaw", "wx", "wy", "truth_error"),
+)
+# with --track: a "record" column (detection / track) and the track's columns; a track row's x, y are in the
+# robot frame at the scan, wx, wy in the --odom frame
+_CSV_TRACK_FIELDS = (
+    *("record", "track_id", "vx", "vy", "existence", "kin_prob", "frames_seen", "confirmed", "is_kin"),
 )
 
 
@@ -75,6 +81,14 @@ def detect(args: argparse.Namespace) -> int:
     if args.odom:
         child = args.base_frame or (first.frame_id if first is not None else None)
         track = ros.read_poses(bag, args.odom, child)
+    if args.track and not args.odom:
+        raise ValueError("--track needs --odom: the tracker follows objects through the robot's motion "
+                         "between scans (a nav_msgs/Odometry or TF topic)")  # fmt: skip
+    tracker = None
+    if args.track:
+        from detectors.tracking import KinTracker
+
+        tracker = _ScanTracker(KinTracker())
     truth = None
     if args.truth:
         if not args.odom:
@@ -89,9 +103,10 @@ def detect(args: argparse.Namespace) -> int:
     )
     from tqdm import tqdm
 
-    n_scans = n_dets = n_true = 0
+    n_scans = n_dets = n_true = n_tracks = 0
     with out_cm as f, markers_cm as mw:
-        writer = csv.DictWriter(f, fieldnames=_CSV_FIELDS) if fmt == "csv" else None
+        fields = (*_CSV_FIELDS, *_CSV_TRACK_FIELDS) if tracker is not None else _CSV_FIELDS
+        writer = csv.DictWriter(f, fieldnames=fields) if fmt == "csv" else None
         if writer is not None:
             writer.writeheader()
         bar = tqdm(total=n_msgs, desc=f"detect {args.topic}", unit="scan", disable=args.quiet)
@@ -113,6 +128,11 @@ def detect(args: argparse.Namespace) -> int:
                 "pose": None if pose is None else {"x": pose[0], "y": pose[1], "yaw": pose[2]},
                 "detections": recs,
             }
+            tracks = None
+            if tracker is not None:
+                tracks = tracker.step(s, result, pose)
+                row["tracks"] = tracks
+                n_tracks += 0 if tracks is None else sum(t["is_kin"] for t in tracks)
             if writer is None:
                 f.write(json.dumps(row) + "\n")
             else:
@@ -126,8 +146,13 @@ def detect(args: argparse.Namespace) -> int:
                             "detection": k,
                             **d,
                             **pose_cols,
+                            **({"record": "detection"} if tracker is not None else {}),
                         }
                     )
+                for t in tracks or []:
+                    writer.writerow({**{c: row[c] for c in ("scan", "stamp_ns", "stamp", "frame_id")},
+                                     "record": "track", "track_id": t["id"],
+                                     **{c: v for c, v in t.items() if c != "id"}})  # fmt: skip
             if mw is not None:
                 _write_marker_scan(mw, args.topic, s, result.detections)
             n_scans += 1
@@ -139,10 +164,55 @@ def detect(args: argparse.Namespace) -> int:
     print(
         f"{n_scans} scans, {n_dets} detections ({args.detector})"
         + (f" -> {args.out}" if args.out else "")
-        + (f"; markers -> {args.markers}" if args.markers else ""),
+        + (f"; markers -> {args.markers}" if args.markers else "")
+        + (f"; {n_tracks} kin tracks over all scans (KinTracker)" if tracker is not None else ""),
         file=sys.stderr,
     )
     return 0
+
+
+class _ScanTracker:
+    """Feeds a :class:`detectors.KinTracker` scan by scan: the odometry increment between scans comes from
+    the bag's poses (``--odom``), in the robot frame at the previous scan; the tracks are reported in the
+    robot frame at the scan (``x, y``, ``vx, vy``) and in the odometry frame (``wx, wy``)."""
+
+    def __init__(self, tracker) -> None:
+        self.tracker = tracker
+        self.prev = None  # (stamp_ns, pose) of the last tracked scan
+        self.origin = None  # the odometry pose at the first tracked scan (the tracker's frame origin)
+
+    def step(self, s, result, pose) -> list[dict] | None:
+        if pose is None:  # outside the odometry's time span: no motion known, no tracking
+            return None
+        import math
+
+        from detectors.base import wrap_angle
+
+        if self.prev is None:
+            delta, dt, self.origin = np.zeros(3), 0.1, pose
+        else:
+            t0, (x0, y0, th0) = self.prev
+            c, sn = math.cos(th0), math.sin(th0)
+            dx, dy = pose[0] - x0, pose[1] - y0
+            delta = np.array([c * dx + sn * dy, -sn * dx + c * dy, wrap_angle(pose[2] - th0)])
+            dt = max((s.stamp_ns - t0) / 1e9, 1e-3)  # equal stamps: still a (tiny) step forward
+        self.prev = (s.stamp_ns, pose)
+        self.tracker.update_from_result(result, s.ranges, s.angles, delta, dt)
+        thr = self.tracker.params.kin_threshold
+        out = []
+        ox, oy, oth = self.origin
+        co, so = math.cos(oth), math.sin(oth)
+        local = self.tracker.in_robot_frame(0)
+        pth = self.tracker.pose[2]
+        cp, sp = math.cos(pth), math.sin(pth)
+        for t, (lx, ly) in zip(self.tracker.tracks(0), local, strict=True):
+            out.append({
+                "id": t.id, "x": float(lx), "y": float(ly), "wx": ox + co * t.x - so * t.y,
+                "wy": oy + so * t.x + co * t.y, "vx": cp * t.vx + sp * t.vy, "vy": -sp * t.vx + cp * t.vy,
+                "existence": t.existence, "kin_prob": t.kin_prob, "frames_seen": t.frames_seen,
+                "confirmed": t.confirmed, "is_kin": bool(t.confirmed and t.kin_prob >= thr),
+            })  # fmt: skip
+        return out
 
 
 def _chain(first, rest):
@@ -293,6 +363,13 @@ def build_parser() -> argparse.ArgumentParser:
         type=float,
         default=0.05,
         help="with --truth: a detection within this distance (m) of a true kin counts as real",
+    )
+    d.add_argument(
+        "--track",
+        action="store_true",
+        help="also run the multi-frame detectors.KinTracker (needs --odom): each scan's tracks (id, x, y, "
+        "vx, vy in the robot frame, wx, wy in the odometry frame, existence, kin_prob, is_kin) as 'tracks' "
+        "in the JSON Lines output, or as rows with record=track in the CSV",
     )
     d.add_argument("--quiet", action="store_true", help="no progress bar")
     d.set_defaults(func=detect)

@@ -10,7 +10,8 @@
    in the main job; that script stays for large seeded sweeps (``--backend ray``).
 3. ``scripts/benchmark_tracking.py``: the sequence benchmark (``swarm`` and ``lookalike`` episodes with
    moving observers and kin, 0 and 1 % range noise): the multi-frame ``KinTracker`` vs the single-scan
-   detectors, at its reduced size (``--full``: the full size) -> ``outputs/benchmark_tracking/``.
+   detectors, at its reduced size (``--full``: the full size), and the tracking cost at 64 observers
+   -> ``outputs/benchmark_tracking/``.
 """
 
 from __future__ import annotations
@@ -74,7 +75,7 @@ def main(argv: list[str] | None = None) -> dict:
     if args.full:
         seq_argv.append("--full")
     elif args.quick:
-        seq_argv += ["--episodes", "1", "--splits", "lookalike", "--no-gif"]
+        seq_argv += ["--episodes", "1", "--splits", "lookalike", "--no-gif", "--cost-robots", "8"]
     results["benchmark_tracking"] = _load("benchmark_tracking").main([*seq_argv, *verbosity])
     print(f"\nmain job done in {time.perf_counter() - t0:.0f} s. Outputs:")
     print(f"  {args.out / 'reproduce_paper'}/reproduction.md  (tables; figure*.png: the paper's figures)")

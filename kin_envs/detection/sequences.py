@@ -36,7 +36,7 @@ import math
 import time
 from collections import defaultdict
 from collections.abc import Mapping
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 
@@ -62,6 +62,7 @@ from .benchmark import (
     permissive,
     swarm_scene,
 )
+from .seeds import check_training_seeds
 
 __all__ = [
     "AGE_EDGES",
@@ -69,8 +70,15 @@ __all__ = [
     "SEQUENCE_VERSION",
     "SequenceConfig",
     "SequenceSpec",
+    "RecordedEpisodes",
     "episode",
+    "evaluate_sequences",
+    "record_sequences",
     "run_sequences",
+    "target_window",
+    "tracking_cost",
+    "tune_tracker",
+    "training_split",
 ]
 
 #: Bumped whenever an episode generator, the ground truth or a metric changes.
@@ -128,11 +136,15 @@ class SequenceSpec:
     n_episodes: int
     reduced_episodes: int
     noise: tuple[float, ...] = (0.0, 0.005, 0.01)
+    training: bool = False
 
     def seeds(self, n: int) -> range:
-        if not (BENCHMARK_SEEDS.start <= self.first_seed and self.first_seed + n <= BENCHMARK_SEEDS.stop):
+        seeds = range(self.first_seed, self.first_seed + n)
+        if self.training:  # tuning / diagnosis episodes: never the benchmark's reserved seeds
+            check_training_seeds(seeds, f"training sequence split {self.name!r}")
+        elif not (BENCHMARK_SEEDS.start <= self.first_seed and self.first_seed + n <= BENCHMARK_SEEDS.stop):
             raise ValueError(f"sequence split {self.name!r}: seeds leave the reserved range")
-        return range(self.first_seed, self.first_seed + n)
+        return seeds
 
     def to_dict(self) -> dict:
         def plain(obj):
@@ -141,8 +153,16 @@ class SequenceSpec:
         return {
             "name": self.name, "scenes": plain(self.scenes), "run": plain(self.run),
             "first_seed": self.first_seed, "n_episodes": self.n_episodes,
-            "reduced_episodes": self.reduced_episodes, "noise": list(self.noise),
+            "reduced_episodes": self.reduced_episodes, "noise": list(self.noise), "training": self.training,
         }  # fmt: skip
+
+
+def training_split(split: str, first_seed: int = 0) -> SequenceSpec:
+    """The sequence split ``split`` with seeds from ``first_seed`` outside the benchmark's reserved range:
+    the episodes to tune and diagnose the tracker on (the benchmark's own seeds stay unseen)."""
+    if split not in SEQUENCE_SPLITS:
+        raise ValueError(f"unknown sequence split {split!r}; expected one of {sorted(SEQUENCE_SPLITS)}")
+    return replace(SEQUENCE_SPLITS[split], first_seed=int(first_seed), training=True)
 
 
 _B = BENCHMARK_SEEDS.start
@@ -285,6 +305,7 @@ def run_sequences(
     baselines: Mapping[str, KinDetector] | None = None,
     progress: bool = False,
     record: int | None = None,
+    diagnose: bool = False,
 ) -> dict:
     """Run the sequence benchmark on one split at one noise level (see the module docstring).
 
@@ -297,6 +318,8 @@ def run_sequences(
         baselines: further single-scan detectors to score, by name (at their operating points).
         progress: tqdm progress bar.
         record: keep the frames (scans, tracks, truth) of this episode index for an animation.
+        diagnose: add ``"diagnosis"``: the tracker's false positives and misses on kin in view for
+            >= 10 frames at 0.3-2 m, by cause (:func:`_diagnose`).
 
     Returns a plain dict (JSON-serialisable) of tables; ``"frames"`` holds the recording if asked.
     """
@@ -308,27 +331,68 @@ def run_sequences(
         raise ValueError(f"n_episodes must be an integer >= 1, got {n_episodes!r}")
     if not (isinstance(noise, int | float) and 0 <= noise <= 0.05):
         raise ValueError(f"noise must be a relative range noise in [0, 0.05], got {noise!r}")
-    import motmetrics as mm
+    recorded = record_sequences(detector, spec, n, noise, baselines, progress)
+    return evaluate_sequences(recorded, tracker_params, record=record, diagnose=diagnose)
 
+
+@dataclass
+class _Frame:
+    """One recorded frame: the tracker's inputs, the single-scan detections and the ground truth."""
+
+    delta: np.ndarray
+    cand: tuple  # (obs, xy, scores, points, owner, accepted) of the permissive run
+    noise_est: np.ndarray
+    singles: dict  # name -> list of (k, 2) detection positions per observer
+    truth: list  # per observer: _truth(...) tuple
+    moved_all: np.ndarray  # (n_robots,) distance each robot has moved from its start, m
+    poses: np.ndarray
+    scan0: np.ndarray
+
+
+@dataclass
+class RecordedEpisodes:
+    """Episodes of one split and noise level, run once (worlds, scans, detectors, ground truth), so that
+    trackers with different parameters can be evaluated on the very same frames (:func:`evaluate_sequences`,
+    :func:`tune_tracker`)."""
+
+    spec: SequenceSpec
+    noise: float
+    methods: list
+    episodes: list  # of (n_observers, n_robots, obstacle kinds, parked, frames)
+    detector_seconds: float
+    warm_up: float
+
+
+def record_sequences(
+    detector: KinDetector,
+    split: str | SequenceSpec,
+    n_episodes: int | None = None,
+    noise: float = 0.01,
+    baselines: Mapping[str, KinDetector] | None = None,
+    progress: bool = False,
+) -> RecordedEpisodes:
+    """Run the episodes of ``split`` and record every frame's tracker inputs, single-scan detections and
+    ground truth (arguments as :func:`run_sequences`)."""
+    spec = SEQUENCE_SPLITS[split] if isinstance(split, str) and split in SEQUENCE_SPLITS else split
+    if not isinstance(spec, SequenceSpec):
+        raise ValueError(f"unknown sequence split {split!r}; expected one of {sorted(SEQUENCE_SPLITS)}")
+    n = spec.reduced_episodes if n_episodes is None else n_episodes
+    if isinstance(n, bool) or not isinstance(n, int) or n < 1:
+        raise ValueError(f"n_episodes must be an integer >= 1, got {n_episodes!r}")
+    if not (isinstance(noise, int | float) and 0 <= noise <= 0.05):
+        raise ValueError(f"noise must be a relative range noise in [0, 0.05], got {noise!r}")
     perm = permissive(detector)
     singles = {"single": detector, **dict(baselines or {})}
-    t_warm = _warm_up([perm, *singles.values()], tracker_params)
-    methods = ["tracker", *singles]
-    by_age = {m: [_Counts() for _ in AGE_EDGES] for m in methods}
-    by_dist = {m: [_Counts() for _ in DISTANCE_EDGES[:-1]] for m in methods}
-    by_age_dist = {m: defaultdict(_Counts) for m in methods}
-    sr_frames = {m: [0, 0] for m in methods}  # [frames checked, frames rejected]
-    accs, observers_all = [], []
-    t_det = t_trk = 0.0
-    frames_total = observer_frames = 0
-    recording = []
+    t_warm = _warm_up([perm, *singles.values()], None)
+    t_det = 0.0
+    episodes = []
     seeds = spec.seeds(n)
     it = seeds
     if progress:
         from tqdm import tqdm
 
         it = tqdm(seeds, desc=f"sequences {spec.name} noise {100 * noise:g} %", leave=False)
-    for e_idx, seed in enumerate(it):
+    for seed in it:
         ep = episode(spec, seed, noise)
         w = ep.world
         obs_idx = ep.observers
@@ -336,13 +400,12 @@ def run_sequences(
             [isinstance(o, Cylinder) and abs(o.radius - w.scene.robot.housing_radius) <= SAME_RADIUS_TOL
              for o in w.scene.obstacles], bool,
         ).reshape(-1)  # fmt: skip
-        tracker = KinTracker(tracker_params, n_observers=len(obs_idx))
         start_xy = w.poses[:, :2].copy()
-        book = [_Observer(w.n_robots, w.n_obstacles, mm.MOTAccumulator(auto_id=True)) for _ in obs_idx]
+        frames = []
         for frame in range(spec.run.frames):
             if frame:
                 ep.step(frame)
-                delta = w.odometry_delta[obs_idx]
+                delta = w.odometry_delta[obs_idx].copy()
             else:
                 delta = np.zeros((len(obs_idx), 3))
             scan = ep.scan()
@@ -350,34 +413,69 @@ def run_sequences(
             cand = perm.detect_batch(scan.ranges, scan.angles)
             t_det += time.perf_counter() - t0
             single_res = {name: d.detect_batch(scan.ranges, scan.angles) for name, d in singles.items()}
-            ob, xy, sc, pts, own, acc = _candidates(cand, scan, single_res["single"])
+            cands = _candidates(cand, scan, single_res["single"])
             # the scan's own noise estimate, as on a real robot (the tracker's default where it has too few)
             est, count = scan_noise(segment_batch(scan.ranges, scan.angles))
-            noise_est = np.where(count >= 5, est, tracker.params.range_noise)
+            frames.append(_Frame(
+                delta=delta, cand=cands, noise_est=np.where(count >= 5, est, np.nan),
+                singles={name: [_detections_of(r)[0] for r in res] for name, res in single_res.items()},
+                truth=[_truth(scan, row, w, start_xy, same_radius) for row in range(len(obs_idx))],
+                moved_all=np.hypot(*(w.poses[:, :2] - start_xy).T), poses=w.poses.copy(),
+                scan0=scan.ranges[0].copy(),
+            ))  # fmt: skip
+        kinds = [o.kind for o in w.scene.obstacles]
+        episodes.append((len(obs_idx), w.n_robots, w.n_obstacles, kinds, ep.parked.copy(), frames))
+    return RecordedEpisodes(spec, float(noise), ["tracker", *singles], episodes, t_det, t_warm)
+
+
+def evaluate_sequences(
+    recorded: RecordedEpisodes,
+    tracker_params: TrackerParams | None = None,
+    record: int | None = None,
+    diagnose: bool = False,
+    mot: bool = True,
+    singles: bool = True,
+) -> dict:
+    """Run the tracker over recorded episodes and score it and the single-scan detectors (the tables of
+    :func:`run_sequences`). ``mot=False`` skips CLEAR MOT and ``singles=False`` the single-scan detectors'
+    scores (for tuning)."""
+    if mot:
+        import motmetrics as mm
+    spec, methods = recorded.spec, recorded.methods if singles else ["tracker"]
+    by_age = {m: [_Counts() for _ in AGE_EDGES] for m in methods}
+    by_dist = {m: [_Counts() for _ in DISTANCE_EDGES[:-1]] for m in methods}
+    by_age_dist = {m: defaultdict(_Counts) for m in methods}
+    sr_frames = {m: [0, 0] for m in methods}  # [frames checked, frames rejected]
+    accs, observers_all = [], []
+    t_trk = 0.0
+    frames_total = observer_frames = 0
+    recording = []
+    diag = defaultdict(int)
+    t_warm = recorded.warm_up + _warm_up([], tracker_params)
+    for e_idx, (n_obs, n_robots, n_obst, kinds, parked, frames) in enumerate(recorded.episodes):
+        tracker = KinTracker(tracker_params, n_observers=n_obs)
+        book = [_Observer(n_robots, n_obst, mm.MOTAccumulator(auto_id=True) if mot else None)
+                for _ in range(n_obs)]  # fmt: skip
+        for frame, fr in enumerate(frames):
+            ob, xy, sc, pts, own, acc = fr.cand
+            noise_est = np.where(np.isnan(fr.noise_est), tracker.params.range_noise, fr.noise_est)
             t0 = time.perf_counter()
-            tracker.update_batch(ob, xy, sc, delta, _FRAME_S, pts, own, noise_est, accepted=acc)
+            tracker.update_batch(ob, xy, sc, fr.delta, _FRAME_S, pts, own, noise_est, accepted=acc)
             t_trk += time.perf_counter() - t0
             frames_total += 1
-            observer_frames += len(obs_idx)
+            observer_frames += n_obs
             arrays = tracker.track_arrays(64)
             if record == e_idx:
-                recording.append(
-                    {
-                        "poses": w.poses.copy(),
-                        "scan": scan.ranges[0].copy(),
-                        "tracks": arrays["tracks"][0][arrays["mask"][0]].copy(),
-                    }
-                )  # noqa: E501
-            for row in range(len(obs_idx)):
+                recording.append({"poses": fr.poses, "scan": fr.scan0,
+                                  "tracks": arrays["tracks"][0][arrays["mask"][0]].copy()})  # fmt: skip
+            for row in range(n_obs):
                 bk = book[row]
-                kin_ids, kin_beams, kin_xy, moved, ob_ids, ob_xy, sr = _truth(
-                    scan, row, w, start_xy, same_radius
-                )
+                kin_ids, kin_beams, kin_xy, moved, ob_ids, ob_xy, sr = fr.truth[row]
                 # visibility ages (>= 1 valid beam), reset when out of view
-                vis_r = np.zeros(w.n_robots, bool)
+                vis_r = np.zeros(n_robots, bool)
                 vis_r[kin_ids] = True
                 bk.age_robot = np.where(vis_r, bk.age_robot + 1, 0)
-                vis_o = np.zeros(w.n_obstacles, bool)
+                vis_o = np.zeros(n_obst, bool)
                 vis_o[ob_ids] = True
                 bk.age_obst = np.where(vis_o, bk.age_obst + 1, 0)
                 counted = kin_beams >= MIN_BEAMS
@@ -385,14 +483,15 @@ def run_sequences(
                 gt_xy = np.r_[kin_xy, ob_xy[sr]]
                 gt_ignore = np.r_[~counted, np.ones(int(sr.sum()), bool)]
                 ages = np.r_[bk.age_robot[kin_ids], bk.age_obst[ob_ids[sr]]]
-                all_moved = bool(
-                    all(np.hypot(*(w.poses[k, :2] - start_xy[k])) >= MOVED for k in bk.seen_kin)
-                ) and bool(bk.seen_kin)
+                all_moved = bool(bk.seen_kin) and bool(
+                    np.all(fr.moved_all[np.fromiter(bk.seen_kin, np.int64)] >= MOVED)
+                )
                 tr = arrays["tracks"][row][arrays["mask"][row]]
                 is_kin = (tr[:, 8] > 0) & (tr[:, 6] >= tracker.params.kin_threshold)
                 dets = {"tracker": (tr[is_kin, 1:3], tr[is_kin, 0].astype(np.int64))}
-                for name, res in single_res.items():
-                    dets[name] = (_detections_of(res[row])[0], None)
+                for name, per_obs in fr.singles.items():
+                    if singles:
+                        dets[name] = (per_obs[row], None)
                 for name, (dxy, ids) in dets.items():
                     m = match(dxy, gt_xy, GATE, gt_ignore=gt_ignore)
                     matched_gt = np.zeros(gt_xy.shape[0], bool)
@@ -423,14 +522,19 @@ def run_sequences(
                                 sr_frames[name][1] += int(not matched_gt[g])
                     if name == "tracker":
                         _track_bookkeeping(bk, m, ids, kin_ids, counted, kin_xy, dxy, frame)
+                        if diagnose:
+                            _diagnose(diag, m, dxy, tr, tracker.params.kin_threshold, kin_ids, counted,
+                                      kin_xy, bk.age_robot[kin_ids], ob_ids, ob_xy, bk.age_obst[ob_ids],
+                                      kinds, parked, xy[ob == row])  # fmt: skip
         accs.extend(b.mot for b in book)
         observers_all.extend(book)
-    mot = _mot_summary(mm, accs)
+    mot_summary = _mot_summary(mm, accs) if mot else {}
     confirm = [f for b in observers_all for f in b.confirm_frames]
     minutes = observer_frames * _FRAME_S / 60.0  # of observation, summed over observers
+    n_frames = max(frames_total, 1)
     out = {
-        "split": spec.name, "noise": noise, "episodes": n, "frames": frames_total,
-        "observer_frames": observer_frames,
+        "split": spec.name, "noise": recorded.noise, "episodes": len(recorded.episodes),
+        "frames": frames_total, "observer_frames": observer_frames,
         "version": SEQUENCE_VERSION,
         "spec": spec.to_dict(),
         "by_age": {m: [c.row() for c in v] for m, v in by_age.items()},
@@ -444,13 +548,70 @@ def run_sequences(
         "false_tracks_per_minute": (
             sum(len(b.false_ids - b.true_ids) for b in observers_all) / minutes if minutes else math.nan
         ),
-        "mot": mot,
-        "seconds": {"warm_up": t_warm, "detector_per_frame": t_det / max(frames_total, 1),
-                    "tracker_per_frame": t_trk / max(frames_total, 1)},
+        "mot": mot_summary,
+        "seconds": {"warm_up": t_warm, "detector_per_frame": recorded.detector_seconds / n_frames,
+                    "tracker_per_frame": t_trk / n_frames},
     }  # fmt: skip
     if record is not None:
         out["recording"] = recording
+    if diagnose:
+        out["diagnosis"] = dict(sorted(diag.items()))
     return out
+
+def _diagnose(diag, m, dxy, tr, kin_threshold, kin_ids, counted, kin_xy, kin_age, ob_ids, ob_xy, ob_age,
+              kinds_all, parked, cand_xy) -> None:  # fmt: skip
+    """Count the tracker's errors on objects in view >= 10 frames at 0.3-2 m (the targets' window) by cause.
+
+    False positives, by the nearest object within 0.2 m: ``fp:duplicate`` (a kin already matched by
+    another track), ``fp:lagging`` (an unmatched kin, but beyond the gate), ``fp:<obstacle kind>``
+    (prism, box, cylinder, ...), ``fp:none``. Misses of a counted kin: ``fn:unconfirmed`` (a track
+    within the gate, not yet confirmed), ``fn:low_kin_parked`` / ``fn:low_kin_moving`` (a confirmed track
+    whose kin probability is below the threshold; the kin parked or wandering), ``fn:lagging`` (the
+    nearest track within 0.2 m but outside the gate), ``fn:no_track`` (the permissive detector had a
+    candidate within the gate) and ``fn:no_candidate``."""
+    in_win = (kin_age >= 10) & (np.hypot(kin_xy[:, 0], kin_xy[:, 1]) >= 0.3) & (
+        np.hypot(kin_xy[:, 0], kin_xy[:, 1]) < 2.0
+    )
+    n_k = kin_xy.shape[0]
+    matched_kin = np.zeros(n_k, bool)
+    for g in m.gt[m.gt >= 0]:
+        if g < n_k:
+            matched_kin[g] = True
+    kinds = [kinds_all[j] for j in ob_ids]
+    for d in np.flatnonzero(m.fp):
+        p = dxy[d]
+        dk = np.hypot(*(kin_xy - p).T) if n_k else np.zeros(0)
+        do = np.hypot(*(ob_xy - p).T) if ob_xy.shape[0] else np.zeros(0)
+        jk = int(np.argmin(dk)) if dk.size else -1
+        jo = int(np.argmin(do)) if do.size else -1
+        if jk >= 0 and dk[jk] <= 0.2 and (jo < 0 or dk[jk] <= do[jo]):
+            if in_win[jk]:
+                diag["fp:duplicate" if matched_kin[jk] else "fp:lagging"] += 1
+        elif jo >= 0 and do[jo] <= 0.2:
+            r = float(np.hypot(*ob_xy[jo]))
+            if ob_age[jo] >= 10 and 0.3 <= r < 2.0:
+                diag[f"fp:{kinds[jo]}"] += 1
+        elif 0.3 <= float(np.hypot(*p)) < 2.0:
+            diag["fp:none"] += 1
+    for g in np.flatnonzero(in_win & counted & ~matched_kin):
+        g = int(g)
+        diag["fn:total"] += 1
+        d = np.hypot(*(tr[:, 1:3] - kin_xy[g]).T) if tr.shape[0] else np.zeros(0)
+        if d.size and d.min() <= GATE:
+            t = tr[int(np.argmin(d))]
+            if t[8] <= 0:
+                diag["fn:unconfirmed"] += 1
+            elif t[6] < kin_threshold:
+                diag["fn:low_kin_parked" if parked[kin_ids[g]] else "fn:low_kin_moving"] += 1
+            else:
+                diag["fn:other"] += 1  # e.g. the match went to a neighbour
+        elif d.size and d.min() <= 0.2:
+            diag["fn:lagging"] += 1
+        elif cand_xy.shape[0] and np.hypot(*(cand_xy - kin_xy[g]).T).min() <= GATE:
+            diag["fn:no_track"] += 1
+        else:
+            diag["fn:no_candidate"] += 1
+    diag["tp"] += int((in_win & matched_kin).sum())
 
 
 def _warm_up(detectors, tracker_params) -> float:
@@ -529,7 +690,8 @@ def _track_bookkeeping(bk: _Observer, m, ids, kin_ids, counted, kin_xy, dxy, fra
         else np.zeros((len(gxy), len(dxy)))
     )
     dist = np.where(dist <= GATE, dist, np.nan)
-    bk.mot.update(gt_ids, [int(i) for i in ids], dist)
+    if bk.mot is not None:
+        bk.mot.update(gt_ids, [int(i) for i in ids], dist)
 
 
 def _mot_summary(mm, accs) -> dict:
@@ -541,3 +703,164 @@ def _mot_summary(mm, accs) -> dict:
     row = summary.loc["OVERALL"]
     return {"mota": float(row["mota"]), "idf1": float(row["idf1"]), "num_switches": int(row["num_switches"]),
             "n_sequences": len(accs)}  # fmt: skip
+
+
+def target_window(result: dict, min_frames: int = 10, distance: tuple[float, float] = (0.3, 2.0)) -> dict:
+    """Per-frame P / R / F1 of each method on objects in view for ``>= min_frames`` frames within
+    ``distance`` (the issue's target window), overall and per distance bin (``result["by_age_distance"]``).
+
+    Returns ``{method: {"all": row, "<lo>-<hi>": row, ...}}`` with rows as in ``by_age``."""
+    a0 = _bin(min_frames, AGE_EDGES)
+    if AGE_EDGES[a0] != min_frames:
+        raise ValueError(f"min_frames must be one of {AGE_EDGES}, got {min_frames!r}")
+    lo, hi = distance[0] - 1e-9, distance[1] + 1e-9
+    E = DISTANCE_EDGES
+    bins = [b for b in range(len(E) - 1) if E[b] >= lo and E[b + 1] <= hi]
+    out = {}
+    for m, cells in result["by_age_distance"].items():
+        tot = _Counts()
+        rows = {}
+        for b in bins:
+            c = _Counts()
+            for a in range(a0, len(AGE_EDGES)):
+                r = cells.get(f"{a},{b}")
+                if r:
+                    c.add(r["tp"], r["fp"], r["fn"])
+            tot.add(c.tp, c.fp, c.fn)
+            rows[f"{DISTANCE_EDGES[b]:g}-{DISTANCE_EDGES[b + 1]:g}"] = c.row()
+        out[m] = {"all": tot.row(), **rows}
+    return out
+
+
+#: What :func:`tune_tracker` searches by default: the kin-probability cues' weights and the thresholds, the
+#: parameters whose best values depend on the detector feeding the tracker (its score calibration).
+TUNING_GRID: dict[str, tuple] = {
+    "score_prior": (0.3, 0.5, 0.7, 0.85),
+    "score_weight": (0.0, 0.5, 1.0),
+    "accept_llr": (0.0, 1.0, 2.0),
+    "reject_llr": (0.0, -1.0, -2.0),
+    "score_gain": (2.0, 4.0, 8.0),
+    "score_per_metre": (0.0, 0.5, 1.0),
+    "static_penalty": (0.0, -2.0, -4.0, -8.0),
+    "resid_clamp": (0.0, 2.0),
+    "shape_clamp": (0.0, 2.0),
+    "kin_threshold": (0.3, 0.5, 0.7),
+}
+
+
+def tune_objective(result: dict) -> float:
+    """The tuning objective of one split: the tracker's F1 on kin in view >= 10 frames at 0.3-2 m."""
+    f = target_window(result)["tracker"]["all"]["f1"]
+    return 0.0 if math.isnan(f) else float(f)
+
+
+def tune_tracker(
+    recorded: list[RecordedEpisodes],
+    grid: Mapping[str, tuple] | None = None,
+    base: TrackerParams | None = None,
+    passes: int = 2,
+    progress: bool = False,
+) -> tuple[TrackerParams, list[dict]]:
+    """Coordinate descent over ``grid`` (default :data:`TUNING_GRID`) from ``base``: each parameter in turn
+    takes the grid value that maximises the mean :func:`tune_objective` over the ``recorded`` episode sets
+    (training seeds: :func:`training_split`), ``passes`` times. Re-run it for a new detector checkpoint.
+
+    Returns the best parameters and the log of every evaluation (``params``, ``objective``, and
+    ``per_set``: the objective on each recorded set, in order).
+    """
+    grid = dict(TUNING_GRID if grid is None else grid)
+    names = {f.name for f in fields(TrackerParams)}
+    if set(grid) - names:
+        raise ValueError(f"tune_tracker: unknown parameter(s) {sorted(set(grid) - names)}")
+    if not recorded:
+        raise ValueError("tune_tracker: need at least one RecordedEpisodes")
+    best = base or TrackerParams()
+    log: list[dict] = []
+    cache: dict = {}
+
+    def score(p: TrackerParams) -> float:
+        key = tuple(getattr(p, n) for n in sorted(names))
+        if key not in cache:
+            per = [tune_objective(evaluate_sequences(r, p, mot=False, singles=False)) for r in recorded]
+            cache[key] = float(np.mean(per))
+            log.append({"params": {n: getattr(p, n) for n in grid}, "objective": cache[key], "per_set": per})
+        return cache[key]
+
+    best_score = score(best)
+    steps = [(n, v) for _ in range(passes) for n in grid for v in grid[n]]
+    it = steps
+    if progress:
+        from tqdm import tqdm
+
+        it = tqdm(steps, desc="tune tracker", leave=False)
+    for name, value in it:
+        try:
+            cand = replace(best, **{name: value})
+        except ValueError:
+            continue  # an invalid combination (e.g. thresholds out of order)
+        s = score(cand)
+        if s > best_score + 1e-9:
+            best, best_score = cand, s
+    return best, log
+
+
+def tracking_cost(
+    detector: KinDetector,
+    n_robots: int = 64,
+    frames: int = 30,
+    tracker_params: TrackerParams | None = None,
+    seed: int = 7,
+    repeats: int = 3,
+    skip: int = 10,
+) -> dict:
+    """Time the tracker against the per-frame detector feeding it, ``n_robots`` observers batched: one
+    swarm episode (a training seed, a ``n_robots``-robot arena) is recorded once, then the permissive
+    detector's ``detect_batch`` on each frame's scans and the tracker's ``update_batch`` on its candidates
+    are timed alternately, warm (compile time reported apart), on the frames after the first ``skip`` (the
+    steady state: the tracker's arrays have grown to the scene's number of tracks, a one-off per run),
+    best of ``repeats`` passes (a shared machine slows passes unevenly; both sides of the ratio come from
+    the same passes).
+
+    Returns seconds per frame for both, their ratio, the warm-up and the mean candidates per frame."""
+    if isinstance(n_robots, bool) or not isinstance(n_robots, int) or n_robots < 2:
+        raise ValueError(f"n_robots must be an integer >= 2, got {n_robots!r}")
+    if not 0 <= int(skip) < int(frames):
+        raise ValueError(f"skip must be in [0, frames), got {skip!r} for {frames!r} frames")
+    side = max(6.0, 1.1 * math.sqrt(n_robots))  # the swarm split's density
+    spec = training_split("swarm", seed)
+    spec = replace(spec, scenes=replace(spec.scenes, n_robots=(n_robots, n_robots), arena_size=(side, side)),
+                   run=replace(spec.run, frames=int(frames)))  # fmt: skip
+    ep = episode(spec, spec.first_seed, 0.01)
+    w = ep.world
+    scans, deltas = [], []
+    for frame in range(spec.run.frames):
+        if frame:
+            ep.step(frame)
+        deltas.append(w.odometry_delta.copy() if frame else np.zeros((w.n_robots, 3)))
+        scans.append(ep.scan())
+    perm = permissive(detector)
+    t0 = time.perf_counter()
+    _warm_up([perm], tracker_params)
+    warm = time.perf_counter() - t0
+    best_det = best_trk = math.inf
+    n_cand = 0
+    for _ in range(max(1, int(repeats))):
+        tracker = KinTracker(tracker_params, n_observers=w.n_robots)
+        t_det = t_trk = 0.0
+        n_cand = 0
+        for f, (scan, delta) in enumerate(zip(scans, deltas, strict=True)):
+            t = time.perf_counter()
+            res = perm.detect_batch(scan.ranges, scan.angles)
+            dt_det = time.perf_counter() - t
+            ob, xy, sc, pts, own, _ = _candidates(res, scan)
+            n_cand += ob.size
+            t = time.perf_counter()
+            tracker.update_batch(ob, xy, sc, delta, _FRAME_S, pts, own)
+            if f >= skip:
+                t_trk += time.perf_counter() - t
+                t_det += dt_det
+        best_det, best_trk = min(best_det, t_det), min(best_trk, t_trk)
+    n = max(len(scans) - skip, 1)
+    return {"n_robots": w.n_robots, "frames": n, "skipped": int(skip), "detector_per_frame": best_det / n,
+            "tracker_per_frame": best_trk / n, "ratio": best_trk / best_det, "warm_up": warm,
+            "candidates_per_frame": n_cand / len(scans)}  # fmt: skip

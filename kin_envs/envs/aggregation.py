@@ -57,6 +57,10 @@ class AggregationConfig(CommonConfig):
         super().__post_init__()
         w = self.env_id
         check_int(w, "n_robots", self.n_robots, 2, 256)
+        if self.obs_tracks:
+            raise ValueError(
+                f"{w}: obs_tracks=True is not supported here yet (tracker=True adds info['kin_tracks'])"
+            )
         check_float(w, "area_per_robot", self.area_per_robot, 0.2, 100.0)
         if self.arena_size is None:
             object.__setattr__(
@@ -135,6 +139,11 @@ class AggregationEnv(ParallelEnv):
     * unless ``detector=None``, ``kin_detections``: ``max_detections`` (16) slots of ``range,
       bearing, x, y, score, first_beam, last_beam, n_beams, kin_index`` (``kin_index`` -1 = false
       detection) and ``kin_detections_count``;
+    * with ``tracker=True`` (opt-in; or a dict of ``detectors.TrackerParams`` fields), ``kin_tracks``:
+      ``max_tracks`` (16) slots of ``detectors.tracking.TRACK_FIELDS`` (``id, x, y, vx, vy, existence,
+      kin_prob, frames_seen, confirmed, age``; robot frame) and ``kin_tracks_count``: one
+      ``detectors.KinTracker`` batched over all robots, fed each step with every robot's detections and
+      its wheel odometry (``World.odometry_delta``); the same layout as ``KinSeek-v1``'s;
     * ``reward_terms`` and ``n_kin`` (robots within ``kin_radius``).
 
     All agents' scans go through the detector's ``detect_batch`` at once. The geometric detector
@@ -151,7 +160,8 @@ class AggregationEnv(ParallelEnv):
       (0.1); ``collision_penalty`` (1.0); ``max_kin_truth`` (16 info slots);
     * common: ``noise_sigma``, ``dropout_prob``, ``detector`` (``"geometric"``), ``obs_detections``,
       ``obs_top_k``, ``max_detections`` (16 info slots), ``frame_stack``, ``action_type``,
-      ``control_dt``;
+      ``control_dt``, ``tracker`` (None) and ``max_tracks`` (16 info slots; ``obs_tracks`` is not
+      supported here yet);
     * rendering: ``render_mode`` (None, ``"rgb_array"``, ``"human"``), ``render_size`` (512 px),
       ``render_beams`` (True) and ``render_agent`` (0: whose beams and detections are drawn).
 
@@ -181,6 +191,7 @@ class AggregationEnv(ParallelEnv):
         where = cfg.env_id
         self.render_mode = check_render_mode(render_mode, self.metadata["render_modes"], where)
         self.detector = resolve_detector(cfg.detector, where)
+        self.tracker = cfg.make_tracker(n_observers=cfg.n_robots)  # every robot is an observer
         self._lidar = cfg.lidar_spec()
         self._world_config = WorldConfig(control_dt=cfg.control_dt)
         self.layout = ObservationLayout(
@@ -231,7 +242,9 @@ class AggregationEnv(ParallelEnv):
         self.world = World(scene, seed=self._np_random, config=self._world_config)
         self.agents = self.possible_agents[:]
         self._cycles = 0
-        frame, infos = self._sense()
+        if self.tracker is not None:
+            self.tracker.reset()
+        frame, infos = self._sense(first=True)
         obs = self._obs.reset(frame)
         _, n_kin = self._kin_counts()
         zero = {"kin": 0.0, "collision": 0.0}
@@ -292,7 +305,7 @@ class AggregationEnv(ParallelEnv):
         n = np.count_nonzero(dx * dx + dy * dy <= self.config.kin_radius**2, axis=1) - 1
         return np.minimum(n, self.config.max_kin_counted), n
 
-    def _sense(self) -> tuple[np.ndarray, dict[str, dict]]:
+    def _sense(self, first: bool = False) -> tuple[np.ndarray, dict[str, dict]]:
         scan = self.world.scan()
         self._last_scan = scan
         poses, n = scan.poses, scan.ranges.shape[0]
@@ -302,6 +315,12 @@ class AggregationEnv(ParallelEnv):
             dets = detect_rows(self.detector, scan.ranges, scan.angles, scan.robots, poses)
         self._last_detections = dets
         entries = {}
+        if self.tracker is not None:
+            from kin_envs.envs.tracks import track_info, track_update
+
+            delta = np.zeros((n, 3)) if first else self.world.odometry_delta
+            track_update(self.tracker, scan, dets, delta, self.world.config.control_dt)
+            entries["kin_tracks"] = track_info(self.tracker, self.config.max_tracks)
         if self.padded_info:
             entries["kin_truth"] = pad_rows(*truth, n, self.config.max_kin_truth)
             if dets is not None:
@@ -321,6 +340,10 @@ class AggregationEnv(ParallelEnv):
                 info = {"kin_truth": truth_rows[i]}
                 if det_rows is not None:
                     info["kin_detections"] = det_rows[i]
+                if "kin_tracks" in entries:
+                    cols, count = entries["kin_tracks"]
+                    info["kin_tracks"] = {f: c[i] for f, c in cols.items()}
+                    info["kin_tracks_count"] = int(count[i])
                 infos[a] = info
         return self._obs.frame(scan.ranges, dets), infos
 
@@ -354,10 +377,16 @@ class AggregationEnv(ParallelEnv):
             if self._last_detections is not None:
                 row, cols = self._last_detections
                 dets.append((scan.poses[k], {f: c[row == k] for f, c in cols.items()}))
+        tracks = []
+        if self.tracker is not None and k is not None and scan is not None:
+            from kin_envs.envs.tracks import track_rows
+
+            row, cols = track_rows(self.tracker, self.config.max_tracks)
+            tracks.append((scan.poses[k], {f: c[row == k] for f, c in cols.items()}))
         roles = ["agent"] * self.world.n_robots
         if k is not None:
             roles[k] = "learner"  # highlight the robot whose view is drawn
-        return self._renderer.render(self.world, roles, beams, dets)
+        return self._renderer.render(self.world, roles, beams, dets, tracks)
 
     def close(self) -> None:
         if self._renderer is not None:

@@ -156,33 +156,15 @@ class SingleRobotEnv(gym.Env):
     def _track(self, scan: Scan, dets, odom_delta: np.ndarray) -> None:
         """Advance the tracker with this frame's detections (all accepted: the detector's operating
         point), their segments' scan points and the learner's odometry increment."""
-        from detectors.tracking import segment_points
+        from kin_envs.envs.tracks import track_update
 
-        row, cols = dets if dets is not None else (np.zeros(0, np.int64), None)
-        xy, pts, own = np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0, np.int64)
-        if row.size:
-            xy = np.c_[cols["x"], cols["y"]]
-            first, last = cols["first_beam"], cols["last_beam"]
-            pts, own = segment_points(scan.ranges[:1], scan.angles, row, first, last, scan.range_max)
-        scores = np.zeros(0) if not row.size else cols["score"]
-        self.tracker.update_batch(np.zeros(row.size, np.int64), xy, scores, odom_delta[None, :],
-                                  self.world.config.control_dt, pts, own,
-                                  accepted=np.ones(row.size, bool))  # fmt: skip
+        track_update(self.tracker, _rows(scan, 1), dets, odom_delta[None, :], self.world.config.control_dt)
 
     def _track_rows(self):
         """The tracker's confirmed kin tracks as detection rows (for ``obs_tracks``)."""
-        a = self.tracker.track_arrays(self.config.max_tracks)
-        t = a["tracks"][0][a["mask"][0]]
-        kin = (t[:, 8] > 0) & (t[:, 6] >= self.tracker.params.kin_threshold)
-        t = t[kin][np.argsort(np.hypot(t[kin, 1], t[kin, 2]), kind="stable")]
-        m = t.shape[0]
-        cols = {"range": np.hypot(t[:, 1], t[:, 2]).astype(np.float64),
-                "bearing": np.arctan2(t[:, 2], t[:, 1]).astype(np.float64),
-                "x": t[:, 1].astype(np.float64), "y": t[:, 2].astype(np.float64),
-                "score": t[:, 6].astype(np.float64), "first_beam": np.full(m, -1, np.int64),
-                "last_beam": np.full(m, -1, np.int64), "n_beams": np.zeros(m, np.int64),
-                "kin_index": np.full(m, -1, np.int64)}  # fmt: skip
-        return np.zeros(m, np.int64), cols
+        from kin_envs.envs.tracks import track_rows
+
+        return track_rows(self.tracker, self.config.max_tracks)
 
     def _sense(self, scan: Scan, dets) -> np.ndarray:
         """Phase 2: remember the scan and detections; the learner's observation frame ``(1, d)``."""
@@ -219,12 +201,11 @@ class SingleRobotEnv(gym.Env):
             info["kin_detections"] = {k: v[0] for k, v in cols.items()}
             info["kin_detections_count"] = int(count[0])
         if self.tracker is not None:
-            from detectors.tracking import TRACK_FIELDS
+            from kin_envs.envs.tracks import track_info
 
-            a = self.tracker.track_arrays(self.config.max_tracks)
-            info["kin_tracks"] = {name: a["tracks"][0][:, j].astype(np.float64)
-                                  for j, name in enumerate(TRACK_FIELDS)}  # fmt: skip
-            info["kin_tracks_count"] = int(a["count"][0])
+            cols, count = track_info(self.tracker, self.config.max_tracks)
+            info["kin_tracks"] = {name: c[0] for name, c in cols.items()}
+            info["kin_tracks_count"] = int(count[0])
         return info
 
     def render(self):

@@ -77,3 +77,30 @@ def test_live_log_interrupted_by_ctrl_c_leaves_whole_lines(tmp_path):
     rows = [json.loads(line) for line in raw.splitlines()]
     assert [r["i"] for r in rows] == list(range(len(rows))) and len(rows) >= 40
     assert sorted(q.name for q in tmp_path.iterdir()) == ["metrics.jsonl"]
+
+
+@pytest.mark.parametrize("where", ["fdopen", "replace", "unlink"])
+def test_ctrl_c_at_any_step_of_an_atomic_write_leaves_no_temporary(tmp_path, monkeypatch, where):
+    """Ctrl-C right after the temporary file is created, during the rename, or (a second one) during the
+    cleanup: the old file survives and no temporary is left."""
+    import detectors.fileio as fileio
+
+    p = tmp_path / "a.txt"
+    p.write_text("old")
+    real = {"fdopen": os.fdopen, "replace": os.replace, "unlink": os.unlink}
+    calls = {"n": 0}
+
+    def interrupted(*args, **kwargs):
+        calls["n"] += 1
+        if calls["n"] == 1:
+            raise KeyboardInterrupt
+        return real[where](*args, **kwargs)
+
+    if where == "unlink":  # the first Ctrl-C in the rename, a second one inside the cleanup
+        monkeypatch.setattr(fileio.os, "replace", lambda *a: (_ for _ in ()).throw(KeyboardInterrupt()))
+    monkeypatch.setattr(fileio.os, where, interrupted)
+    with pytest.raises(KeyboardInterrupt), atomic_write(p, "w") as f:
+        f.write("new")
+    monkeypatch.undo()
+    assert p.read_text() == "old"
+    assert sorted(q.name for q in tmp_path.iterdir()) == ["a.txt"]

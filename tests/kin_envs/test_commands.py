@@ -124,6 +124,44 @@ def test_detect_learned_runs(swarm_bag, tmp_path):
     assert len(out.read_text().splitlines()) == 5
 
 
+def test_detect_track_follows_the_detections_through_the_wheel_odometry(swarm_bag, tmp_path):
+    """--track: every scan carries the KinTracker's tracks, fed with the bag's wheel odometry; they are
+    the tracks of a KinTracker run directly on the same scans and odometry increments, and each sits on
+    that scan's detection (robot and odometry frames); the CSV holds them as record=track rows."""
+    from detectors.ros import read_poses, read_scans
+    from detectors.tracking import KinTracker
+
+    out = tmp_path / "t.jsonl"
+    argv = ["detect", str(swarm_bag), "--topic", "/robot_1/scan", "--odom", "/robot_1/odom", "--track"]
+    assert main([*argv, "--out", str(out), "--quiet"]) == 0
+    rows = [json.loads(line) for line in out.read_text().splitlines()]
+    scans, poses = list(read_scans(swarm_bag, "/robot_1/scan")), read_poses(swarm_bag, "/robot_1/odom")
+    direct, det, prev = KinTracker(), GeometricKinDetector(), None
+    for row, s in zip(rows, scans, strict=True):
+        p = poses.at(s.stamp_ns)
+        if prev is None:
+            delta, dt = np.zeros(3), 0.1
+        else:
+            c, si = np.cos(prev[1][2]), np.sin(prev[1][2])
+            dx, dy = p[0] - prev[1][0], p[1] - prev[1][1]
+            delta = [c * dx + si * dy, -si * dx + c * dy, p[2] - prev[1][2]]
+            dt = (s.stamp_ns - prev[0]) / 1e9
+        prev = (s.stamp_ns, p)
+        direct.update_from_result(det.detect(s.ranges, s.angles), s.ranges, s.angles, delta, dt)
+        assert [t["id"] for t in row["tracks"]] == [t.id for t in direct.tracks()]
+        for t in row["tracks"]:
+            d = min(row["detections"], key=lambda d: np.hypot(d["x"] - t["x"], d["y"] - t["y"]))
+            assert np.hypot(d["x"] - t["x"], d["y"] - t["y"]) < 0.03
+            assert np.hypot(d["wx"] - t["wx"], d["wy"] - t["wy"]) < 0.03
+    assert sum(len(r["tracks"]) for r in rows) >= 1
+    assert any(len(r["tracks"]) and r["tracks"][0]["frames_seen"] > 1 for r in rows)  # followed over scans
+    csv_out = tmp_path / "t.csv"
+    assert main([*argv, "--out", str(csv_out), "--quiet"]) == 0
+    recs = list(csv.DictReader(csv_out.open()))
+    assert {r["record"] for r in recs} == {"detection", "track"}
+    assert sum(r["record"] == "track" for r in recs) == sum(len(r["tracks"]) for r in rows)
+
+
 def test_detect_beam_has_the_same_fields_and_matches_the_detector(swarm_bag, tmp_path):
     from detectors.beam_detector import BeamKinDetector
     from detectors.ros import read_scans
@@ -171,6 +209,7 @@ def test_detect_beam_has_the_same_fields_and_matches_the_detector(swarm_bag, tmp
             "--checkpoint applies to --detector learned or beam",
         ),
         (["--topic", "/robot_0/scan", "--truth", "/ground_truth/kin"], "--truth needs --odom"),
+        (["--topic", "/robot_0/scan", "--track"], "--track needs --odom"),
         (
             ["--topic", "/robot_0/scan", "--odom", "/tf", "--truth", "/tf"],
             "expected geometry_msgs/msg/PoseArray",

@@ -11,13 +11,37 @@ def test_one_episode_run(tmp_path):
     mod = load_script("benchmark_tracking")
     out = tmp_path / "seq"
     argv = ["--splits", "lookalike", "--episodes", "1", "--noise", "0.01", "--detector", "geometric"]
-    results = mod.main([*argv, "--baselines", "--out", str(out)])
+    results = mod.main([*argv, "--baselines", "--cost-robots", "4", "--out", str(out)])
     assert [r["split"] for r in results] == ["lookalike"]
     for name in ("results.md", "results.json", "f1_vs_frames.png", "tracks.gif", "run.json"):
         assert (out / name).stat().st_size > 0, name
     run = json.loads((out / "run.json").read_text())
     assert run["sequence_version"] == 1 and "lookalike" in run["splits"]
-    assert "Frames since the kin came into view" in (out / "results.md").read_text()
+    md = (out / "results.md").read_text()
+    assert "Frames since the kin came into view" in md and "Target window" in md
+    assert "Tracking cost at 4 observers" in md
+
+
+def test_tune_tracker_script(tmp_path):
+    """scripts/tune_tracker.py on one training episode per split, a two-value grid: writes the tuned
+    parameters (loadable), the table and the log; the tuned objective is at least the defaults'."""
+    from detectors.tracking import TrackerParams
+
+    mod = load_script("tune_tracker")
+    out = tmp_path / "tune"
+    argv = ["--detectors", "geometric", "--swarm-episodes", "1", "--lookalike-episodes", "1", "--passes", "1",
+            "--grid", '{"kin_threshold": [0.3, 0.6]}', "--out", str(out)]  # fmt: skip
+    res = mod.main(argv)
+    params = TrackerParams.from_dict(json.loads((out / "params.json").read_text()))
+    assert params.kin_threshold in (0.3, 0.6) and res["params"]["kin_threshold"] == params.kin_threshold
+    log = json.loads((out / "log.json").read_text())
+    assert len(log) == 2 and all(len(e["per_set"]) == 2 for e in log)
+    assert max(e["objective"] for e in log) == pytest.approx(
+        next(e["objective"] for e in log if e["params"]["kin_threshold"] == params.kin_threshold)
+    )
+    assert "| geometric / swarm |" in (out / "tuning.md").read_text()
+    with pytest.raises(SystemExit):
+        mod.main(["--swarm-episodes", "0", "--out", str(tmp_path / "x")])
 
 
 @pytest.mark.parametrize("argv", [["--episodes", "0"], ["--noise", "5"], ["--full", "--episodes", "2"]])

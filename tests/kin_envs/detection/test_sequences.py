@@ -106,3 +106,38 @@ def test_bad_arguments():
         S.run_sequences(det, "lookalike", n_episodes=1, noise=5)
     with pytest.raises(ValueError, match="frames"):
         S.SequenceConfig(frames=0)
+
+
+def test_training_split_never_uses_the_reserved_seeds():
+    spec = S.training_split("swarm", 1000)
+    assert spec.training and not any(s in BENCHMARK_SEEDS for s in spec.seeds(5))
+    assert spec.scenes == S.SEQUENCE_SPLITS["swarm"].scenes
+    with pytest.raises(ValueError, match="reserved"):
+        S.training_split("swarm", BENCHMARK_SEEDS.start).seeds(2)
+    with pytest.raises(ValueError, match="unknown sequence split"):
+        S.training_split("nope")
+
+
+def test_replayed_episodes_give_the_run_and_tuning_picks_the_best():
+    """record_sequences + evaluate_sequences reproduce run_sequences; the target window adds up the
+    by-age-and-distance cells; tune_tracker returns the grid value with the best objective; the
+    diagnosis counts every tracker miss in the window by one cause."""
+    spec = S.training_split("lookalike", 77)
+    spec = dataclasses.replace(spec, run=dataclasses.replace(spec.run, frames=15))
+    det = GeometricKinDetector(reports=False)
+    rec = S.record_sequences(det, spec, 1, 0.005)
+    a = S.evaluate_sequences(rec, diagnose=True)
+    b = S.run_sequences(det, spec, 1, 0.005)
+    assert a["by_age"] == b["by_age"] and a["same_radius_rejected"] == b["same_radius_rejected"]
+    tw = S.target_window(a)
+    cells = [v for k, v in a["by_age_distance"]["tracker"].items()
+             if int(k.split(",")[0]) >= 3 and int(k.split(",")[1]) in (1, 2)]  # fmt: skip
+    assert tw["tracker"]["all"]["tp"] == sum(c["tp"] for c in cells)
+    assert tw["tracker"]["all"]["fp"] == tw["tracker"]["0.3-1"]["fp"] + tw["tracker"]["1-2"]["fp"]
+    d = a["diagnosis"]
+    assert d.get("fn:total", 0) == sum(v for k, v in d.items() if k.startswith("fn:") and k != "fn:total")
+    best, log = S.tune_tracker([rec], {"kin_threshold": (0.3, 0.9)}, passes=1)
+    objs = {e["params"]["kin_threshold"]: e["objective"] for e in log}
+    assert objs[best.kin_threshold] == max(objs.values())
+    with pytest.raises(ValueError, match="unknown parameter"):
+        S.tune_tracker([rec], {"nope": (1,)})

@@ -82,3 +82,46 @@ def test_bad_tracker_arguments(kwargs, match):
 def test_native_vector_env_refuses_the_tracker_clearly():
     with pytest.raises(ValueError, match="not supported by the native vector env"):
         gym.make_vec(IDS[0], num_envs=2, vectorization_mode="vector_entry_point", tracker=True)
+
+
+def test_swarm_env_tracks_every_agent_with_fixed_shape_info():
+    """aggregation_v1 with tracker=True: one batched tracker over all robots; every agent's
+    info["kin_tracks"] keeps one shape on every step; seeded runs repeat; the PettingZoo API holds."""
+    from pettingzoo.test import parallel_api_test
+
+    from kin_envs import aggregation_v1
+
+    parallel_api_test(aggregation_v1.parallel_env(n_robots=6, tracker=True, max_cycles=30), num_cycles=30)
+
+    def run(seed):
+        env = aggregation_v1.parallel_env(n_robots=8, tracker=True, max_tracks=6, noise_sigma=0.005,
+                                          max_cycles=40)  # fmt: skip
+        _, infos = env.reset(seed=seed)
+        rng = np.random.default_rng(seed)
+        seen, out = 0, []
+        for _ in range(40):
+            if not env.agents:
+                break
+            acts = {a: rng.uniform(-1, 1, 2).astype(np.float32) for a in env.agents}
+            _, _, _, _, infos = env.step(acts)
+            for info in infos.values():
+                assert set(info["kin_tracks"]) == set(TRACK_FIELDS)
+                assert all(v.shape == (6,) and v.dtype == np.float64 for v in info["kin_tracks"].values())
+                assert 0 <= info["kin_tracks_count"] <= 6
+                c = info["kin_tracks_count"]
+                assert np.all(info["kin_tracks"]["id"][c:] == 0)  # padded slots are empty
+                seen += c
+            out.append(np.stack([infos[a]["kin_tracks"]["x"] for a in sorted(infos)]))
+        return seen, np.stack(out)
+
+    seen, a = run(5)
+    assert seen > 0
+    np.testing.assert_array_equal(a, run(5)[1])
+    env = aggregation_v1.parallel_env(n_robots=4, tracker=True, render_mode="rgb_array")
+    env.reset(seed=1)
+    env.step({ag: np.zeros(2, np.float32) for ag in env.agents})
+    assert env.render().shape == (512, 512, 3)  # the track overlay of render_agent
+    with pytest.raises(ValueError, match="obs_tracks"):
+        aggregation_v1.parallel_env(tracker=True, obs_detections="topk", obs_tracks=True)
+    with pytest.raises(ValueError, match="needs a detector"):
+        aggregation_v1.parallel_env(tracker=True, detector=None)
