@@ -57,6 +57,16 @@ def pad_rows(
         slots: slots per row; items beyond ``slots`` in a row (the farthest) are dropped.
     """
     row = np.asarray(row, dtype=np.int64)
+    if n_rows == 1:
+        # one observer (KinSeek/KinFollow every step): its items are the first ``slots``, already
+        # nearest first; skips the rank bookkeeping below (a per-step fixed cost)
+        n = min(row.size, slots)
+        out = {}
+        for name, col in cols.items():
+            a = np.full((1, slots), PAD_VALUES.get(name, 0), dtype=_dtype(name))
+            a[0, :n] = col[:n]
+            out[name] = a
+        return out, np.array([n], dtype=np.int64)
     start = np.searchsorted(row, np.arange(n_rows))
     rank = np.arange(row.size) - start[row] if row.size else row
     keep = rank < slots
