@@ -17,11 +17,11 @@ def shipped():
     return LearnedKinDetector(reports=False)
 
 
-def scans(n, seed=0):
+def scans(n, seed=0, noise=0.005):
     """``n`` one-robot scans (float32 ranges, as the envs' lidar gives them) of random arenas."""
     out = []
     for k in range(n):
-        scene = scenes.random_arena(8, 12, seed=seed + k).replace(lidar=LidarSpec(noise_sigma=0.005))
+        scene = scenes.random_arena(8, 12, seed=seed + k).replace(lidar=LidarSpec(noise_sigma=noise))
         s = World(scene, seed=seed + k).scan()
         out.append((s.ranges[:1], s.angles))
     return out
@@ -82,3 +82,22 @@ def test_trusted_entry_still_checks_a_new_layout_and_bad_types(shipped):
         shipped._detect_arrays_trusted(r[:, ::2], a[::2].copy())
     with pytest.raises(ValueError, match=r"ranges\[0\]"):  # the public entry checks every call
         shipped.detect_arrays(-np.abs(r.astype(np.float64)), a)
+
+
+def test_geometric_trusted_entry_gives_the_public_outputs():
+    from detectors import GeometricKinDetector
+
+    det = GeometricKinDetector(reports=False)
+    n_det = 0
+    for r, a in scans(4, seed=20, noise=0.0):
+        ref = det.detect_arrays(r, a)
+        got = det._detect_arrays_trusted(r, a)
+        again = det._detect_arrays_trusted(r, a)  # the fast path (layout already checked)
+        for f in FIELDS:
+            assert np.array_equal(getattr(got, f), getattr(ref, f), equal_nan=True), f
+            assert np.array_equal(getattr(again, f), getattr(ref, f), equal_nan=True), f
+            assert not np.shares_memory(getattr(again, f), getattr(got, f)), f
+        n_det += ref.n_detections
+    assert n_det > 0
+    with pytest.raises(ValueError, match="batched ranges must be 2-D"):
+        det._detect_arrays_trusted(r[0], a)
