@@ -229,3 +229,26 @@ def test_aggregation_v1_passes_pettingzoo_api_tests():
         aggregation_v1.parallel_env(n_robots=3).step({})
     with pytest.raises(RuntimeError, match="aggregation_v0: call reset"):
         aggregation_v0.parallel_env(n_robots=3).step({})
+
+
+def test_kinseek_one_row_detect_rows_equals_the_general_path():
+    pytest.importorskip("torch")
+    from kin_envs.envs.common import detect_rows
+
+    env = gym.make("kin_envs/KinSeek-v1", detector="learned")
+    env.reset(seed=1)
+    u, n_det = env.unwrapped, 0
+    env.action_space.seed(1)
+    for _ in range(80):
+        *_, te, tr, _ = env.step(env.action_space.sample())
+        if te or tr:
+            env.reset()
+        s, poses = u._last_scan, u.world.poses
+        args = (u.detector, s.ranges[:1], s.angles, s.robots[:1], poses)
+        r1, c1 = detect_rows(*args, trusted=True)  # the one-row fast path, trusted detector entry
+        r2, c2 = detect_rows(*args, robot_world=np.zeros(len(poses), int))  # the general path
+        assert np.array_equal(r1, r2) and list(c1) == list(c2)
+        assert all(c1[k].dtype == c2[k].dtype and np.array_equal(c1[k], c2[k]) for k in c1)
+        n_det += len(r1)
+    assert n_det > 0
+    env.close()
