@@ -637,8 +637,8 @@ class LearnedKinDetector(KinDetector):
             p[rows] = p_rows
             acc_rows = p_rows >= thr[rows]
         if self.positioning == "regression":
-            uv = self._t_mean + self._t_std * out[:, 1:3]
             if all_centres:
+                uv = self._t_mean + self._t_std * out[:, 1:3]
                 if rows is None:
                     centres = local_to_observer(frames, uv)
                 else:
@@ -648,7 +648,8 @@ class LearnedKinDetector(KinDetector):
                 centres = np.full((n_seg, 2), np.nan)
                 sel = np.flatnonzero(acc_rows)
                 if sel.size:  # most one-scan calls accept nothing
-                    centres[sel if rows is None else rows[sel]] = local_to_observer(frames[sel], uv[sel])
+                    uv = self._t_mean + self._t_std * out[sel, 1:3]  # the same values, only these rows
+                    centres[sel if rows is None else rows[sel]] = local_to_observer(frames[sel], uv)
         else:
             centres = self._fit_centres(batch, p >= thr)
         return batch, feats, p, centres, thr, max_beams
