@@ -73,18 +73,39 @@ def run_main(main: Callable[[], object], bad_input: tuple[type[BaseException], .
     interrupts.install()
     try:
         main()
-    except bad_input as e:
+    except KeyboardInterrupt:
+        _interrupted()
+    except Exception as e:
+        # A library's clean-up can fail while a Ctrl-C unwinds through it (zipfile's "Can't close the ZIP
+        # file while there is an open writing handle" during an SB3 save): still an interrupt, not bad input
+        if _raised_by_ctrl_c(e):
+            _interrupted()
+        if not isinstance(e, bad_input):
+            raise
         if os.environ.get("KIN_ENVS_TRACEBACK"):
             raise
         name = os.path.basename(sys.argv[0]) or "script"
         what = "an option is not valid JSON: " if isinstance(e, json.JSONDecodeError) else ""
         print(f"{name}: error: {what}{e}", file=sys.stderr)
         raise SystemExit(2) from None
-    except KeyboardInterrupt:
-        name = os.path.basename(sys.argv[0]) or "script"
-        print(f"{name}: interrupted (Ctrl-C); finished outputs are intact, unfinished ones were not written",
-              file=sys.stderr)
-        raise SystemExit(EXIT_INTERRUPTED) from None
+
+
+def _raised_by_ctrl_c(e: BaseException) -> bool:
+    """Whether a ``KeyboardInterrupt`` is among the exceptions ``e`` was raised while handling."""
+    seen = set()
+    while e is not None and id(e) not in seen:
+        if isinstance(e, KeyboardInterrupt):
+            return True
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    return False
+
+
+def _interrupted() -> None:
+    name = os.path.basename(sys.argv[0]) or "script"
+    print(f"{name}: interrupted (Ctrl-C); finished outputs are intact, unfinished ones were not written",
+          file=sys.stderr)
+    raise SystemExit(EXIT_INTERRUPTED) from None
 
 
 def noise_level(text: str) -> float:

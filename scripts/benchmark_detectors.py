@@ -202,7 +202,7 @@ def main(argv: list[str] | None = None) -> BenchmarkResults:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument(
         "--detectors", nargs="+", default=["geometric", "learned"],
-        help="detectors to benchmark: geometric, learned or module:Class",
+        help="detectors to benchmark: geometric, learned, beam or module:Class",
     )  # fmt: skip
     p.add_argument("--splits", nargs="+", default=list(SPLITS), choices=list(SPLITS), help="splits to run")
     size = p.add_mutually_exclusive_group()

@@ -186,7 +186,9 @@ def main(argv: list[str] | None = None) -> list[dict]:
     p.add_argument("--episodes", type=int, default=None, help="episodes per split (default: reduced size)")
     p.add_argument("--full", action="store_true", help="each split's full number of episodes")
     p.add_argument(
-        "--detector", default="learned", help="detector feeding the tracker: geometric, learned, module:Class"
+        "--detector",
+        default="learned",
+        help="detector feeding the tracker: geometric, learned, beam or module:Class",
     )
     p.add_argument(
         "--baselines", nargs="*", default=["geometric"], help="further single-scan detectors to score"

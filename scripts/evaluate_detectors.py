@@ -9,8 +9,9 @@ starts at seed 0). Every scene is scanned from the observer (robot 0) once per n
 (relative range sigma: 0, 0.5, 1, 2 %).
 
 Detectors (``--detectors``): ``geometric`` (the paper's, :class:`detectors.GeometricKinDetector`),
-``learned`` (:class:`detectors.learned.LearnedKinDetector`, the shipped checkpoint) or any
-``module:Class`` path constructed without arguments. All are scored by
+``learned`` (:class:`detectors.learned.LearnedKinDetector`, the shipped checkpoint), ``beam``
+(:class:`detectors.beam_detector.BeamKinDetector`) or any ``module:Class`` path constructed without
+arguments (:func:`kin_envs.cli.detector_from_name`). All are scored by
 :func:`kin_envs.detection.evaluation.evaluate` (Hungarian matching within ``--gate`` m) and also run on the
 paper's two scenarios at 0.5, 0.8 and 1.2 m.
 

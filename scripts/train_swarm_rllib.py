@@ -37,6 +37,7 @@ import contextlib
 import json
 import math
 import os
+import shutil
 import sys
 import time
 from pathlib import Path
@@ -195,6 +196,19 @@ def _iteration_row(it: int, result: dict, seconds: float) -> dict:
     }
 
 
+def save_checkpoint(algo, path: Path) -> Path:
+    """``algo.save_to_path`` into a hidden directory beside ``path``, then renamed to ``path``: a
+    checkpoint directory under its final name is always complete (RLlib writes its files one by one)."""
+    path = path.resolve()
+    tmp = path.with_name(f".{path.name}.tmp")
+    shutil.rmtree(tmp, ignore_errors=True)
+    algo.save_to_path(str(tmp))
+    if path.exists():  # an earlier run's checkpoint in the same --out
+        shutil.rmtree(path)
+    os.rename(tmp, path)
+    return path
+
+
 def main(argv=None) -> dict:
     args = parse_args(argv)
     import torch
@@ -230,11 +244,13 @@ def main(argv=None) -> dict:
                 ret = row["episode_return_mean"]
                 bar.set_postfix(env_steps=row["env_steps"], ret="–" if ret is None else f"{ret:.2f}")
                 if args.checkpoint_every and it % args.checkpoint_every == 0 and it < args.iterations:
-                    algo.save_to_path(str((out / f"checkpoint_{it:06d}").resolve()))
+                    save_checkpoint(algo, out / f"checkpoint_{it:06d}")
             metrics.close()
-            checkpoint = Path(algo.save_to_path(str((out / "checkpoint").resolve())))
+            checkpoint = save_checkpoint(algo, out / "checkpoint")
         finally:
             metrics.close()
+            for tmp in out.glob(".checkpoint*.tmp"):  # a save cut short by Ctrl-C
+                shutil.rmtree(tmp, ignore_errors=True)
             algo.stop()  # ends the env-runner actors before Ray shuts down
             with contextlib.suppress(OSError):  # the empty ~/ray_results/<time> every Algorithm makes
                 Path(algo.logdir).rmdir()

@@ -5,4 +5,6 @@ Everything here needs the world (``Scan`` ground truth, ``Scene`` geometry); the
 
 - :mod:`kin_envs.detection.dataset`: seeded scenes -> segmented, featurised, labelled samples.
 - :mod:`kin_envs.detection.evaluation`: kin ground truth of a scan, matching, P / R / F1 tables.
+- :mod:`kin_envs.detection.seeds`: which seeds training data may use (``check_training_seeds``: never
+  the benchmark's reserved seeds; ``within=TRAINING_SEEDS`` for the swarm-trained beam data).
 """

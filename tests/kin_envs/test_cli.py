@@ -125,3 +125,44 @@ def test_detector_from_name(monkeypatch):
     monkeypatch.setitem(sys.modules, "detectors.learned", None)  # as if the module were not there
     with pytest.raises(ValueError, match="detector 'learned' is unavailable"):
         cli.detector_from_name("learned")
+
+
+@pytest.fixture
+def no_sigint_handler(monkeypatch):
+    """run_main installs its SIGINT handler; keep pytest's own."""
+    from kin_envs.core import interrupts
+
+    monkeypatch.setattr(interrupts, "install", lambda: False)
+
+
+def _raise_during_ctrl_c(cleanup_error: Exception):
+    def main():
+        try:
+            raise KeyboardInterrupt
+        finally:
+            raise cleanup_error  # a library's clean-up failing while the Ctrl-C unwinds
+
+    return main
+
+
+@pytest.mark.parametrize("error", [ValueError("Can't close the ZIP file"), RuntimeError("torn")])
+def test_run_main_treats_an_error_raised_during_ctrl_c_as_the_interrupt(error, capsys, no_sigint_handler):
+    with pytest.raises(SystemExit) as stop:
+        cli.run_main(_raise_during_ctrl_c(error))
+    assert stop.value.code == cli.EXIT_INTERRUPTED
+    assert "interrupted (Ctrl-C)" in capsys.readouterr().err
+
+
+def test_run_main_bad_input_and_other_errors(capsys, no_sigint_handler):
+    def bad():
+        raise ValueError("--noise must be in [0, 0.2]")
+
+    with pytest.raises(SystemExit) as stop:
+        cli.run_main(bad)
+    assert stop.value.code == 2 and "--noise must be" in capsys.readouterr().err
+
+    def broken():
+        raise RuntimeError("a real bug")
+
+    with pytest.raises(RuntimeError, match="a real bug"):
+        cli.run_main(broken)

@@ -83,6 +83,21 @@ def test_one_iteration_on_a_local_ray_writes_run_json_metrics_and_a_checkpoint(m
     batch = torch.as_tensor(np.stack([obs[a] for a in env.agents]))
     out = module.forward_inference({"obs": batch})
     assert out["action_dist_inputs"].shape == (3, 4)  # mean and log-std of 2 wheel speeds per robot
+    # the checkpoint was saved beside its name and renamed: no scratch directory left
+    assert sorted(q.name for q in tmp_path.iterdir()) == ["checkpoint", "metrics.jsonl", "run.json"]
+
+
+def test_checkpoints_are_renamed_into_place(mod, tmp_path):
+    class Algo:  # stands in for an RLlib Algorithm: writes its files one by one
+        def save_to_path(self, path):
+            Path(path).mkdir()
+            (Path(path) / "a").write_text("1")
+
+    (tmp_path / "checkpoint").mkdir()  # an earlier run's
+    (tmp_path / "checkpoint" / "old").write_text("0")
+    assert mod.save_checkpoint(Algo(), tmp_path / "checkpoint") == (tmp_path / "checkpoint").resolve()
+    assert sorted(q.name for q in tmp_path.iterdir()) == ["checkpoint"]
+    assert sorted(q.name for q in (tmp_path / "checkpoint").iterdir()) == ["a"]
 
 
 @pytest.mark.distributed
