@@ -176,7 +176,7 @@ class TrackerParams:
     score_weight: float = 0.5
     score_clamp: float = 4.0
     accept_llr: float = 1.0
-    reject_llr: float = 0.0
+    reject_llr: float = -1.0
     score_gain: float = 8.0
     score_per_metre: float = 0.0
     score_n0: float = 0.0
@@ -195,7 +195,7 @@ class TrackerParams:
     motion_gain: float = 6.0
     static_time: float = 3.0
     static_penalty: float = 0.0
-    kin_threshold: float = 0.3
+    kin_threshold: float = 0.5
     min_score: float = 0.1
 
     def __post_init__(self) -> None:

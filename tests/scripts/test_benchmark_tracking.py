@@ -29,11 +29,14 @@ def test_tune_tracker_script(tmp_path):
 
     mod = load_script("tune_tracker")
     out = tmp_path / "tune"
+    # the grid holds the default (the descent's start, evaluated once) and one other value, whatever the
+    # shipped default is
+    grid = [TrackerParams().kin_threshold, TrackerParams().kin_threshold / 2]
     argv = ["--detectors", "geometric", "--swarm-episodes", "1", "--lookalike-episodes", "1", "--passes", "1",
-            "--grid", '{"kin_threshold": [0.3, 0.6]}', "--out", str(out)]  # fmt: skip
+            "--grid", json.dumps({"kin_threshold": grid}), "--out", str(out)]  # fmt: skip
     res = mod.main(argv)
     params = TrackerParams.from_dict(json.loads((out / "params.json").read_text()))
-    assert params.kin_threshold in (0.3, 0.6) and res["params"]["kin_threshold"] == params.kin_threshold
+    assert params.kin_threshold in grid and res["params"]["kin_threshold"] == params.kin_threshold
     log = json.loads((out / "log.json").read_text())
     assert len(log) == 2 and all(len(e["per_set"]) == 2 for e in log)
     assert max(e["objective"] for e in log) == pytest.approx(
