@@ -115,13 +115,26 @@ def segment_rows(d, d_th, d_max, circular, scan, first, count, prev, nxt, prev_n
 def segment_arrays(d: np.ndarray, d_th: float, d_max: float, circular: bool) -> tuple[np.ndarray, ...]:
     """Flat segments of pre-processed scans ``d`` (B, n) with :func:`segment_rows`: ``(scan, first,
     count, prev, next, prev_nearer, next_nearer)`` arrays (int64 x 5, bool x 2)."""
+    return _segment_arrays(d, d_th, d_max, circular)
+
+
+@numba.njit(cache=True, nogil=True)
+def _segment_arrays(d, d_th, d_max, circular):
+    # buffers and exact-size copies made inside one compiled call: for one scan, 14 numpy
+    # allocations and 7 slices from Python cost more than the segmentation itself
     cap = d.shape[0] * d.shape[1]
-    out = tuple(np.empty(cap, dtype=np.int64) for _ in range(5)) + (
-        np.empty(cap, dtype=np.bool_),
-        np.empty(cap, dtype=np.bool_),
-    )
-    s = segment_rows(d, d_th, d_max, circular, *out)
-    return tuple(x[:s].copy() for x in out)
+    scan = np.empty(cap, dtype=np.int64)
+    first = np.empty(cap, dtype=np.int64)
+    count = np.empty(cap, dtype=np.int64)
+    prev = np.empty(cap, dtype=np.int64)
+    nxt = np.empty(cap, dtype=np.int64)
+    p_near = np.empty(cap, dtype=np.bool_)
+    n_near = np.empty(cap, dtype=np.bool_)
+    s = segment_rows(d, d_th, d_max, circular, scan, first, count, prev, nxt, p_near, n_near)
+    return (
+        scan[:s].copy(), first[:s].copy(), count[:s].copy(), prev[:s].copy(), nxt[:s].copy(),
+        p_near[:s].copy(), n_near[:s].copy(),
+    )  # fmt: skip
 
 
 @numba.njit(cache=True, inline="always")
@@ -363,6 +376,40 @@ def mlp_forward(x, mean, std, weights, biases, sizes, out):
         for r_ in range(m):
             for j in range(n_out):
                 out[s + r_, j] = a[j, r_]
+
+
+@numba.njit(cache=True, nogil=True, fastmath=True)
+def mlp_forward_rows(x, mean, std, weights_t, biases, sizes, out):
+    """:func:`mlp_forward` for a few rows (one scan's segments): one row at a time, the units of a
+    layer in the SIMD loop, with ``weights_t[l, :sizes[l], :sizes[l + 1]]`` the ``(in, out)``
+    transposes. With few rows :func:`mlp_forward`'s row loops run one or two iterations and its
+    loop overhead dominates (~30 us for one row). Each unit's sum is accumulated over the inputs
+    in the same order, element by element, so the outputs are bitwise the same
+    (``tests/detectors/test_learned_overhead.py``)."""
+    n_rows, n_in = x.shape
+    width = max(sizes.max(), n_in)
+    a = np.zeros(width, dtype=np.float32)
+    h = np.zeros(width, dtype=np.float32)
+    n_layers = weights_t.shape[0]
+    for r_ in range(n_rows):
+        for k in range(n_in):
+            a[k] = (x[r_, k] - mean[k]) / std[k]
+        for li in range(n_layers):
+            k_in = sizes[li]
+            n_out = sizes[li + 1]
+            for j in range(n_out):
+                h[j] = biases[li, j]
+            for k in range(k_in):
+                ak = a[k]
+                for j in range(n_out):
+                    h[j] += weights_t[li, k, j] * ak
+            if li < n_layers - 1:
+                for j in range(n_out):
+                    if h[j] < 0.0:
+                        h[j] = 0.0
+            a, h = h, a
+        for j in range(sizes[n_layers]):
+            out[r_, j] = a[j]
 
 
 @numba.njit(cache=True, nogil=True)

@@ -234,6 +234,11 @@ def segment_batch(ranges, angles, config: FeatureConfig | None = None, circular:
             f"segment_batch: expected ranges (B, n) and angles (n,), got {r.shape} and {a.shape}"
         )
     circ = is_circular_sweep(a) if circular is None else bool(circular)
+    return _segment_batch(r, a, c, circ)
+
+
+def _segment_batch(r: np.ndarray, a: np.ndarray, c: FeatureConfig, circ: bool) -> SegmentBatch:
+    """:func:`segment_batch` without argument checks (``r`` float64 (B, n), ``a`` float64 (n,))."""
     d = np.empty(r.shape)
     _k.preprocess_rows(np.ascontiguousarray(r), float(c.d_max), float(c.d_th), circ, False, d)
     scan, first, count, prev, nxt, p_near, n_near = _k.segment_arrays(d, float(c.d_th), float(c.d_max), circ)

@@ -869,10 +869,20 @@ class GeometricKinDetector(KinDetector):
             raise TypeError(f"params must be a GeometricParams, got {type(self.params).__name__}")
         self.reports = bool(reports)
         self._angles_key: np.ndarray | None = None
+        self._angles_src: np.ndarray | None = None
         self._circular = True
         self._sweep = -1.0
 
-    def _check_batch(self, ranges, angles) -> tuple[np.ndarray, np.ndarray]:
+    def _check_batch(self, ranges, angles, trusted: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        if (
+            trusted
+            and angles is self._angles_src
+            and type(ranges) is np.ndarray
+            and ranges.ndim == 2
+            and ranges.shape[1] == angles.shape[0]
+            and ranges.dtype.kind == "f"
+        ):
+            return np.asarray(ranges, dtype=np.float64), angles  # the lidar's float32 → float64
         rb, a = validate_batch(ranges, angles)
         # Validating the sweep costs as much as detecting a small scan, so the
         # last beam layout seen is remembered; ranges are always checked.
@@ -883,6 +893,8 @@ class GeometricKinDetector(KinDetector):
             self._sweep = _sweep_sign(a)
             self._angles_key = a.copy()
         _check_negative_rows(rb, a)
+        if trusted:
+            self._angles_src = angles  # the caller's (never mutated) layout array, checked above
         return rb, a
 
     def detect_arrays(self, ranges, angles) -> BatchDetections:
@@ -891,7 +903,16 @@ class GeometricKinDetector(KinDetector):
         0.0, NaN and inf readings are no return; a negative range raises ``ValueError`` naming
         its scan row and beam.
         """
-        rb, a = self._check_batch(ranges, angles)
+        return self._detect_arrays(ranges, angles, False)
+
+    def _detect_arrays_trusted(self, ranges, angles) -> BatchDetections:
+        """:meth:`detect_arrays` without the per-call input checks, for callers that guarantee
+        their input (internal; the envs): see
+        :meth:`detectors.learned.LearnedKinDetector._detect_arrays_trusted`. Outputs are identical."""
+        return self._detect_arrays(ranges, angles, True)
+
+    def _detect_arrays(self, ranges, angles, trusted: bool) -> BatchDetections:
+        rb, a = self._check_batch(ranges, angles, trusted)
         rb, a = np.ascontiguousarray(rb), np.ascontiguousarray(a)  # one compiled signature
         p = self.params
         d = np.empty(rb.shape)

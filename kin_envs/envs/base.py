@@ -151,7 +151,7 @@ class SingleRobotEnv(gym.Env):
         """The learner's detections as flat ``(row, cols)`` (:func:`detect_rows`), or ``None``."""
         if self.detector is None:
             return None
-        return detect_rows(self.detector, scan.ranges[:1], scan.angles, scan.robots[:1], poses)
+        return detect_rows(self.detector, scan.ranges[:1], scan.angles, scan.robots[:1], poses, trusted=True)
 
     def _track(self, scan: Scan, dets, odom_delta: np.ndarray) -> None:
         """Advance the tracker with this frame's detections (all accepted: the detector's operating

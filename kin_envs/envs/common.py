@@ -276,7 +276,9 @@ def resolve_detector(spec: Any, where: str = "kin_envs"):
     raise ValueError(f"{where}: unknown detector {spec!r}")
 
 
-def detection_arrays(detector, ranges: np.ndarray, angles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def detection_arrays(
+    detector, ranges: np.ndarray, angles: np.ndarray, trusted: bool = False
+) -> tuple[np.ndarray, np.ndarray]:
     """Run ``detector`` over every row of ``ranges`` in one call: ``(row (D,), table (D, 8))``.
 
     The one place where the envs read a detector's output: ``table`` holds
@@ -285,9 +287,19 @@ def detection_arrays(detector, ranges: np.ndarray, angles: np.ndarray) -> tuple[
     array result: ``scan``, ``range``, ``bearing``, ``x``, ``y``, ``score``, ``first_beam``,
     ``last_beam``, ``n_beams_on``, as attributes of ``detectors.BatchDetections`` or as a dict
     with ``n_beams``) is read without building per-detection objects.
+
+    ``trusted=True`` (the envs, on their own lidar's scans: float64 ranges ``>= 0`` or inf, the
+    lidar's fixed ``angles`` array) lets a shipped detector skip its per-call input checks
+    (``_detect_arrays_trusted``); leave it False for any other input.
     """
-    if callable(getattr(detector, "detect_arrays", None)):
+    fast = getattr(detector, "_detect_arrays_trusted", None) if trusted else None
+    if fast is not None:
+        b = fast(ranges, angles)
+    elif callable(getattr(detector, "detect_arrays", None)):
         b = detector.detect_arrays(ranges, angles)
+    else:
+        b = None
+    if b is not None:
         # detectors.BatchDetections (attributes, ``n_beams_on``) or a plain dict of columns
         get = b.__getitem__ if isinstance(b, Mapping) else lambda k: getattr(b, k)
         beams = get("n_beams") if isinstance(b, Mapping) else b.n_beams_on
@@ -324,6 +336,7 @@ def detect_rows(
     observers: np.ndarray,
     poses: np.ndarray,
     robot_world: np.ndarray | None = None,
+    trusted: bool = False,
 ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Detect kin in each row of ``ranges`` and match every detection to ground truth.
 
@@ -335,6 +348,7 @@ def detect_rows(
         poses: ``(N, 3)`` all robots' poses (for the ``kin_index`` match).
         robot_world: ``(N,)`` world of each robot when ``poses`` stacks several worlds (a detection
             only matches robots of its observer's world); ``None`` = one world.
+        trusted: the scans come from the env's own lidar (see :func:`detection_arrays`).
 
     Returns:
         ``(row, cols)``: flat columns (:data:`DETECTION_FIELDS`) sorted by row, then nearest
@@ -342,7 +356,15 @@ def detect_rows(
         whose centre is within :data:`KIN_MATCH_TOLERANCE` of the detected centre (privileged
         ground truth, for evaluation and rendering), or -1 for a false detection.
     """
-    owner_a, tab = detection_arrays(detector, ranges, angles)
+    owner_a, tab = detection_arrays(detector, ranges, angles, trusted)
+    if not len(owner_a):  # nothing detected (most steps of a one-robot env): skip the matching
+        cols = {name: np.zeros(0) for name in DETECTION_FIELDS[:5]}
+        for name in DETECTION_FIELDS[5:8]:
+            cols[name] = np.zeros(0, dtype=np.int64)
+        cols["kin_index"] = np.zeros(0, dtype=np.int64)
+        return np.zeros(0, dtype=np.int64), cols
+    if len(ranges) == 1 and robot_world is None:
+        return owner_a, _match_one_row(tab, int(np.asarray(observers)[0]), poses)
     obs_idx = np.asarray(observers, dtype=np.int64)[owner_a]
     px, py, th = poses[obs_idx, 0], poses[obs_idx, 1], poses[obs_idx, 2]
     c, s = np.cos(th), np.sin(th)
@@ -359,13 +381,36 @@ def detect_rows(
     else:
         kin_index = np.zeros(0, dtype=np.int64)
     # nearest first within each row: sort by (row, range)
-    order = np.lexsort((tab[:, 0], owner_a))
+    # (one row: a stable sort by range alone is the same order, cheaper than lexsort)
+    order = np.argsort(tab[:, 0], kind="stable") if len(ranges) == 1 else np.lexsort((tab[:, 0], owner_a))
     tab, owner_a, kin_index = tab[order], owner_a[order], kin_index[order]
     cols = {name: tab[:, k].copy() for k, name in enumerate(DETECTION_FIELDS[:5])}
     for k, name in enumerate(DETECTION_FIELDS[5:8], start=5):
         cols[name] = tab[:, k].astype(np.int64)
     cols["kin_index"] = kin_index.astype(np.int64)
     return owner_a, cols
+
+
+def _match_one_row(tab: np.ndarray, obs: int, poses: np.ndarray) -> dict[str, np.ndarray]:
+    """:func:`detect_rows`'s columns for one observer (KinSeek/KinFollow every step) with fewer
+    numpy calls: the same arithmetic on the same values (the observer's cos/sin as 1-element
+    arrays, as in the general path), sorted first as matching is per detection."""
+    tab = tab[np.argsort(tab[:, 0], kind="stable")]
+    th = poses[obs : obs + 1, 2]
+    c, s = np.cos(th), np.sin(th)
+    wx = poses[obs, 0] + c * tab[:, 2] - s * tab[:, 3]
+    wy = poses[obs, 1] + s * tab[:, 2] + c * tab[:, 3]
+    d2 = (wx[:, None] - poses[None, :, 0]) ** 2 + (wy[:, None] - poses[None, :, 1]) ** 2
+    d2[:, obs] = np.inf  # never match the observer itself
+    nearest = np.argmin(d2, axis=1)
+    ok = d2[np.arange(len(nearest)), nearest] <= KIN_MATCH_TOLERANCE**2
+    cols_t = tab.T.copy()  # one block; each field a row of it (no two fields overlap)
+    ints = cols_t[5:8].astype(np.int64)
+    cols = {name: cols_t[k] for k, name in enumerate(DETECTION_FIELDS[:5])}
+    for k, name in enumerate(DETECTION_FIELDS[5:8]):
+        cols[name] = ints[k]
+    cols["kin_index"] = np.where(ok, nearest, -1).astype(np.int64)
+    return cols
 
 
 def split_rows(row: np.ndarray, cols: dict[str, np.ndarray], n_rows: int) -> list[dict[str, np.ndarray]]:

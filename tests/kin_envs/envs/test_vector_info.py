@@ -48,6 +48,38 @@ def test_pad_and_unpad_round_trip():
     assert unpad_kin_truth(ragged) is ragged["kin_truth"]
 
 
+def test_one_row_fast_paths_match_the_general_ones():
+    # pad_rows with one row (KinSeek/KinFollow) against the same row inside a two-row call
+    for n in (0, 1, 3, 5):
+        row = np.zeros(n, dtype=np.int64)
+        cols = {"range": np.arange(n, dtype=float) + 1.0, "kin_index": np.arange(n) - 1}
+        one, c1 = pad_rows(row, cols, 1, 3)
+        two, c2 = pad_rows(np.concatenate([row, [1]]), {k: np.append(v, 9) for k, v in cols.items()}, 2, 3)
+        assert c1.tolist() == [min(n, 3)] == c2[:1].tolist()
+        for k in cols:
+            assert one[k].dtype == two[k].dtype and np.array_equal(one[k][0], two[k][0]), (n, k)
+
+    # detect_rows with nothing detected: same fields, dtypes and shapes as with detections
+    from kin_envs.envs.common import detect_rows
+
+    class Fixed:
+        def __init__(self, d):
+            self.d = d
+
+        def detect_arrays(self, ranges, angles):
+            return {k: np.array(v, dtype=float) for k, v in self.d.items()}
+
+    poses = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
+    some = {"scan": [0], "range": [1.0], "bearing": [0.0], "x": [1.0], "y": [0.0], "score": [0.9],
+            "first_beam": [3], "last_beam": [5], "n_beams": [3]}  # fmt: skip
+    ranges, angles = np.ones((1, 8)), np.linspace(0, 6, 8)
+    row_s, got_s = detect_rows(Fixed(some), ranges, angles, np.array([0]), poses)
+    row_e, got_e = detect_rows(Fixed({k: [] for k in some}), ranges, angles, np.array([0]), poses)
+    assert got_s["kin_index"].tolist() == [1] and row_s.dtype == row_e.dtype and row_e.shape == (0,)
+    assert list(got_e) == list(got_s) == list(DETECTION_FIELDS)
+    assert all(got_e[k].dtype == got_s[k].dtype and got_e[k].shape == (0,) for k in got_s)
+
+
 @pytest.mark.filterwarnings("ignore:.*The environment kin_envs/.* is out of date")  # v0 on purpose
 @pytest.mark.parametrize("env_id", V1)
 def test_info_has_one_shape_and_unpads_to_v0(env_id):
@@ -197,3 +229,26 @@ def test_aggregation_v1_passes_pettingzoo_api_tests():
         aggregation_v1.parallel_env(n_robots=3).step({})
     with pytest.raises(RuntimeError, match="aggregation_v0: call reset"):
         aggregation_v0.parallel_env(n_robots=3).step({})
+
+
+def test_kinseek_one_row_detect_rows_equals_the_general_path():
+    pytest.importorskip("torch")
+    from kin_envs.envs.common import detect_rows
+
+    env = gym.make("kin_envs/KinSeek-v1", detector="learned")
+    env.reset(seed=1)
+    u, n_det = env.unwrapped, 0
+    env.action_space.seed(1)
+    for _ in range(80):
+        *_, te, tr, _ = env.step(env.action_space.sample())
+        if te or tr:
+            env.reset()
+        s, poses = u._last_scan, u.world.poses
+        args = (u.detector, s.ranges[:1], s.angles, s.robots[:1], poses)
+        r1, c1 = detect_rows(*args, trusted=True)  # the one-row fast path, trusted detector entry
+        r2, c2 = detect_rows(*args, robot_world=np.zeros(len(poses), int))  # the general path
+        assert np.array_equal(r1, r2) and list(c1) == list(c2)
+        assert all(c1[k].dtype == c2[k].dtype and np.array_equal(c1[k], c2[k]) for k in c1)
+        n_det += len(r1)
+    assert n_det > 0
+    env.close()
