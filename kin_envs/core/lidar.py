@@ -331,6 +331,25 @@ def beam_tables(n_beams: int) -> np.ndarray:
 
 
 @numba.njit(cache=True, nogil=True)
+def _write_row(n, best_d, best_p, base, prim_kind, prim_index, range_min, range_max, out_ranges, out_true,
+               out_kind, out_index):  # fmt: skip
+    """Row ``n`` of the outputs from one origin's nearest hits (``best_p`` = -1: no hit). The owner tables
+    are read from ``base`` (a world's offset in a batch of worlds). Readings below ``range_min`` and misses
+    read ``range_max``, as the real lidar reports them; ``out_true`` keeps the true distance (inf: miss)."""
+    for i in range(best_d.shape[0]):
+        p = best_p[i] + 1
+        d = best_d[i]
+        out_kind[n, i] = prim_kind[base + p]
+        out_index[n, i] = prim_index[base + p]
+        if p == 0:
+            out_true[n, i] = np.inf
+            out_ranges[n, i] = range_max
+        else:
+            out_true[n, i] = d
+            out_ranges[n, i] = d if d >= range_min else range_max
+
+
+@numba.njit(cache=True, nogil=True)
 def _scan_kernel(
     ox,
     oy,
@@ -364,17 +383,8 @@ def _scan_kernel(
     for n in range(ox.shape[0]):
         _cast_one(ox[n], oy[n], heading[n], circle_skip[n], range_max, circles, segments, cos_tab, sin_tab,
                   best_d, best_p, ids)  # fmt: skip
-        for i in range(n_beams):
-            p = best_p[i] + 1
-            d = best_d[i]
-            out_kind[n, i] = prim_kind[p]
-            out_index[n, i] = prim_index[p]
-            if p == 0:
-                out_true[n, i] = np.inf
-                out_ranges[n, i] = range_max
-            else:
-                out_true[n, i] = d
-                out_ranges[n, i] = d if d >= range_min else range_max
+        _write_row(n, best_d, best_p, 0, prim_kind, prim_index, range_min, range_max, out_ranges, out_true,
+                   out_kind, out_index)
 
 
 # --- broad phase: a uniform grid --------------------------------------------------------------------
@@ -709,17 +719,8 @@ def _scan_kernel_grid(
                 best_d, best_p, stamp, n + 1, cand_c, cand_s, gx, gy, cs, nx, ny, c_start, c_items,
                 s_start, s_items, dc_start, dc_items, ds_start, ds_items, c_over, s_over,
             )  # fmt: skip
-        for i in range(n_beams):
-            p = best_p[i] + 1
-            d = best_d[i]
-            out_kind[n, i] = prim_kind[p]
-            out_index[n, i] = prim_index[p]
-            if p == 0:
-                out_true[n, i] = np.inf
-                out_ranges[n, i] = range_max
-            else:
-                out_true[n, i] = d
-                out_ranges[n, i] = d if d >= range_min else range_max
+        _write_row(n, best_d, best_p, 0, prim_kind, prim_index, range_min, range_max, out_ranges, out_true,
+                   out_kind, out_index)
 
 
 def cast_scan(

@@ -20,7 +20,7 @@ import pymunk.batch as pmbatch
 from pymunk._chipmunk import lib as _cp
 
 from kin_envs.core.interrupts import atomic
-from kin_envs.core.lidar import _cast_one, beam_tables, cast_scan
+from kin_envs.core.lidar import _cast_one, _write_row, beam_tables, cast_scan
 from kin_envs.core.odometry import Odometry
 from kin_envs.core.world import _COMMAND_CAP, Contact, Scan, World, _buffers
 
@@ -422,15 +422,5 @@ def _multi_kernel(ox, oy, heading, tabs, range_min, range_max, circles, c_lo, c_
     for n in range(ox.shape[0]):
         _cast_one(ox[n], oy[n], heading[n], skip[n], range_max, circles[c_lo[n] : c_hi[n]],
                   segments[s_lo[n] : s_hi[n]], cos_tab, sin_tab, best_d, best_p, ids)
-        base = p_lo[n]
-        for i in range(n_beams):
-            p = best_p[i] + 1
-            d = best_d[i]
-            out_kind[n, i] = prim_kind[base + p]
-            out_index[n, i] = prim_index[base + p]
-            if p == 0:
-                out_true[n, i] = np.inf
-                out_ranges[n, i] = range_max
-            else:
-                out_true[n, i] = d
-                out_ranges[n, i] = d if d >= range_min else range_max
+        _write_row(n, best_d, best_p, p_lo[n], prim_kind, prim_index, range_min, range_max, out_ranges,
+                   out_true, out_kind, out_index)
