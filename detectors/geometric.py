@@ -43,6 +43,7 @@ from .base import (
     LazyBatchReports,
     Segment,
     SegmentReport,
+    trusted_ranges,
     validate_batch,
     validate_scan,
     wrap_angle,
@@ -874,15 +875,8 @@ class GeometricKinDetector(KinDetector):
         self._sweep = -1.0
 
     def _check_batch(self, ranges, angles, trusted: bool = False) -> tuple[np.ndarray, np.ndarray]:
-        if (
-            trusted
-            and angles is self._angles_src
-            and type(ranges) is np.ndarray
-            and ranges.ndim == 2
-            and ranges.shape[1] == angles.shape[0]
-            and ranges.dtype.kind == "f"
-        ):
-            return np.asarray(ranges, dtype=np.float64), angles  # the lidar's float32 → float64
+        if trusted and (rb := trusted_ranges(ranges, angles, self._angles_src)) is not None:
+            return rb, angles
         rb, a = validate_batch(ranges, angles)
         # Validating the sweep costs as much as detecting a small scan, so the
         # last beam layout seen is remembered; ranges are always checked.

@@ -45,6 +45,7 @@ from .base import (
     KinDetector,
     LazyBatchReports,
     SegmentReport,
+    trusted_ranges,
     validate_batch,
     validate_scan,
     wrap_angle,
@@ -509,15 +510,8 @@ class LearnedKinDetector(KinDetector):
 
     # -- input checks ---------------------------------------------------------------------------
     def _check(self, ranges, angles, trusted: bool = False) -> tuple[np.ndarray, np.ndarray]:
-        if (
-            trusted
-            and angles is self._angles_src
-            and type(ranges) is np.ndarray
-            and ranges.ndim == 2
-            and ranges.shape[1] == angles.shape[0]
-            and ranges.dtype.kind == "f"
-        ):
-            return np.asarray(ranges, dtype=np.float64), angles  # the lidar's float32 → float64
+        if trusted and (rb := trusted_ranges(ranges, angles, self._angles_src)) is not None:
+            return rb, angles
         rb, a = validate_batch(ranges, angles)
         key = self._angles_key
         if key is None or key.shape != a.shape or not np.array_equal(key, a):
