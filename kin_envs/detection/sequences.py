@@ -323,15 +323,7 @@ def run_sequences(
 
     Returns a plain dict (JSON-serialisable) of tables; ``"frames"`` holds the recording if asked.
     """
-    spec = SEQUENCE_SPLITS[split] if isinstance(split, str) and split in SEQUENCE_SPLITS else split
-    if not isinstance(spec, SequenceSpec):
-        raise ValueError(f"unknown sequence split {split!r}; expected one of {sorted(SEQUENCE_SPLITS)}")
-    n = spec.reduced_episodes if n_episodes is None else n_episodes
-    if isinstance(n, bool) or not isinstance(n, int) or n < 1:
-        raise ValueError(f"n_episodes must be an integer >= 1, got {n_episodes!r}")
-    if not (isinstance(noise, int | float) and 0 <= noise <= 0.05):
-        raise ValueError(f"noise must be a relative range noise in [0, 0.05], got {noise!r}")
-    recorded = record_sequences(detector, spec, n, noise, baselines, progress)
+    recorded = record_sequences(detector, split, n_episodes, noise, baselines, progress)  # checks arguments
     return evaluate_sequences(recorded, tracker_params, record=record, diagnose=diagnose)
 
 
