@@ -765,34 +765,32 @@ def _scan_columns(scan_noise, noise_n, out):
         out[b, 1] = math.log1p(float(noise_n[b]))
 
 
-@numba.njit(cache=True, nogil=True, fastmath=True, inline="always")
-def _cascade_score(a, w1t, b1, w2, b2, h):
-    # one hidden ReLU layer (standardisation folded in), float64, ~200 multiply-adds against the
-    # full network's ~7,700; the units in the inner (SIMD) loop: a unit-by-unit dot product is a
-    # 12-long dependency chain
-    for j in range(h.shape[0]):
-        h[j] = b1[j]
-    for k in range(a.shape[0]):
-        ak = a[k]
+@numba.njit(cache=True, nogil=True, fastmath=True)
+def _cascade_scores(x, w1t, b1, w2, b2, out):
+    """Stage-1 score of every row of ``x``: one hidden ReLU layer (the standardisation folded into
+    ``w1t``, ``(in, out)``), float64, ~200 multiply-adds a row against the full network's ~7,700;
+    the units in the inner (SIMD) loop (a unit-by-unit dot product is a dependency chain)."""
+    h = np.empty(w1t.shape[1])
+    for r in range(x.shape[0]):
         for j in range(h.shape[0]):
-            h[j] += w1t[k, j] * ak
-    s = b2
-    for j in range(h.shape[0]):
-        s += max(h[j], 0.0) * w2[j]
-    return s
+            h[j] = b1[j]
+        for k in range(x.shape[1]):
+            xk = x[r, k]
+            for j in range(h.shape[0]):
+                h[j] += w1t[k, j] * xk
+        s = b2
+        for j in range(h.shape[0]):
+            s += max(h[j], 0.0) * w2[j]
+        out[r] = s
 
 
 @numba.njit(cache=True, nogil=True)
 def _cascade_kernel(
     d_flat, cos_a, sin_a, ang, scan, first, count, prev_beam, next_beam, prev_nearer, next_nearer,
-    n_beams, circular, sweep, r, d_max, occlusion_unbounded, scan_cols, which,
-    w1t, b1, w2, b2, x, score,
+    n_beams, circular, sweep, r, d_max, occlusion_unbounded, scan_cols, which, x,
 ):  # fmt: skip
     """:data:`CASCADE_FEATURES` of the segments ``which`` into ``x`` (rows as float32 values in
-    float64) and, with ``w1t`` non-empty, the stage-1 score of each into ``score``. Expressions as
-    in :func:`_features_kernel` (the context with ``n_context = 2``)."""
-    a = np.empty(x.shape[1])
-    h = np.empty(w1t.shape[1])
+    float64). Expressions as in :func:`_features_kernel` (the context with ``n_context = 2``)."""
     for o in range(which.shape[0]):
         i = which[o]
         n = count[i]
@@ -854,10 +852,6 @@ def _cascade_kernel(
         x[o, 5] = 1.0 if next_nearer[i] else 0.0
         x[o, 6] = np.float32(min(chord, _LEN_CLIP))
         x[o, 7] = np.float32(scan_cols[scan[i], 0])
-        if h.shape[0] > 0:
-            for k in range(a.shape[0]):
-                a[k] = x[o, k]
-            score[o] = _cascade_score(a, w1t, b1, w2, b2, h)
 
 
 def cascade_features(
@@ -876,25 +870,23 @@ def cascade_features(
 
 
 def _cascade(batch: SegmentBatch, c: FeatureConfig, which: np.ndarray, trig, noise, model):
-    """``(x, score)`` of :func:`_cascade_kernel`; ``model`` ``(w1t, b1, w2, b2)`` float64 (``w1t``
-    the hidden layer's ``(in, out)`` matrix, the input standardisation folded in) or None (then
-    ``score`` is empty)."""
+    """``(x, score)``: :func:`_cascade_kernel` then :func:`_cascade_scores`; ``model`` ``(w1t, b1,
+    w2, b2)`` float64 (``w1t`` the hidden layer's ``(in, out)`` matrix, the input standardisation
+    folded in) or None (then ``score`` is empty)."""
     if noise is None:
         noise = scan_noise(batch, c)
     scan_cols = np.empty((batch.ranges.shape[0], 2))
     _scan_columns(noise[0], noise[1], scan_cols)
     x = np.empty((which.shape[0], len(CASCADE_FEATURES)))
-    if model is None:
-        f = len(CASCADE_FEATURES)
-        model = (np.zeros((f, 0)), np.zeros(0), np.zeros(0), 0.0)
-        score = np.empty(0)
-    else:
-        score = np.empty(which.shape[0])
     ang, cos_a, sin_a, sweep = trig
     _cascade_kernel(
         np.ascontiguousarray(batch.ranges, dtype=np.float64).reshape(-1), cos_a, sin_a, ang,
         batch.scan, batch.first, batch.count, batch.prev_beam, batch.next_beam, batch.prev_nearer,
         batch.next_nearer, ang.shape[0], batch.circular, sweep, float(c.r), float(c.d_max),
-        c.occlusion_unbounded, scan_cols, which, *model, x, score,
+        c.occlusion_unbounded, scan_cols, which, x,
     )  # fmt: skip
+    if model is None:
+        return x, np.empty(0)
+    score = np.empty(which.shape[0])
+    _cascade_scores(x, *model, score)
     return x, score

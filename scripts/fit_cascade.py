@@ -144,6 +144,7 @@ def fit_stage1(data: dict, hidden: int, steps: int, pos_weight: float, seed: int
     mean, std = x.mean(0), x.std(0)
     std = np.where(std > 1e-9, std, 1.0)
     torch.manual_seed(seed)
+    torch.set_num_threads(1)  # a 12-16-1 network: more threads only contend on a shared machine
     xt = torch.tensor((x - mean) / std, dtype=torch.float32)
     y = torch.tensor(data["acc"], dtype=torch.float32)
     w = torch.where(y > 0, pos_weight, 1.0)
