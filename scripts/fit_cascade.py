@@ -54,7 +54,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--val-scenes", type=int, default=400, help="validation scenes (other seeds)")
     p.add_argument("--val-first-seed", type=int, default=200_000, help="first validation scene seed")
     p.add_argument("--hidden", type=int, default=16, help="hidden units of the stage-1 network")
-    p.add_argument("--steps", type=int, default=2000, help="full-batch Adam steps of the stage-1 fit")
+    p.add_argument("--epochs", type=int, default=40, help="Adam epochs of the stage-1 fit")
+    p.add_argument("--batch-size", type=int, default=4096, help="segments per Adam step")
     p.add_argument("--pos-weight", type=float, default=20.0, help="loss weight of accepted segments")
     p.add_argument(
         "--fit-retention", type=float, default=0.9995,
@@ -78,8 +79,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     add_logging_args(p)
     args = p.parse_args(argv)
-    if args.scenes < 1 or args.val_scenes < 1 or args.hidden < 1 or args.steps < 1:
-        p.error("--scenes, --val-scenes, --hidden and --steps must be >= 1")
+    if min(args.scenes, args.val_scenes, args.hidden, args.epochs, args.batch_size) < 1:
+        p.error("--scenes, --val-scenes, --hidden, --epochs and --batch-size must be >= 1")
     if not (0.0 < args.retention <= 1.0 and 0.0 < args.fit_retention <= 1.0) or args.pos_weight <= 0:
         p.error("--retention and --fit-retention must be in (0, 1], --pos-weight > 0")
     fit = range(args.first_seed, args.first_seed + args.scenes)
@@ -135,9 +136,9 @@ def collect(seeds, det, min_p: float, progress: bool) -> dict[str, np.ndarray]:
     return {"x": np.concatenate(xs), "acc": np.concatenate(accs), "kin": np.concatenate(kins)}
 
 
-def fit_stage1(data: dict, hidden: int, steps: int, pos_weight: float, seed: int) -> tuple:
+def fit_stage1(data: dict, hidden: int, epochs: int, batch_size: int, pos_weight: float, seed: int) -> tuple:
     """A ``len(CASCADE_FEATURES) -> hidden -> 1`` network (float64 export ``(mean, std, w1, b1, w2,
-    b2)``) trained by full-batch Adam on weighted BCE to score accepted segments high."""
+    b2)``) trained by Adam (cosine learning rate) on weighted BCE to score accepted segments high."""
     import torch
 
     x = data["x"]
@@ -150,12 +151,17 @@ def fit_stage1(data: dict, hidden: int, steps: int, pos_weight: float, seed: int
     w = torch.where(y > 0, pos_weight, 1.0)
     nn = torch.nn
     net = nn.Sequential(nn.Linear(x.shape[1], hidden), nn.ReLU(), nn.Linear(hidden, 1))
-    opt = torch.optim.Adam(net.parameters(), lr=1e-2)
-    for _ in range(steps):
-        opt.zero_grad()
-        loss = (nn.functional.binary_cross_entropy_with_logits(net(xt)[:, 0], y, reduction="none") * w).mean()
-        loss.backward()
-        opt.step()
+    opt = torch.optim.Adam(net.parameters(), lr=3e-3)
+    gen = torch.Generator().manual_seed(seed)
+    n_steps = epochs * -(-xt.shape[0] // batch_size)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, n_steps)
+    for _ in range(epochs):
+        for i in torch.randperm(xt.shape[0], generator=gen).split(batch_size):
+            opt.zero_grad()
+            bce = nn.functional.binary_cross_entropy_with_logits(net(xt[i])[:, 0], y[i], reduction="none")
+            (bce * w[i]).mean().backward()
+            opt.step()
+            sched.step()
     f64 = lambda t: t.detach().numpy().astype(np.float64)  # noqa: E731
     b2 = float(net[2].bias.detach()[0])
     return mean, std, f64(net[0].weight), f64(net[0].bias), f64(net[2].weight)[0], b2
@@ -220,7 +226,7 @@ def main(argv: list[str] | None = None) -> dict:
     fit_seeds = range(args.first_seed, args.first_seed + args.scenes)
     val_seeds = range(args.val_first_seed, args.val_first_seed + args.val_scenes)
     data = collect(fit_seeds, det, min_p, progress)
-    model = fit_stage1(data, args.hidden, args.steps, args.pos_weight, args.seed)
+    model = fit_stage1(data, args.hidden, args.epochs, args.batch_size, args.pos_weight, args.seed)
     s = stage1_scores(model, data["x"])
     ref = s[data["acc"] & data["kin"]]
     if ref.size == 0:
@@ -252,8 +258,8 @@ def main(argv: list[str] | None = None) -> dict:
             "fit_seeds": [fit_seeds.start, fit_seeds.stop - 1],
             "val_seeds": [val_seeds.start, val_seeds.stop - 1],
             "fit": fit_stats,
-            "config": {k: v for k, v in vars(args).items() if k in ("hidden", "steps", "pos_weight",
-                                                                     "fit_retention", "seed")},
+            "config": {k: v for k, v in vars(args).items() if k in ("hidden", "epochs", "batch_size",
+                                                                     "pos_weight", "fit_retention", "seed")},
         },
     }  # fmt: skip
     card_path = out / "learned.cascade.json"

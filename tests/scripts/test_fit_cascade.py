@@ -14,7 +14,8 @@ def test_tiny_run_writes_a_cascade_the_detector_loads(tmp_path):
 
     script = load_script("fit_cascade")
     res = script.main(
-        ["--scenes", "4", "--val-scenes", "3", "--steps", "30", "--out", str(tmp_path), "--no-progress", "-q"]
+        ["--scenes", "4", "--val-scenes", "3", "--epochs", "3", "--batch-size", "256", "--out", str(tmp_path),
+         "--no-progress", "-q"]
     )
     v = res["validation"]["totals"]
     assert v["scenes"] == 3 and v["segments"] > 0 and 0 < v["cascaded"] <= v["segments"] - v["gated"]
@@ -31,6 +32,8 @@ def test_tiny_run_writes_a_cascade_the_detector_loads(tmp_path):
 def test_seed_misuse_is_refused(tmp_path):
     script = load_script("fit_cascade")
     with pytest.raises(SystemExit):
-        script.main(["--scenes", "5", "--val-scenes", "5", "--val-first-seed", "200402", "--out", str(tmp_path)])
+        script.main(
+            ["--scenes", "5", "--val-scenes", "5", "--val-first-seed", "200402", "--out", str(tmp_path)]
+        )
     with pytest.raises(ValueError, match="reserved"):
         script.main(["--scenes", "2", "--first-seed", "2000000000", "--out", str(tmp_path)])
