@@ -114,8 +114,7 @@ def test_cascade_switches_and_file_checks(tmp_path):
         LearnedKinDetector(ck, cascade=True)
     # fitted to other weights: refused by name, or off with a warning by default
     card = json.loads(SHIPPED_CASCADE.read_text())
-    card["checkpoint_weights_sha256"] = "0" * 64
-    cascade_path(ck).write_text(json.dumps(card))
+    cascade_path(ck).write_text(json.dumps({**card, "checkpoint_weights_sha256": "0" * 64}))
     with pytest.raises(ValueError, match="other checkpoint weights"):
         LearnedKinDetector(ck, cascade=True)
     with pytest.warns(UserWarning, match="cascade off"):
