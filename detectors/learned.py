@@ -38,6 +38,7 @@ import torch
 from torch import nn
 
 from . import _kernels as _k
+from . import _learned_driver as _drv
 from .base import (
     STAGES,
     BatchDetections,
@@ -483,15 +484,22 @@ class LearnedKinDetector(KinDetector):
         self.reports = bool(reports)
         self.inference = inference
         self.torch_threads = torch_threads
+        # the compiled network's weights also serve the fused driver's signature with torch inference
+        self._numba_weights = _export_weights(self.model)
+        mean, std, w, b, sizes = self._numba_weights
+        self._numba_weights_t = (mean, std, np.ascontiguousarray(w.transpose(0, 2, 1)), b, sizes)
+        #: the fused driver runs the network itself on fewer rows than this (see ``_run_driver``)
+        self._kernel_max = {
+            "numba": 2**62,
+            "auto": _BLAS_MIN_ROWS if _blas_controller() is not None else 2**62,
+        }.get(inference, 0)
+        self._drv_args = None
         if inference != "torch":
             if self.device.type != "cpu":
                 raise ValueError(
                     f"LearnedKinDetector: inference={inference!r} runs on the CPU, got device {device!r}; "
                     "use inference='torch'"
                 )
-            self._numba_weights = _export_weights(self.model)
-            mean, std, w, b, sizes = self._numba_weights
-            self._numba_weights_t = (mean, std, np.ascontiguousarray(w.transpose(0, 2, 1)), b, sizes)
             self._blas_weights = _export_blas_weights(self.model)
             if inference == "blas" and _blas_controller() is None:
                 raise ImportError(
@@ -689,7 +697,96 @@ class LearnedKinDetector(KinDetector):
         are identical."""
         return self._detect_arrays(ranges, angles, True)
 
+    def _detect_table_trusted(self, ranges, angles) -> tuple[np.ndarray, np.ndarray]:
+        """The detections of :meth:`_detect_arrays_trusted` (same input contract) as ``(scan row
+        (D,) int64, table (D, 8) float64)``, the table's columns
+        :data:`detectors._learned_driver.TABLE_FIELDS` (range, bearing, x, y, score, first_beam,
+        last_beam, n_beams): what ``kin_envs.envs.common.detection_arrays`` reads, straight from the
+        compiled driver without building a :class:`~detectors.base.BatchDetections`. Fresh arrays
+        on every call."""
+        rb, _ = self._check(ranges, angles, True)
+        fr, bk = self._run_driver(rb)
+        return fr[1][bk[3]], bk[4]
+
     def _detect_arrays(self, ranges, angles, trusted: bool) -> BatchDetections:
+        rb, _ = self._check(ranges, angles, trusted)
+        fr, (p, thr, stage, det, table) = self._run_driver(rb)
+        n_seg = fr[1].shape[0]
+        ft = table.T.copy()  # one block: each float column a contiguous row of it
+        return BatchDetections(
+            n_scans=rb.shape[0],
+            n_beams=rb.shape[1],
+            scan=fr[1][det],
+            range=ft[0],
+            bearing=ft[1],
+            x=ft[2],
+            y=ft[3],
+            score=ft[4],
+            first_beam=fr[2][det],
+            last_beam=ft[6].astype(np.int64),
+            n_beams_on=fr[3][det],
+            segment=det,
+            seg_scan=fr[1],
+            seg_first=fr[2],
+            seg_count=fr[3],
+            seg_prev=fr[4],
+            seg_next=fr[5],
+            seg_prev_nearer=fr[6],
+            seg_next_nearer=fr[7],
+            seg_stage=stage,
+            seg_values=(
+                {"p_kin": p, "threshold": thr}
+                if not self.pre_gate or n_seg == 0
+                else {"p_kin": p, "threshold": thr, "max_beams": fr[8]}
+            ),
+        )
+
+    def _driver_args(self) -> tuple:
+        """The fused driver's constant arguments for the current beam layout (rebuilt by ``_check``
+        when the layout changes)."""
+        c = self.feature_config
+        ang, cos_a, sin_a, sweep = self._trig
+        fixed = -1.0 if self.threshold is None else self.threshold
+        front = (
+            float(c.d_th), float(c.d_max), self._circular, self.pre_gate, self._step, float(c.r),
+            PRE_GATE_SLACK, float(PRE_GATE_MARGIN), ang, cos_a, sin_a, float(sweep), c.occlusion_unbounded,
+            int(c.n_points), int(c.n_context), int(c.gn_iters), len(feature_names(c)),
+        )  # fmt: skip
+        back = (
+            ang, self.pre_gate, float(fixed), self._noise_edges, self._noise_thresholds,
+            self.positioning == "regression", self._t_mean, self._t_std, float(c.r), 200, _LM_XTOL,
+            _LM_LAMBDA0, _LM_LAMBDA_MAX,
+        )  # fmt: skip
+        return front, back
+
+    def _run_driver(self, rb: np.ndarray):
+        """The fused driver (:mod:`detectors._learned_driver`) on checked ranges ``rb``: ``(front
+        outputs, back outputs)``. The network runs inside the compiled call unless this detector's
+        inference puts it in BLAS (``"auto"`` from ``_BLAS_MIN_ROWS`` rows) or torch."""
+        cached = self._drv_args
+        if (
+            cached is None
+            or cached[0][0] is not self._trig
+            or cached[0][1:] != (self.threshold, self.pre_gate, self.positioning)
+        ):
+            key = (self._trig, self.threshold, self.pre_gate, self.positioning)
+            self._drv_args = cached = (key, *self._driver_args())
+        _, front_args, back_args = cached
+        if rb.dtype != np.float64 or not rb.flags.c_contiguous:
+            rb = np.ascontiguousarray(rb, dtype=np.float64)
+        mean, std, w, b, sizes = self._numba_weights
+        done, fr, _, bk = _drv.fused(
+            rb, front_args, self._kernel_max, _ROWS_KERNEL_MAX, mean, std, w, self._numba_weights_t[2], b,
+            sizes, back_args,
+        )  # fmt: skip
+        if not done:  # BLAS / torch on many rows: the network in Python between the two kernels
+            out = self._forward(fr[10])
+            bk = _drv.back_rest(out, fr, back_args)
+        return fr, bk
+
+    def _detect_arrays_staged(self, ranges, angles, trusted: bool = False) -> BatchDetections:
+        """:meth:`detect_arrays` through the staged Python pipeline (:meth:`_predict`): the readable
+        reference of the fused driver (tests compare the two bit for bit)."""
         batch, _, p, centres, thr, max_beams = self._predict(
             ranges, angles, all_centres=False, trusted=trusted
         )
