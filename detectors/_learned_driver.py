@@ -217,3 +217,15 @@ def fused(r, front_args, kernel_max, rows_max, mean, std, weights, weights_t, bi
 def back_rest(out, fr, back_args):
     """:func:`back` on the outputs ``fr`` of :func:`front` (``back_args``: its arguments from ``ang``)."""
     return back(out, fr[0], fr[1], fr[2], fr[3], fr[9], fr[11], fr[12], *back_args)
+
+
+@numba.njit(cache=True, nogil=True)
+def fused_table(r, front_args, kernel_max, rows_max, mean, std, weights, weights_t, biases, sizes, back_args):
+    """:func:`fused` returning only ``(done, scan row (D,), table (D, 8))`` of the detections: what the
+    envs read (fewer arrays cross back into Python). Call it when ``kernel_max > r.size`` (there are
+    at most ``r.size`` segments, so ``done`` is then True)."""
+    done, fr, _, bk = fused(r, front_args, kernel_max, rows_max, mean, std, weights, weights_t, biases,
+                            sizes, back_args)  # fmt: skip
+    if not done:
+        return False, np.empty(0, dtype=np.int64), np.empty((0, 8))
+    return True, fr[1][bk[3]], bk[4]

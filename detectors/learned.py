@@ -17,6 +17,10 @@ Pipeline (same interface and output types as :class:`detectors.GeometricKinDetec
    (``positioning="fit"``: the Levenberg-Marquardt fit of :func:`detectors.geometric.fit_circle` from
    the eq. 7 start). The checkpoint names the better one on held-out data.
 
+``detect_arrays`` runs stages 1-5 in one compiled dispatch (:mod:`detectors._learned_driver`: one call
+per scan or batch, the network inside it unless it goes to BLAS or torch); ``_predict`` keeps the
+stages as separate calls, the readable reference the driver is tested against bit for bit.
+
 This is the only module of ``detectors`` that imports torch.
 """
 
@@ -92,8 +96,9 @@ _BLAS_CHUNK = 1024  # rows per BLAS chain: the activations stay in cache
 #: thread-scoping cost per call: a single scan has ~10-150 segments), more through BLAS.
 _BLAS_MIN_ROWS = 256
 #: below this many segments per call ``"numba"`` inference runs :func:`detectors._kernels.mlp_forward_rows`
-#: (bitwise the same outputs; 1 row: ~2 us vs ~31 us, break-even ~40 rows, measured under load)
-_ROWS_KERNEL_MAX = 32
+#: (bitwise the same outputs; 1 row: ~2 us vs ~31 us; 32 rows 0.83x, 40 rows 0.99x the block kernel's
+#: time, measured under load in one run)
+_ROWS_KERNEL_MAX = 40
 #: Pre-gate bounds (``LearnedKinDetector(pre_gate=True)``): a segment is dropped before the network
 #: when it has more beams than a housing can return, computed with the housing's centre at
 #: ``PRE_GATE_SLACK * min(d_i)`` (readings up to 25 % too long: 12 sigma of 2 % noise) plus
@@ -705,6 +710,15 @@ class LearnedKinDetector(KinDetector):
         compiled driver without building a :class:`~detectors.base.BatchDetections`. Fresh arrays
         on every call."""
         rb, _ = self._check(ranges, angles, True)
+        if self._kernel_max > rb.size and rb.dtype == np.float64 and rb.flags.c_contiguous:
+            # the whole call compiled (a scan has fewer segments than beams): only the table returns
+            front_args, back_args = self._driver_consts()
+            mean, std, w, b, sizes = self._numba_weights
+            _, row, table = _drv.fused_table(
+                rb, front_args, self._kernel_max, _ROWS_KERNEL_MAX, mean, std, w, self._numba_weights_t[2], b,
+                sizes, back_args,
+            )  # fmt: skip
+            return row, table
         fr, bk = self._run_driver(rb)
         return fr[1][bk[3]], bk[4]
 
@@ -759,10 +773,8 @@ class LearnedKinDetector(KinDetector):
         )  # fmt: skip
         return front, back
 
-    def _run_driver(self, rb: np.ndarray):
-        """The fused driver (:mod:`detectors._learned_driver`) on checked ranges ``rb``: ``(front
-        outputs, back outputs)``. The network runs inside the compiled call unless this detector's
-        inference puts it in BLAS (``"auto"`` from ``_BLAS_MIN_ROWS`` rows) or torch."""
+    def _driver_consts(self) -> tuple[tuple, tuple]:
+        """:meth:`_driver_args`, cached per beam layout and settings."""
         cached = self._drv_args
         if (
             cached is None
@@ -771,7 +783,13 @@ class LearnedKinDetector(KinDetector):
         ):
             key = (self._trig, self.threshold, self.pre_gate, self.positioning)
             self._drv_args = cached = (key, *self._driver_args())
-        _, front_args, back_args = cached
+        return cached[1], cached[2]
+
+    def _run_driver(self, rb: np.ndarray):
+        """The fused driver (:mod:`detectors._learned_driver`) on checked ranges ``rb``: ``(front
+        outputs, back outputs)``. The network runs inside the compiled call unless this detector's
+        inference puts it in BLAS (``"auto"`` from ``_BLAS_MIN_ROWS`` rows) or torch."""
+        front_args, back_args = self._driver_consts()
         if rb.dtype != np.float64 or not rb.flags.c_contiguous:
             rb = np.ascontiguousarray(rb, dtype=np.float64)
         mean, std, w, b, sizes = self._numba_weights
