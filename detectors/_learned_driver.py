@@ -222,8 +222,8 @@ def back_rest(out, fr, back_args):
 @numba.njit(cache=True, nogil=True)
 def fused_table(r, front_args, kernel_max, rows_max, mean, std, weights, weights_t, biases, sizes, back_args):
     """:func:`fused` returning only ``(done, scan row (D,), table (D, 8))`` of the detections: what the
-    envs read (fewer arrays cross back into Python). Call it when ``kernel_max > r.size`` (there are
-    at most ``r.size`` segments, so ``done`` is then True)."""
+    envs read (fewer arrays cross back into Python). ``done`` False (as :func:`fused`): nothing was
+    computed past :func:`front`, call :func:`fused` instead."""
     done, fr, _, bk = fused(r, front_args, kernel_max, rows_max, mean, std, weights, weights_t, biases,
                             sizes, back_args)  # fmt: skip
     if not done:

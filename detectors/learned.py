@@ -710,15 +710,16 @@ class LearnedKinDetector(KinDetector):
         compiled driver without building a :class:`~detectors.base.BatchDetections`. Fresh arrays
         on every call."""
         rb, _ = self._check(ranges, angles, True)
-        if self._kernel_max > rb.size and rb.dtype == np.float64 and rb.flags.c_contiguous:
-            # the whole call compiled (a scan has fewer segments than beams): only the table returns
+        if rb.shape[0] == 1 and self._kernel_max > 0 and rb.dtype == np.float64 and rb.flags.c_contiguous:
+            # one scan (a single-agent env's step): the whole call compiled, only the table returns
             front_args, back_args = self._driver_consts()
             mean, std, w, b, sizes = self._numba_weights
-            _, row, table = _drv.fused_table(
+            done, row, table = _drv.fused_table(
                 rb, front_args, self._kernel_max, _ROWS_KERNEL_MAX, mean, std, w, self._numba_weights_t[2], b,
                 sizes, back_args,
             )  # fmt: skip
-            return row, table
+            if done:  # else >= _BLAS_MIN_ROWS segments went to the network: a pathological scan
+                return row, table
         fr, bk = self._run_driver(rb)
         return fr[1][bk[3]], bk[4]
 

@@ -134,3 +134,26 @@ def test_table_fields_are_the_env_detection_fields():
     from kin_envs.envs.info import DETECTION_FIELDS
 
     assert _drv.TABLE_FIELDS == DETECTION_FIELDS[:8]
+
+
+def _staged_table(det, r, angles):
+    ref = det._detect_arrays_staged(np.asarray(r, dtype=np.float64), angles)
+    cols = [ref.range, ref.bearing, ref.x, ref.y, ref.score, ref.first_beam, ref.last_beam, ref.n_beams_on]
+    return ref.scan, np.stack(cols, axis=1).astype(np.float64).reshape(-1, 8)
+
+
+@pytest.mark.parametrize("inference", ["auto", "numba", "blas"])
+def test_table_entry_equals_the_staged_detections(inference):
+    det = LearnedKinDetector(reports=False, inference=inference)
+    s = SCANS[2]
+    n = s.angles.shape[0]
+    # every beam its own segment (alternating ranges): 360 segments reach the network, more than
+    # _BLAS_MIN_ROWS, so the one-scan compiled call hands over to the BLAS path
+    comb = np.where(np.arange(n) % 2 == 0, 1.0, 1.5)[None, :]
+    det._detect_table_trusted(s.ranges[:1], s.angles)  # the layout is checked once, then trusted
+    for r in (s.ranges[:1], s.ranges[5:6], s.ranges[:3], comb, s.ranges):
+        row, tab = det._detect_table_trusted(r, s.angles)
+        ref_row, ref_tab = _staged_table(det, r, s.angles)
+        assert row.dtype == np.int64 and tab.dtype == np.float64
+        assert np.array_equal(row, ref_row) and np.array_equal(tab, ref_tab)
+    assert det.detect_arrays(comb, s.angles).n_segments == n
