@@ -686,7 +686,8 @@ class LearnedKinDetector(KinDetector):
     def detect_arrays(self, ranges, angles) -> BatchDetections:
         """Detect kins in ``B`` scans (``ranges`` (B, n) m, shared ``angles`` (n,) rad) → arrays.
 
-        The segments of all scans go through the network in one pass. 0.0, NaN and inf readings
+        The segments of all scans go through the network in one pass, the whole call in one
+        compiled dispatch (:mod:`detectors._learned_driver`). 0.0, NaN and inf readings
         are no return; a negative range raises ``ValueError`` naming its scan row and beam.
         ``seg_values`` holds ``p_kin`` and ``threshold`` for every segment.
         """
@@ -757,8 +758,8 @@ class LearnedKinDetector(KinDetector):
         )
 
     def _driver_args(self) -> tuple:
-        """The fused driver's constant arguments for the current beam layout (rebuilt by ``_check``
-        when the layout changes)."""
+        """The fused driver's constant arguments ``(front_args, back_args)`` for the current beam
+        layout and settings (see :meth:`_driver_consts`)."""
         c = self.feature_config
         ang, cos_a, sin_a, sweep = self._trig
         fixed = -1.0 if self.threshold is None else self.threshold
@@ -775,7 +776,8 @@ class LearnedKinDetector(KinDetector):
         return front, back
 
     def _driver_consts(self) -> tuple[tuple, tuple]:
-        """:meth:`_driver_args`, cached per beam layout and settings."""
+        """:meth:`_driver_args`, cached; rebuilt when ``_check`` saw a new beam layout or
+        ``threshold``, ``pre_gate`` or ``positioning`` changed."""
         cached = self._drv_args
         if (
             cached is None
