@@ -8,8 +8,9 @@ the stages run back to back inside compiled code and write the compact result co
   noise and the features of the segments that pass it (:mod:`detectors.features`' kernels);
 * :func:`back`: from the network's ``(R, 3)`` outputs, ``p(kin)``, the per-noise thresholds, the
   stage codes, the kin centres (regression or circle fit) and the detection columns;
-* :func:`fused`: ``front``, the network in a compiled kernel (:func:`detectors._kernels.mlp_forward_rows`
-  below ``rows_max`` rows, else :func:`~detectors._kernels.mlp_forward`) and ``back``, when the
+* :func:`fused`: ``front``, the network in a compiled kernel (:func:`mlp_rows4`, bitwise
+  :func:`detectors._kernels.mlp_forward_rows`, below ``rows_max`` rows, else
+  :func:`~detectors._kernels.mlp_forward`) and ``back``, when the
   network is to run compiled on fewer than ``kernel_max`` rows; otherwise it stops after ``front`` and
   the detector runs BLAS / torch in Python, then ``back``.
 
@@ -188,6 +189,58 @@ def back(out, d, scan, first, count, rows, frames, scan_cols, ang, pre_gate, fix
     return p, thr, stage, det, table
 
 
+@numba.njit(cache=True, nogil=True, fastmath=True)
+def mlp_rows4(x, mean, std, weights_t, biases, sizes, out):
+    """:func:`detectors._kernels.mlp_forward_rows` four rows at a time: each weight is loaded once for
+    four rows, and each row's units are summed over the inputs in the same order with the same
+    statement, so the outputs are bitwise those of ``mlp_forward_rows`` (and of the block kernel,
+    ``tests/detectors/test_learned_driver.py``); ~1.5x faster on 5-35 rows (one scan's segments),
+    as fast as the block kernel up to ~250 rows (measured under load)."""
+    n_rows, n_in = x.shape
+    width = max(sizes.max(), n_in)
+    a = np.zeros((4, width), dtype=np.float32)
+    h = np.zeros((4, width), dtype=np.float32)
+    n_layers = weights_t.shape[0]
+    for r0 in range(0, n_rows, 4):
+        m = min(4, n_rows - r0)
+        for q in range(m):
+            for k in range(n_in):
+                a[q, k] = (x[r0 + q, k] - mean[k]) / std[k]
+        for li in range(n_layers):
+            k_in = sizes[li]
+            n_out = sizes[li + 1]
+            for q in range(4):
+                for j in range(n_out):
+                    h[q, j] = biases[li, j]
+            if m == 4:
+                for k in range(k_in):
+                    a0 = a[0, k]
+                    a1 = a[1, k]
+                    a2 = a[2, k]
+                    a3 = a[3, k]
+                    for j in range(n_out):
+                        wkj = weights_t[li, k, j]
+                        h[0, j] += wkj * a0
+                        h[1, j] += wkj * a1
+                        h[2, j] += wkj * a2
+                        h[3, j] += wkj * a3
+            else:  # the last 1-3 rows: one at a time, as mlp_forward_rows
+                for q in range(m):
+                    for k in range(k_in):
+                        ak = a[q, k]
+                        for j in range(n_out):
+                            h[q, j] += weights_t[li, k, j] * ak
+            if li < n_layers - 1:
+                for q in range(4):
+                    for j in range(n_out):
+                        if h[q, j] < 0.0:
+                            h[q, j] = 0.0
+            a, h = h, a
+        for q in range(m):
+            for j in range(sizes[n_layers]):
+                out[r0 + q, j] = a[q, j]
+
+
 @numba.njit(cache=True, nogil=True)
 def fused(r, front_args, kernel_max, rows_max, mean, std, weights, weights_t, biases, sizes, back_args):
     """:func:`front`, the network compiled and :func:`back` in one dispatch when fewer than
@@ -206,7 +259,7 @@ def fused(r, front_args, kernel_max, rows_max, mean, std, weights, weights_t, bi
     out32 = np.empty((n_sel, 3), dtype=np.float32)
     if n_sel > 0:
         if n_sel < rows_max:
-            _k.mlp_forward_rows(x, mean, std, weights_t, biases, sizes, out32)
+            mlp_rows4(x, mean, std, weights_t, biases, sizes, out32)
         else:
             _k.mlp_forward(x, mean, std, weights, biases, sizes, out32)
     out = out32.astype(np.float64)

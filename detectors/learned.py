@@ -99,6 +99,9 @@ _BLAS_MIN_ROWS = 256
 #: (bitwise the same outputs; 1 row: ~2 us vs ~31 us; 32 rows 0.83x, 40 rows 0.99x the block kernel's
 #: time, measured under load in one run)
 _ROWS_KERNEL_MAX = 40
+#: the fused driver's network runs :func:`detectors._learned_driver.mlp_rows4` below this many rows
+#: (as fast as the block kernel at 64 rows, ~1.5x faster than the row kernel on 5-35, under load)
+_DRIVER_ROWS_MAX = 64
 #: Pre-gate bounds (``LearnedKinDetector(pre_gate=True)``): a segment is dropped before the network
 #: when it has more beams than a housing can return, computed with the housing's centre at
 #: ``PRE_GATE_SLACK * min(d_i)`` (readings up to 25 % too long: 12 sigma of 2 % noise) plus
@@ -716,7 +719,7 @@ class LearnedKinDetector(KinDetector):
             front_args, back_args = self._driver_consts()
             mean, std, w, b, sizes = self._numba_weights
             done, row, table = _drv.fused_table(
-                rb, front_args, self._kernel_max, _ROWS_KERNEL_MAX, mean, std, w, self._numba_weights_t[2], b,
+                rb, front_args, self._kernel_max, _DRIVER_ROWS_MAX, mean, std, w, self._numba_weights_t[2], b,
                 sizes, back_args,
             )  # fmt: skip
             if done:  # else >= _BLAS_MIN_ROWS segments went to the network: a pathological scan
@@ -797,7 +800,7 @@ class LearnedKinDetector(KinDetector):
             rb = np.ascontiguousarray(rb, dtype=np.float64)
         mean, std, w, b, sizes = self._numba_weights
         done, fr, _, bk = _drv.fused(
-            rb, front_args, self._kernel_max, _ROWS_KERNEL_MAX, mean, std, w, self._numba_weights_t[2], b,
+            rb, front_args, self._kernel_max, _DRIVER_ROWS_MAX, mean, std, w, self._numba_weights_t[2], b,
             sizes, back_args,
         )  # fmt: skip
         if not done:  # BLAS / torch on many rows: the network in Python between the two kernels

@@ -157,3 +157,20 @@ def test_table_entry_equals_the_staged_detections(inference):
         assert row.dtype == np.int64 and tab.dtype == np.float64
         assert np.array_equal(row, ref_row) and np.array_equal(tab, ref_tab)
     assert det.detect_arrays(comb, s.angles).n_segments == n
+
+
+def test_four_row_network_kernel_is_bitwise_the_row_and_block_kernels():
+    from detectors import _kernels as _k
+
+    det = LearnedKinDetector(reports=False)
+    mean, std, w, b, sizes = det._numba_weights
+    wt = det._numba_weights_t[2]
+    rng = np.random.default_rng(1)
+    for n in (1, 2, 3, 4, 5, 7, 8, 31, 40, 65, 130):
+        x = (mean + rng.normal(size=(n, mean.size)) * 3.0 * std).astype(np.float32)
+        outs = [np.empty((n, 3), np.float32) for _ in range(3)]
+        _drv.mlp_rows4(x, mean, std, wt, b, sizes, outs[0])
+        _k.mlp_forward_rows(x, mean, std, wt, b, sizes, outs[1])
+        _k.mlp_forward(x, mean, std, w, b, sizes, outs[2])
+        assert np.array_equal(outs[0].view(np.int32), outs[1].view(np.int32)), n
+        assert np.array_equal(outs[0].view(np.int32), outs[2].view(np.int32)), n
