@@ -729,34 +729,46 @@ class LearnedKinDetector(KinDetector):
 
     def _detect_arrays(self, ranges, angles, trusted: bool) -> BatchDetections:
         rb, _ = self._check(ranges, angles, trusted)
-        fr, (p, thr, stage, det, table) = self._run_driver(rb)
-        n_seg = fr[1].shape[0]
-        ft = table.T.copy()  # one block: each float column a contiguous row of it
+        packed = None
+        if rb.shape[0] == 1 and self._kernel_max > 0 and rb.dtype == np.float64 and rb.flags.c_contiguous:
+            # one scan: the whole call compiled, the columns handed back in a few blocks
+            front_args, back_args = self._driver_consts()
+            mean, std, w, b, sizes = self._numba_weights
+            done, packed = _drv.fused_packed(
+                rb, front_args, self._kernel_max, _DRIVER_ROWS_MAX, mean, std, w, self._numba_weights_t[2],
+                b, sizes, back_args,
+            )  # fmt: skip
+            if not done:  # >= _BLAS_MIN_ROWS segments went to the network: a pathological scan
+                packed = None
+        if packed is None:
+            packed = _drv.pack(*self._run_driver(rb))
+        seg_i, seg_b, seg_f, stage, det, det_f, det_i = packed
+        n_seg = seg_i.shape[1]
         return BatchDetections(
             n_scans=rb.shape[0],
             n_beams=rb.shape[1],
-            scan=fr[1][det],
-            range=ft[0],
-            bearing=ft[1],
-            x=ft[2],
-            y=ft[3],
-            score=ft[4],
-            first_beam=fr[2][det],
-            last_beam=ft[6].astype(np.int64),
-            n_beams_on=fr[3][det],
+            scan=det_i[0],
+            range=det_f[0],
+            bearing=det_f[1],
+            x=det_f[2],
+            y=det_f[3],
+            score=det_f[4],
+            first_beam=det_i[1],
+            last_beam=det_i[2],
+            n_beams_on=det_i[3],
             segment=det,
-            seg_scan=fr[1],
-            seg_first=fr[2],
-            seg_count=fr[3],
-            seg_prev=fr[4],
-            seg_next=fr[5],
-            seg_prev_nearer=fr[6],
-            seg_next_nearer=fr[7],
+            seg_scan=seg_i[0],
+            seg_first=seg_i[1],
+            seg_count=seg_i[2],
+            seg_prev=seg_i[3],
+            seg_next=seg_i[4],
+            seg_prev_nearer=seg_b[0],
+            seg_next_nearer=seg_b[1],
             seg_stage=stage,
             seg_values=(
-                {"p_kin": p, "threshold": thr}
+                {"p_kin": seg_f[0], "threshold": seg_f[1]}
                 if not self.pre_gate or n_seg == 0
-                else {"p_kin": p, "threshold": thr, "max_beams": fr[8]}
+                else {"p_kin": seg_f[0], "threshold": seg_f[1], "max_beams": seg_f[2]}
             ),
         )
 

@@ -80,7 +80,9 @@ def test_fused_driver_edge_cases():
     empty[1, :] = 0.0  # "no return" in both RPLIDAR spellings: no segment at all
     one_wall = np.full((1, n), 3.0)  # a round room: one segment without a break, dropped by the pre-gate
     mixed = np.vstack([empty, s.ranges[:1].astype(np.float64), one_wall])
-    for r in (empty, one_wall, mixed):
+    # every beam its own segment: more than _BLAS_MIN_ROWS rows, the one-scan call hands over to BLAS
+    comb = np.where(np.arange(n) % 2 == 0, 1.0, 1.5)[None, :]
+    for r in (empty, one_wall, mixed, comb, empty[:1]):
         ref = det._detect_arrays_staged(r, s.angles)
         got = det.detect_arrays(r, s.angles)
         assert_same(got, ref)
