@@ -77,6 +77,7 @@ def front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_a
                 keep[n_keep] = i
                 n_keep += 1
         rows = keep[:n_keep].copy()
+        # (a further selection stage, e.g. a cascade, would narrow ``rows`` here)
     else:
         max_beams[:] = np.nan
         rows = np.arange(s)
@@ -116,8 +117,8 @@ def _scan_threshold(log_noise, fixed, edges, values):
 
 
 @numba.njit(cache=True, nogil=True)
-def back(out, d, scan, first, count, rows, frames, scan_cols, ang, pre_gate, fixed_threshold, edges,
-         values, regression, t_mean, t_std, r_kin, max_iter, xtol, lam0, lam_max):  # fmt: skip
+def back(out, d, scan, first, count, max_beams, rows, frames, scan_cols, ang, pre_gate, fixed_threshold,
+         edges, values, regression, t_mean, t_std, r_kin, max_iter, xtol, lam0, lam_max):  # fmt: skip
     """Stages 4-5 from the network outputs ``out`` (R, 3) float64 of the segments ``rows``.
 
     ``fixed_threshold`` < 0: the per-noise thresholds ``values`` over ``edges``. Returns ``(p,
@@ -143,7 +144,7 @@ def back(out, d, scan, first, count, rows, frames, scan_cols, ang, pre_gate, fix
         if p[i] >= thr[i]:
             stage[i] = _k.ACCEPTED
             n_det += 1
-        elif pre_gate and math.isnan(p[i]):
+        elif pre_gate and count[i] > max_beams[i]:  # dropped by the pre-gate (p NaN)
             stage[i] = _k.DIAMETER
         else:
             stage[i] = _k.LEARNED
@@ -269,7 +270,7 @@ def fused(r, front_args, kernel_max, rows_max, mean, std, weights, weights_t, bi
 @numba.njit(cache=True, nogil=True)
 def back_rest(out, fr, back_args):
     """:func:`back` on the outputs ``fr`` of :func:`front` (``back_args``: its arguments from ``ang``)."""
-    return back(out, fr[0], fr[1], fr[2], fr[3], fr[9], fr[11], fr[12], *back_args)
+    return back(out, fr[0], fr[1], fr[2], fr[3], fr[8], fr[9], fr[11], fr[12], *back_args)
 
 
 @numba.njit(cache=True, nogil=True)
