@@ -713,35 +713,18 @@ class LearnedKinDetector(KinDetector):
         last_beam, n_beams): what ``kin_envs.envs.common.detection_arrays`` reads, straight from the
         compiled driver without building a :class:`~detectors.base.BatchDetections`. Fresh arrays
         on every call."""
-        rb, _ = self._check(ranges, angles, True)
-        if rb.shape[0] == 1 and self._kernel_max > 0 and rb.dtype == np.float64 and rb.flags.c_contiguous:
-            # one scan (a single-agent env's step): the whole call compiled, only the table returns
-            front_args, back_args = self._driver_consts()
-            mean, std, w, b, sizes = self._numba_weights
-            done, row, table = _drv.fused_table(
-                rb, front_args, self._kernel_max, _DRIVER_ROWS_MAX, mean, std, w, self._numba_weights_t[2], b,
-                sizes, back_args,
-            )  # fmt: skip
-            if done:  # else >= _BLAS_MIN_ROWS segments went to the network: a pathological scan
-                return row, table
+        rb = self._driver_input(ranges, angles, True)
+        # one scan (a single-agent env's step): the whole call compiled, only the table returns
+        if rb.shape[0] == 1 and (res := self._call_driver(_drv.fused_table, rb)) is not None:
+            return res
         fr, bk = self._run_driver(rb)
         return fr[1][bk[3]], bk[4]
 
     def _detect_arrays(self, ranges, angles, trusted: bool) -> BatchDetections:
-        rb, _ = self._check(ranges, angles, trusted)
-        packed = None
-        if rb.shape[0] == 1 and self._kernel_max > 0 and rb.dtype == np.float64 and rb.flags.c_contiguous:
-            # one scan: the whole call compiled, the columns handed back in a few blocks
-            front_args, back_args = self._driver_consts()
-            mean, std, w, b, sizes = self._numba_weights
-            done, packed = _drv.fused_packed(
-                rb, front_args, self._kernel_max, _DRIVER_ROWS_MAX, mean, std, w, self._numba_weights_t[2],
-                b, sizes, back_args,
-            )  # fmt: skip
-            if not done:  # >= _BLAS_MIN_ROWS segments went to the network: a pathological scan
-                packed = None
-        if packed is None:
-            packed = _drv.pack(*self._run_driver(rb))
+        rb = self._driver_input(ranges, angles, trusted)
+        # one scan: the whole call compiled, the columns handed back in a few blocks
+        res = self._call_driver(_drv.fused_packed, rb) if rb.shape[0] == 1 else None
+        packed = res[0] if res is not None else _drv.pack(*self._run_driver(rb))
         seg_i, seg_b, seg_f, stage, det, det_f, det_i = packed
         n_seg = seg_i.shape[1]
         return BatchDetections(
@@ -803,21 +786,38 @@ class LearnedKinDetector(KinDetector):
             self._drv_args = cached = (key, *self._driver_args())
         return cached[1], cached[2]
 
-    def _run_driver(self, rb: np.ndarray):
-        """The fused driver (:mod:`detectors._learned_driver`) on checked ranges ``rb``: ``(front
-        outputs, back outputs)``. The network runs inside the compiled call unless this detector's
-        inference puts it in BLAS (``"auto"`` from ``_BLAS_MIN_ROWS`` rows) or torch."""
+    def _driver_input(self, ranges, angles, trusted: bool) -> np.ndarray:
+        """Checked ranges as the driver takes them (C-contiguous float64, one compiled signature)."""
+        rb, _ = self._check(ranges, angles, trusted)
+        return np.ascontiguousarray(rb, dtype=np.float64)
+
+    def _call_driver(self, kernel, rb: np.ndarray):
+        """``kernel`` (:func:`~detectors._learned_driver.fused` or a variant) on ``rb`` with this
+        detector's arguments: its outputs after ``done``, or None when the network did not run in it
+        (inference ``"blas"`` / ``"torch"``, or ``"auto"`` on ``_BLAS_MIN_ROWS`` rows or more)."""
+        if self._kernel_max == 0:
+            return None
         front_args, back_args = self._driver_consts()
-        if rb.dtype != np.float64 or not rb.flags.c_contiguous:
-            rb = np.ascontiguousarray(rb, dtype=np.float64)
+        mean, std, w, b, sizes = self._numba_weights
+        done, *res = kernel(
+            rb, front_args, self._kernel_max, _DRIVER_ROWS_MAX, mean, std, w, self._numba_weights_t[2], b,
+            sizes, back_args,
+        )  # fmt: skip
+        return tuple(res) if done else None
+
+    def _run_driver(self, rb: np.ndarray):
+        """The fused driver (:mod:`detectors._learned_driver`) on ``rb`` (:meth:`_driver_input`):
+        ``(front outputs, back outputs)``. The network runs inside the compiled call unless this
+        detector's inference puts it in BLAS (``"auto"`` from ``_BLAS_MIN_ROWS`` rows) or torch: then
+        it runs here, between the driver's two kernels."""
+        front_args, back_args = self._driver_consts()
         mean, std, w, b, sizes = self._numba_weights
         done, fr, _, bk = _drv.fused(
             rb, front_args, self._kernel_max, _DRIVER_ROWS_MAX, mean, std, w, self._numba_weights_t[2], b,
             sizes, back_args,
         )  # fmt: skip
-        if not done:  # BLAS / torch on many rows: the network in Python between the two kernels
-            out = self._forward(fr[10])
-            bk = _drv.back_rest(out, fr, back_args)
+        if not done:
+            bk = _drv.back_rest(self._forward(fr[10]), fr, back_args)
         return fr, bk
 
     def _detect_arrays_staged(self, ranges, angles, trusted: bool = False) -> BatchDetections:
