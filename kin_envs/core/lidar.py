@@ -796,11 +796,16 @@ def _scan_kernel_grid(
     ws = _work(max(n_c, segments.shape[0]))
     cb = np.empty((3, n_c))
     sb = np.empty((4, segments.shape[0]))
-    circ, seg = _columns(circles, segments)
     best_d = np.empty(n_beams)
     best_p = np.empty(n_beams, dtype=np.int32)
     xmax = gx + nx * cs
     ymax = gy + ny * cs
+    outside = 0
+    for n in range(ox.shape[0]):
+        outside += not (ox[n] > gx and ox[n] < xmax and oy[n] > gy and oy[n] < ymax)
+    # the columns of every primitive, for the robots outside the grid only (a copy of the whole world)
+    circ, seg = _columns(circles[: circles.shape[0] if outside else 0],
+                         segments[: segments.shape[0] if outside else 0])  # fmt: skip
     for n in range(ox.shape[0]):
         x0 = ox[n]
         y0 = oy[n]
@@ -871,13 +876,33 @@ def cast_scan(
                 f"cast_scan: the grid indexes {grid.n_circles} circles and {grid.n_segments} segments, "
                 f"got {len(circles)} and {len(segments)}; rebuild it with build_lidar_grid"
             )
-        (gx, gy), (nx, ny) = grid.origin, grid.shape
-        _scan_kernel_grid(
-            *args, gx, gy, grid.cell_size, nx, ny, grid.circle_start, grid.circle_items,
-            grid.segment_start, grid.segment_items, grid.dynamic_circles, grid.dynamic_segments,
-            ranges, true, kind, index,
-        )  # fmt: skip
+        _scan_kernel_grid(*args, *grid_args(grid), ranges, true, kind, index)
     return ranges, true, kind, index
+
+
+def grid_args(grid: LidarGrid) -> tuple:
+    """The grid kernel's arguments for ``grid`` (after the primitive owner tables)."""
+    (gx, gy), (nx, ny) = grid.origin, grid.shape
+    return (gx, gy, grid.cell_size, nx, ny, grid.circle_start, grid.circle_items, grid.segment_start,
+            grid.segment_items, grid.dynamic_circles, grid.dynamic_segments)  # fmt: skip
+
+
+def cast_prepared(ox, oy, heading, skip, static: tuple, grid: tuple | None):
+    """:func:`cast_scan` for callers that keep their arguments in the kernel's form (``World.scan``:
+    the conversions and checks cost more than a one-robot scan's kernel). ``ox``, ``oy``, ``heading``:
+    ``(N,)`` contiguous float64; ``skip``: ``(N,)`` int64; ``static``: ``(beam_tables, range_min,
+    range_max, circles, segments, prim_kind, prim_index)`` as :func:`cast_scan` converts them; ``grid``:
+    :func:`grid_args` or ``None``. Returns float32 readings as :func:`cast_scan`."""
+    tabs, range_min, range_max, circles, segments, prim_kind, prim_index = static
+    n, nb = ox.shape[0], tabs.shape[1]
+    out = (np.empty((n, nb), np.float32), np.empty((n, nb), np.float32), np.empty((n, nb), np.int8),
+           np.empty((n, nb), np.int32))  # fmt: skip
+    args = (ox, oy, heading, tabs, range_min, range_max, circles, skip, segments, prim_kind, prim_index)
+    if grid is None:
+        _scan_kernel(*args, *out)
+    else:
+        _scan_kernel_grid(*args, *grid, *out)
+    return out
 
 
 def scan_shapes(
