@@ -43,7 +43,7 @@ import numpy as np
 from detectors.base import KinDetector
 from detectors.features import scan_noise, segment_batch
 from detectors.metrics import match, prf1
-from detectors.tracking import KinTracker, TrackerParams, segment_points
+from detectors.tracking import TRACK_FEATURES, KinTracker, TrackerParams, TrackKinModel, segment_points
 
 from ..core.lidar import HitKind
 from ..core.scenes import Cylinder
@@ -73,9 +73,11 @@ __all__ = [
     "RecordedEpisodes",
     "episode",
     "evaluate_sequences",
+    "fit_kin_model",
     "record_sequences",
     "run_sequences",
     "target_window",
+    "track_samples",
     "tracking_cost",
     "tune_tracker",
     "training_split",
@@ -427,10 +429,11 @@ def evaluate_sequences(
     diagnose: bool = False,
     mot: bool = True,
     singles: bool = True,
+    kin_model="hand",
 ) -> dict:
     """Run the tracker over recorded episodes and score it and the single-scan detectors (the tables of
     :func:`run_sequences`). ``mot=False`` skips CLEAR MOT and ``singles=False`` the single-scan detectors'
-    scores (for tuning)."""
+    scores (for tuning); ``kin_model`` is the tracker's (:class:`detectors.tracking.KinTracker`)."""
     if mot:
         import motmetrics as mm
     spec, methods = recorded.spec, recorded.methods if singles else ["tracker"]
@@ -445,7 +448,7 @@ def evaluate_sequences(
     diag = defaultdict(int)
     t_warm = recorded.warm_up + _warm_up([], tracker_params)
     for e_idx, (n_obs, n_robots, n_obst, kinds, parked, frames) in enumerate(recorded.episodes):
-        tracker = KinTracker(tracker_params, n_observers=n_obs)
+        tracker = KinTracker(tracker_params, n_observers=n_obs, kin_model=kin_model)
         book = [_Observer(n_robots, n_obst, mm.MOTAccumulator(auto_id=True) if mot else None)
                 for _ in range(n_obs)]  # fmt: skip
         for frame, fr in enumerate(frames):
@@ -549,6 +552,96 @@ def evaluate_sequences(
     if diagnose:
         out["diagnosis"] = dict(sorted(diag.items()))
     return out
+
+def track_samples(
+    recorded: RecordedEpisodes, tracker_params: TrackerParams | None = None, distance=(0.2, 2.5)
+) -> dict[str, np.ndarray]:
+    """The track-level kin classifier's training rows: the recorded episodes replayed through the tracker;
+    every frame, every confirmed track of every observer within ``distance`` (m) gives its
+    :data:`detectors.tracking.TRACK_FEATURES` and a label: 1 if it lies within ``GATE`` of another robot's
+    centre (visible or not), else 0 (obstacles, same-radius cylinders, walls). Returns ``X`` (n, F), ``y``
+    (n,), ``range`` (n,) and ``episode`` (n,). Refuses episodes on the benchmark's reserved seeds (record
+    :func:`training_split` episodes): the classifier must never see the benchmark."""
+    if not isinstance(recorded, RecordedEpisodes):
+        raise TypeError(f"track_samples: recorded must be RecordedEpisodes, got {type(recorded).__name__}")
+    if not recorded.spec.training:
+        raise ValueError(f"track_samples: episodes of split {recorded.spec.name!r} use the benchmark's "
+                         "reserved seeds; fit on training_split(...) episodes only")  # fmt: skip
+    recorded.spec.seeds(len(recorded.episodes))  # training seeds: never the reserved range
+    X, y, rng_, ep_ = [], [], [], []
+    for e_idx, (n_obs, _n_robots, _n_obst, _kinds, _parked, frames) in enumerate(recorded.episodes):
+        tracker = KinTracker(tracker_params, n_observers=n_obs)
+        for fr in frames:
+            ob, xy, sc, pts, own, acc = fr.cand
+            noise_est = np.where(np.isnan(fr.noise_est), tracker.params.range_noise, fr.noise_est)
+            tracker.update_batch(ob, xy, sc, fr.delta, _FRAME_S, pts, own, noise_est, accepted=acc)
+            for row in range(n_obs):  # observer ``row`` is robot ``row`` (swarm: all robots; lookalike: 0)
+                t = tracker.track_features(row)
+                d = np.hypot(t["xy"][:, 0], t["xy"][:, 1])
+                keep = t["confirmed"] & (d >= distance[0]) & (d < distance[1])
+                if not keep.any():
+                    continue
+                x0, y0, th = fr.poses[row]
+                others = np.delete(fr.poses[:, :2], row, axis=0) - (x0, y0)
+                c, s = math.cos(th), math.sin(th)
+                kin = np.c_[c * others[:, 0] + s * others[:, 1], -s * others[:, 0] + c * others[:, 1]]
+                txy = t["xy"][keep]
+                d2 = np.hypot(txy[:, None, 0] - kin[None, :, 0], txy[:, None, 1] - kin[None, :, 1])
+                near = d2.min(1) <= GATE if kin.shape[0] else np.zeros(txy.shape[0], bool)
+                X.append(t["features"][keep])
+                y.append(near)
+                rng_.append(d[keep])
+                ep_.append(np.full(int(keep.sum()), e_idx))
+    F = len(TRACK_FEATURES)
+    cat = lambda a, shape: np.concatenate(a) if a else np.zeros(shape)  # noqa: E731
+    return {"X": cat(X, (0, F)), "y": cat(y, 0).astype(bool), "range": cat(rng_, 0),
+            "episode": cat(ep_, 0).astype(np.int64)}  # fmt: skip
+
+
+#: Operating points :func:`fit_kin_model` tries (the model's probability at which a track is called kin).
+KIN_MODEL_THRESHOLDS = (0.2, 0.25, 0.3, 0.35, 0.4, 0.45, 0.5, 0.55, 0.6)
+
+
+def fit_kin_model(
+    recorded: list[RecordedEpisodes],
+    tracker_params: TrackerParams | None = None,
+    hidden=(),
+    l2: float = 1e-4,
+    min_frames: int = 3,
+    thresholds=KIN_MODEL_THRESHOLDS,
+    info: dict | None = None,
+) -> tuple[TrackKinModel, list[dict]]:
+    """Fit the track-level kin classifier (:class:`detectors.tracking.TrackKinModel`) on training-seed
+    episodes: :func:`track_samples` of each recorded set, each set weighing the same in the loss (a swarm
+    set has many more tracks than a look-alike one), then the operating point: the threshold in
+    ``thresholds`` with the best mean :func:`tune_objective` over the sets (the model's output is shifted
+    so that it is ``kin_prob`` 0.5). Deterministic for given episodes.
+
+    Returns the model and one row per threshold (``threshold``, ``objective``, ``per_set``)."""
+    if not recorded:
+        raise ValueError("fit_kin_model: need at least one RecordedEpisodes")
+    samples = [track_samples(r, tracker_params) for r in recorded]
+    samples = [s for s in samples if s["y"].size]
+    if not samples:
+        raise ValueError("fit_kin_model: the recorded episodes gave no confirmed tracks")
+    X = np.concatenate([s["X"] for s in samples])
+    y = np.concatenate([s["y"] for s in samples])
+    w = np.concatenate([np.full(s["y"].size, 1.0 / s["y"].size) for s in samples])
+    names = [f"{r.spec.name}@{r.spec.first_seed}x{len(r.episodes)}" for r in recorded]
+    base = TrackKinModel.fit(X, y, w, hidden=hidden, l2=l2, min_frames=min_frames,
+                             info={**(info or {}), "sets": names, "rows": int(y.size),
+                                   "kin_share": float(y.mean())})  # fmt: skip
+    rows, best, best_obj = [], None, -1.0
+    for thr in thresholds:
+        m = base.shifted(float(thr))
+        per = [tune_objective(evaluate_sequences(r, tracker_params, mot=False, singles=False, kin_model=m))
+               for r in recorded]  # fmt: skip
+        obj = float(np.mean(per))
+        rows.append({"threshold": float(thr), "objective": obj, "per_set": per})
+        if obj > best_obj + 1e-12:
+            best, best_obj = m, obj
+    return best, rows
+
 
 def _diagnose(diag, m, dxy, tr, kin_threshold, kin_ids, counted, kin_xy, kin_age, ob_ids, ob_xy, ob_age,
               kinds_all, parked, cand_xy) -> None:  # fmt: skip

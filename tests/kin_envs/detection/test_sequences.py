@@ -141,3 +141,25 @@ def test_replayed_episodes_give_the_run_and_tuning_picks_the_best():
     assert objs[best.kin_threshold] == max(objs.values())
     with pytest.raises(ValueError, match="unknown parameter"):
         S.tune_tracker([rec], {"nope": (1,)})
+
+
+def test_track_samples_label_tracks_and_refuse_the_benchmark_seeds():
+    """The classifier's rows: confirmed tracks within range, labelled kin when within the gate of another
+    robot; fit_kin_model picks the operating point with the best objective. Benchmark episodes are refused
+    (the classifier never sees the reserved seeds)."""
+    spec = S.training_split("lookalike", 78)
+    spec = dataclasses.replace(spec, run=dataclasses.replace(spec.run, frames=12))
+    rec = S.record_sequences(GeometricKinDetector(reports=False), spec, 2, 0.005)
+    s = S.track_samples(rec)
+    from detectors.tracking import TRACK_FEATURES
+
+    assert s["X"].shape == (s["y"].size, len(TRACK_FEATURES)) and np.isfinite(s["X"]).all()
+    assert s["y"].any() and not s["y"].all()  # kin and look-alikes among the tracks
+    assert ((s["range"] >= 0.2) & (s["range"] < 2.5)).all() and set(s["episode"]) <= {0, 1}
+    model, rows = S.fit_kin_model([rec], thresholds=(0.3, 0.6))
+    assert [r["threshold"] for r in rows] == [0.3, 0.6]
+    best = max(rows, key=lambda r: r["objective"])
+    assert model.info["threshold"] == best["threshold"] and model.min_frames == 3
+    bench = dataclasses.replace(rec, spec=S.SEQUENCE_SPLITS["lookalike"])
+    with pytest.raises(ValueError, match="reserved"):
+        S.track_samples(bench)
