@@ -78,7 +78,18 @@ absorbs.
       same-radius cylinder are indistinguishable, and in the swarm episodes parked kin far outnumber
       same-radius cylinders; set it (e.g. -4) where same-radius cylinders are the bigger risk.
 
-   ``kin_prob = sigmoid(prior + score part + residual part + shape part + motion part)``.
+   ``kin_prob = sigmoid(prior + score part + residual part + shape part + motion part)`` — the
+   *hand-tuned fusion*, ``KinTracker(kin_model="hand")``.
+
+6. *The kin decision* by default (``kin_model="learned"``) is a **learned track-level classifier**
+   (:class:`TrackKinModel`, shipped as ``checkpoints/tracker_kin_default.json``): a logistic regression
+   over per-track features (:data:`TRACK_FEATURES`: the detector's score log-odds averaged, spread,
+   maximum and last; the detector's own decisions; frames seen, beams, range; the motion statistic in the
+   odometry frame; existence; the share of the observer's tracks that moved), fitted on training-seed
+   sequence episodes (``scripts/fit_track_classifier.py``). A track seen in fewer than its ``min_frames``
+   frames takes the detector's own decision of its last frame instead, so that a young track is never
+   worse than the single scan. The cues above still run (their state feeds the features); only their
+   hand-set weights are replaced.
 
 Tracks are plain arrays inside (the hot path); :meth:`KinTracker.tracks` builds :class:`Track` objects and
 :meth:`KinTracker.track_arrays` fixed-shape padded arrays (for vector envs) on demand.
@@ -519,6 +530,10 @@ def segment_points(ranges, angles, rows, first, last, range_max: float = math.in
 class KinTracker:
     """Kin tracks of ``n_observers`` robots at once, from their candidates and odometry (module docstring).
 
+    ``kin_model``: the kin decision: ``"learned"`` (default: the shipped :class:`TrackKinModel`),
+    ``"hand"`` (the hand-tuned fusion of the cues, :class:`TrackerParams`), a model JSON path or a
+    :class:`TrackKinModel`.
+
     Batch-first: every observer's tracks live in one set of arrays (a row per track slot, its observer in
     ``obs``), and one :meth:`update_batch` call advances all observers by one frame with array operations
     and one compiled kernel for the outline cue; the Hungarian solver runs only for the observers whose
@@ -540,7 +555,7 @@ class KinTracker:
                "_f_acclast", "_f_beams", "_f_rng", "_hit")  # fmt: skip
 
     def __init__(
-        self, params: TrackerParams | None = None, n_observers: int = 1, kin_model="hand"
+        self, params: TrackerParams | None = None, n_observers: int = 1, kin_model="learned"
     ) -> None:
         if isinstance(n_observers, bool) or not isinstance(n_observers, int | np.integer) or n_observers < 1:
             raise ValueError(f"KinTracker: n_observers must be a positive integer, got {n_observers!r}")

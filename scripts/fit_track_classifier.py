@@ -97,7 +97,8 @@ def main(argv: list[str] | None = None) -> dict:
         info["detector_checkpoint_sha256"] = sha256_file(ck)
     model, rows = S.fit_kin_model(recorded, hidden=tuple(args.hidden), l2=args.l2, min_frames=args.min_frames,
                                   info=info)  # fmt: skip
-    hand = [S.tune_objective(S.evaluate_sequences(r, mot=False, singles=False)) for r in recorded]
+    hand = [S.tune_objective(S.evaluate_sequences(r, mot=False, singles=False, kin_model="hand"))
+            for r in recorded]  # fmt: skip
     names = [r.spec.name for r in recorded]
     lines = [f"# Track classifier fit ({args.detector}; noise {100 * args.noise:g} %; "
              f"{args.swarm_episodes} swarm + {args.lookalike_episodes} lookalike training episodes)", "",

@@ -308,6 +308,7 @@ def run_sequences(
     progress: bool = False,
     record: int | None = None,
     diagnose: bool = False,
+    kin_model="learned",
 ) -> dict:
     """Run the sequence benchmark on one split at one noise level (see the module docstring).
 
@@ -322,11 +323,13 @@ def run_sequences(
         record: keep the frames (scans, tracks, truth) of this episode index for an animation.
         diagnose: add ``"diagnosis"``: the tracker's false positives and misses on kin in view for
             >= 10 frames at 0.3-2 m, by cause (:func:`_diagnose`).
+        kin_model: the tracker's kin decision (:class:`detectors.tracking.KinTracker`): ``"learned"``
+            (the shipped track classifier), ``"hand"`` (the hand-tuned fusion), a model or its path.
 
     Returns a plain dict (JSON-serialisable) of tables; ``"frames"`` holds the recording if asked.
     """
     recorded = record_sequences(detector, split, n_episodes, noise, baselines, progress)  # checks arguments
-    return evaluate_sequences(recorded, tracker_params, record=record, diagnose=diagnose)
+    return evaluate_sequences(recorded, tracker_params, record=record, diagnose=diagnose, kin_model=kin_model)
 
 
 @dataclass
@@ -429,7 +432,7 @@ def evaluate_sequences(
     diagnose: bool = False,
     mot: bool = True,
     singles: bool = True,
-    kin_model="hand",
+    kin_model="learned",
 ) -> dict:
     """Run the tracker over recorded episodes and score it and the single-scan detectors (the tables of
     :func:`run_sequences`). ``mot=False`` skips CLEAR MOT and ``singles=False`` the single-scan detectors'
@@ -554,10 +557,11 @@ def evaluate_sequences(
     return out
 
 def track_samples(
-    recorded: RecordedEpisodes, tracker_params: TrackerParams | None = None, distance=(0.2, 2.5)
+    recorded: RecordedEpisodes, tracker_params: TrackerParams | None = None, distance=(0.0, 5.0)
 ) -> dict[str, np.ndarray]:
     """The track-level kin classifier's training rows: the recorded episodes replayed through the tracker;
-    every frame, every confirmed track of every observer within ``distance`` (m) gives its
+    every frame, every confirmed track of every observer within ``distance`` (m; every track the
+    tracker may report, not only the target window's, so that the model does not extrapolate) gives its
     :data:`detectors.tracking.TRACK_FEATURES` and a label: 1 if it lies within ``GATE`` of another robot's
     centre (visible or not), else 0 (obstacles, same-radius cylinders, walls). Returns ``X`` (n, F), ``y``
     (n,), ``range`` (n,) and ``episode`` (n,). Refuses episodes on the benchmark's reserved seeds (record
@@ -570,7 +574,7 @@ def track_samples(
     recorded.spec.seeds(len(recorded.episodes))  # training seeds: never the reserved range
     X, y, rng_, ep_ = [], [], [], []
     for e_idx, (n_obs, _n_robots, _n_obst, _kinds, _parked, frames) in enumerate(recorded.episodes):
-        tracker = KinTracker(tracker_params, n_observers=n_obs)
+        tracker = KinTracker(tracker_params, n_observers=n_obs, kin_model="hand")  # features only
         for fr in frames:
             ob, xy, sc, pts, own, acc = fr.cand
             noise_est = np.where(np.isnan(fr.noise_est), tracker.params.range_noise, fr.noise_est)
@@ -846,8 +850,10 @@ def tune_tracker(
     passes: int = 2,
     progress: bool = False,
 ) -> tuple[TrackerParams, list[dict]]:
-    """Coordinate descent over ``grid`` (default :data:`TUNING_GRID`) from ``base``: each parameter in turn
-    takes the grid value that maximises the mean :func:`tune_objective` over the ``recorded`` episode sets
+    """Coordinate descent over ``grid`` (default :data:`TUNING_GRID`) from ``base`` for the hand-tuned
+    fusion (``kin_model="hand"``; the learned track classifier is fitted by :func:`fit_kin_model`): each
+    parameter in turn takes the grid value that maximises the mean :func:`tune_objective` over the
+    ``recorded`` episode sets
     (training seeds: :func:`training_split`), ``passes`` times. Re-run it for a new detector checkpoint.
 
     Returns the best parameters and the log of every evaluation (``params``, ``objective``, and
@@ -866,7 +872,8 @@ def tune_tracker(
     def score(p: TrackerParams) -> float:
         key = tuple(getattr(p, n) for n in sorted(names))
         if key not in cache:
-            per = [tune_objective(evaluate_sequences(r, p, mot=False, singles=False)) for r in recorded]
+            per = [tune_objective(evaluate_sequences(r, p, mot=False, singles=False, kin_model="hand"))
+                   for r in recorded]  # fmt: skip
             cache[key] = float(np.mean(per))
             log.append({"params": {n: getattr(p, n) for n in grid}, "objective": cache[key], "per_set": per})
         return cache[key]
@@ -897,6 +904,7 @@ def tracking_cost(
     seed: int = 7,
     repeats: int = 3,
     skip: int = 10,
+    kin_model="learned",
 ) -> dict:
     """Time the tracker against the per-frame detector feeding it, ``n_robots`` observers batched: one
     swarm episode (a training seed, a ``n_robots``-robot arena) is recorded once, then the permissive
@@ -906,7 +914,9 @@ def tracking_cost(
     best of ``repeats`` passes (a shared machine slows passes unevenly; both sides of the ratio come from
     the same passes).
 
-    Returns seconds per frame for both, their ratio, the warm-up and the mean candidates per frame."""
+    Returns seconds per frame for both, their ratio, the warm-up and the mean candidates per frame, and
+    ``outputs_per_frame``: :meth:`~detectors.tracking.KinTracker.track_arrays` (16 slots, what an env reads;
+    it evaluates ``kin_model``), timed apart (not in the ratio)."""
     if isinstance(n_robots, bool) or not isinstance(n_robots, int) or n_robots < 2:
         raise ValueError(f"n_robots must be an integer >= 2, got {n_robots!r}")
     if not 0 <= int(skip) < int(frames):
@@ -927,11 +937,11 @@ def tracking_cost(
     t0 = time.perf_counter()
     _warm_up([perm], tracker_params)
     warm = time.perf_counter() - t0
-    best_det = best_trk = math.inf
+    best_det = best_trk = best_out = math.inf
     n_cand = 0
     for _ in range(max(1, int(repeats))):
-        tracker = KinTracker(tracker_params, n_observers=w.n_robots)
-        t_det = t_trk = 0.0
+        tracker = KinTracker(tracker_params, n_observers=w.n_robots, kin_model=kin_model)
+        t_det = t_trk = t_out = 0.0
         n_cand = 0
         for f, (scan, delta) in enumerate(zip(scans, deltas, strict=True)):
             t = time.perf_counter()
@@ -941,11 +951,15 @@ def tracking_cost(
             n_cand += ob.size
             t = time.perf_counter()
             tracker.update_batch(ob, xy, sc, delta, _FRAME_S, pts, own)
+            t1 = time.perf_counter()
+            tracker.track_arrays(16)
             if f >= skip:
-                t_trk += time.perf_counter() - t
+                t_trk += t1 - t
+                t_out += time.perf_counter() - t1
                 t_det += dt_det
-        best_det, best_trk = min(best_det, t_det), min(best_trk, t_trk)
+        best_det, best_trk, best_out = min(best_det, t_det), min(best_trk, t_trk), min(best_out, t_out)
     n = max(len(scans) - skip, 1)
     return {"n_robots": w.n_robots, "frames": n, "skipped": int(skip), "detector_per_frame": best_det / n,
             "tracker_per_frame": best_trk / n, "ratio": best_trk / best_det, "warm_up": warm,
+            "outputs_per_frame": best_out / n,
             "candidates_per_frame": n_cand / len(scans)}  # fmt: skip

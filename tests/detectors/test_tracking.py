@@ -72,7 +72,7 @@ def test_static_objects_seen_by_a_moving_observer_keep_their_tracks():
 
 
 def test_crossing_targets_keep_their_identities():
-    tr = KinTracker(TrackerParams(score_prior=0.5))
+    tr = KinTracker(TrackerParams(score_prior=0.5), kin_model="hand")
     for k in range(40):  # two robots cross at 0.2 m/s, 0.5 m apart at the closest
         a = np.array([-1.0 + 0.2 * k * DT, 0.25]) + [2.0, 0.0]
         b = np.array([1.0 - 0.2 * k * DT, -0.25]) + [2.0, 0.0]
@@ -108,7 +108,7 @@ def test_existence_confirms_and_deletes():
 
 def test_score_cue_is_bounded():
     pr = TrackerParams(min_score=0.0)
-    tr = KinTracker(pr)
+    tr = KinTracker(pr, kin_model="hand")
     for _ in range(200):
         tr.update([[1.0, 0.0], [1.0, 1.0]], [0.99, 0.01], STILL, DT)
     kp = tr.kin_prob()
@@ -160,7 +160,7 @@ def _outline(kind: str, centre, observer, n_views: int, r=0.035, noise=0.0, seed
 def test_outline_cue_tells_a_housing_from_a_hexagon(kind, sign):
     centre = np.array([0.8, 0.0])
     pr = TrackerParams(shape_clamp=2.0, score_prior=0.5)  # the accumulated-outline cue on (default: off)
-    tr = KinTracker(pr)
+    tr = KinTracker(pr, kin_model="hand")
     for pts in _outline(kind, centre, np.zeros(2), 20):
         tr.update([centre], [0.5], STILL, DT, points=[pts], noise=0.0)
     (t,) = tr.tracks()
@@ -171,7 +171,7 @@ def test_outline_cue_tells_a_housing_from_a_hexagon(kind, sign):
 
 def test_outline_cue_is_honest_under_noise():
     centre = np.array([0.8, 0.0])
-    tr = KinTracker(TrackerParams(shape_clamp=2.0))
+    tr = KinTracker(TrackerParams(shape_clamp=2.0), kin_model="hand")
     for pts in _outline("hexagon", centre, np.zeros(2), 20, noise=0.02):
         tr.update([centre], [0.5], STILL, DT, points=[pts], noise=0.02)
     assert abs(tr._lo_shape[tr._rows(0)[0]]) < 1.0  # 1.6 cm of noise hides a 2 mm deviation
@@ -186,7 +186,7 @@ def test_per_frame_residual_cue_separates_a_circle_from_a_hexagon_over_frames():
     first, final, chi, kp = ({"circle": [], "hexagon": []} for _ in range(4))
     for kind in ("circle", "hexagon"):
         for seed in range(8):
-            tr = KinTracker(TrackerParams(resid_clamp=50.0, score_prior=0.5))
+            tr = KinTracker(TrackerParams(resid_clamp=50.0, score_prior=0.5), kin_model="hand")
             for k, pts in enumerate(_outline(kind, centre, np.zeros(2), 25, noise=noise, seed=seed)):
                 tr.update([centre], [0.5], STILL, DT, points=[pts], noise=noise)
                 row = tr._rows(0)[0]
@@ -203,8 +203,16 @@ def test_per_frame_residual_cue_separates_a_circle_from_a_hexagon_over_frames():
 
 def test_parked_track_keeps_its_kin_probability_by_default():
     """A static circle the detector keeps accepting stays kin (a parked kin) while another track moves; the
-    static penalty (off by default) is what would turn it into a same-radius cylinder."""
-    tr = KinTracker()
+    static penalty (off by default) is what would turn it into a same-radius cylinder. The hand-tuned
+    fusion and the shipped classifier alike."""
+    for model in ("hand", "learned"):
+        tr = KinTracker(kin_model=model)
+        for k in range(50):
+            tr.update([[1.0, 0.0], [1.5, -0.5 + 0.02 * k]], [0.97, 0.97], STILL, DT)
+        kp = tr.kin_prob()
+        assert kp[0] > 0.5 and kp[1] > 0.5, model
+        assert not tr.tracks()[0].moved and tr.tracks()[1].moved
+    tr = KinTracker(kin_model="hand")
     for k in range(50):
         tr.update([[1.0, 0.0], [1.5, -0.5 + 0.02 * k]], [0.97, 0.97], STILL, DT)
     kp = tr.kin_prob()
@@ -223,7 +231,7 @@ def test_fit_known_circle_recovers_the_centre():
 
 def test_static_circle_rejected_once_others_move():
     pr = TrackerParams(static_penalty=-6.0, score_prior=0.5)  # the static penalty on (default: off)
-    tr = KinTracker(pr)
+    tr = KinTracker(pr, kin_model="hand")
     steps = int(pr.static_time / DT) + 5
     for k in range(steps):
         tr.update([[1.0, 0.0], [1.5, -0.5 + 0.02 * k]], [0.8, 0.8], STILL, DT)

@@ -155,7 +155,7 @@ def test_track_samples_label_tracks_and_refuse_the_benchmark_seeds():
 
     assert s["X"].shape == (s["y"].size, len(TRACK_FEATURES)) and np.isfinite(s["X"]).all()
     assert s["y"].any() and not s["y"].all()  # kin and look-alikes among the tracks
-    assert ((s["range"] >= 0.2) & (s["range"] < 2.5)).all() and set(s["episode"]) <= {0, 1}
+    assert (s["range"] < 5.0).all() and set(s["episode"]) <= {0, 1}
     model, rows = S.fit_kin_model([rec], thresholds=(0.3, 0.6))
     assert [r["threshold"] for r in rows] == [0.3, 0.6]
     best = max(rows, key=lambda r: r["objective"])
