@@ -158,8 +158,9 @@ def test_track_samples_label_tracks_and_refuse_the_benchmark_seeds():
     assert (s["range"] < 5.0).all() and set(s["episode"]) <= {0, 1}
     model, rows = S.fit_kin_model([rec], thresholds=(0.3, 0.6))
     assert [r["threshold"] for r in rows] == [0.3, 0.6]
-    best = max(rows, key=lambda r: r["objective"])
-    assert model.info["threshold"] == best["threshold"] and model.min_frames == 3
+    top = max(r["objective"] for r in rows)  # the highest threshold within tol of the best objective
+    assert model.info["threshold"] == max(r["threshold"] for r in rows if r["objective"] >= top - 0.005)
+    assert model.min_frames == 3
     bench = dataclasses.replace(rec, spec=S.SEQUENCE_SPLITS["lookalike"])
     with pytest.raises(ValueError, match="reserved"):
         S.track_samples(bench)
