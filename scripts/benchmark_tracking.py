@@ -87,6 +87,8 @@ def report(results: list[dict], cost: dict | None = None) -> str:
         for m, rows in r["by_distance"].items():
             lines.append(f"| {m} | " + " | ".join(_prf(x) for x in rows) + " |")
         sr = ", ".join(f"{m} {_f(v[0])} ({v[1]} frames)" for m, v in r["same_radius_rejected"].items())
+        lk = "; ".join(f"{m}: " + ", ".join(f"{k} {_f(v[0])}" for k, v in d.items())
+                       for m, d in r.get("lookalikes_rejected", {}).items())  # fmt: skip
         mot, sec = r["mot"], r["seconds"]
         lines += [
             "",
@@ -96,6 +98,7 @@ def report(results: list[dict], cost: dict | None = None) -> str:
             f"- CLEAR MOT (tracker): MOTA {_f(mot['mota'])}, IDF1 {_f(mot['idf1'])}, "
             f"identity switches {mot['num_switches']}",
             f"- same-radius cylinders rejected once every kin in view moved >= 0.2 m: {sr}",
+            f"- look-alikes in view >= 20 frames at 0.3-2 m, share of frames not reported, by kind: {lk}",
             f"- per frame, all observers: detector {1e3 * sec['detector_per_frame']:.2f} ms, tracker "
             f"{1e3 * sec['tracker_per_frame']:.2f} ms "
             f"({100 * sec['tracker_per_frame'] / max(sec['detector_per_frame'], 1e-12):.0f} %), timed warm "
