@@ -730,7 +730,7 @@ def _warm_up(detectors, tracker_params) -> float:
     scan = World(scenes.paper_scenario(1, distance=0.5), seed=0).scan()
     for d in detectors:
         d.detect_batch(scan.ranges, scan.angles)
-    tr = KinTracker(tracker_params, n_observers=2)
+    tr = KinTracker(tracker_params, n_observers=2, kin_model="hand")  # the kernels; the kin decision is numpy
     pts = np.array([[1.0, 0.0], [1.01, 0.01], [0.99, -0.01]] * 3)
     xy = [[1.0, 0.0], [2.0, 0.0], [1.0, 0.5]]
     for _ in range(3):
