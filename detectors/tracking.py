@@ -125,10 +125,13 @@ TRACK_FIELDS = ("id", "x", "y", "vx", "vy", "existence", "kin_prob", "frames_see
 #: drift since, clipped to 10) and the motion cue's flag; the existence probability; the filtered speed
 #: over its standard deviation (clipped to 10); and the scene around it: the share of the observer's
 #: confirmed tracks that have moved and log(1 + their number) — in a swarm many tracks move and a kin is
-#: the likely object, among static look-alikes few do.
+#: the likely object, among static look-alikes few do; and the per-frame circle fits' residuals (each
+#: frame's points against a circle of the housing radius, one pose so no odometry drift, noise-normalised
+#: chi-square summed over the track's frames, as its excess over the degrees of freedom in standard
+#: deviations, clipped to ±10).
 TRACK_FEATURES = ("mean_logit", "std_logit", "max_logit", "last_logit", "hit_logit", "accept_rate",
                   "last_accepted", "hit_accepted", "hit", "log_frames", "log_beams", "range", "motion_z",
-                  "moved", "existence", "speed_z", "moved_share", "log_moved")  # fmt: skip
+                  "moved", "existence", "speed_z", "moved_share", "log_moved", "resid_z")  # fmt: skip
 
 _I_LOG_FRAMES, _I_HIT_ACC = TRACK_FEATURES.index("log_frames"), TRACK_FEATURES.index("hit_accepted")
 
@@ -167,7 +170,8 @@ class TrackerParams:
             look-alikes' alike.
         score_gain, score_n0, score_clamp: the score cue is ``score_gain`` times the mean evidence per
             frame (``score_n0`` pseudo-frames of zero evidence in the mean), clamped to ``±score_clamp``.
-        resid_clamp: clamp of the per-frame residual cue's sum (0: off).
+        resid_clamp: clamp of the per-frame residual cue's sum in the hand-tuned fusion (0: off; the
+            per-frame fits run anyway: the track classifier reads their chi-square, ``resid_z``).
         shape_delta: RMS deviation of a 7 cm look-alike's outline from the housing circle, m (a hexagon's
             is ~2 mm, a triangle's ~8 mm).
         shape_sigma: per-point noise floor, m; range_noise: relative range noise used when a frame gives
@@ -888,6 +892,7 @@ class KinTracker:
         speed_sd = np.sqrt(np.maximum(0.5 * (self._P[rows, 2, 2] + self._P[rows, 3, 3]), 1e-12))
         hit = self._hit[rows]
         mean = self._f_lgsum[rows] / n
+        dof = self._res_dof[rows]
         live = np.flatnonzero(self._alive & self._confirmed)  # the scene: the observer's confirmed tracks
         n_conf = np.bincount(self._obs[live], minlength=self.n_observers)[o].astype(np.float64)
         n_moved = np.bincount(self._obs[live][self._moved[live]], minlength=self.n_observers)[o]
@@ -899,6 +904,7 @@ class KinTracker:
             np.log1p(self._f_beams[rows]), self._f_rng[rows], np.minimum(disp / np.sqrt(var), 10.0),
             self._moved[rows].astype(np.float64), self._exist[rows], np.minimum(speed / speed_sd, 10.0),
             n_moved / np.maximum(n_conf, 1.0), np.log1p(n_moved),
+            np.clip((self._res_chi2[rows] - dof) / np.sqrt(2.0 * np.maximum(dof, 1.0)), -10.0, 10.0),
         ], axis=1)  # fmt: skip
 
     def track_features(self, observer: int = 0) -> dict[str, np.ndarray]:
@@ -1467,7 +1473,7 @@ def _outline_kernel(ti, ci, pts, sig, dist, cstart, obs, odometer, moved, buf, n
         t, c = ti[j], ci[j]
         a, b = cstart[c], cstart[c + 1]
         mf = b - a
-        if mf >= 3 and resid_clamp > 0.0:
+        if mf >= 3:  # always: the track classifier reads the summed chi-square (resid_z)
             # per-frame known-radius fit: one pose, so no odometry drift and valid while the object moves;
             # start r behind the points' middle as seen from the observer
             mx = my = 0.0

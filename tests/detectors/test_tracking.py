@@ -413,6 +413,7 @@ def test_track_features_on_a_hand_made_sequence():
     np.testing.assert_allclose(X["log_beams"], np.log1p([5, 3]))
     np.testing.assert_allclose(X["range"], [1.0, math.hypot(2.0, 0.1)])
     assert X["moved"][0] == 0 and X["motion_z"][1] > X["motion_z"][0]
+    assert np.isfinite(X["resid_z"]).all() and X["resid_z"][0] < 0  # exact circle points: chi2 below dof
     assert f["id"].tolist() == [0, 1] and f["confirmed"].all()
     tr.update_batch([0], [[1.0, 0.0]], [0.9], np.zeros((1, 3)), DT, accepted=[True])  # the mover is missed
     X = dict(zip(TRACK_FEATURES, tr.track_features()["features"].T, strict=True))
