@@ -1496,10 +1496,12 @@ def _outline_kernel(ti, ci, pts, sig, dist, cstart, obs, odometer, moved, buf, n
                 v1 = v0 + delta2
                 ee = fe[p - a] * fe[p - a]
                 chi2 += ee / v0
-                llr += 0.5 * math.log(v1 / v0) * (mf - 2) / mf - 0.5 * ee * (1.0 / v0 - 1.0 / v1)
+                if resid_clamp > 0.0:  # the hand-tuned cue's LLR (its logs) only when it is on
+                    llr += 0.5 * math.log(v1 / v0) * (mf - 2) / mf - 0.5 * ee * (1.0 / v0 - 1.0 / v1)
             res_chi2[t] += chi2
             res_dof[t] += mf - 2
-            lo_resid[t] = min(max(lo_resid[t] + llr, -resid_clamp), resid_clamp)
+            if resid_clamp > 0.0:
+                lo_resid[t] = min(max(lo_resid[t] + llr, -resid_clamp), resid_clamp)
         if moved[t]:  # a moving object's points share no frame: its outline is no evidence
             lo_shape[t] = 0.0
             continue
