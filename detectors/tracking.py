@@ -85,7 +85,8 @@ absorbs.
    (:class:`TrackKinModel`, shipped as ``checkpoints/tracker_kin_default.json``): a logistic regression
    over per-track features (:data:`TRACK_FEATURES`: the detector's score log-odds averaged, spread,
    maximum and last; the detector's own decisions; frames seen, beams, range; the motion statistic in the
-   odometry frame; existence; the share of the observer's tracks that moved), fitted on training-seed
+   odometry frame; existence; the share of the observer's tracks that moved; the per-frame circle fits'
+   summed chi-square, cue r's statistic), fitted on training-seed
    sequence episodes (``scripts/fit_track_classifier.py``). A track seen in fewer than its ``min_frames``
    frames takes the detector's own decision of its last frame instead, so that a young track is never
    worse than the single scan. The cues above still run (their state feeds the features); only their
