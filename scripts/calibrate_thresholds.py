@@ -60,7 +60,8 @@ def candidates(detector, fr) -> dict:
     if getattr(detector, "suppress_duplicates", False):
         # as the detector does at its operating point (the higher-scored neighbour of a duplicate is
         # accepted whenever the duplicate is)
-        keep = keep[duplicates(batch.scan[keep], xy[keep], p[keep], 2.0 * float(detector.feature_config.r)) < 0]
+        radius = 2.0 * float(detector.feature_config.r)
+        keep = keep[duplicates(batch.scan[keep], xy[keep], p[keep], radius) < 0]
     x = feats.x[keep]
     eb = expected_beams(np.exp(x[:, detector._range_col].astype(np.float64)), detector._step,
                         float(detector.feature_config.r))  # fmt: skip
