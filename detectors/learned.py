@@ -33,6 +33,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+import numba
 import numpy as np
 import torch
 from torch import nn
@@ -106,39 +107,63 @@ _BEAM_KEYS = ("beam_edges", "table")
 
 def duplicates(scan, xy, score, radius: float) -> np.ndarray:
     """``(D,)`` for detections in segment order (``scan`` sorted): the index of a higher-scored
-    detection of the same scan, next to it in that order (or first and last of the scan: the sweep
-    wraps), whose centre lies within ``radius``; -1 for the detections to keep. Neighbours only: a
-    split housing's parts are adjacent segments. Repeated until stable, so a chain split in three
-    keeps one (ties keep the earlier)."""
-    scan = np.asarray(scan)
-    xy = np.asarray(xy, dtype=np.float64)
-    score = np.asarray(score, dtype=np.float64)
+    detection of the same scan, next to it in that order among the kept ones (the last and the first
+    of a scan too: the sweep wraps), whose centre lies within ``radius``; -1 for the detections to
+    keep. Neighbours only: a split housing's parts are adjacent segments. A chain split in three
+    keeps one; ties keep the earlier (compiled: :func:`_duplicates_kernel`)."""
+    scan = np.ascontiguousarray(scan, dtype=np.int64)
+    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
     out = np.full(scan.shape[0], -1, np.int64)
-    alive = np.arange(scan.shape[0])
-    while alive.size > 1:
-        s, c, p = scan[alive], xy[alive], score[alive]
-        nxt = np.r_[np.arange(1, alive.size), 0]
-        # the last of each scan pairs with the first of its scan (wrap-around)
-        last = np.r_[s[1:] != s[:-1], True]
-        starts = np.flatnonzero(np.r_[True, s[1:] != s[:-1]])
-        nxt[last] = starts[np.searchsorted(starts, np.flatnonzero(last), side="right") - 1]
-        pair = (nxt != np.arange(alive.size)) & (np.hypot(*(c[nxt] - c).T) < radius)
-        if not pair.any():
-            break
-        a, b = np.flatnonzero(pair), nxt[pair]
-        lose_a = (p[a] < p[b]) | ((p[a] == p[b]) & (a > b))  # ties: the earlier stays
-        loser = np.where(lose_a, a, b)
-        winner = np.where(lose_a, b, a)
-        out[alive[loser]] = alive[winner]
-        alive = np.setdiff1d(alive, alive[loser])
-    # a loser's winner may have lost in turn: point at the one that stayed
-    for _ in range(out.size):
-        nxt_out = np.where(out >= 0, out[np.maximum(out, 0)], -1)
-        moved = (out >= 0) & (nxt_out >= 0)
-        if not moved.any():
-            break
-        out = np.where(moved, nxt_out, out)
+    if scan.shape[0] > 1:
+        _duplicates_kernel(scan, np.ascontiguousarray(xy[:, 0]), np.ascontiguousarray(xy[:, 1]),
+                           np.ascontiguousarray(score, dtype=np.float64), float(radius), out)  # fmt: skip
     return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _duplicates_kernel(scan, x, y, p, radius, out):
+    n = scan.shape[0]
+    r2 = radius * radius
+    i = 0
+    while i < n:
+        e = i
+        while e < n and scan[e] == scan[i]:
+            e += 1
+        changed = True
+        while changed:  # a pass over the scan's kept detections, until none is dropped
+            changed = False
+            first = -1
+            prev = -1
+            for j in range(i, e + 1):
+                if j == e:  # wrap: the last kept one against the first
+                    if first < 0 or prev == first:
+                        break
+                    a, b = prev, first
+                else:
+                    if out[j] >= 0:
+                        continue
+                    if first < 0:
+                        first = j
+                        prev = j
+                        continue
+                    a, b = prev, j
+                if (x[a] - x[b]) ** 2 + (y[a] - y[b]) ** 2 < r2:
+                    lose_a = p[a] < p[b] or (p[a] == p[b] and a > b)
+                    loser, winner = (a, b) if lose_a else (b, a)
+                    out[loser] = winner
+                    changed = True
+                    if loser == first:
+                        first = winner
+                    if j < e:
+                        prev = winner
+                elif j < e:
+                    prev = j
+        i = e
+    for j in range(n):  # point at the detection that stayed
+        k = out[j]
+        while k >= 0 and out[k] >= 0:
+            k = out[k]
+        out[j] = k
 
 
 def expected_beams(range_min, step: float, r: float = 0.035) -> np.ndarray:
@@ -539,6 +564,7 @@ class LearnedKinDetector(KinDetector):
                 f"LearnedKinDetector: suppress_duplicates must be True or False, got {suppress_duplicates!r}"
             )
         self.suppress_duplicates = suppress_duplicates
+        self._dup_radius = 0.07  # set from the feature config below
         if not isinstance(pre_gate, bool):
             raise ValueError(f"LearnedKinDetector: pre_gate must be True or False, got {pre_gate!r}")
         if inference not in INFERENCE:
@@ -561,6 +587,7 @@ class LearnedKinDetector(KinDetector):
             raise ValueError(f"LearnedKinDetector: invalid torch device {device!r} ({e})") from e
         self.model, self.checkpoint = load_checkpoint(checkpoint, self.device)
         self.feature_config: FeatureConfig = self.checkpoint["feature_config"]
+        self._dup_radius = 2.0 * float(self.feature_config.r)  # two housings' centres are never closer
         self.threshold = None if threshold is None else float(threshold)
         th = self.checkpoint["thresholds"]
         self._noise_edges = np.asarray(th["noise_edges"], dtype=np.float64)
@@ -813,20 +840,18 @@ class LearnedKinDetector(KinDetector):
         )
         acc = p >= thr
         idx = np.flatnonzero(acc)
+        xs, ys = centres[idx, 0], centres[idx, 1]
         dup = None
         if self.suppress_duplicates and idx.size > 1:
-            dup = duplicates(batch.scan[idx], centres[idx], p[idx], 2.0 * float(self.feature_config.r))
-            if (dup >= 0).any():
-                acc = acc.copy()
-                acc[idx[dup >= 0]] = False
-                dup = np.where(dup >= 0, idx[np.maximum(dup, 0)], -1)
-                dup_of = np.full(p.shape[0], -1, np.int64)
-                dup_of[idx] = dup
-                dup = dup_of
-                idx = np.flatnonzero(acc)
-            else:
-                dup = None
-        xs, ys = centres[idx, 0], centres[idx, 1]
+            d = np.full(idx.size, -1, np.int64)
+            _duplicates_kernel(batch.scan[idx], xs, ys, p[idx], self._dup_radius, d)
+            drop = d >= 0
+            if drop.any():  # rare: the dropped segments get stage "learned" and the kept one's index
+                acc[idx[drop]] = False
+                dup = np.full(p.shape[0], -1, np.int64)
+                dup[idx[drop]] = idx[d[drop]]
+                keep = ~drop
+                idx, xs, ys = idx[keep], xs[keep], ys[keep]
         first, count = batch.first[idx], batch.count[idx]
         n = batch.angles.shape[0]
         values = {"p_kin": p, "threshold": np.asarray(thr, dtype=np.float64)}
