@@ -17,6 +17,10 @@ Pipeline (same interface and output types as :class:`detectors.GeometricKinDetec
    (``positioning="fit"``: the Levenberg-Marquardt fit of :func:`detectors.geometric.fit_circle` from
    the eq. 7 start). The checkpoint names the better one on held-out data.
 
+``detect_arrays`` runs stages 1-5 in one compiled dispatch (:mod:`detectors._learned_driver`: one call
+per scan or batch, the network inside it unless it goes to BLAS or torch); ``_predict`` keeps the
+stages as separate calls, the readable reference the driver is tested against bit for bit.
+
 This is the only module of ``detectors`` that imports torch.
 """
 
@@ -39,6 +43,7 @@ import torch
 from torch import nn
 
 from . import _kernels as _k
+from . import _learned_driver as _drv
 from .base import (
     STAGES,
     BatchDetections,
@@ -94,8 +99,12 @@ _BLAS_CHUNK = 1024  # rows per BLAS chain: the activations stay in cache
 #: thread-scoping cost per call: a single scan has ~10-150 segments), more through BLAS.
 _BLAS_MIN_ROWS = 256
 #: below this many segments per call ``"numba"`` inference runs :func:`detectors._kernels.mlp_forward_rows`
-#: (bitwise the same outputs; 1 row: ~2 us vs ~31 us, break-even ~40 rows, measured under load)
-_ROWS_KERNEL_MAX = 32
+#: (bitwise the same outputs; 1 row: ~2 us vs ~31 us; 32 rows 0.83x, 40 rows 0.99x the block kernel's
+#: time, measured under load in one run)
+_ROWS_KERNEL_MAX = 40
+#: the fused driver's network runs :func:`detectors._learned_driver.mlp_rows4` below this many rows
+#: (as fast as the block kernel at 64 rows, ~1.5x faster than the row kernel on 5-35, under load)
+_DRIVER_ROWS_MAX = 64
 #: Pre-gate bounds (``LearnedKinDetector(pre_gate=True)``): a segment is dropped before the network
 #: when it has more beams than a housing can return, computed with the housing's centre at
 #: ``PRE_GATE_SLACK * min(d_i)`` (readings up to 25 % too long: 12 sigma of 2 % noise) plus
@@ -605,15 +614,22 @@ class LearnedKinDetector(KinDetector):
         self.reports = bool(reports)
         self.inference = inference
         self.torch_threads = torch_threads
+        # the compiled network's weights also serve the fused driver's signature with torch inference
+        self._numba_weights = _export_weights(self.model)
+        mean, std, w, b, sizes = self._numba_weights
+        self._numba_weights_t = (mean, std, np.ascontiguousarray(w.transpose(0, 2, 1)), b, sizes)
+        #: the fused driver runs the network itself on fewer rows than this (see ``_run_driver``)
+        self._kernel_max = {
+            "numba": 2**62,
+            "auto": _BLAS_MIN_ROWS if _blas_controller() is not None else 2**62,
+        }.get(inference, 0)
+        self._drv_args = None
         if inference != "torch":
             if self.device.type != "cpu":
                 raise ValueError(
                     f"LearnedKinDetector: inference={inference!r} runs on the CPU, got device {device!r}; "
                     "use inference='torch'"
                 )
-            self._numba_weights = _export_weights(self.model)
-            mean, std, w, b, sizes = self._numba_weights
-            self._numba_weights_t = (mean, std, np.ascontiguousarray(w.transpose(0, 2, 1)), b, sizes)
             self._blas_weights = _export_blas_weights(self.model)
             if inference == "blas" and _blas_controller() is None:
                 raise ImportError(
@@ -817,7 +833,8 @@ class LearnedKinDetector(KinDetector):
     def detect_arrays(self, ranges, angles) -> BatchDetections:
         """Detect kins in ``B`` scans (``ranges`` (B, n) m, shared ``angles`` (n,) rad) → arrays.
 
-        The segments of all scans go through the network in one pass. 0.0, NaN and inf readings
+        The segments of all scans go through the network in one pass, the whole call in one
+        compiled dispatch (:mod:`detectors._learned_driver`). 0.0, NaN and inf readings
         are no return; a negative range raises ``ValueError`` naming its scan row and beam.
         ``seg_values`` holds ``p_kin`` and ``threshold`` for every segment.
         """
@@ -833,7 +850,123 @@ class LearnedKinDetector(KinDetector):
         are identical."""
         return self._detect_arrays(ranges, angles, True)
 
+    def _detect_table_trusted(self, ranges, angles) -> tuple[np.ndarray, np.ndarray]:
+        """The detections of :meth:`_detect_arrays_trusted` (same input contract) as ``(scan row
+        (D,) int64, table (D, 8) float64)``, the table's columns
+        :data:`detectors._learned_driver.TABLE_FIELDS` (range, bearing, x, y, score, first_beam,
+        last_beam, n_beams): what ``kin_envs.envs.common.detection_arrays`` reads, straight from the
+        compiled driver without building a :class:`~detectors.base.BatchDetections`. Fresh arrays
+        on every call."""
+        rb = self._driver_input(ranges, angles, True)
+        # one scan (a single-agent env's step): the whole call compiled, only the table returns
+        if rb.shape[0] == 1 and (res := self._call_driver(_drv.fused_table, rb)) is not None:
+            return res
+        fr, bk = self._run_driver(rb)
+        return fr[1][bk[3]], bk[4]
+
     def _detect_arrays(self, ranges, angles, trusted: bool) -> BatchDetections:
+        rb = self._driver_input(ranges, angles, trusted)
+        # one scan: the whole call compiled, the columns handed back in a few blocks
+        res = self._call_driver(_drv.fused_packed, rb) if rb.shape[0] == 1 else None
+        packed = res[0] if res is not None else _drv.pack(*self._run_driver(rb))
+        seg_i, seg_b, seg_f, stage, det, det_f, det_i = packed
+        n_seg = seg_i.shape[1]
+        return BatchDetections(
+            n_scans=rb.shape[0],
+            n_beams=rb.shape[1],
+            scan=det_i[0],
+            range=det_f[0],
+            bearing=det_f[1],
+            x=det_f[2],
+            y=det_f[3],
+            score=det_f[4],
+            first_beam=det_i[1],
+            last_beam=det_i[2],
+            n_beams_on=det_i[3],
+            segment=det,
+            seg_scan=seg_i[0],
+            seg_first=seg_i[1],
+            seg_count=seg_i[2],
+            seg_prev=seg_i[3],
+            seg_next=seg_i[4],
+            seg_prev_nearer=seg_b[0],
+            seg_next_nearer=seg_b[1],
+            seg_stage=stage,
+            seg_values=(
+                {"p_kin": seg_f[0], "threshold": seg_f[1]}
+                if not self.pre_gate or n_seg == 0
+                else {"p_kin": seg_f[0], "threshold": seg_f[1], "max_beams": seg_f[2]}
+            ),
+        )
+
+    def _driver_args(self) -> tuple:
+        """The fused driver's constant arguments ``(front_args, back_args)`` for the current beam
+        layout and settings (see :meth:`_driver_consts`)."""
+        c = self.feature_config
+        ang, cos_a, sin_a, sweep = self._trig
+        fixed = -1.0 if self.threshold is None else self.threshold
+        front = (
+            float(c.d_th), float(c.d_max), self._circular, self.pre_gate, self._step, float(c.r),
+            PRE_GATE_SLACK, float(PRE_GATE_MARGIN), ang, cos_a, sin_a, float(sweep), c.occlusion_unbounded,
+            int(c.n_points), int(c.n_context), int(c.gn_iters), len(feature_names(c)),
+        )  # fmt: skip
+        back = (
+            ang, self.pre_gate, float(fixed), self._noise_edges, self._noise_thresholds,
+            self.positioning == "regression", self._t_mean, self._t_std, float(c.r), 200, _LM_XTOL,
+            _LM_LAMBDA0, _LM_LAMBDA_MAX,
+        )  # fmt: skip
+        return front, back
+
+    def _driver_consts(self) -> tuple[tuple, tuple]:
+        """:meth:`_driver_args`, cached; rebuilt when ``_check`` saw a new beam layout or
+        ``threshold``, ``pre_gate`` or ``positioning`` changed."""
+        cached = self._drv_args
+        if (
+            cached is None
+            or cached[0][0] is not self._trig
+            or cached[0][1:] != (self.threshold, self.pre_gate, self.positioning)
+        ):
+            key = (self._trig, self.threshold, self.pre_gate, self.positioning)
+            self._drv_args = cached = (key, *self._driver_args())
+        return cached[1], cached[2]
+
+    def _driver_input(self, ranges, angles, trusted: bool) -> np.ndarray:
+        """Checked ranges as the driver takes them (C-contiguous float64, one compiled signature)."""
+        rb, _ = self._check(ranges, angles, trusted)
+        return np.ascontiguousarray(rb, dtype=np.float64)
+
+    def _call_driver(self, kernel, rb: np.ndarray):
+        """``kernel`` (:func:`~detectors._learned_driver.fused` or a variant) on ``rb`` with this
+        detector's arguments: its outputs after ``done``, or None when the network did not run in it
+        (inference ``"blas"`` / ``"torch"``, or ``"auto"`` on ``_BLAS_MIN_ROWS`` rows or more)."""
+        if self._kernel_max == 0:
+            return None
+        front_args, back_args = self._driver_consts()
+        mean, std, w, b, sizes = self._numba_weights
+        done, *res = kernel(
+            rb, front_args, self._kernel_max, _DRIVER_ROWS_MAX, mean, std, w, self._numba_weights_t[2], b,
+            sizes, back_args,
+        )  # fmt: skip
+        return tuple(res) if done else None
+
+    def _run_driver(self, rb: np.ndarray):
+        """The fused driver (:mod:`detectors._learned_driver`) on ``rb`` (:meth:`_driver_input`):
+        ``(front outputs, back outputs)``. The network runs inside the compiled call unless this
+        detector's inference puts it in BLAS (``"auto"`` from ``_BLAS_MIN_ROWS`` rows) or torch: then
+        it runs here, between the driver's two kernels."""
+        front_args, back_args = self._driver_consts()
+        mean, std, w, b, sizes = self._numba_weights
+        done, fr, _, bk = _drv.fused(
+            rb, front_args, self._kernel_max, _DRIVER_ROWS_MAX, mean, std, w, self._numba_weights_t[2], b,
+            sizes, back_args,
+        )  # fmt: skip
+        if not done:
+            bk = _drv.back_rest(self._forward(fr[10]), fr, back_args)
+        return fr, bk
+
+    def _detect_arrays_staged(self, ranges, angles, trusted: bool = False) -> BatchDetections:
+        """:meth:`detect_arrays` through the staged Python pipeline (:meth:`_predict`): the readable
+        reference of the fused driver (tests compare the two bit for bit)."""
         batch, _, p, centres, thr, max_beams = self._predict(
             ranges, angles, all_centres=False, trusted=trusted
         )

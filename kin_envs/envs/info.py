@@ -47,11 +47,21 @@ def _dtype(name: str) -> type:
 
 
 @functools.lru_cache(maxsize=256)
-def _empty_row(name: str, slots: int) -> np.ndarray:
-    """A read-only ``(1, slots)`` row of ``name``'s pad value (callers copy it)."""
-    a = np.full((1, slots), PAD_VALUES.get(name, 0), dtype=_dtype(name))
-    a.flags.writeable = False
-    return a
+def _empty_rows(names: tuple[str, ...], slots: int) -> tuple[np.ndarray, np.ndarray, tuple]:
+    """Read-only ``(F, 1, slots)`` blocks of the pad values of ``names``' float and int fields (callers
+    copy them) and, per name, ``(block, index)`` (0 = floats, 1 = ints)."""
+    where, floats, ints = [], [], []
+    for name in names:
+        if _dtype(name) is np.int64:
+            where.append((1, len(ints)))
+            ints.append(PAD_VALUES.get(name, 0))
+        else:
+            where.append((0, len(floats)))
+            floats.append(PAD_VALUES.get(name, 0))
+    fb = np.repeat(np.array(floats, dtype=np.float64)[:, None, None], slots, axis=2)
+    ib = np.repeat(np.array(ints, dtype=np.int64)[:, None, None], slots, axis=2)
+    fb.flags.writeable = ib.flags.writeable = False
+    return fb, ib, tuple(where)
 
 
 def pad_rows(
@@ -68,12 +78,16 @@ def pad_rows(
     row = np.asarray(row, dtype=np.int64)
     if n_rows == 1:
         # one observer (KinSeek/KinFollow every step): its items are the first ``slots``, already
-        # nearest first; skips the rank bookkeeping below (a per-step fixed cost)
+        # nearest first; skips the rank bookkeeping below (a per-step fixed cost). Two copies of
+        # cached padded blocks (floats, ints) beat one np.full per field; each field is a row of one
         n = min(row.size, slots)
+        fb, ib, where = _empty_rows(tuple(cols), slots)
+        blocks = (fb.copy(), ib.copy())
         out = {}
-        for name, col in cols.items():
-            a = _empty_row(name, slots).copy()  # a copy of a cached padded row beats np.full here
-            a[0, :n] = col[:n]
+        for (name, col), (blk, k) in zip(cols.items(), where, strict=True):
+            a = blocks[blk][k]
+            if n:
+                a[0, :n] = col[:n]
             out[name] = a
         return out, np.array([n], dtype=np.int64)
     start = np.searchsorted(row, np.arange(n_rows))

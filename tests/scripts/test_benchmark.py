@@ -33,6 +33,9 @@ def test_lidar_and_detector_sections(bench, tmp_path):
         names = [r["detector"] for r in res["detector"]]
         assert names[1] == "learned (default)" and "learned (default, no pre-gate)" in names
         assert all(r["arrays"] > 0 and r["single_scan"] > 0 for r in res["detector"])
+    # the KinSeek-scan rows (public API and the env's trusted entry), for every detector
+    assert all(r["kinseek_scan"] > 0 and r["kinseek_env"] > 0 for r in res["detector"])
+    assert "KinSeek scan calls/s" in (tmp_path / "benchmark.md").read_text()
 
 
 def test_cpu_clock(bench, tmp_path):

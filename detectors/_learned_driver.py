@@ -1,0 +1,341 @@
+"""Fused driver of :class:`detectors.learned.LearnedKinDetector`: a whole call in one compiled dispatch.
+
+A one-scan call (a single-agent env's step) has ~10-50 segments, so the detector's cost was nearly
+all per-call overhead: ~30 small numpy calls and Python glue around ~55 us of compiled stages. Here
+the stages run back to back inside compiled code and write the compact result columns:
+
+* :func:`front`: pre-processing and segmentation (:mod:`detectors._kernels`), the pre-gate, the scan
+  noise and the features of the segments that pass it (:mod:`detectors.features`' kernels);
+* :func:`back`: from the network's ``(R, 3)`` outputs, ``p(kin)``, the per-noise thresholds, the
+  stage codes, the kin centres (regression or circle fit) and the detection columns;
+* :func:`fused`: ``front``, the network in a compiled kernel (:func:`mlp_rows4`, bitwise
+  :func:`detectors._kernels.mlp_forward_rows`, below ``rows_max`` rows, else
+  :func:`~detectors._kernels.mlp_forward`) and ``back``, when the
+  network is to run compiled on fewer than ``kernel_max`` rows; otherwise it stops after ``front`` and
+  the detector runs BLAS / torch in Python, then ``back``;
+* :func:`fused_table` / :func:`fused_packed`: ``fused`` for one scan, handing back only the env's
+  ``(row, table)`` or the result columns packed in 7 blocks (:func:`pack`): each array that crosses
+  back into Python costs ~1 us, a fixed cost that matters at ~50 us a call.
+
+The stage kernels are called with the same arguments as the staged Python pipeline
+(``LearnedKinDetector._predict``, kept as the readable reference) passes them, and every expression
+after the network repeats that pipeline's numpy expression on the same float64 values, so the outputs
+are bitwise the same (``tests/detectors/test_learned_driver.py``). A change to a stage (a new
+feature kernel signature, a cascade stage) must be made in both places; that test fails otherwise.
+
+Every output array is allocated in the call: results handed to a caller are never reused.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from . import _kernels as _k
+from .features import _features_kernel, _scan_noise_kernel
+
+#: index of each field in the ``(D, 8)`` detection table (``kin_envs.envs.info.DETECTION_FIELDS[:8]``)
+TABLE_FIELDS = ("range", "bearing", "x", "y", "score", "first_beam", "last_beam", "n_beams")
+
+
+@numba.njit(cache=True, nogil=True)
+def front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_ang, cos_a, sin_a, sweep,
+          occlusion_unbounded, n_points, n_context, gn_iters, n_feat):  # fmt: skip
+    """Stages 1-3 for ``B`` scans ``r`` (B, n) (float32 or float64 readings, not validated here).
+
+    Returns ``(d, scan, first, count, prev, next, prev_nearer, next_nearer, max_beams, rows, x,
+    frames, scan_cols)``: the pre-processed ranges, the segments (as
+    :func:`detectors._kernels.segment_arrays`), the pre-gate bound of every segment (NaN without the
+    gate), the segments ``rows`` that reach the network, their ``(R, F)`` float32 features and local
+    frames, and each scan's float64 noise features (:func:`detectors.features._features_kernel`).
+    """
+    n_rows, n = r.shape
+    d = np.empty((n_rows, n))
+    _k.preprocess_rows(r, d_max, d_th, circular, False, d)
+    cap = n_rows * n
+    scan_b = np.empty(cap, dtype=np.int64)
+    first_b = np.empty(cap, dtype=np.int64)
+    count_b = np.empty(cap, dtype=np.int64)
+    prev_b = np.empty(cap, dtype=np.int64)
+    nxt_b = np.empty(cap, dtype=np.int64)
+    pn_b = np.empty(cap, dtype=np.bool_)
+    nn_b = np.empty(cap, dtype=np.bool_)
+    s = _k.segment_rows(d, d_th, d_max, circular, scan_b, first_b, count_b, prev_b, nxt_b, pn_b, nn_b)
+    scan = scan_b[:s].copy()
+    first = first_b[:s].copy()
+    count = count_b[:s].copy()
+    prev = prev_b[:s].copy()
+    nxt = nxt_b[:s].copy()
+    p_near = pn_b[:s].copy()
+    n_near = nn_b[:s].copy()
+    max_beams = np.empty(s)
+    if pre_gate:
+        _k.housing_max_beams(d, scan, first, count, step, r_kin, slack, margin, max_beams)
+        keep = np.empty(s, dtype=np.int64)
+        n_keep = 0
+        for i in range(s):
+            if count[i] <= max_beams[i]:
+                keep[n_keep] = i
+                n_keep += 1
+        rows = keep[:n_keep].copy()
+        # (a further selection stage, e.g. a cascade, would narrow ``rows`` here)
+    else:
+        max_beams[:] = np.nan
+        rows = np.arange(s)
+    n_sel = rows.shape[0]
+    x = np.empty((n_sel, n_feat), dtype=np.float32)
+    frames = np.empty((n_sel, 4))
+    scan_cols = np.empty((n_rows, 2))
+    if s > 0:
+        noise = np.empty(n_rows)
+        noise_n = np.empty(n_rows, dtype=np.int64)
+        _scan_noise_kernel(d, d_th, d_max, circular, noise, noise_n)
+        fit_centre = np.empty((n_sel, 2))
+        min_beam = np.empty(n_sel, dtype=np.int64)
+        _features_kernel(
+            d.reshape(-1), cos_a, sin_a, trig_ang, scan, first, count, prev, nxt, p_near, n_near, n,
+            circular, sweep, r_kin, d_max, occlusion_unbounded, n_points, n_context, gn_iters, noise,
+            noise_n, rows, x, frames, fit_centre, min_beam, scan_cols,
+        )  # fmt: skip
+    return d, scan, first, count, prev, nxt, p_near, n_near, max_beams, rows, x, frames, scan_cols
+
+
+@numba.njit(cache=True, inline="always")
+def _scan_threshold(log_noise, fixed, edges, values):
+    # LearnedKinDetector._thresholds for one scan: the float32 feature value, exp in float64, and
+    # np.searchsorted(edges, sigma, side="right") (NaN sorts last)
+    if fixed >= 0.0:
+        return fixed
+    if edges.shape[0] == 0:
+        return values[0]
+    sigma = math.exp(np.float64(np.float32(log_noise))) - 1e-4
+    k = edges.shape[0]
+    if sigma == sigma:
+        k = 0
+        while k < edges.shape[0] and edges[k] <= sigma:
+            k += 1
+    return values[k]
+
+
+@numba.njit(cache=True, nogil=True)
+def back(out, d, scan, first, count, max_beams, rows, frames, scan_cols, ang, pre_gate, fixed_threshold,
+         edges, values, regression, t_mean, t_std, r_kin, max_iter, xtol, lam0, lam_max):  # fmt: skip
+    """Stages 4-5 from the network outputs ``out`` (R, 3) float64 of the segments ``rows``.
+
+    ``fixed_threshold`` < 0: the per-noise thresholds ``values`` over ``edges``. Returns ``(p,
+    thr, stage, det, table)``: ``p(kin)`` of every segment (NaN where the pre-gate dropped it), its
+    threshold and stage code, the accepted segments' indices and their ``(D, 8)`` detection table
+    (:data:`TABLE_FIELDS`: the centre's range, bearing, ``x``, ``y``, the score and the beams).
+    """
+    n_seg = scan.shape[0]
+    n_beams = ang.shape[0]
+    thr_scan = np.empty(scan_cols.shape[0])
+    if n_seg > 0:
+        for b in range(scan_cols.shape[0]):
+            thr_scan[b] = _scan_threshold(scan_cols[b, 0], fixed_threshold, edges, values)
+    thr = np.empty(n_seg)
+    p = np.full(n_seg, np.nan)
+    for i in range(n_seg):
+        thr[i] = thr_scan[scan[i]]
+    for o in range(rows.shape[0]):
+        p[rows[o]] = 1.0 / (1.0 + math.exp(-out[o, 0]))
+    stage = np.empty(n_seg, dtype=np.int8)
+    n_det = 0
+    for i in range(n_seg):
+        if p[i] >= thr[i]:
+            stage[i] = _k.ACCEPTED
+            n_det += 1
+        elif pre_gate and count[i] > max_beams[i]:  # dropped by the pre-gate (p NaN)
+            stage[i] = _k.DIAMETER
+        else:
+            stage[i] = _k.LEARNED
+    det = np.empty(n_det, dtype=np.int64)
+    k = 0
+    for i in range(n_seg):
+        if stage[i] == _k.ACCEPTED:
+            det[k] = i
+            k += 1
+    centres = np.empty((n_det, 2))
+    if regression:
+        k = 0
+        for o in range(rows.shape[0]):
+            if k < n_det and rows[o] == det[k]:
+                # t_mean + t_std * out, then detectors.features.local_to_observer, term by term
+                u = t_mean[0] + t_std[0] * out[o, 1]
+                v = t_mean[1] + t_std[1] * out[o, 2]
+                ox, oy, phi, s = frames[o, 0], frames[o, 1], frames[o, 2], frames[o, 3]
+                c = math.cos(phi)
+                sn = math.sin(phi)
+                centres[k, 0] = ox + u * c - s * v * sn
+                centres[k, 1] = oy + u * sn + s * v * c
+                k += 1
+    else:
+        full = np.empty((n_seg, 2))
+        _k.fit_centres(d, ang, scan, first, count, det, r_kin, max_iter, xtol, lam0, lam_max, full)
+        for k in range(n_det):
+            centres[k, 0] = full[det[k], 0]
+            centres[k, 1] = full[det[k], 1]
+    table = np.empty((n_det, 8))
+    for k in range(n_det):
+        i = det[k]
+        x = centres[k, 0]
+        y = centres[k, 1]
+        table[k, 0] = math.hypot(x, y)
+        table[k, 1] = _k.wrap(math.atan2(y, x))
+        table[k, 2] = x
+        table[k, 3] = y
+        table[k, 4] = p[i]
+        table[k, 5] = first[i]
+        table[k, 6] = (first[i] + count[i] - 1) % n_beams
+        table[k, 7] = count[i]
+    return p, thr, stage, det, table
+
+
+@numba.njit(cache=True, nogil=True, fastmath=True)
+def mlp_rows4(x, mean, std, weights_t, biases, sizes, out):
+    """:func:`detectors._kernels.mlp_forward_rows` four rows at a time: each weight is loaded once for
+    four rows, and each row's units are summed over the inputs in the same order with the same
+    statement, so the outputs are bitwise those of ``mlp_forward_rows`` (and of the block kernel,
+    ``tests/detectors/test_learned_driver.py``); ~1.5x faster on 5-35 rows (one scan's segments),
+    as fast as the block kernel up to ~250 rows (measured under load)."""
+    n_rows, n_in = x.shape
+    width = max(sizes.max(), n_in)
+    a = np.zeros((4, width), dtype=np.float32)
+    h = np.zeros((4, width), dtype=np.float32)
+    n_layers = weights_t.shape[0]
+    for r0 in range(0, n_rows, 4):
+        m = min(4, n_rows - r0)
+        for q in range(m):
+            for k in range(n_in):
+                a[q, k] = (x[r0 + q, k] - mean[k]) / std[k]
+        for li in range(n_layers):
+            k_in = sizes[li]
+            n_out = sizes[li + 1]
+            for q in range(4):
+                for j in range(n_out):
+                    h[q, j] = biases[li, j]
+            if m == 4:
+                for k in range(k_in):
+                    a0 = a[0, k]
+                    a1 = a[1, k]
+                    a2 = a[2, k]
+                    a3 = a[3, k]
+                    for j in range(n_out):
+                        wkj = weights_t[li, k, j]
+                        h[0, j] += wkj * a0
+                        h[1, j] += wkj * a1
+                        h[2, j] += wkj * a2
+                        h[3, j] += wkj * a3
+            else:  # the last 1-3 rows: one at a time, as mlp_forward_rows
+                for q in range(m):
+                    for k in range(k_in):
+                        ak = a[q, k]
+                        for j in range(n_out):
+                            h[q, j] += weights_t[li, k, j] * ak
+            if li < n_layers - 1:
+                for q in range(4):
+                    for j in range(n_out):
+                        if h[q, j] < 0.0:
+                            h[q, j] = 0.0
+            a, h = h, a
+        for q in range(m):
+            for j in range(sizes[n_layers]):
+                out[r0 + q, j] = a[q, j]
+
+
+@numba.njit(cache=True, nogil=True)
+def fused(r, front_args, kernel_max, rows_max, mean, std, weights, weights_t, biases, sizes, back_args):
+    """:func:`front`, the network compiled and :func:`back` in one dispatch when fewer than
+    ``kernel_max`` segments reach the network (``done`` True); else only ``front`` (``done`` False,
+    ``out`` and the ``back`` part empty). ``front_args`` / ``back_args``: the other arguments of
+    :func:`front` / :func:`back` after ``r`` / ``scan_cols``.
+
+    Returns ``(done, front outputs, out (R, 3) float64, back outputs)``."""
+    fr = front(r, *front_args)
+    rows, x = fr[9], fr[10]
+    n_sel = rows.shape[0]
+    if n_sel >= kernel_max:
+        empty = (np.empty(0), np.empty(0), np.empty(0, dtype=np.int8), np.empty(0, dtype=np.int64),
+                 np.empty((0, 8)))  # fmt: skip
+        return False, fr, np.empty((0, 3)), empty
+    out32 = np.empty((n_sel, 3), dtype=np.float32)
+    if n_sel > 0:
+        if n_sel < rows_max:
+            mlp_rows4(x, mean, std, weights_t, biases, sizes, out32)
+        else:
+            _k.mlp_forward(x, mean, std, weights, biases, sizes, out32)
+    out = out32.astype(np.float64)
+    return True, fr, out, back_rest(out, fr, back_args)
+
+
+@numba.njit(cache=True, nogil=True)
+def back_rest(out, fr, back_args):
+    """:func:`back` on the outputs ``fr`` of :func:`front` (``back_args``: its arguments from ``ang``)."""
+    return back(out, fr[0], fr[1], fr[2], fr[3], fr[8], fr[9], fr[11], fr[12], *back_args)
+
+
+@numba.njit(cache=True, nogil=True)
+def fused_table(r, front_args, kernel_max, rows_max, mean, std, weights, weights_t, biases, sizes, back_args):
+    """:func:`fused` returning only ``(done, scan row (D,), table (D, 8))`` of the detections: what the
+    envs read (fewer arrays cross back into Python). ``done`` False (as :func:`fused`): nothing was
+    computed past :func:`front`, call :func:`fused` instead."""
+    done, fr, _, bk = fused(r, front_args, kernel_max, rows_max, mean, std, weights, weights_t, biases,
+                            sizes, back_args)  # fmt: skip
+    if not done:
+        return False, np.empty(0, dtype=np.int64), np.empty((0, 8))
+    return True, fr[1][bk[3]], bk[4]
+
+
+@numba.njit(cache=True, nogil=True)
+def pack(fr, bk):
+    """The :class:`~detectors.base.BatchDetections` columns from :func:`front` / :func:`back` outputs
+    as a few blocks (each column a row of one; fewer arrays to hand back to Python): ``(seg_i (5, S)
+    int64: scan, first, count, prev, next; seg_b (2, S) bool: prev_nearer, next_nearer; seg_f (3, S):
+    p_kin, threshold, max_beams; stage (S,) int8; det (D,) int64; det_f (5, D): range, bearing, x, y,
+    score; det_i (4, D) int64: scan, first_beam, last_beam, n_beams)``."""
+    n_beams = fr[0].shape[1]
+    scan, first, count = fr[1], fr[2], fr[3]
+    p, thr, stage, det, table = bk
+    n_seg = scan.shape[0]
+    n_det = det.shape[0]
+    seg_i = np.empty((5, n_seg), dtype=np.int64)
+    seg_b = np.empty((2, n_seg), dtype=np.bool_)
+    seg_f = np.empty((3, n_seg))
+    for i in range(n_seg):
+        seg_i[0, i] = scan[i]
+        seg_i[1, i] = first[i]
+        seg_i[2, i] = count[i]
+        seg_i[3, i] = fr[4][i]
+        seg_i[4, i] = fr[5][i]
+        seg_b[0, i] = fr[6][i]
+        seg_b[1, i] = fr[7][i]
+        seg_f[0, i] = p[i]
+        seg_f[1, i] = thr[i]
+        seg_f[2, i] = fr[8][i]
+    det_f = np.empty((5, n_det))
+    det_i = np.empty((4, n_det), dtype=np.int64)
+    for k in range(n_det):
+        i = det[k]
+        for c in range(5):
+            det_f[c, k] = table[k, c]
+        det_i[0, k] = scan[i]
+        det_i[1, k] = first[i]
+        det_i[2, k] = (first[i] + count[i] - 1) % n_beams
+        det_i[3, k] = count[i]
+    return seg_i, seg_b, seg_f, stage, det, det_f, det_i
+
+
+@numba.njit(cache=True, nogil=True)
+def fused_packed(r, front_args, kernel_max, rows_max, mean, std, weights, weights_t, biases, sizes,
+                 back_args):  # fmt: skip
+    """:func:`fused` returning ``(done, pack(...))`` (:func:`pack`; empty blocks when not ``done``): one
+    scan's ``detect_arrays`` hands 7 arrays back to Python instead of 19 (~1 us each)."""
+    done, fr, _, bk = fused(r, front_args, kernel_max, rows_max, mean, std, weights, weights_t, biases,
+                            sizes, back_args)  # fmt: skip
+    if not done:  # fr's segments but no back outputs: nothing to pack
+        return False, (np.empty((5, 0), dtype=np.int64), np.empty((2, 0), dtype=np.bool_), np.empty((3, 0)),
+                       np.empty(0, dtype=np.int8), np.empty(0, dtype=np.int64), np.empty((5, 0)),
+                       np.empty((4, 0), dtype=np.int64))  # fmt: skip
+    return True, pack(fr, bk)

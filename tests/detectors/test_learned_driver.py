@@ -1,0 +1,178 @@
+"""detectors._learned_driver: the fused one-dispatch driver gives the staged pipeline's outputs, bit for bit.
+
+``LearnedKinDetector._detect_arrays_staged`` is the readable staged pipeline (``_predict``: numpy calls
+between the stage kernels); ``detect_arrays`` / the trusted entries run the fused driver. They must agree
+on every field for every inference path, positioning, pre-gate setting and batch size, including the
+paths where the network runs in Python between the driver's two kernels (BLAS, torch).
+"""
+
+import math
+
+import numpy as np
+import pytest
+
+pytest.importorskip("torch")  # the only reason to skip: CI installs torch
+
+from detectors import _learned_driver as _drv  # noqa: E402
+from detectors.base import wrap_angle  # noqa: E402
+from detectors.learned import _BLAS_MIN_ROWS, LearnedKinDetector  # noqa: E402
+from kin_envs import LidarSpec, World, scenes  # noqa: E402
+
+FIELDS = (
+    "scan", "range", "bearing", "x", "y", "score", "first_beam", "last_beam", "n_beams_on", "segment",
+    "seg_scan", "seg_first", "seg_count", "seg_prev", "seg_next", "seg_prev_nearer", "seg_next_nearer",
+    "seg_stage",
+)  # fmt: skip
+
+
+def assert_same(got, ref):
+    assert (got.n_scans, got.n_beams) == (ref.n_scans, ref.n_beams)
+    for f in FIELDS:
+        a, b = getattr(got, f), getattr(ref, f)
+        assert a.dtype == b.dtype and a.shape == b.shape, f
+        assert np.array_equal(a, b, equal_nan=True), f
+    assert got.seg_values.keys() == ref.seg_values.keys()
+    for k, v in ref.seg_values.items():
+        assert got.seg_values[k].dtype == v.dtype
+        assert np.array_equal(got.seg_values[k], v, equal_nan=True), k
+
+
+def arena(seed, noise, n_robots=16, n_obstacles=20):
+    scene = scenes.random_arena(n_robots, n_obstacles, seed=seed).replace(lidar=LidarSpec(noise_sigma=noise))
+    return World(scene, seed=seed).scan()
+
+
+SCANS = [arena(seed, noise) for seed, noise in ((0, 0.0), (1, 0.01), (2, 0.005))]
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        {},
+        {"inference": "numba"},
+        {"inference": "blas"},
+        {"inference": "torch"},
+        {"pre_gate": False},
+        {"positioning": "fit"},
+        {"threshold": 0.3},
+    ],
+    ids=["default", "numba", "blas", "torch", "no_pre_gate", "fit", "fixed_threshold"],
+)
+def test_fused_driver_is_bitwise_the_staged_pipeline(kwargs):
+    det = LearnedKinDetector(reports=False, **kwargs)
+    n_det = 0
+    for s in SCANS:
+        # one scan (a single-agent env), a few, every robot's (BLAS above _BLAS_MIN_ROWS segments)
+        for r in (s.ranges[:1], s.ranges[2:5], s.ranges):
+            ref = det._detect_arrays_staged(r.astype(np.float64), s.angles)
+            assert_same(det.detect_arrays(r, s.angles), ref)
+            assert_same(det._detect_arrays_trusted(r, s.angles), ref)
+            n_det += ref.n_detections
+    assert n_det > 0
+    assert sum(det.detect_arrays(s.ranges, s.angles).n_segments for s in SCANS) >= _BLAS_MIN_ROWS
+
+
+def test_fused_driver_edge_cases():
+    det = LearnedKinDetector(reports=False)
+    s = SCANS[1]
+    n = s.angles.shape[0]
+    empty = np.full((2, n), np.inf)
+    empty[1, :] = 0.0  # "no return" in both RPLIDAR spellings: no segment at all
+    one_wall = np.full((1, n), 3.0)  # a round room: one segment without a break, dropped by the pre-gate
+    mixed = np.vstack([empty, s.ranges[:1].astype(np.float64), one_wall])
+    # every beam its own segment: more than _BLAS_MIN_ROWS rows, the one-scan call hands over to BLAS
+    comb = np.where(np.arange(n) % 2 == 0, 1.0, 1.5)[None, :]
+    for r in (empty, one_wall, mixed, comb, empty[:1]):
+        ref = det._detect_arrays_staged(r, s.angles)
+        got = det.detect_arrays(r, s.angles)
+        assert_same(got, ref)
+    assert det.detect_arrays(empty, s.angles).n_segments == 0
+    assert "max_beams" not in det.detect_arrays(empty, s.angles).seg_values  # as the staged pipeline
+
+
+def test_repeated_calls_with_different_scans_keep_earlier_results():
+    det = LearnedKinDetector(reports=False)
+    scans = [arena(seed, 0.01, n_robots=8) for seed in (10, 11, 12)]
+    got, kept = [], []
+    for s in scans:
+        for r in s.ranges[:4]:
+            b = det._detect_arrays_trusted(r[None, :], s.angles)
+            got.append(b)
+            kept.append({f: getattr(b, f).copy() for f in FIELDS})
+    for b, k in zip(got, kept, strict=True):  # later calls left every earlier result alone
+        for f in FIELDS:
+            assert np.array_equal(getattr(b, f), k[f], equal_nan=True), f
+    for f in FIELDS:
+        assert not np.shares_memory(getattr(got[0], f), getattr(got[1], f)), f
+    rows, tables = [], []
+    for s in scans:
+        row, tab = det._detect_table_trusted(s.ranges[:1], s.angles)
+        rows.append(row)
+        tables.append(tab)
+        ref = det._detect_arrays_staged(s.ranges[:1], s.angles)
+        expected = np.stack(
+            [ref.range, ref.bearing, ref.x, ref.y, ref.score, ref.first_beam, ref.last_beam, ref.n_beams_on],
+            axis=1,
+        ).astype(np.float64)
+        assert np.array_equal(tab, expected) and np.array_equal(row, ref.scan)
+    assert not np.shares_memory(tables[0], tables[1])
+
+
+def test_driver_bearing_expression_matches_numpy():
+    # the driver's wrap(atan2) per detection against the staged path's wrap_angle(np.arctan2)
+    rng = np.random.default_rng(0)
+    x, y = rng.normal(size=(2, 2000)) * 3.0
+    x[:4], y[:4] = (-1.0, 0.0, 0.0, -0.0), (-0.0, 1.0, -1.0, 0.0)
+    assert np.array_equal(_drv_wrap_atan2(y, x), wrap_angle(np.arctan2(y, x)))
+
+
+def _drv_wrap_atan2(y, x):
+    from detectors import _kernels as _k
+
+    return np.array([_k.wrap(math.atan2(b, a)) for a, b in zip(x.tolist(), y.tolist(), strict=True)])
+
+
+def test_table_fields_are_the_env_detection_fields():
+    from kin_envs.envs.info import DETECTION_FIELDS
+
+    assert _drv.TABLE_FIELDS == DETECTION_FIELDS[:8]
+
+
+def _staged_table(det, r, angles):
+    ref = det._detect_arrays_staged(np.asarray(r, dtype=np.float64), angles)
+    cols = [ref.range, ref.bearing, ref.x, ref.y, ref.score, ref.first_beam, ref.last_beam, ref.n_beams_on]
+    return ref.scan, np.stack(cols, axis=1).astype(np.float64).reshape(-1, 8)
+
+
+@pytest.mark.parametrize("inference", ["auto", "numba", "blas"])
+def test_table_entry_equals_the_staged_detections(inference):
+    det = LearnedKinDetector(reports=False, inference=inference)
+    s = SCANS[2]
+    n = s.angles.shape[0]
+    # every beam its own segment (alternating ranges): 360 segments reach the network, more than
+    # _BLAS_MIN_ROWS, so the one-scan compiled call hands over to the BLAS path
+    comb = np.where(np.arange(n) % 2 == 0, 1.0, 1.5)[None, :]
+    det._detect_table_trusted(s.ranges[:1], s.angles)  # the layout is checked once, then trusted
+    for r in (s.ranges[:1], s.ranges[5:6], s.ranges[:3], comb, s.ranges):
+        row, tab = det._detect_table_trusted(r, s.angles)
+        ref_row, ref_tab = _staged_table(det, r, s.angles)
+        assert row.dtype == np.int64 and tab.dtype == np.float64
+        assert np.array_equal(row, ref_row) and np.array_equal(tab, ref_tab)
+    assert det.detect_arrays(comb, s.angles).n_segments == n
+
+
+def test_four_row_network_kernel_is_bitwise_the_row_and_block_kernels():
+    from detectors import _kernels as _k
+
+    det = LearnedKinDetector(reports=False)
+    mean, std, w, b, sizes = det._numba_weights
+    wt = det._numba_weights_t[2]
+    rng = np.random.default_rng(1)
+    for n in (1, 2, 3, 4, 5, 7, 8, 31, 40, 65, 130):
+        x = (mean + rng.normal(size=(n, mean.size)) * 3.0 * std).astype(np.float32)
+        outs = [np.empty((n, 3), np.float32) for _ in range(3)]
+        _drv.mlp_rows4(x, mean, std, wt, b, sizes, outs[0])
+        _k.mlp_forward_rows(x, mean, std, wt, b, sizes, outs[1])
+        _k.mlp_forward(x, mean, std, w, b, sizes, outs[2])
+        assert np.array_equal(outs[0].view(np.int32), outs[1].view(np.int32)), n
+        assert np.array_equal(outs[0].view(np.int32), outs[2].view(np.int32)), n

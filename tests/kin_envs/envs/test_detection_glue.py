@@ -1,0 +1,94 @@
+"""kin_envs.envs.common: the one-observer detection glue (compiled match, the learned detector's table
+entry) gives the general path's values, and nothing a caller keeps is reused by a later step."""
+
+import numpy as np
+import pytest
+
+from kin_envs.envs.common import (
+    DETECTION_FIELDS,
+    _match_one_row,
+    _match_one_row_numpy,
+    detect_rows,
+)
+
+
+def _same_cols(a, b):
+    assert a.keys() == b.keys()
+    for k in b:
+        assert a[k].dtype == b[k].dtype and a[k].shape == b[k].shape, k
+        assert np.array_equal(a[k], b[k], equal_nan=True), k
+
+
+def test_compiled_match_is_the_numpy_match():
+    rng = np.random.default_rng(0)
+    for trial in range(300):
+        n_robots = int(rng.integers(1, 6))
+        poses = np.column_stack([rng.uniform(-2, 2, (n_robots, 2)), rng.uniform(-np.pi, np.pi, n_robots)])
+        obs = int(rng.integers(n_robots))
+        n_det = int(rng.integers(1, 6))
+        tab = np.empty((n_det, 8))
+        # detections near the other robots (matches), elsewhere (no match), equal ranges (stable sort)
+        others = rng.integers(n_robots, size=n_det)
+        c, s = np.cos(poses[obs, 2]), np.sin(poses[obs, 2])
+        dx, dy = poses[others, 0] - poses[obs, 0], poses[others, 1] - poses[obs, 1]
+        x = c * dx + s * dy + rng.normal(scale=0.08, size=n_det)
+        y = c * dy - s * dx + rng.normal(scale=0.08, size=n_det)
+        tab[:, 0] = np.round(np.hypot(x, y), 1 if trial % 3 == 0 else 12)
+        tab[:, 1] = np.arctan2(y, x)
+        tab[:, 2], tab[:, 3] = x, y
+        tab[:, 4] = rng.uniform(size=n_det)
+        tab[:, 5] = rng.integers(360, size=n_det)
+        tab[:, 6] = rng.integers(360, size=n_det)
+        tab[:, 7] = rng.integers(1, 9, size=n_det)
+        if trial % 10 == 1:
+            tab[0, [0, 2, 3]] = np.nan  # a degenerate centre: sorted last, never matched
+        if trial % 10 == 2 and n_robots > 2:
+            poses[(obs + 1) % n_robots, :2] = poses[(obs + 2) % n_robots, :2]  # a tie: the first robot
+        _same_cols(_match_one_row(tab, obs, poses), _match_one_row_numpy(tab, obs, poses))
+
+
+@pytest.mark.parametrize("detector", ["geometric", "learned"])
+def test_trusted_one_row_glue_equals_the_public_path(detector):
+    if detector == "learned":
+        pytest.importorskip("torch")
+    from kin_envs import LidarSpec, World, scenes
+    from kin_envs.envs.common import resolve_detector
+
+    det = resolve_detector(detector)
+    n_det = 0
+    for seed in range(4):
+        scene = scenes.random_arena(10, 8, seed=seed).replace(lidar=LidarSpec(noise_sigma=0.005))
+        w = World(scene, seed=seed)
+        scan, poses = w.scan(), w.poses
+        for i in range(4):
+            args = (scan.ranges[i : i + 1], scan.angles, scan.robots[i : i + 1], poses)
+            row_t, cols_t = detect_rows(det, *args, trusted=True)
+            row_p, cols_p = detect_rows(det, *args, trusted=False)
+            assert np.array_equal(row_t, row_p)
+            _same_cols(cols_t, cols_p)
+            n_det += row_t.size
+    assert n_det > 0
+
+
+def test_kin_seek_infos_are_fresh_every_step():
+    pytest.importorskip("torch")
+    import gymnasium as gym
+
+    env = gym.make("kin_envs/KinSeek-v1", detector="learned", noise_sigma=0.01, obs_detections="topk")
+    obs, info = env.reset(seed=3)
+    kept = []
+    rng = np.random.default_rng(0)
+    for _ in range(40):
+        obs, _, term, trunc, info = env.step(rng.uniform(-1, 1, 2).astype(np.float32))
+        kept.append((obs, info, obs.copy(), {k: v.copy() for k, v in info["kin_detections"].items()}))
+        if term or trunc:
+            env.reset()
+    assert sum(int(i["kin_detections_count"]) for _, i, _, _ in kept) > 0
+    for obs, info, obs_copy, det_copy in kept:  # later steps left every earlier observation / info alone
+        assert np.array_equal(obs, obs_copy)
+        for k in DETECTION_FIELDS:
+            assert np.array_equal(info["kin_detections"][k], det_copy[k]), k
+    a, b = kept[-2][1]["kin_detections"], kept[-1][1]["kin_detections"]
+    for k in DETECTION_FIELDS:
+        assert not np.shares_memory(a[k], b[k]), k
+    env.close()
