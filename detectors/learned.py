@@ -857,20 +857,55 @@ class LearnedKinDetector(KinDetector):
         last_beam, n_beams): what ``kin_envs.envs.common.detection_arrays`` reads, straight from the
         compiled driver without building a :class:`~detectors.base.BatchDetections`. Fresh arrays
         on every call."""
+        if self._beam_table is not None and self.threshold is None:  # table thresholds: staged path
+            a = self._detect_arrays_staged(ranges, angles, True)
+            cols = (a.range, a.bearing, a.x, a.y, a.score, a.first_beam, a.last_beam, a.n_beams_on)
+            return a.scan, np.stack(cols, axis=1).astype(np.float64)
         rb = self._driver_input(ranges, angles, True)
         # one scan (a single-agent env's step): the whole call compiled, only the table returns
         if rb.shape[0] == 1 and (res := self._call_driver(_drv.fused_table, rb)) is not None:
-            return res
-        fr, bk = self._run_driver(rb)
-        return fr[1][bk[3]], bk[4]
+            scan, table = res
+        else:
+            fr, bk = self._run_driver(rb)
+            scan, table = fr[1][bk[3]], bk[4]
+        if self.suppress_duplicates and scan.shape[0] > 1:
+            d = np.full(scan.shape[0], -1, np.int64)
+            _duplicates_kernel(scan, table[:, 2], table[:, 3], table[:, 4], self._dup_radius, d)
+            if (d >= 0).any():
+                keep = d < 0
+                scan, table = scan[keep], table[keep]
+        return scan, table
 
     def _detect_arrays(self, ranges, angles, trusted: bool) -> BatchDetections:
+        if self._beam_table is not None and self.threshold is None:
+            # thresholds by expected beams (calibrate_thresholds.py --by-beams): the staged pipeline,
+            # which the fused driver does not implement
+            return self._detect_arrays_staged(ranges, angles, trusted)
         rb = self._driver_input(ranges, angles, trusted)
         # one scan: the whole call compiled, the columns handed back in a few blocks
         res = self._call_driver(_drv.fused_packed, rb) if rb.shape[0] == 1 else None
         packed = res[0] if res is not None else _drv.pack(*self._run_driver(rb))
         seg_i, seg_b, seg_f, stage, det, det_f, det_i = packed
         n_seg = seg_i.shape[1]
+        dup = None
+        if self.suppress_duplicates and det.shape[0] > 1:
+            d = np.full(det.shape[0], -1, np.int64)
+            _duplicates_kernel(det_i[0], det_f[2], det_f[3], det_f[4], self._dup_radius, d)
+            drop = d >= 0
+            if drop.any():  # rare: as _detect_arrays_staged (the dropped get stage "learned")
+                stage = stage.copy()
+                stage[det[drop]] = _k.LEARNED
+                dup = np.full(n_seg, -1, np.int64)
+                dup[det[drop]] = det[d[drop]]
+                keep = ~drop
+                det, det_f, det_i = det[keep], det_f[:, keep], det_i[:, keep]
+        values = (
+            {"p_kin": seg_f[0], "threshold": seg_f[1]}
+            if not self.pre_gate or n_seg == 0
+            else {"p_kin": seg_f[0], "threshold": seg_f[1], "max_beams": seg_f[2]}
+        )
+        if dup is not None:
+            values["duplicate_of"] = dup
         return BatchDetections(
             n_scans=rb.shape[0],
             n_beams=rb.shape[1],
@@ -892,11 +927,7 @@ class LearnedKinDetector(KinDetector):
             seg_prev_nearer=seg_b[0],
             seg_next_nearer=seg_b[1],
             seg_stage=stage,
-            seg_values=(
-                {"p_kin": seg_f[0], "threshold": seg_f[1]}
-                if not self.pre_gate or n_seg == 0
-                else {"p_kin": seg_f[0], "threshold": seg_f[1], "max_beams": seg_f[2]}
-            ),
+            seg_values=values,
         )
 
     def _driver_args(self) -> tuple:
