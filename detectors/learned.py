@@ -42,6 +42,7 @@ import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
+import numba
 import numpy as np
 import torch
 from torch import nn
@@ -88,6 +89,8 @@ __all__ = [
     "TrainConfig",
     "cascade_path",
     "check_thresholds",
+    "duplicates",
+    "expected_beams",
     "load_cascade",
     "load_checkpoint",
     "sample_weights",
@@ -122,6 +125,78 @@ PRE_GATE_MARGIN = 2
 #: The cascade's stage-1 model file (``<checkpoint>.cascade.json``, written by ``scripts/fit_cascade.py``).
 CASCADE_FORMAT = "kin-envs/learned-cascade"
 CASCADE_FORMAT_VERSION = 1
+_BEAM_KEYS = ("beam_edges", "table")
+
+
+def duplicates(scan, xy, score, radius: float) -> np.ndarray:
+    """``(D,)`` for detections in segment order (``scan`` sorted): the index of a higher-scored
+    detection of the same scan, next to it in that order among the kept ones (the last and the first
+    of a scan too: the sweep wraps), whose centre lies within ``radius``; -1 for the detections to
+    keep. Neighbours only: a split housing's parts are adjacent segments. A chain split in three
+    keeps one; ties keep the earlier (compiled: :func:`_duplicates_kernel`)."""
+    scan = np.ascontiguousarray(scan, dtype=np.int64)
+    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    out = np.full(scan.shape[0], -1, np.int64)
+    if scan.shape[0] > 1:
+        _duplicates_kernel(scan, np.ascontiguousarray(xy[:, 0]), np.ascontiguousarray(xy[:, 1]),
+                           np.ascontiguousarray(score, dtype=np.float64), float(radius), out)  # fmt: skip
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _duplicates_kernel(scan, x, y, p, radius, out):
+    n = scan.shape[0]
+    r2 = radius * radius
+    i = 0
+    while i < n:
+        e = i
+        while e < n and scan[e] == scan[i]:
+            e += 1
+        changed = True
+        while changed:  # a pass over the scan's kept detections, until none is dropped
+            changed = False
+            first = -1
+            prev = -1
+            for j in range(i, e + 1):
+                if j == e:  # wrap: the last kept one against the first
+                    if first < 0 or prev == first:
+                        break
+                    a, b = prev, first
+                else:
+                    if out[j] >= 0:
+                        continue
+                    if first < 0:
+                        first = j
+                        prev = j
+                        continue
+                    a, b = prev, j
+                if (x[a] - x[b]) ** 2 + (y[a] - y[b]) ** 2 < r2:
+                    lose_a = p[a] < p[b] or (p[a] == p[b] and a > b)
+                    loser, winner = (a, b) if lose_a else (b, a)
+                    out[loser] = winner
+                    changed = True
+                    if loser == first:
+                        first = winner
+                    if j < e:
+                        prev = winner
+                elif j < e:
+                    prev = j
+        i = e
+    for j in range(n):  # point at the detection that stayed
+        k = out[j]
+        while k >= 0 and out[k] >= 0:
+            k = out[k]
+        out[j] = k
+
+
+def expected_beams(range_min, step: float, r: float = 0.035) -> np.ndarray:
+    """Beams (``step`` rad apart, on average) that a housing of radius ``r`` returns when a segment's
+    nearest reading is ``range_min`` (m): its centre at ``range_min + r`` spans ``2 asin(r / (range_min
+    + r))``. What the beam-dependent thresholds (:func:`save_checkpoint`) are indexed by: a score
+    calibrated on 5-beam housings is not one on 2-beam housings, and the expected count (not the
+    segment's own, which occlusion and merging change) is what the range says about the kin prior."""
+    d = np.asarray(range_min, dtype=np.float64) + r
+    return 2.0 * np.arcsin(np.minimum(r / d, 1.0)) / step
 
 
 # --------------------------------------------------------------------------- model
@@ -250,6 +325,10 @@ def save_checkpoint(
     ``thresholds``: the calibrated ``p(kin)`` thresholds per estimated scan-noise level,
     ``{"noise_edges": [e_1, ..., e_k], "values": [t_0, ..., t_k]}`` (a scan whose noise estimate
     :func:`detectors.features.scan_noise` lies in ``[e_j, e_{j+1})`` uses ``t_j``); default 0.5 for all.
+    Optionally also by the beams a housing would return at the segment's range (:func:`expected_beams`):
+    ``"beam_edges": [b_1, ..., b_m]`` (increasing) and ``"table"``, ``k + 1`` rows of ``m + 1``
+    thresholds (row: noise bin, column: expected-beams bin, ``[b_i, b_{i+1})``); ``"values"`` then
+    stays as the per-noise summary that older code reads.
     """
     if positioning not in POSITIONING:
         raise ValueError(f"positioning must be one of {POSITIONING}, got {positioning!r}")
@@ -293,8 +372,11 @@ def check_thresholds(thresholds) -> dict:
     """Validated per-noise thresholds (see :func:`save_checkpoint`); ``None`` -> 0.5 everywhere."""
     if thresholds is None:
         return {"noise_edges": [], "values": [0.5]}
-    if not isinstance(thresholds, dict) or set(thresholds) - {"noise_edges", "values", "info"}:
-        raise ValueError(f"thresholds must be a dict with noise_edges and values, got {thresholds!r}")
+    if not isinstance(thresholds, dict) or set(thresholds) - {"noise_edges", "values", "info", *_BEAM_KEYS}:
+        raise ValueError(
+            f"thresholds must be a dict with noise_edges and values (and optionally beam_edges and table), "
+            f"got {thresholds!r}"
+        )
     edges = [float(e) for e in thresholds.get("noise_edges", [])]
     values = [float(v) for v in thresholds.get("values", [])]
     if len(values) != len(edges) + 1 or not all(0.0 <= v <= 1.0 for v in values):
@@ -305,6 +387,25 @@ def check_thresholds(thresholds) -> dict:
     if any(not (b > a) for a, b in zip(edges, edges[1:], strict=False)) or not all(map(math.isfinite, edges)):
         raise ValueError(f"thresholds: noise_edges must be finite and increasing, got {edges}")
     out = {"noise_edges": edges, "values": values}
+    if set(_BEAM_KEYS) & set(thresholds):
+        if not set(_BEAM_KEYS) <= set(thresholds):
+            raise ValueError(f"thresholds: beam_edges and table come together, got keys {sorted(thresholds)}")
+        bedges = [float(e) for e in thresholds["beam_edges"]]
+        table = [[float(v) for v in row] for row in thresholds["table"]]
+        if (
+            not bedges
+            or not all(map(math.isfinite, bedges))
+            or any(not (b > a) for a, b in zip(bedges, bedges[1:], strict=False))
+        ):
+            raise ValueError(f"thresholds: beam_edges must be finite and increasing, got {bedges}")
+        if len(table) != len(values) or any(
+            len(row) != len(bedges) + 1 or not all(0.0 <= v <= 1.0 for v in row) for row in table
+        ):
+            raise ValueError(
+                f"thresholds: table must be {len(values)} rows (noise bins) of {len(bedges) + 1} "
+                f"probabilities in [0, 1] (expected-beams bins), got {table}"
+            )
+        out["beam_edges"], out["table"] = bedges, table
     if "info" in thresholds:
         out["info"] = _plain(thresholds["info"])
     return out
@@ -525,6 +626,14 @@ class LearnedKinDetector(KinDetector):
             (stage ``"learned"``, ``p_kin`` NaN, ``seg_values["cascade_score"]``). Fitted by
             ``scripts/fit_cascade.py`` on training seeds to keep >= 99.9 % of the kin segments the
             full model accepts (README, "The learned segment classifier").
+        suppress_duplicates: of two accepted segments of one scan, next to each other among the
+            accepted ones, whose kin centres lie within a housing's diameter (``2 r``: two housings
+            cannot be closer), keep the higher-scored one (default True). A housing right next to the
+            observer (~0.18 m, robots touching) is often split into two segments, both accepted with
+            the same centre: one kin, two detections, one of them a false positive (on noise-free
+            swarm scenes 190 of the 198 false positives with 3-4 beams). The dropped segment gets
+            stage ``"learned"``, a reason naming the kept one and ``seg_values["duplicate_of"]``.
+            With ``False``: every accepted segment is a detection (as before).
 
     ``Detection.score`` is ``p(kin)`` (higher = more kin-like). Each :class:`SegmentReport` has
     stage ``"accepted"`` or ``"learned"`` (rejected by the classifier) and ``metrics["p_kin"]``.
@@ -547,7 +656,13 @@ class LearnedKinDetector(KinDetector):
         torch_threads: int = 1,
         pre_gate: bool = True,
         cascade: bool | str | Path | None = None,
+        suppress_duplicates: bool = True,
     ) -> None:
+        if not isinstance(suppress_duplicates, bool):
+            raise ValueError(
+                f"LearnedKinDetector: suppress_duplicates must be True or False, got {suppress_duplicates!r}"
+            )
+        self.suppress_duplicates = suppress_duplicates
         if not isinstance(pre_gate, bool):
             raise ValueError(f"LearnedKinDetector: pre_gate must be True or False, got {pre_gate!r}")
         if inference not in INFERENCE:
@@ -570,11 +685,18 @@ class LearnedKinDetector(KinDetector):
             raise ValueError(f"LearnedKinDetector: invalid torch device {device!r} ({e})") from e
         self.model, self.checkpoint = load_checkpoint(checkpoint, self.device)
         self.feature_config: FeatureConfig = self.checkpoint["feature_config"]
+        self._dup_radius = 2.0 * float(self.feature_config.r)  # two housings' centres are never closer
         self.threshold = None if threshold is None else float(threshold)
         th = self.checkpoint["thresholds"]
         self._noise_edges = np.asarray(th["noise_edges"], dtype=np.float64)
         self._noise_thresholds = np.asarray(th["values"], dtype=np.float64)
-        self._noise_col = feature_names(self.feature_config).index("log_scan_noise")
+        names = feature_names(self.feature_config)
+        self._noise_col = names.index("log_scan_noise")
+        self._range_col = names.index("log_range_min")
+        # thresholds by expected beams on a housing at the segment's range (checkpoints calibrated
+        # by scripts/calibrate_thresholds.py --by-beams); older checkpoints: per noise level only
+        self._beam_edges = np.asarray(th.get("beam_edges", []), dtype=np.float64)
+        self._beam_table = np.asarray(th["table"], dtype=np.float64) if "table" in th else None
         pos = self.checkpoint["positioning"] if positioning is None else positioning
         if pos not in POSITIONING:
             raise ValueError(f"LearnedKinDetector: positioning must be one of {POSITIONING}, got {pos!r}")
@@ -700,18 +822,33 @@ class LearnedKinDetector(KinDetector):
 
     def segment_thresholds(self, feats: SegmentFeatures) -> np.ndarray:
         """``(S,)`` the ``p(kin)`` threshold of each segment: ``threshold``, or the checkpoint's for
-        the noise level its scan's noise estimate falls in."""
-        return self._thresholds(feats.x[:, self._noise_col])
+        the noise level its scan's noise estimate falls in (and, if the checkpoint has them, for the
+        beams a housing would return at the segment's range, :func:`expected_beams`)."""
+        thr = self._thresholds(feats.x[:, self._noise_col])
+        return self._by_beams(thr, feats.x[:, self._noise_col], feats.x[:, self._range_col])
+
+    def _noise_bin(self, log_noise: np.ndarray) -> np.ndarray:
+        sigma = np.exp(log_noise.astype(np.float64)) - 1e-4
+        return np.searchsorted(self._noise_edges, sigma, side="right")
 
     def _thresholds(self, log_noise: np.ndarray) -> np.ndarray:
-        """Thresholds for float32 ``log_scan_noise`` feature values."""
+        """Per-noise thresholds for float32 ``log_scan_noise`` feature values."""
         n = log_noise.shape[0]
         if self.threshold is not None:
             return np.full(n, self.threshold)
         if self._noise_edges.size == 0:
             return np.full(n, float(self._noise_thresholds[0]))
-        sigma = np.exp(log_noise.astype(np.float64)) - 1e-4
-        return self._noise_thresholds[np.searchsorted(self._noise_edges, sigma, side="right")]
+        return self._noise_thresholds[self._noise_bin(log_noise)]
+
+    def _by_beams(self, thr: np.ndarray, log_noise: np.ndarray, log_range_min: np.ndarray) -> np.ndarray:
+        """``thr`` replaced by the checkpoint's noise x expected-beams table where it has one (the
+        rows' float32 ``log_scan_noise`` and ``log_range_min`` features)."""
+        if self.threshold is not None or self._beam_table is None or thr.size == 0:
+            return thr
+        d_min = np.exp(log_range_min.astype(np.float64))
+        eb = expected_beams(d_min, self._step, float(self.feature_config.r))
+        col = np.searchsorted(self._beam_edges, eb, side="right")
+        return self._beam_table[self._noise_bin(log_noise), col]
 
     def _forward(self, x: np.ndarray) -> np.ndarray:
         """``(S, 3)`` float64 network outputs for ``(S, F)`` float32 features."""
@@ -772,6 +909,13 @@ class LearnedKinDetector(KinDetector):
             x, frames = x[rows], frames[rows]
         # every scan's threshold once (the same float32 feature value as in its segments' rows)
         thr = self._thresholds(feats.scan_x[:, 0])[batch.scan]
+        if self._beam_table is not None and self.threshold is None:
+            thr_rows = self._by_beams(thr if rows is None else thr[rows], x[:, self._noise_col],
+                                      x[:, self._range_col])  # fmt: skip
+            if rows is None:
+                thr = thr_rows
+            else:
+                thr[rows] = thr_rows
         out = self._forward(x)
         p_rows = 1.0 / (1.0 + np.exp(-out[:, 0]))
         if rows is None:
@@ -848,19 +992,32 @@ class LearnedKinDetector(KinDetector):
         last_beam, n_beams): what ``kin_envs.envs.common.detection_arrays`` reads, straight from the
         compiled driver without building a :class:`~detectors.base.BatchDetections`. Fresh arrays
         on every call."""
-        if self._cascade is not None and np.ndim(ranges) == 2 and ranges.shape[0] > 1:  # as _detect_arrays
-            arr = self._detect_arrays_staged(ranges, angles, True)
-            cols = (arr.range, arr.bearing, arr.x, arr.y, arr.score, arr.first_beam, arr.last_beam,
-                    arr.n_beams_on)
-            return arr.scan, np.stack(cols, axis=1).astype(np.float64).reshape(-1, 8)
+        if (self._cascade is not None and np.ndim(ranges) == 2 and ranges.shape[0] > 1) or (
+            self._beam_table is not None and self.threshold is None
+        ):  # the cascade (batch calls, as _detect_arrays) and table thresholds: the staged path
+            a = self._detect_arrays_staged(ranges, angles, True)
+            cols = (a.range, a.bearing, a.x, a.y, a.score, a.first_beam, a.last_beam, a.n_beams_on)
+            return a.scan, np.stack(cols, axis=1).astype(np.float64).reshape(-1, 8)
         rb = self._driver_input(ranges, angles, True)
         # one scan (a single-agent env's step): the whole call compiled, only the table returns
         if rb.shape[0] == 1 and (res := self._call_driver(_drv.fused_table, rb)) is not None:
-            return res
-        fr, bk = self._run_driver(rb)
-        return fr[1][bk[3]], bk[4]
+            scan, table = res
+        else:
+            fr, bk = self._run_driver(rb)
+            scan, table = fr[1][bk[3]], bk[4]
+        if self.suppress_duplicates and scan.shape[0] > 1:
+            d = np.full(scan.shape[0], -1, np.int64)
+            _duplicates_kernel(scan, table[:, 2], table[:, 3], table[:, 4], self._dup_radius, d)
+            if (d >= 0).any():
+                keep = d < 0
+                scan, table = scan[keep], table[keep]
+        return scan, table
 
     def _detect_arrays(self, ranges, angles, trusted: bool) -> BatchDetections:
+        if self._beam_table is not None and self.threshold is None:
+            # thresholds by expected beams (calibrate_thresholds.py --by-beams): the staged pipeline,
+            # which the fused driver does not implement
+            return self._detect_arrays_staged(ranges, angles, trusted)
         rb = self._driver_input(ranges, angles, trusted)
         if self._cascade is not None and rb.shape[0] > 1:
             # batches: the cascade, in the staged pipeline (the fused driver has none yet); one scan
@@ -871,6 +1028,25 @@ class LearnedKinDetector(KinDetector):
         packed = res[0] if res is not None else _drv.pack(*self._run_driver(rb))
         seg_i, seg_b, seg_f, stage, det, det_f, det_i = packed
         n_seg = seg_i.shape[1]
+        dup = None
+        if self.suppress_duplicates and det.shape[0] > 1:
+            d = np.full(det.shape[0], -1, np.int64)
+            _duplicates_kernel(det_i[0], det_f[2], det_f[3], det_f[4], self._dup_radius, d)
+            drop = d >= 0
+            if drop.any():  # rare: as _detect_arrays_staged (the dropped get stage "learned")
+                stage = stage.copy()
+                stage[det[drop]] = _k.LEARNED
+                dup = np.full(n_seg, -1, np.int64)
+                dup[det[drop]] = det[d[drop]]
+                keep = ~drop
+                det, det_f, det_i = det[keep], det_f[:, keep], det_i[:, keep]
+        values = (
+            {"p_kin": seg_f[0], "threshold": seg_f[1]}
+            if not self.pre_gate or n_seg == 0
+            else {"p_kin": seg_f[0], "threshold": seg_f[1], "max_beams": seg_f[2]}
+        )
+        if dup is not None:
+            values["duplicate_of"] = dup
         return BatchDetections(
             n_scans=rb.shape[0],
             n_beams=rb.shape[1],
@@ -892,11 +1068,7 @@ class LearnedKinDetector(KinDetector):
             seg_prev_nearer=seg_b[0],
             seg_next_nearer=seg_b[1],
             seg_stage=stage,
-            seg_values=(
-                {"p_kin": seg_f[0], "threshold": seg_f[1]}
-                if not self.pre_gate or n_seg == 0
-                else {"p_kin": seg_f[0], "threshold": seg_f[1], "max_beams": seg_f[2]}
-            ),
+            seg_values=values,
         )
 
     def _driver_args(self) -> tuple:
@@ -973,8 +1145,26 @@ class LearnedKinDetector(KinDetector):
         acc = p >= thr
         idx = np.flatnonzero(acc)
         xs, ys = centres[idx, 0], centres[idx, 1]
+        dup = None
+        if self.suppress_duplicates and idx.size > 1:
+            d = np.full(idx.size, -1, np.int64)
+            _duplicates_kernel(batch.scan[idx], xs, ys, p[idx], self._dup_radius, d)
+            drop = d >= 0
+            if drop.any():  # rare: the dropped segments get stage "learned" and the kept one's index
+                acc[idx[drop]] = False
+                dup = np.full(p.shape[0], -1, np.int64)
+                dup[idx[drop]] = idx[d[drop]]
+                keep = ~drop
+                idx, xs, ys = idx[keep], xs[keep], ys[keep]
         first, count = batch.first[idx], batch.count[idx]
         n = batch.angles.shape[0]
+        values = {"p_kin": p, "threshold": np.asarray(thr, dtype=np.float64)}
+        if max_beams is not None:
+            values["max_beams"] = max_beams
+        if score is not None:
+            values["cascade_score"] = score
+        if dup is not None:
+            values["duplicate_of"] = dup
         return BatchDetections(
             n_scans=batch.ranges.shape[0],
             n_beams=n,
@@ -996,7 +1186,7 @@ class LearnedKinDetector(KinDetector):
             seg_prev_nearer=batch.prev_nearer,
             seg_next_nearer=batch.next_nearer,
             seg_stage=self._stages(acc, batch.count, max_beams),
-            seg_values=self._seg_values(p, thr, max_beams, score),
+            seg_values=values,
         )
 
     @staticmethod
@@ -1059,12 +1249,18 @@ class LearnedKinDetector(KinDetector):
                 if col is not None:
                     for m, v in zip(metrics, col.tolist(), strict=True):
                         m[name] = v
+            reasons = [why[t][st] for t, st in zip(tl, stl, strict=True)]
+            dup = arrays.seg_values.get("duplicate_of")
+            if dup is not None:
+                for j in np.flatnonzero(dup >= 0).tolist():  # a few per scan at most
+                    reasons[j] = (f"duplicate: centre within {2 * self.feature_config.r:g} m of segment "
+                                  f"{int(dup[j])}'s detection, which scores higher")  # fmt: skip
             reps = list(
                 map(
                     SegmentReport,
                     arrays.segments(),
                     [STAGES[st] if st >= 0 else "learned" for st in stl],
-                    [why[t][st] for t, st in zip(tl, stl, strict=True)],
+                    reasons,
                     metrics,
                 )
             )

@@ -78,7 +78,19 @@ absorbs.
       same-radius cylinder are indistinguishable, and in the swarm episodes parked kin far outnumber
       same-radius cylinders; set it (e.g. -4) where same-radius cylinders are the bigger risk.
 
-   ``kin_prob = sigmoid(prior + score part + residual part + shape part + motion part)``.
+   ``kin_prob = sigmoid(prior + score part + residual part + shape part + motion part)`` — the
+   *hand-tuned fusion*, ``KinTracker(kin_model="hand")``.
+
+6. *The kin decision* by default (``kin_model="learned"``) is a **learned track-level classifier**
+   (:class:`TrackKinModel`, shipped as ``checkpoints/tracker_kin_default.json``): a logistic regression
+   over per-track features (:data:`TRACK_FEATURES`: the detector's score log-odds averaged, spread,
+   maximum and last; the detector's own decisions; frames seen, beams, range; the motion statistic in the
+   odometry frame; existence; the share of the observer's tracks that moved; the per-frame circle fits'
+   summed chi-square, cue r's statistic), fitted on training-seed
+   sequence episodes (``scripts/fit_track_classifier.py``). A track seen in fewer than its ``min_frames``
+   frames takes the detector's own decision of its last frame instead, so that a young track is never
+   worse than the single scan. The cues above still run (their state feeds the features); only their
+   hand-set weights are replaced.
 
 Tracks are plain arrays inside (the hot path); :meth:`KinTracker.tracks` builds :class:`Track` objects and
 :meth:`KinTracker.track_arrays` fixed-shape padded arrays (for vector envs) on demand.
@@ -86,9 +98,11 @@ Tracks are plain arrays inside (the hot path); :meth:`KinTracker.tracks` builds 
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, fields
+from pathlib import Path
 
 import numba
 import numpy as np
@@ -96,10 +110,34 @@ import numpy as np
 from .base import DetectionResult, wrap_angle
 from .features import scan_noise, segment_batch
 
-__all__ = ["TrackerParams", "Track", "KinTracker", "TRACK_FIELDS", "fit_known_circle", "segment_points"]
+__all__ = ["TrackerParams", "Track", "KinTracker", "TRACK_FIELDS", "TRACK_FEATURES", "TrackKinModel",
+           "DEFAULT_KIN_MODEL", "fit_known_circle", "segment_points"]
 
 #: Columns of :meth:`KinTracker.track_arrays`' ``tracks`` array.
 TRACK_FIELDS = ("id", "x", "y", "vx", "vy", "existence", "kin_prob", "frames_seen", "confirmed", "age")
+
+#: Inputs of the track-level kin classifier (:class:`TrackKinModel`), one row per track
+#: (:meth:`KinTracker.track_features`): the detector's score logits (clipped to ±6) averaged over the
+#: track's frames, their standard deviation, maximum and the last one, and the last one if the track was
+#: updated this frame (else -6); the share of frames the detector accepted at its operating point, whether
+#: it accepted the last one (0.5 when not given) and that flag if updated this frame (else 0); whether the
+#: track was updated this frame; log of the frames seen; log of the last candidate's beams; its range (m); the
+#: motion statistic (displacement from where first seen over its standard deviation with the odometry
+#: drift since, clipped to 10) and the motion cue's flag; the existence probability; the filtered speed
+#: over its standard deviation (clipped to 10); and the scene around it: the share of the observer's
+#: confirmed tracks that have moved and log(1 + their number) — in a swarm many tracks move and a kin is
+#: the likely object, among static look-alikes few do; and the per-frame circle fits' residuals (each
+#: frame's points against a circle of the housing radius, one pose so no odometry drift, noise-normalised
+#: chi-square summed over the track's frames, as its excess over the degrees of freedom in standard
+#: deviations, clipped to ±10).
+TRACK_FEATURES = ("mean_logit", "std_logit", "max_logit", "last_logit", "hit_logit", "accept_rate",
+                  "last_accepted", "hit_accepted", "hit", "log_frames", "log_beams", "range", "motion_z",
+                  "moved", "existence", "speed_z", "moved_share", "log_moved", "resid_z")  # fmt: skip
+
+_I_LOG_FRAMES, _I_HIT_ACC = TRACK_FEATURES.index("log_frames"), TRACK_FEATURES.index("hit_accepted")
+
+#: The shipped track-level kin classifier (``scripts/tune_tracker.py --fit-kin-model`` writes it).
+DEFAULT_KIN_MODEL = Path(__file__).resolve().parent / "checkpoints" / "tracker_kin_default.json"
 
 
 def _logit(p):
@@ -133,7 +171,8 @@ class TrackerParams:
             look-alikes' alike.
         score_gain, score_n0, score_clamp: the score cue is ``score_gain`` times the mean evidence per
             frame (``score_n0`` pseudo-frames of zero evidence in the mean), clamped to ``±score_clamp``.
-        resid_clamp: clamp of the per-frame residual cue's sum (0: off).
+        resid_clamp: clamp of the per-frame residual cue's sum in the hand-tuned fusion (0: off; the
+            per-frame fits run anyway: the track classifier reads their chi-square, ``resid_z``).
         shape_delta: RMS deviation of a 7 cm look-alike's outline from the housing circle, m (a hexagon's
             is ~2 mm, a triangle's ~8 mm).
         shape_sigma: per-point noise floor, m; range_noise: relative range noise used when a frame gives
@@ -231,6 +270,162 @@ class TrackerParams:
             bad = sorted(set(d) - names) if isinstance(d, dict) else d
             raise ValueError(f"TrackerParams: unknown key(s) {bad}; expected a subset of {sorted(names)}")
         return cls(**d)
+
+
+class TrackKinModel:
+    """Track-level kin classifier: a small network in numpy over :data:`TRACK_FEATURES` (standardised),
+    ``tanh`` hidden layers (none: logistic regression), one output logit.
+
+    Fitted with :meth:`fit` (scipy L-BFGS, deterministic) on training-seed sequence episodes
+    (:func:`kin_envs.detection.sequences.track_samples`); the output is shifted by ``-logit(threshold)``
+    so that ``kin_prob >= 0.5`` is the operating point chosen on those episodes.
+
+    Args:
+        mean, scale: (F,) standardisation of the features.
+        layers: ``[(W (in, out), b (out,)), ...]``, the last with ``out = 1``.
+        features: the feature names, must be :data:`TRACK_FEATURES`.
+        info: free-form metadata (what it was fitted on), kept in the JSON.
+        min_frames: a track seen in fewer frames takes the detector's own decision of its last frame
+            instead (kin probability 0.75 if updated this frame by a candidate the detector accepted at its
+            operating point, else 0.25): a young track's features say little more than that one frame.
+    """
+
+    def __init__(self, mean, scale, layers, features=TRACK_FEATURES, info=None, min_frames: int = 0) -> None:
+        if tuple(features) != TRACK_FEATURES:
+            raise ValueError(f"TrackKinModel: features {list(features)} are not this tracker's "
+                             f"{list(TRACK_FEATURES)}; re-fit (scripts/fit_track_classifier.py)")  # fmt: skip
+        F = len(TRACK_FEATURES)
+        self.mean = np.asarray(mean, np.float64).reshape(-1)
+        self.scale = np.asarray(scale, np.float64).reshape(-1)
+        self.layers = [(np.asarray(W, np.float64), np.asarray(b, np.float64).reshape(-1)) for W, b in layers]
+        if self.mean.shape != (F,) or self.scale.shape != (F,) or not np.all(self.scale > 0):
+            raise ValueError(f"TrackKinModel: mean and scale must be ({F},), scale > 0")
+        n_in = F
+        for W, b in self.layers:
+            if W.ndim != 2 or W.shape[0] != n_in or b.shape != (W.shape[1],):
+                raise ValueError(f"TrackKinModel: layer shapes {W.shape}, {b.shape} do not chain from {n_in}")
+            n_in = W.shape[1]
+        if not self.layers or n_in != 1:
+            raise ValueError("TrackKinModel: need at least one layer, the last with one output")
+        if not all(np.all(np.isfinite(a)) for W, b in self.layers for a in (W, b)) or not np.all(
+            np.isfinite(self.mean)
+        ):
+            raise ValueError("TrackKinModel: non-finite weights")
+        if isinstance(min_frames, bool) or int(min_frames) != min_frames or min_frames < 0:
+            raise ValueError(f"TrackKinModel: min_frames must be an integer >= 0, got {min_frames!r}")
+        self.min_frames = int(min_frames)
+        self.info = dict(info or {})
+
+    def logit(self, X: np.ndarray) -> np.ndarray:
+        """(n,) kin log-odds of the feature rows ``X`` (n, F)."""
+        h = (np.asarray(X, np.float64).reshape(-1, len(TRACK_FEATURES)) - self.mean) / self.scale
+        for i, (W, b) in enumerate(self.layers):
+            h = h @ W + b
+            if i < len(self.layers) - 1:
+                h = np.tanh(h)
+        return h[:, 0]
+
+    def kin_prob(self, X: np.ndarray) -> np.ndarray:
+        """(n,) kin probability of the feature rows ``X`` (n, F), young tracks by the detector's decision."""
+        X = np.asarray(X, np.float64).reshape(-1, len(TRACK_FEATURES))
+        p = 1.0 / (1.0 + np.exp(-self.logit(X)))
+        if self.min_frames > 0:
+            young = X[:, _I_LOG_FRAMES] < math.log(self.min_frames) - 1e-9
+            p = np.where(young, np.where(X[:, _I_HIT_ACC] > 0.75, 0.75, 0.25), p)
+        return p
+
+    def to_dict(self) -> dict:
+        return {"features": list(TRACK_FEATURES), "mean": self.mean.tolist(), "scale": self.scale.tolist(),
+                "layers": [[W.tolist(), b.tolist()] for W, b in self.layers], "min_frames": self.min_frames,
+                "info": self.info}  # fmt: skip
+
+    @classmethod
+    def from_dict(cls, d: dict) -> TrackKinModel:
+        keys = {"features", "mean", "scale", "layers", "info", "min_frames"}
+        if not isinstance(d, dict) or set(d) - keys or not {"mean", "scale", "layers"} <= set(d):
+            raise ValueError(f"TrackKinModel: expected a dict with keys {sorted(keys)}, got "
+                             f"{sorted(d) if isinstance(d, dict) else type(d).__name__}")  # fmt: skip
+        return cls(d["mean"], d["scale"], d["layers"], d.get("features", TRACK_FEATURES), d.get("info"),
+                   d.get("min_frames", 0))
+
+    @classmethod
+    def load(cls, path=None) -> TrackKinModel:
+        """Load a model JSON (default: the shipped :data:`DEFAULT_KIN_MODEL`)."""
+        path = Path(DEFAULT_KIN_MODEL if path is None else path)
+        try:
+            d = json.loads(path.read_text())
+            return cls.from_dict(d)
+        except (OSError, ValueError, TypeError) as e:
+            raise ValueError(f"TrackKinModel: cannot load {path}: {e}") from e
+
+    @classmethod
+    def fit(cls, X, y, weight=None, hidden: Sequence[int] = (), l2: float = 1e-3, seed: int = 0,
+            max_iter: int = 500, info=None, min_frames: int = 0) -> TrackKinModel:  # fmt: skip
+        """Fit on feature rows ``X`` (n, F) and labels ``y`` (n,) in {0, 1}: weighted cross-entropy plus
+        ``l2`` times the squared weights, minimised by scipy's L-BFGS from a seeded initialisation
+        (deterministic for a given input)."""
+        from scipy.optimize import minimize
+
+        X = np.asarray(X, np.float64).reshape(-1, len(TRACK_FEATURES))
+        y = np.asarray(y, np.float64).reshape(-1)
+        w = np.ones(y.shape[0]) if weight is None else np.asarray(weight, np.float64).reshape(-1)
+        if y.shape[0] != X.shape[0] or w.shape != y.shape or not np.all(np.isfinite(X)) or X.shape[0] < 2:
+            raise ValueError(f"TrackKinModel.fit: X (n, {len(TRACK_FEATURES)}), y (n,) and weight (n,) must "
+                             f"be finite and of one length, got {X.shape}, {y.shape}, {w.shape}")  # fmt: skip
+        w = w / w.sum()
+        mean, scale = X.mean(0), X.std(0)
+        scale = np.where(scale > 1e-9, scale, 1.0)
+        Z = (X - mean) / scale
+        sizes = [Z.shape[1], *[int(h) for h in hidden], 1]
+        rng = np.random.default_rng(seed)
+        shapes = [(sizes[i], sizes[i + 1]) for i in range(len(sizes) - 1)]
+        theta0 = np.concatenate(
+            [np.r_[rng.normal(0, 1 / math.sqrt(a), a * b), np.zeros(b)] for a, b in shapes]
+        )
+
+        def unpack(theta):
+            out, i = [], 0
+            for a, b in shapes:
+                out.append((theta[i : i + a * b].reshape(a, b), theta[i + a * b : i + a * b + b]))
+                i += a * b + b
+            return out
+
+        def loss(theta):
+            layers = unpack(theta)
+            hs = [Z]
+            for i, (W, b) in enumerate(layers):
+                h = hs[-1] @ W + b
+                hs.append(np.tanh(h) if i < len(layers) - 1 else h)
+            z = hs[-1][:, 0]
+            # cross-entropy with logits, stable: log(1 + e^z) - y z
+            f = np.sum(w * (np.logaddexp(0.0, z) - y * z))
+            g = (w * (1.0 / (1.0 + np.exp(-z)) - y))[:, None]
+            grads = []
+            for i in range(len(layers) - 1, -1, -1):
+                W, b = layers[i]
+                grads.append((hs[i].T @ g + 2 * l2 * W, g.sum(0)))
+                if i:
+                    g = (g @ W.T) * (1 - hs[i] ** 2)
+            f += l2 * sum(float(np.sum(W * W)) for W, _ in layers)
+            return f, np.concatenate([np.r_[gW.ravel(), gb] for gW, gb in reversed(grads)])
+
+        res = minimize(loss, theta0, jac=True, method="L-BFGS-B", options={"maxiter": int(max_iter)})
+        return cls(mean, scale, unpack(res.x), min_frames=min_frames,
+                   info={**(info or {}), "loss": float(res.fun), "hidden": [int(h) for h in hidden],
+                         "l2": l2})  # fmt: skip
+
+    def shifted(self, threshold: float) -> TrackKinModel:
+        """The same model with its output moved so that ``kin_prob >= 0.5`` means ``p >= threshold``."""
+        if not 0 < threshold < 1:
+            raise ValueError(f"TrackKinModel.shifted: threshold must be in (0, 1), got {threshold!r}")
+        layers = [(W.copy(), b.copy()) for W, b in self.layers]
+        layers[-1][1][0] -= math.log(threshold / (1 - threshold))
+        return TrackKinModel(self.mean, self.scale, layers, info={**self.info, "threshold": float(threshold)},
+                             min_frames=self.min_frames)  # fmt: skip
+
+    def with_min_frames(self, min_frames: int) -> TrackKinModel:
+        """The same model with another ``min_frames``."""
+        return TrackKinModel(self.mean, self.scale, self.layers, info=self.info, min_frames=min_frames)
 
 
 @dataclass(frozen=True, eq=False)
@@ -340,6 +535,10 @@ def segment_points(ranges, angles, rows, first, last, range_max: float = math.in
 class KinTracker:
     """Kin tracks of ``n_observers`` robots at once, from their candidates and odometry (module docstring).
 
+    ``kin_model``: the kin decision: ``"learned"`` (default: the shipped :class:`TrackKinModel`),
+    ``"hand"`` (the hand-tuned fusion of the cues, :class:`TrackerParams`), a model JSON path or a
+    :class:`TrackKinModel`.
+
     Batch-first: every observer's tracks live in one set of arrays (a row per track slot, its observer in
     ``obs``), and one :meth:`update_batch` call advances all observers by one frame with array operations
     and one compiled kernel for the outline cue; the Hungarian solver runs only for the observers whose
@@ -357,14 +556,19 @@ class KinTracker:
     _FIELDS = ("_id", "_obs", "_x", "_P", "_exist", "_lo_score", "_lo_shape", "_lo_motion", "_seen", "_age",
                "_static_t", "_moved", "_confirmed", "_anchor", "_anchor_var", "_alive", "_pts", "_npts",
                "_head", "_fit_c", "_anchor_odo", "_anchor_rng", "_lo_resid", "_res_chi2", "_res_dof",
-               "_score_sum", "_n_scored")  # fmt: skip
+               "_score_sum", "_n_scored", "_f_lgsum", "_f_lgsq", "_f_lgmax", "_f_lglast", "_f_accsum",
+               "_f_acclast", "_f_beams", "_f_rng", "_hit")  # fmt: skip
 
-    def __init__(self, params: TrackerParams | None = None, n_observers: int = 1) -> None:
+    def __init__(
+        self, params: TrackerParams | None = None, n_observers: int = 1, kin_model="learned"
+    ) -> None:
         if isinstance(n_observers, bool) or not isinstance(n_observers, int | np.integer) or n_observers < 1:
             raise ValueError(f"KinTracker: n_observers must be a positive integer, got {n_observers!r}")
         self.params = params or TrackerParams()
         if not isinstance(self.params, TrackerParams):
             raise TypeError(f"KinTracker: params must be a TrackerParams, got {type(self.params).__name__}")
+        #: the track-level kin classifier, or None for the hand-tuned fusion of the cues
+        self.kin_model = _kin_model(kin_model)
         self.n_observers = int(n_observers)
         self.reset()
 
@@ -407,6 +611,18 @@ class KinTracker:
         # the detector's score log-odds summed over the track's frames, and how many
         self._score_sum = np.zeros(cap)
         self._n_scored = np.zeros(cap)
+        # the track-level classifier's per-frame inputs (TrackKinModel): clipped score logits summed, max
+        # and last; accepted frames and the last frame's flag; the last candidate's beams and range; and
+        # whether the track was updated this frame
+        self._f_lgsum = np.zeros(cap)
+        self._f_lgsq = np.zeros(cap)
+        self._f_lgmax = np.zeros(cap)
+        self._f_lglast = np.zeros(cap)
+        self._f_accsum = np.zeros(cap)
+        self._f_acclast = np.zeros(cap)
+        self._f_beams = np.zeros(cap)
+        self._f_rng = np.zeros(cap)
+        self._hit = np.zeros(cap, bool)
 
     @property
     def pose(self) -> np.ndarray:
@@ -529,8 +745,14 @@ class KinTracker:
         ti, ci, tb, born = self._associate_and_birth(z, obs, rng, dt)
         tracks, cands = np.concatenate([ti, tb]), np.concatenate([ci, born])
         self._score_cue(tracks, scores[cands], None if accepted is None else accepted[cands], rng[cands])
+        beams = np.zeros(k)
         if points is not None and len(tracks):
-            self._outline_cue(tracks, cands, points, owner, obs, noise, cos, sin, k)
+            self._outline_cue(tracks, cands, points, owner, obs, noise, cos, sin, k)  # validates owner
+            beams = np.bincount(np.asarray(owner, np.int64).reshape(-1), minlength=k).astype(np.float64)
+        _feature_kernel(tracks, len(ti), scores[cands], np.zeros(0, np.bool_) if accepted is None
+                        else accepted[cands], rng[cands], beams[cands], self._f_lgsum, self._f_lgsq,
+                        self._f_lgmax, self._f_lglast, self._f_accsum, self._f_acclast, self._f_beams,
+                        self._f_rng, self._hit)  # fmt: skip
         hit = np.zeros(self._alive.shape[0], bool)
         hit[ti] = True
         self._finish(pre, hit, dt)
@@ -649,12 +871,50 @@ class KinTracker:
 
     def _kin_prob(self, rows: np.ndarray) -> np.ndarray:
         pr = self.params
+        if self.kin_model is not None:
+            return self.kin_model.kin_prob(self._features(rows))
         # some track of the same observer moved: the swarm around it is active
         active = np.bincount(self._obs[rows][self._moved[rows]], minlength=self.n_observers) > 0
         idle = active[self._obs[rows]] & ~self._moved[rows] & (self._static_t[rows] >= pr.static_time)
         lo = (_logit(pr.kin_prior) + self._lo_score[rows] + self._lo_resid[rows] + self._lo_shape[rows]
               + self._lo_motion[rows] + np.where(idle, pr.static_penalty, 0.0))  # fmt: skip
         return 1.0 / (1.0 + np.exp(-lo))
+
+    def _features(self, rows: np.ndarray) -> np.ndarray:
+        """(len(rows), F) :data:`TRACK_FEATURES` of the track rows ``rows``."""
+        pr = self.params
+        n = np.maximum(self._seen[rows], 1).astype(np.float64)
+        o = self._obs[rows]
+        disp = np.hypot(*(self._x[rows, :2] - self._anchor[rows]).T)
+        aged = self.odometer[o] - self._anchor_odo[rows]
+        drift = aged * (pr.odom_heading_rate**2 * self._anchor_rng[rows] ** 2 + pr.odom_position_rate**2)
+        var = self._anchor_var[rows] + 0.5 * (self._P[rows, 0, 0] + self._P[rows, 1, 1]) + drift
+        speed = np.hypot(self._x[rows, 2], self._x[rows, 3])
+        speed_sd = np.sqrt(np.maximum(0.5 * (self._P[rows, 2, 2] + self._P[rows, 3, 3]), 1e-12))
+        hit = self._hit[rows]
+        mean = self._f_lgsum[rows] / n
+        dof = self._res_dof[rows]
+        live = np.flatnonzero(self._alive & self._confirmed)  # the scene: the observer's confirmed tracks
+        n_conf = np.bincount(self._obs[live], minlength=self.n_observers)[o].astype(np.float64)
+        n_moved = np.bincount(self._obs[live][self._moved[live]], minlength=self.n_observers)[o]
+        return np.stack([
+            mean, np.sqrt(np.maximum(self._f_lgsq[rows] / n - mean * mean, 0.0)), self._f_lgmax[rows],
+            self._f_lglast[rows], np.where(hit, self._f_lglast[rows], -6.0), self._f_accsum[rows] / n,
+            self._f_acclast[rows], np.where(hit, self._f_acclast[rows], 0.0), hit.astype(np.float64),
+            np.log(n),
+            np.log1p(self._f_beams[rows]), self._f_rng[rows], np.minimum(disp / np.sqrt(var), 10.0),
+            self._moved[rows].astype(np.float64), self._exist[rows], np.minimum(speed / speed_sd, 10.0),
+            n_moved / np.maximum(n_conf, 1.0), np.log1p(n_moved),
+            np.clip((self._res_chi2[rows] - dof) / np.sqrt(2.0 * np.maximum(dof, 1.0)), -10.0, 10.0),
+        ], axis=1)  # fmt: skip
+
+    def track_features(self, observer: int = 0) -> dict[str, np.ndarray]:
+        """The track classifier's inputs of ``observer``'s tracks, in track-id order: ``id`` (n,), ``xy``
+        (n, 2) in its current robot frame, ``confirmed`` (n,) and ``features`` (n, F)
+        (:data:`TRACK_FEATURES`)."""
+        rows = self._rows(observer)
+        return {"id": self._id[rows].copy(), "xy": self.in_robot_frame(observer),
+                "confirmed": self._confirmed[rows].copy(), "features": self._features(rows)}
 
     def kin_prob(self, observer: int | None = 0) -> np.ndarray:
         """Kin probability of ``observer``'s tracks (all observers' for ``None``), in track-id order."""
@@ -717,6 +977,28 @@ class KinTracker:
             mask[o, rank] = True
         count = mask.sum(axis=1).astype(np.int64)
         return {"tracks": out, "mask": mask, "count": count}
+
+
+def _kin_model(kin_model) -> TrackKinModel | None:
+    if isinstance(kin_model, TrackKinModel):
+        return kin_model
+    if isinstance(kin_model, str) and kin_model == "hand":
+        return None
+    if isinstance(kin_model, str) and kin_model == "learned":
+        return _default_kin_model()
+    if isinstance(kin_model, str | Path):
+        return TrackKinModel.load(kin_model)
+    raise TypeError(f"KinTracker: kin_model must be 'hand', 'learned', a model JSON path or a TrackKinModel, "
+                    f"got {kin_model!r}")  # fmt: skip
+
+
+_DEFAULT_MODEL: list = []
+
+
+def _default_kin_model() -> TrackKinModel:
+    if not _DEFAULT_MODEL:  # loaded once per process (every env's tracker shares it; it is never mutated)
+        _DEFAULT_MODEL.append(TrackKinModel.load(DEFAULT_KIN_MODEL))
+    return _DEFAULT_MODEL[0]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -1105,6 +1387,31 @@ def _finish_kernel(pre, hit, dt, alive, tobs, x, P, poses, exist, confirmed, mov
 
 
 @numba.njit(cache=True, nogil=True)
+def _feature_kernel(tracks, n_matched, scores, accepted, rng, beams, lgsum, lgsq, lgmax, lglast, accsum,
+                    acclast, f_beams, f_rng, hit):  # fmt: skip
+    """The track classifier's running inputs of the updated tracks (``tracks[j]`` got candidate ``j``;
+    rows from ``n_matched`` on were born this frame and start afresh); ``hit`` marks them."""
+    hit[:] = False
+    for j in range(tracks.shape[0]):
+        t = tracks[j]
+        p = min(max(scores[j], 1e-6), 1 - 1e-6)
+        lg = min(max(math.log(p / (1 - p)), -6.0), 6.0)
+        a = (1.0 if accepted[j] else 0.0) if accepted.shape[0] else 0.5  # 0.5: decisions not given
+        if j >= n_matched:
+            lgsum[t] = lgsq[t] = accsum[t] = 0.0
+            lgmax[t] = -6.0
+        lgsum[t] += lg
+        lgsq[t] += lg * lg
+        lgmax[t] = max(lgmax[t], lg)
+        lglast[t] = lg
+        accsum[t] += a
+        acclast[t] = a
+        f_beams[t] = beams[j]
+        f_rng[t] = rng[j]
+        hit[t] = True
+
+
+@numba.njit(cache=True, nogil=True)
 def _score_kernel(ti, scores, accepted, rng, score_sum, n_scored, lo_score, bar1, per_metre, weight, acc_llr,
                   rej_llr, n0, gain, clamp):  # fmt: skip
     """The score cue of the updated tracks ``ti`` (candidate ``j`` of this frame for ``ti[j]``)."""
@@ -1167,7 +1474,7 @@ def _outline_kernel(ti, ci, pts, sig, dist, cstart, obs, odometer, moved, buf, n
         t, c = ti[j], ci[j]
         a, b = cstart[c], cstart[c + 1]
         mf = b - a
-        if mf >= 3 and resid_clamp > 0.0:
+        if mf >= 3:  # always: the track classifier reads the summed chi-square (resid_z)
             # per-frame known-radius fit: one pose, so no odometry drift and valid while the object moves;
             # start r behind the points' middle as seen from the observer
             mx = my = 0.0
@@ -1190,10 +1497,12 @@ def _outline_kernel(ti, ci, pts, sig, dist, cstart, obs, odometer, moved, buf, n
                 v1 = v0 + delta2
                 ee = fe[p - a] * fe[p - a]
                 chi2 += ee / v0
-                llr += 0.5 * math.log(v1 / v0) * (mf - 2) / mf - 0.5 * ee * (1.0 / v0 - 1.0 / v1)
+                if resid_clamp > 0.0:  # the hand-tuned cue's LLR (its logs) only when it is on
+                    llr += 0.5 * math.log(v1 / v0) * (mf - 2) / mf - 0.5 * ee * (1.0 / v0 - 1.0 / v1)
             res_chi2[t] += chi2
             res_dof[t] += mf - 2
-            lo_resid[t] = min(max(lo_resid[t] + llr, -resid_clamp), resid_clamp)
+            if resid_clamp > 0.0:
+                lo_resid[t] = min(max(lo_resid[t] + llr, -resid_clamp), resid_clamp)
         if moved[t]:  # a moving object's points share no frame: its outline is no evidence
             lo_shape[t] = 0.0
             continue

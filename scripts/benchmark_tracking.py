@@ -87,6 +87,8 @@ def report(results: list[dict], cost: dict | None = None) -> str:
         for m, rows in r["by_distance"].items():
             lines.append(f"| {m} | " + " | ".join(_prf(x) for x in rows) + " |")
         sr = ", ".join(f"{m} {_f(v[0])} ({v[1]} frames)" for m, v in r["same_radius_rejected"].items())
+        lk = "; ".join(f"{m}: " + ", ".join(f"{k} {_f(v[0])}" for k, v in d.items())
+                       for m, d in r.get("lookalikes_rejected", {}).items())  # fmt: skip
         mot, sec = r["mot"], r["seconds"]
         lines += [
             "",
@@ -96,6 +98,7 @@ def report(results: list[dict], cost: dict | None = None) -> str:
             f"- CLEAR MOT (tracker): MOTA {_f(mot['mota'])}, IDF1 {_f(mot['idf1'])}, "
             f"identity switches {mot['num_switches']}",
             f"- same-radius cylinders rejected once every kin in view moved >= 0.2 m: {sr}",
+            f"- look-alikes in view >= 20 frames at 0.3-2 m, share of frames not reported, by kind: {lk}",
             f"- per frame, all observers: detector {1e3 * sec['detector_per_frame']:.2f} ms, tracker "
             f"{1e3 * sec['tracker_per_frame']:.2f} ms "
             f"({100 * sec['tracker_per_frame'] / max(sec['detector_per_frame'], 1e-12):.0f} %), timed warm "
@@ -110,7 +113,8 @@ def report(results: list[dict], cost: dict | None = None) -> str:
             f"detector {1e3 * cost['detector_per_frame']:.2f} ms, "
             f"tracker {1e3 * cost['tracker_per_frame']:.2f} ms "
             f"= **{100 * cost['ratio']:.0f} %** of the detector's time (compile / start-up "
-            f"{cost['warm_up']:.1f} s, apart).",
+            f"{cost['warm_up']:.1f} s, apart); the fixed-shape outputs an env reads (`track_arrays`, "
+            f"which evaluates the kin decision) {1e3 * cost.get('outputs_per_frame', math.nan):.2f} ms.",
         ]  # fmt: skip
     return "\n".join(lines) + "\n"
 
@@ -196,6 +200,9 @@ def main(argv: list[str] | None = None) -> list[dict]:
     p.add_argument("--out", type=Path, default=Path("outputs/benchmark_tracking"), help="output directory")
     p.add_argument("--no-gif", action="store_true", help="skip the animation")
     p.add_argument("--torch-threads", type=int, default=1, help="torch threads (learned detector)")
+    p.add_argument("--kin-model", default="learned",
+                   help="the tracker's kin decision: learned (the shipped track classifier), hand (the "
+                        "hand-tuned fusion) or a model JSON path")  # fmt: skip
     p.add_argument("--cost-robots", type=int, default=64,
                    help="observers of the tracking-cost measurement (0: skip it)")  # fmt: skip
     add_logging_args(p)
@@ -212,7 +219,10 @@ def main(argv: list[str] | None = None) -> list[dict]:
             p.error(f"--noise must be relative range noise in [0, 0.05] (0.01 = 1 %), got {nz}")
     try:  # before the episodes: an unwritable --out must not cost a whole run
         check_output_dir(args.out)
-    except ValueError as e:
+        from detectors.tracking import KinTracker
+
+        KinTracker(kin_model=args.kin_model)  # a bad --kin-model fails before the episodes
+    except (ValueError, TypeError) as e:
         p.error(str(e))
     if "torch" in sys.modules or args.detector == "learned" or "learned" in args.baselines:
         import torch
@@ -229,13 +239,14 @@ def main(argv: list[str] | None = None) -> list[dict]:
         spec = SEQUENCE_SPLITS[split]
         n = spec.n_episodes if args.full else args.episodes
         want_gif = not args.no_gif and recording is None and split == "lookalike" and nz > 0
-        r = run_sequences(detector, split, n, nz, baselines=baselines, record=0 if want_gif else None)
+        r = run_sequences(detector, split, n, nz, baselines=baselines, record=0 if want_gif else None,
+                          kin_model=args.kin_model)  # fmt: skip
         if want_gif:
             recording = r.pop("recording")
         results.append(r)
     cost = None
     if args.cost_robots:
-        cost = tracking_cost(detector, n_robots=args.cost_robots)
+        cost = tracking_cost(detector, n_robots=args.cost_robots, kin_model=args.kin_model)
     with atomic_write(args.out / "results.md", "w") as f:
         f.write(report(results, cost))
     write_json(args.out / "results.json", {"results": results, "cost": cost}, default=float)

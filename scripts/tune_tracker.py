@@ -1,5 +1,8 @@
 """Re-tune the tracker's kin-probability parameters (``detectors.TrackerParams``) for a detector.
 
+These are the hand-tuned fusion's (``KinTracker(kin_model="hand")``); the default kin decision, the learned
+track classifier, is fitted by ``scripts/fit_track_classifier.py``.
+
 Records training-seed sequence episodes once per detector (``kin_envs.detection.sequences.training_split``:
 the benchmark's ``swarm`` and ``lookalike`` generators with seeds outside its reserved range), then runs
 ``tune_tracker``'s coordinate descent over ``TUNING_GRID`` (or ``--grid``) on the replayed frames, the
@@ -85,8 +88,8 @@ def main(argv: list[str] | None = None) -> dict:
              "",
              "| recorded set | defaults | tuned |", "|---|---|---|"]  # fmt: skip
     for name, rec in zip(names, recorded, strict=True):
-        a = S.tune_objective(S.evaluate_sequences(rec, default, mot=False, singles=False))
-        r = S.evaluate_sequences(rec, best, mot=False, singles=False, diagnose=True)
+        a = S.tune_objective(S.evaluate_sequences(rec, default, mot=False, singles=False, kin_model="hand"))
+        r = S.evaluate_sequences(rec, best, mot=False, singles=False, diagnose=True, kin_model="hand")
         lines.append(f"| {name} | {_fmt(a)} | {_fmt(S.tune_objective(r))} |")
         rec.diagnosis = r["diagnosis"]
     changed = {k: getattr(best, k) for k in grid if getattr(best, k) != getattr(default, k)}

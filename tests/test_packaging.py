@@ -104,8 +104,11 @@ def test_sdist_carries_tests_licence_and_changelog(built):
 def test_wheel_has_typed_packages_and_the_checkpoint(built):
     _, wheel = built
     names = set(zipfile.ZipFile(wheel).namelist())
-    for must in (*(f"{p}/py.typed" for p in PACKAGES), "detectors/checkpoints/learned_default.pt",
-                 "detectors/checkpoints/learned_default.json"):
+    # every shipped model (learned, beam, tracker), whatever its file type
+    shipped = sorted(f"detectors/checkpoints/{f.name}" for f in (ROOT / "detectors/checkpoints").iterdir()
+                     if f.is_file() and not f.name.startswith("."))
+    assert "detectors/checkpoints/beam_default.npz" in shipped
+    for must in (*(f"{p}/py.typed" for p in PACKAGES), *shipped):
         assert must in names, must
     assert not any(n.startswith("tests/") for n in names)
     assert any(n.endswith(".dist-info/licenses/LICENSE") for n in names)

@@ -159,26 +159,75 @@ def _ccw(v: np.ndarray) -> np.ndarray:
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _cast_one(x0, y0, h, skip, range_max, circles, segments, cos_tab, sin_tab, best_d, best_p, ids):
+def _cast_one(x0, y0, h, skip, range_max, circ, seg, cos_tab, sin_tab, best_d, best_p, ws):
     """Cast one origin's beams into ``best_d`` / ``best_p`` (nearest distance and primitive id).
 
     Beams with no hit within ``range_max`` get distance ``range_max`` and primitive -1.
-    Primitive ids: circles are ``0..C-1``, segments ``C..C+S-1``. Circle ``skip`` (the robot's own
-    housing) is ignored. Beam ``i`` has world direction ``h - i*res``. ``ids`` is ``arange(k)`` for
-    some ``k >= max(C, S)`` (every primitive is a candidate).
+    ``circ`` / ``seg``: the primitives as columns (:func:`_columns`). Primitive ids: circles are
+    ``0..C-1``, segments ``C..C+S-1``. Circle ``skip`` (the robot's own housing) is ignored. Beam ``i``
+    has world direction ``h - i*res``. ``ws``: :func:`_work` for some ``k >= max(C, S)``.
     """
     for i in range(best_d.shape[0]):
         best_d[i] = range_max  # hits beyond range_max are never recorded
         best_p[i] = -1
-    _cast_prims(x0, y0, h, skip, range_max, circles, segments, ids, circles.shape[0], ids,
-                segments.shape[0], cos_tab, sin_tab, best_d, best_p)  # fmt: skip
+    n_c = circ[0].shape[0]
+    n_s = seg[0].shape[0]
+    ids = ws[0][0]
+    _cast_prims(x0, y0, h, skip, range_max, circ[0], circ[1], circ[2], ids, n_c, seg[0], seg[1], seg[2],
+                seg[3], ids, n_s, n_c, cos_tab, sin_tab, best_d, best_p, ws)  # fmt: skip
 
 
 @numba.njit(cache=True, nogil=True)
-def _cast_prims(x0, y0, h, skip, reach, circles, segments, c_ids, n_ci, s_ids, n_si, cos_tab, sin_tab,
-                best_d, best_p):  # fmt: skip
-    """Cast the circles ``c_ids[:n_ci]`` and segments ``s_ids[:n_si]`` into ``best_d`` / ``best_p``.
+def _columns(circles, segments):
+    """The primitive arrays as columns, ``(x, y, r)`` and ``(x1, y1, x2, y2)`` (1-D contiguous arrays),
+    made once per kernel call: the candidate pass of :func:`_cast_prims` then reads them in order, which
+    the compiler vectorises (rows of ``(C, 3)`` / ``(S, 4)`` arrays it does not)."""
+    c = np.empty((3, circles.shape[0]))
+    for k in range(circles.shape[0]):
+        c[0, k] = circles[k, 0]
+        c[1, k] = circles[k, 1]
+        c[2, k] = circles[k, 2]
+    s = np.empty((4, segments.shape[0]))
+    for k in range(segments.shape[0]):
+        s[0, k] = segments[k, 0]
+        s[1, k] = segments[k, 1]
+        s[2, k] = segments[k, 2]
+        s[3, k] = segments[k, 3]
+    return (c[0], c[1], c[2]), (s[0], s[1], s[2], s[3])
 
+
+@numba.njit(cache=True, nogil=True)
+def _work(k, ids=True):
+    """Scratch of :func:`_cast_prims` for up to ``k`` candidates of each kind, allocated once per kernel
+    call: ``ints[0]`` = ``arange(k)`` (every primitive as a candidate; filled only with ``ids``: the grid
+    kernel rarely needs it, and writing it touches every page of a large world's scratch), ``ints[1]``
+    the candidates kept by the first pass, ``floats[0:3]`` each candidate's first beam, beam count and
+    occlusion distance, ``floats[3:7]`` the coordinates of the segments that pass the cheap test."""
+    k = max(k, 1)
+    ints = np.empty((2, k), np.int64)
+    for q in range(k if ids else 0):
+        ints[0, q] = q
+    return ints, np.empty((7, k))
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _first_beam(k0, n_beams):
+    """``k0`` modulo ``n_beams`` (a whole float, ``|k0| < 3 n_beams``), without a division or branch."""
+    s = k0 + 3.0 * n_beams
+    s = s - 3.0 * n_beams if s >= 3.0 * n_beams else s
+    s = s - n_beams if s >= n_beams else s
+    s = s - n_beams if s >= n_beams else s
+    s = s - n_beams if s >= n_beams else s
+    return s - n_beams if s >= n_beams else s
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _cast_prims(x0, y0, h, skip, reach, cx, cy, cr, cid, n_ci, sx1, sy1, sx2, sy2, sid, n_si, n_c,
+                cos_tab, sin_tab, best_d, best_p, ws):  # fmt: skip
+    """Cast ``n_ci`` circles and ``n_si`` segments into ``best_d`` / ``best_p``.
+
+    Candidate ``q`` is circle ``cid[q]`` at ``(cx[q], cy[q])``, radius ``cr[q]``, and segment ``sid[q]``
+    from ``(sx1[q], sy1[q])`` to ``(sx2[q], sy2[q])`` (primitive id ``n_c + sid[q]``).
     ``reach`` (at most ``range_max``, at least every current ``best_d``): nothing beyond it can change
     the scan. A hit replaces the current one when it is nearer *or equally near with a lower primitive
     id*: the result is the minimum of (distance, id) over the primitives whatever order they come in,
@@ -190,49 +239,63 @@ def _cast_prims(x0, y0, h, skip, reach, circles, segments, c_ids, n_ci, s_ids, n
     Segments are one-sided: only a beam arriving from the segment's right-hand side (looking from
     its first to its second point) can hit it, i.e. the outside of a CCW polygon. A convex solid's
     back faces can never be the first hit, so culling them halves the work exactly.
-    The per-primitive code is written out here, not in helper functions: inlined helpers that take
-    the arrays cost reference counting per primitive and ran ~2x slower (measured).
+
+    Each kind takes two passes. The first computes every candidate's reach, back-face and beam-interval
+    tests without a branch, over contiguous columns, so that the compiler vectorises it (4 candidates
+    per instruction); the second tests the beams of the survivors. Written as one branchy loop, the
+    per-candidate branches (in or out of reach, one or two beams) were mispredicted so often that a
+    candidate cost ~35 ns; the vectorised pass costs ~5 (measured).
     """
     n_beams = best_d.shape[0]
     res = 2.0 * math.pi / n_beams
     inv_res = 1.0 / res
-    n_c = circles.shape[0]
     ch = math.cos(h)
     sh = math.sin(h)
     # the heading wrapped to [-pi, pi] for the beam intervals only (robots' angles are unbounded), so
-    # that a bearing minus it lies in [-2pi, 2pi] and its beam index needs no integer modulo
+    # that a bearing minus it lies in [-2pi, 2pi] and its first beam index is found without a modulo
     hw = h - 2.0 * math.pi * math.floor(h / (2.0 * math.pi) + 0.5)
     rc = reach + _TOL
     rc2 = rc * rc
+    keep = ws[0][1]
+    f_beam = ws[1][0]
+    f_count = ws[1][1]
+    f_near = ws[1][2]
     for q in range(n_ci):
-        c = c_ids[q]
-        dx = circles[c, 0] - x0
-        dy = circles[c, 1] - y0
-        r = circles[c, 2]
+        dx = cx[q] - x0
+        dy = cy[q] - y0
+        r = cr[q]
         d2 = dx * dx + dy * dy
-        # branch-free prefilter (out of reach, with a margin), then the exact test: most circles of a
-        # large arena are out of reach, and a mispredicted branch costs more than the arithmetic
-        if not ((d2 <= (rc + r) * (rc + r)) & (c != skip)):
-            continue
         d = math.sqrt(d2)
         cc = d2 - r * r
-        if d - r > reach or d <= r or cc <= 0.0:
-            continue  # out of reach, or the origin is inside the circle (not a physical state)
+        # in reach (with a margin), not the robot's own housing, the origin outside the circle
+        ok = (d2 <= (rc + r) * (rc + r)) & (cid[q] != skip) & (d - r <= reach) & (d > r) & (cc > 0.0)
         # half-angle subtended: asin(r/d) = atan(z), z = r / sqrt(d^2 - r^2); atan(z) <= z, so a small
-        # circle (most of them) takes z itself: a few more candidate beams at most, one atan2 less
-        sq = math.sqrt(cc)
+        # circle (most of them) takes z itself: a few more candidate beams at most
+        sq = math.sqrt(max(cc, 1e-300))
         z = r / sq
         half = (z if z < 0.05 else _fast_atan2(r, sq)) + _EPS
         phi = _fast_atan2(dy, dx) - hw  # bearing of the centre relative to the heading
         # beam i points at -i*res: beams within [phi-half, phi+half] have i in
         # [-(phi+half)/res, -(phi-half)/res]
-        k0 = int(math.ceil(-(phi + half) * inv_res))
-        k1 = int(math.floor(-(phi - half) * inv_res))
-        i = k0 + 2 * n_beams - 1  # >= -1: k0 >= -(2pi + pi/2) / res
-        while i >= n_beams - 1:
-            i -= n_beams
-        near = d - r - _TOL  # no hit on this circle is nearer
-        for _ in range(k1 - k0 + 1):
+        k0 = np.ceil(-(phi + half) * inv_res)
+        k1 = np.floor(-(phi - half) * inv_res)
+        f_beam[q] = _first_beam(k0, n_beams)
+        f_count[q] = k1 - k0 + 1.0 if ok else 0.0
+        f_near[q] = d - r - _TOL  # no hit on this circle is nearer
+    m = 0
+    for q in range(n_ci):
+        keep[m] = q
+        m += f_count[q] > 0.0
+    for u in range(m):
+        q = keep[u]
+        c = cid[q]
+        dx = cx[q] - x0
+        dy = cy[q] - y0
+        r = cr[q]
+        cc = (dx * dx + dy * dy) - r * r  # as in the first pass, bit for bit
+        near = f_near[q]
+        i = int(f_beam[q]) - 1
+        for _ in range(int(f_count[q])):
             i += 1
             if i == n_beams:
                 i = 0
@@ -251,41 +314,76 @@ def _cast_prims(x0, y0, h, skip, reach, circles, segments, c_ids, n_ci, s_ids, n
                 best_d[i] = t
                 best_p[i] = c
     for q in range(n_si):
-        s = s_ids[q]
-        ax = segments[s, 0] - x0
-        ay = segments[s, 1] - y0
-        bx = segments[s, 2] - x0
-        by = segments[s, 3] - y0
+        ax = sx1[q] - x0
+        ay = sy1[q] - y0
+        bx = sx2[q] - x0
+        by = sy2[q] - y0
         ex = bx - ax
         ey = by - ay
-        # back face (the origin on the left of A->B or on its line) or out of reach, branch-free: the
-        # nearest point is A, B or the foot of the perpendicular (at distance^2 cr^2 / ee)
-        cr = ey * ax - ex * ay
+        # back face (the origin on the left of A->B or on its line) or out of reach: the nearest point
+        # is A, B or the foot of the perpendicular (at distance^2 cr^2 / ee)
+        cr_ = ey * ax - ex * ay
         ee = ex * ex + ey * ey
         dot = -(ax * ex + ay * ey)
         near = (((dot <= 0.0) & (ax * ax + ay * ay <= rc2))
                 | ((dot >= ee) & (bx * bx + by * by <= rc2))
-                | ((dot > 0.0) & (dot < ee) & (cr * cr <= rc2 * ee)))  # fmt: skip
-        if not ((cr < 0.0) & near):
-            continue
+                | ((dot > 0.0) & (dot < ee) & (cr_ * cr_ <= rc2 * ee)))  # fmt: skip
+        f_count[q] = 1.0 if (cr_ < 0.0) & near else 0.0
+    # segments take one more, cheap pass first: half of them face away and in a large arena many are out
+    # of reach, while their beam interval costs two atan2 and a division; the survivors are copied into
+    # contiguous columns so that the interval pass stays vectorised
+    g1 = ws[1][3]
+    g2 = ws[1][4]
+    g3 = ws[1][5]
+    g4 = ws[1][6]
+    m = 0
+    for q in range(n_si):
+        keep[m] = q
+        g1[m] = sx1[q]
+        g2[m] = sy1[q]
+        g3[m] = sx2[q]
+        g4[m] = sy2[q]
+        m += f_count[q] > 0.0
+    for v in range(m):
+        ax = g1[v] - x0
+        ay = g2[v] - y0
+        bx = g3[v] - x0
+        by = g4[v] - y0
+        ex = bx - ax
+        ey = by - ay
+        ee = ex * ex + ey * ey
+        dot = -(ax * ex + ay * ey)
         u = min(1.0, max(0.0, dot / ee))
         px = ax + u * ex
         py = ay + u * ey
         dm2 = px * px + py * py
-        if dm2 > reach * reach:
-            continue
-        p = n_c + s
+        ok = dm2 <= reach * reach
         th_a = _fast_atan2(ay, ax) - hw
         span = _fast_atan2(ax * by - ay * bx, ax * bx + ay * by)  # signed angle A -> B, |span| < pi
         lo = th_a + min(0.0, span) - _EPS
         hi = th_a + max(0.0, span) + _EPS
-        k0 = int(math.ceil(-hi * inv_res))
-        k1 = int(math.floor(-lo * inv_res))
-        i = k0 + 2 * n_beams - 1  # >= -1: k0 >= -(2pi + pi) / res
-        while i >= n_beams - 1:
-            i -= n_beams
-        near_d = math.sqrt(dm2) - _TOL
-        for _ in range(k1 - k0 + 1):
+        k0 = np.ceil(-hi * inv_res)
+        k1 = np.floor(-lo * inv_res)
+        f_beam[v] = _first_beam(k0, n_beams)
+        f_count[v] = k1 - k0 + 1.0 if ok else 0.0
+        f_near[v] = math.sqrt(dm2) - _TOL
+    k = 0
+    for v in range(m):
+        keep[k] = keep[v]
+        f_beam[k] = f_beam[v]
+        f_count[k] = f_count[v]
+        f_near[k] = f_near[v]
+        k += f_count[v] > 0.0
+    for v in range(k):
+        q = keep[v]
+        p = n_c + sid[q]
+        ax = sx1[q] - x0
+        ay = sy1[q] - y0
+        ex = (sx2[q] - x0) - ax
+        ey = (sy2[q] - y0) - ay
+        near_d = f_near[v]
+        i = int(f_beam[v]) - 1
+        for _ in range(int(f_count[v])):
             i += 1
             if i == n_beams:
                 i = 0
@@ -379,10 +477,11 @@ def _scan_kernel(
     sin_tab = tabs[1]
     best_d = np.empty(n_beams)
     best_p = np.empty(n_beams, dtype=np.int32)
-    ids = np.arange(max(circles.shape[0], segments.shape[0]))
+    ws = _work(max(circles.shape[0], segments.shape[0]))
+    circ, seg = _columns(circles, segments)
     for n in range(ox.shape[0]):
-        _cast_one(ox[n], oy[n], heading[n], circle_skip[n], range_max, circles, segments, cos_tab, sin_tab,
-                  best_d, best_p, ids)  # fmt: skip
+        _cast_one(ox[n], oy[n], heading[n], circle_skip[n], range_max, circ, seg, cos_tab, sin_tab,
+                  best_d, best_p, ws)  # fmt: skip
         _write_row(n, best_d, best_p, 0, prim_kind, prim_index, range_min, range_max, out_ranges, out_true,
                    out_kind, out_index)
 
@@ -495,10 +594,12 @@ def _bin(box, ids, gx, gy, cs, nx, ny, inside_only):
 
 
 def default_cell_size(range_max: float) -> float:
-    """Grid cell side for a lidar of reach ``range_max``: ``range_max / 5`` (at least 0.5 m), so a
-    scan visits about 80 cells whatever the arena. Measured on random arenas at 0.7 objects/m^2:
-    1-1.5 m cells spend more on visiting cells than they save, 4 m cells test too many primitives."""
-    return max(0.5, float(range_max) / 5.0)
+    """Grid cell side for a lidar of reach ``range_max``: ``range_max / 3`` (at least 0.5 m), so a
+    scan visits about 35 cells whatever the arena. Measured on random arenas at 0.7 objects/m^2 with
+    the vectorised candidate pass (a primitive costs a few ns to reject): 4 m cells 10-15 % faster than
+    2.4 m ones at 1,000-4,000 obstacles, 6 m cells no faster, 1.2 m cells spend more on visiting cells
+    than they save."""
+    return max(0.5, float(range_max) / 3.0)
 
 
 def build_lidar_grid(
@@ -569,16 +670,32 @@ def build_lidar_grid(
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
+def _gather(circles, segments, cand_c, n_ci, cand_s, n_si, cb, sb):
+    """Copy the candidates' coordinates into the columns ``cb`` / ``sb``."""
+    for k in range(n_ci):
+        c = cand_c[k]
+        cb[0, k] = circles[c, 0]
+        cb[1, k] = circles[c, 1]
+        cb[2, k] = circles[c, 2]
+    for k in range(n_si):
+        s = cand_s[k]
+        sb[0, k] = segments[s, 0]
+        sb[1, k] = segments[s, 1]
+        sb[2, k] = segments[s, 2]
+        sb[3, k] = segments[s, 3]
+
+
+@numba.njit(cache=True, nogil=True)
 def _grid_cast_one(
     x0, y0, h, skip, range_max, circles, segments, cos_tab, sin_tab, best_d, best_p, stamp, tag,
     cand_c, cand_s, gx, gy, cs, nx, ny, c_start, c_items, s_start, s_items, dc_start, dc_items,
-    ds_start, ds_items, c_over, s_over,
+    ds_start, ds_items, c_over, s_over, ws, cb, sb,
 ):  # fmt: skip
     """One origin's scan through the grid: rings of cells outwards, so near primitives come first and
     :func:`_cast_prims`' per-beam occlusion test spares most of the far ones. Per ring, the primitives
     of the cells that pass the distance and occlusion tests are gathered (each once: ``stamp``) and
     cast in one call; everything per cell is written out here (a call per cell cost more than its
-    work)."""
+    work). ``cb`` / ``sb``: the gathered candidates' coordinates as columns (see :func:`_cast_prims`)."""
     n_beams = best_d.shape[0]
     res = 2.0 * math.pi / n_beams
     n_c = circles.shape[0]
@@ -588,8 +705,13 @@ def _grid_cast_one(
         best_p[i] = -1
     far = range_max  # >= every current hit: nothing beyond it can change the scan
     # the moving primitives outside the grid first (tested by every robot)
-    _cast_prims(x0, y0, h, skip, far, circles, segments, c_over, c_over.shape[0], s_over, s_over.shape[0],
-                cos_tab, sin_tab, best_d, best_p)  # fmt: skip
+    n_ci = c_over.shape[0]
+    n_si = s_over.shape[0]
+    cand_c[:n_ci] = c_over
+    cand_s[:n_si] = s_over
+    _gather(circles, segments, cand_c, n_ci, cand_s, n_si, cb, sb)
+    _cast_prims(x0, y0, h, skip, far, cb[0], cb[1], cb[2], cand_c, n_ci, sb[0], sb[1], sb[2], sb[3], cand_s,
+                n_si, n_c, cos_tab, sin_tab, best_d, best_p, ws)  # fmt: skip
     rc = 0.5 * cs * math.sqrt(2.0) * (1.0 + 1e-9)
     ci = min(int((x0 - gx) / cs), nx - 1)
     cj = min(int((y0 - gy) / cs), ny - 1)
@@ -602,8 +724,8 @@ def _grid_cast_one(
             )
             if inner - _TOL > far:
                 break
-        n_ci = 0
-        n_si = 0
+        n_ci = np.int64(0)  # not a literal 0, which made numba compile a second, unvectorised _cast_prims
+        n_si = np.int64(0)
         for side in range(4):
             if side < 2:
                 j = cj - ring if side == 0 else cj + ring
@@ -678,8 +800,9 @@ def _grid_cast_one(
                         cand_s[n_si] = s
                         n_si += 1
         if n_ci or n_si:
-            _cast_prims(x0, y0, h, skip, far, circles, segments, cand_c, n_ci, cand_s, n_si, cos_tab,
-                        sin_tab, best_d, best_p)  # fmt: skip
+            _gather(circles, segments, cand_c, n_ci, cand_s, n_si, cb, sb)
+            _cast_prims(x0, y0, h, skip, far, cb[0], cb[1], cb[2], cand_c, n_ci, sb[0], sb[1], sb[2], sb[3],
+                        cand_s, n_si, n_c, cos_tab, sin_tab, best_d, best_p, ws)  # fmt: skip
             far = 0.0
             for i in range(n_beams):
                 far = max(far, best_d[i])
@@ -700,24 +823,32 @@ def _scan_kernel_grid(
     dc_start, dc_items, c_over = _bin(box[: dyn_c.shape[0]], dyn_c, gx, gy, cs, nx, ny, True)
     ds_start, ds_items, s_over = _bin(box[dyn_c.shape[0] :], dyn_s, gx, gy, cs, nx, ny, True)
     stamp = np.zeros(n_c + segments.shape[0], np.int32)
-    cand_c = np.empty(n_c, np.int32)
-    cand_s = np.empty(segments.shape[0], np.int32)
-    ids = np.arange(max(n_c, segments.shape[0]))
+    cand_c = np.empty(max(n_c, 1), np.int64)  # int64 like the brute force's ids: one compiled _cast_prims
+    cand_s = np.empty(max(segments.shape[0], 1), np.int64)
+    cb = np.empty((3, n_c))
+    sb = np.empty((4, segments.shape[0]))
     best_d = np.empty(n_beams)
     best_p = np.empty(n_beams, dtype=np.int32)
     xmax = gx + nx * cs
     ymax = gy + ny * cs
+    outside = 0
+    for n in range(ox.shape[0]):
+        outside += not (ox[n] > gx and ox[n] < xmax and oy[n] > gy and oy[n] < ymax)
+    ws = _work(max(n_c, segments.shape[0]), outside > 0)
+    # the columns of every primitive, for the robots outside the grid only (a copy of the whole world)
+    circ, seg = _columns(circles[: circles.shape[0] if outside else 0],
+                         segments[: segments.shape[0] if outside else 0])  # fmt: skip
     for n in range(ox.shape[0]):
         x0 = ox[n]
         y0 = oy[n]
         if not (x0 > gx and x0 < xmax and y0 > gy and y0 < ymax):
-            _cast_one(x0, y0, heading[n], circle_skip[n], range_max, circles, segments, cos_tab, sin_tab,
-                      best_d, best_p, ids)  # fmt: skip
+            _cast_one(x0, y0, heading[n], circle_skip[n], range_max, circ, seg, cos_tab, sin_tab,
+                      best_d, best_p, ws)  # fmt: skip
         else:
             _grid_cast_one(
                 x0, y0, heading[n], circle_skip[n], range_max, circles, segments, cos_tab, sin_tab,
                 best_d, best_p, stamp, n + 1, cand_c, cand_s, gx, gy, cs, nx, ny, c_start, c_items,
-                s_start, s_items, dc_start, dc_items, ds_start, ds_items, c_over, s_over,
+                s_start, s_items, dc_start, dc_items, ds_start, ds_items, c_over, s_over, ws, cb, sb,
             )  # fmt: skip
         _write_row(n, best_d, best_p, 0, prim_kind, prim_index, range_min, range_max, out_ranges, out_true,
                    out_kind, out_index)
@@ -777,13 +908,33 @@ def cast_scan(
                 f"cast_scan: the grid indexes {grid.n_circles} circles and {grid.n_segments} segments, "
                 f"got {len(circles)} and {len(segments)}; rebuild it with build_lidar_grid"
             )
-        (gx, gy), (nx, ny) = grid.origin, grid.shape
-        _scan_kernel_grid(
-            *args, gx, gy, grid.cell_size, nx, ny, grid.circle_start, grid.circle_items,
-            grid.segment_start, grid.segment_items, grid.dynamic_circles, grid.dynamic_segments,
-            ranges, true, kind, index,
-        )  # fmt: skip
+        _scan_kernel_grid(*args, *grid_args(grid), ranges, true, kind, index)
     return ranges, true, kind, index
+
+
+def grid_args(grid: LidarGrid) -> tuple:
+    """The grid kernel's arguments for ``grid`` (after the primitive owner tables)."""
+    (gx, gy), (nx, ny) = grid.origin, grid.shape
+    return (gx, gy, grid.cell_size, nx, ny, grid.circle_start, grid.circle_items, grid.segment_start,
+            grid.segment_items, grid.dynamic_circles, grid.dynamic_segments)  # fmt: skip
+
+
+def cast_prepared(ox, oy, heading, skip, static: tuple, grid: tuple | None):
+    """:func:`cast_scan` for callers that keep their arguments in the kernel's form (``World.scan``:
+    the conversions and checks cost more than a one-robot scan's kernel). ``ox``, ``oy``, ``heading``:
+    ``(N,)`` contiguous float64; ``skip``: ``(N,)`` int64; ``static``: ``(beam_tables, range_min,
+    range_max, circles, segments, prim_kind, prim_index)`` as :func:`cast_scan` converts them; ``grid``:
+    :func:`grid_args` or ``None``. Returns float32 readings as :func:`cast_scan`."""
+    tabs, range_min, range_max, circles, segments, prim_kind, prim_index = static
+    n, nb = ox.shape[0], tabs.shape[1]
+    out = (np.empty((n, nb), np.float32), np.empty((n, nb), np.float32), np.empty((n, nb), np.int8),
+           np.empty((n, nb), np.int32))  # fmt: skip
+    args = (ox, oy, heading, tabs, range_min, range_max, circles, skip, segments, prim_kind, prim_index)
+    if grid is None:
+        _scan_kernel(*args, *out)
+    else:
+        _scan_kernel_grid(*args, *grid, *out)
+    return out
 
 
 def scan_shapes(

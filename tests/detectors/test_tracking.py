@@ -6,7 +6,14 @@ import math
 import numpy as np
 import pytest
 
-from detectors.tracking import TRACK_FIELDS, KinTracker, TrackerParams, fit_known_circle
+from detectors.tracking import (
+    TRACK_FEATURES,
+    TRACK_FIELDS,
+    KinTracker,
+    TrackerParams,
+    TrackKinModel,
+    fit_known_circle,
+)
 
 DT = 0.1
 STILL = (0.0, 0.0, 0.0)
@@ -65,7 +72,7 @@ def test_static_objects_seen_by_a_moving_observer_keep_their_tracks():
 
 
 def test_crossing_targets_keep_their_identities():
-    tr = KinTracker(TrackerParams(score_prior=0.5))
+    tr = KinTracker(TrackerParams(score_prior=0.5), kin_model="hand")
     for k in range(40):  # two robots cross at 0.2 m/s, 0.5 m apart at the closest
         a = np.array([-1.0 + 0.2 * k * DT, 0.25]) + [2.0, 0.0]
         b = np.array([1.0 - 0.2 * k * DT, -0.25]) + [2.0, 0.0]
@@ -101,7 +108,7 @@ def test_existence_confirms_and_deletes():
 
 def test_score_cue_is_bounded():
     pr = TrackerParams(min_score=0.0)
-    tr = KinTracker(pr)
+    tr = KinTracker(pr, kin_model="hand")
     for _ in range(200):
         tr.update([[1.0, 0.0], [1.0, 1.0]], [0.99, 0.01], STILL, DT)
     kp = tr.kin_prob()
@@ -153,7 +160,7 @@ def _outline(kind: str, centre, observer, n_views: int, r=0.035, noise=0.0, seed
 def test_outline_cue_tells_a_housing_from_a_hexagon(kind, sign):
     centre = np.array([0.8, 0.0])
     pr = TrackerParams(shape_clamp=2.0, score_prior=0.5)  # the accumulated-outline cue on (default: off)
-    tr = KinTracker(pr)
+    tr = KinTracker(pr, kin_model="hand")
     for pts in _outline(kind, centre, np.zeros(2), 20):
         tr.update([centre], [0.5], STILL, DT, points=[pts], noise=0.0)
     (t,) = tr.tracks()
@@ -164,7 +171,7 @@ def test_outline_cue_tells_a_housing_from_a_hexagon(kind, sign):
 
 def test_outline_cue_is_honest_under_noise():
     centre = np.array([0.8, 0.0])
-    tr = KinTracker(TrackerParams(shape_clamp=2.0))
+    tr = KinTracker(TrackerParams(shape_clamp=2.0), kin_model="hand")
     for pts in _outline("hexagon", centre, np.zeros(2), 20, noise=0.02):
         tr.update([centre], [0.5], STILL, DT, points=[pts], noise=0.02)
     assert abs(tr._lo_shape[tr._rows(0)[0]]) < 1.0  # 1.6 cm of noise hides a 2 mm deviation
@@ -179,7 +186,7 @@ def test_per_frame_residual_cue_separates_a_circle_from_a_hexagon_over_frames():
     first, final, chi, kp = ({"circle": [], "hexagon": []} for _ in range(4))
     for kind in ("circle", "hexagon"):
         for seed in range(8):
-            tr = KinTracker(TrackerParams(resid_clamp=50.0, score_prior=0.5))
+            tr = KinTracker(TrackerParams(resid_clamp=50.0, score_prior=0.5), kin_model="hand")
             for k, pts in enumerate(_outline(kind, centre, np.zeros(2), 25, noise=noise, seed=seed)):
                 tr.update([centre], [0.5], STILL, DT, points=[pts], noise=noise)
                 row = tr._rows(0)[0]
@@ -196,8 +203,16 @@ def test_per_frame_residual_cue_separates_a_circle_from_a_hexagon_over_frames():
 
 def test_parked_track_keeps_its_kin_probability_by_default():
     """A static circle the detector keeps accepting stays kin (a parked kin) while another track moves; the
-    static penalty (off by default) is what would turn it into a same-radius cylinder."""
-    tr = KinTracker()
+    static penalty (off by default) is what would turn it into a same-radius cylinder. The hand-tuned
+    fusion and the shipped classifier alike."""
+    for model in ("hand", "learned"):
+        tr = KinTracker(kin_model=model)
+        for k in range(50):
+            tr.update([[1.0, 0.0], [1.5, -0.5 + 0.02 * k]], [0.97, 0.97], STILL, DT)
+        kp = tr.kin_prob()
+        assert kp[0] > 0.5 and kp[1] > 0.5, model
+        assert not tr.tracks()[0].moved and tr.tracks()[1].moved
+    tr = KinTracker(kin_model="hand")
     for k in range(50):
         tr.update([[1.0, 0.0], [1.5, -0.5 + 0.02 * k]], [0.97, 0.97], STILL, DT)
     kp = tr.kin_prob()
@@ -216,7 +231,7 @@ def test_fit_known_circle_recovers_the_centre():
 
 def test_static_circle_rejected_once_others_move():
     pr = TrackerParams(static_penalty=-6.0, score_prior=0.5)  # the static penalty on (default: off)
-    tr = KinTracker(pr)
+    tr = KinTracker(pr, kin_model="hand")
     steps = int(pr.static_time / DT) + 5
     for k in range(steps):
         tr.update([[1.0, 0.0], [1.5, -0.5 + 0.02 * k]], [0.8, 0.8], STILL, DT)
@@ -362,3 +377,108 @@ def test_compiled_frame_kernels_match_the_numpy_implementation(seed):
         ref.update_batch(*args, accepted=acc)
         _compare(fast, ref)
     assert len(fast) > 20
+
+
+# -- the track-level kin classifier (TrackKinModel) --------------------------------------------------------
+
+
+def _rule_model(feature: str, weight: float, bias: float, min_frames: int = 0) -> TrackKinModel:
+    """A one-layer model whose logit is ``weight * feature + bias`` (identity standardisation)."""
+    F = len(TRACK_FEATURES)
+    W = np.zeros((F, 1))
+    W[TRACK_FEATURES.index(feature), 0] = weight
+    return TrackKinModel(np.zeros(F), np.ones(F), [(W, np.array([bias]))], min_frames=min_frames)
+
+
+def test_track_features_on_a_hand_made_sequence():
+    """The classifier's inputs: score logits averaged / max / last, accept share, hit flags, frames, beams,
+    range, motion; a track missed this frame reads hit 0 and its last candidate's values stay."""
+    tr = KinTracker(TrackerParams(min_score=0.0))
+    arc = 0.035 * np.c_[np.cos(np.linspace(2.5, 3.8, 5)), np.sin(np.linspace(2.5, 3.8, 5))]
+    scores = [0.5, 0.8, 0.9]
+    for k, s in enumerate(scores):
+        xy = np.array([[1.0, 0.0], [2.0, 0.05 * k]])  # the second object moves 0.5 m/s
+        tr.update_batch([0, 0], xy, [s, 0.3], np.zeros((1, 3)), DT, np.r_[xy[0] + arc, xy[1] + arc[:3]],
+                      np.repeat([0, 1], [5, 3]), accepted=[k > 0, False])  # fmt: skip
+    f = tr.track_features()
+    X = dict(zip(TRACK_FEATURES, f["features"].T, strict=True))
+    lg = np.log(np.array(scores) / (1 - np.array(scores)))
+    np.testing.assert_allclose(X["mean_logit"], [lg.mean(), math.log(0.3 / 0.7)])
+    np.testing.assert_allclose(X["std_logit"], [lg.std(), 0.0], atol=1e-7)
+    np.testing.assert_allclose(X["max_logit"][0], lg.max())
+    np.testing.assert_allclose(X["last_logit"][0], lg[-1])
+    np.testing.assert_allclose(X["accept_rate"], [2 / 3, 0.0])
+    np.testing.assert_allclose(X["hit"], [1, 1])
+    np.testing.assert_allclose(X["log_frames"], [math.log(3)] * 2)
+    np.testing.assert_allclose(X["log_beams"], np.log1p([5, 3]))
+    np.testing.assert_allclose(X["range"], [1.0, math.hypot(2.0, 0.1)])
+    assert X["moved"][0] == 0 and X["motion_z"][1] > X["motion_z"][0]
+    assert np.isfinite(X["resid_z"]).all() and X["resid_z"][0] < 0  # exact circle points: chi2 below dof
+    assert f["id"].tolist() == [0, 1] and f["confirmed"].all()
+    tr.update_batch([0], [[1.0, 0.0]], [0.9], np.zeros((1, 3)), DT, accepted=[True])  # the mover is missed
+    X = dict(zip(TRACK_FEATURES, tr.track_features()["features"].T, strict=True))
+    assert X["hit"].tolist() == [1, 0] and X["hit_logit"][1] == -6 and X["hit_accepted"][1] == 0
+    assert X["last_logit"][1] == pytest.approx(math.log(0.3 / 0.7))
+    # decisions not given: the accept features read 0.5
+    tr = KinTracker()
+    tr.update([[1.0, 0.0]], [0.9], STILL, DT)
+    X = dict(zip(TRACK_FEATURES, tr.track_features()["features"].T, strict=True))
+    assert X["accept_rate"][0] == 0.5 and X["last_accepted"][0] == 0.5
+
+
+def test_kin_model_decides_and_young_tracks_take_the_detectors_decision():
+    """With a model, kin_prob is the model's; tracks seen in fewer than ``min_frames`` frames take the
+    detector's own decision of their last frame (accepted and updated: kin)."""
+    always = _rule_model("hit", 0.0, 5.0, min_frames=3)  # the model alone would call everything kin
+    tr = KinTracker(kin_model=always)
+    xy = [[1.0, 0.0], [2.0, 0.0]]
+    tr.update_batch([0, 0], xy, [0.9, 0.9], np.zeros((1, 3)), DT, accepted=[True, False])
+    assert tr.kin_prob().tolist() == [0.75, 0.25]  # young: the detector's decisions
+    for _ in range(2):
+        tr.update_batch([0, 0], xy, [0.9, 0.9], np.zeros((1, 3)), DT, accepted=[True, False])
+    np.testing.assert_allclose(tr.kin_prob(), 1 / (1 + math.exp(-5.0)))  # 3 frames: the model's
+    assert [t.is_kin for t in tr.tracks()] == [True, True]
+    # the hand-tuned fusion stays selectable and is what "hand" gives
+    hand = KinTracker(kin_model="hand")
+    assert hand.kin_model is None
+
+
+def test_kin_model_fit_is_deterministic_and_learns_a_rule():
+    rng = np.random.default_rng(0)
+    X = rng.normal(size=(400, len(TRACK_FEATURES)))
+    y = X[:, 0] + 0.5 * X[:, 3] > 0
+    a = TrackKinModel.fit(X, y, l2=1e-4)
+    b = TrackKinModel.fit(X, y, l2=1e-4)
+    np.testing.assert_array_equal(a.layers[0][0], b.layers[0][0])
+    assert ((a.logit(X) > 0) == y).mean() > 0.97
+    m = TrackKinModel.fit(X, y, hidden=(4,), l2=1e-4)
+    assert ((m.logit(X) > 0) == y).mean() > 0.97
+    s = a.shifted(0.8)  # operating point moved to p >= 0.8
+    np.testing.assert_allclose(s.logit(X), a.logit(X) - math.log(4.0))
+    with pytest.raises(ValueError, match="one length"):
+        TrackKinModel.fit(X, y[:-1])
+
+
+def test_kin_model_json_round_trip_and_bad_files(tmp_path):
+    import json
+
+    m = _rule_model("mean_logit", 1.0, -0.5, min_frames=2)
+    path = tmp_path / "m.json"
+    path.write_text(json.dumps(m.to_dict()))
+    n = TrackKinModel.load(path)
+    X = np.random.default_rng(1).normal(size=(5, len(TRACK_FEATURES)))
+    np.testing.assert_allclose(n.kin_prob(X), m.kin_prob(X))
+    assert KinTracker(kin_model=str(path)).kin_model.min_frames == 2
+    bad = m.to_dict() | {"features": ["mean_logit"]}
+    (tmp_path / "bad.json").write_text(json.dumps(bad))
+    with pytest.raises(ValueError, match=r"bad\.json.*re-fit"):
+        TrackKinModel.load(tmp_path / "bad.json")
+    (tmp_path / "nan.json").write_text(json.dumps(m.to_dict()).replace("-0.5", "NaN"))
+    with pytest.raises(ValueError, match="non-finite"):
+        TrackKinModel.load(tmp_path / "nan.json")
+    with pytest.raises(ValueError, match="unknown|expected"):
+        TrackKinModel.from_dict(m.to_dict() | {"extra": 1})
+    with pytest.raises(TypeError, match="kin_model"):
+        KinTracker(kin_model=3)
+    # the shipped model loads and fits this tracker's features
+    assert KinTracker(kin_model="learned").kin_model.info.get("threshold") is not None

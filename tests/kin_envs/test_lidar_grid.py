@@ -133,7 +133,7 @@ def test_default_uses_the_grid_only_in_arenas_wider_than_the_lidar_reach():
     small = World(scenes.random_arena(2, 5, seed=0, size=20.0))
     large = World(scenes.random_arena(2, 5, seed=0, size=(30.0, 25.0)))
     assert small._lidar_grid is None
-    assert large._lidar_grid is not None and large._lidar_grid.cell_size == 12.0 / 5
+    assert large._lidar_grid is not None and large._lidar_grid.cell_size == 12.0 / 3
     assert World(
         scenes.random_arena(2, 5, seed=0, size=20.0), config=WorldConfig(lidar_grid=True)
     )._lidar_grid

@@ -9,3 +9,28 @@ def test_quick_main_job_writes_all_three_steps(tmp_path):
     for step in ("reproduce_paper/reproduction.md", "benchmark_detectors/results.md",
                  "benchmark_tracking/results.md", "benchmark_tracking/f1_vs_frames.png"):  # fmt: skip
         assert (tmp_path / step).stat().st_size > 0, step
+
+
+def test_full_flag_reaches_both_benchmarks(tmp_path, monkeypatch):
+    """``main_job.py --full`` (the README's full-size run) passes ``--full`` to the detection and the
+    sequence benchmarks, and the paper reproduction runs as usual (steps stubbed: no real run)."""
+    mod = load_script("main_job")
+    calls = {}
+
+    class Step:
+        def __init__(self, name):
+            self.name = name
+
+        def main(self, argv):
+            calls[self.name] = argv
+            return {}
+
+    monkeypatch.setattr(mod, "_load", Step)
+    mod.main(["--full", "--out", str(tmp_path), "-q"])
+    assert "--full" in calls["benchmark_detectors"] and "--scenes" not in calls["benchmark_detectors"]
+    assert "--full" in calls["benchmark_tracking"]
+    assert "--full" not in calls["reproduce_paper"]
+    # and the detection benchmark's own --full is its full size
+    from kin_envs.detection.benchmark import SPLITS, _sizes
+
+    assert [_sizes("full", SPLITS[s]) for s in ("paper", "swarm", "lookalike")] == [400, 300, 600]

@@ -14,7 +14,7 @@ from kin_envs.detection.beam_dataset import beam_records
 from kin_envs.detection.dataset import make_scene
 from kin_envs.detection.evaluation import kin_truth
 from kin_envs.detection.seeds import TRAINING_SEEDS
-from kin_envs.detection.sequences import SEQUENCE_SPLITS
+from kin_envs.detection.sequences import SEQUENCE_SPLITS, RecordedEpisodes, track_samples
 
 # --------------------------------------------------------------------------- configs
 
@@ -70,6 +70,10 @@ def test_benchmark_seeds_are_reserved_and_disjoint_from_training():
             make_scene(s.first_seed)
         with pytest.raises(ValueError, match="reserved"):
             beam_records(s.first_seed)
+    # the tracker's kin classifier fits on recorded sequence episodes: those of a benchmark split are refused
+    for spec in SEQUENCE_SPLITS.values():
+        with pytest.raises(ValueError, match="reserved"):
+            track_samples(RecordedEpisodes(spec, 0.01, ["tracker"], [], 0.0, 0.0))
     with pytest.raises(ValueError, match="overlap"):
         B.check_training_seeds(range(B.BENCHMARK_SEEDS.start - 5, B.BENCHMARK_SEEDS.start + 5))
 

@@ -141,3 +141,40 @@ def test_replayed_episodes_give_the_run_and_tuning_picks_the_best():
     assert objs[best.kin_threshold] == max(objs.values())
     with pytest.raises(ValueError, match="unknown parameter"):
         S.tune_tracker([rec], {"nope": (1,)})
+
+
+def test_track_samples_label_tracks_and_refuse_the_benchmark_seeds():
+    """The classifier's rows: confirmed tracks within range, labelled kin when within the gate of another
+    robot; fit_kin_model picks the operating point with the best objective. Benchmark episodes are refused
+    (the classifier never sees the reserved seeds)."""
+    spec = S.training_split("lookalike", 78)
+    spec = dataclasses.replace(spec, run=dataclasses.replace(spec.run, frames=12))
+    rec = S.record_sequences(GeometricKinDetector(reports=False), spec, 2, 0.005)
+    s = S.track_samples(rec)
+    from detectors.tracking import TRACK_FEATURES
+
+    assert s["X"].shape == (s["y"].size, len(TRACK_FEATURES)) and np.isfinite(s["X"]).all()
+    assert s["y"].any() and not s["y"].all()  # kin and look-alikes among the tracks
+    assert (s["range"] < 5.0).all() and set(s["episode"]) <= {0, 1}
+    model, rows = S.fit_kin_model([rec], thresholds=(0.3, 0.6))
+    assert [r["threshold"] for r in rows] == [0.3, 0.6]
+    top = max(r["objective"] for r in rows)
+    assert model.info["threshold"] == next(r["threshold"] for r in rows if r["objective"] == top)
+    assert model.min_frames == 3
+    bench = dataclasses.replace(rec, spec=S.SEQUENCE_SPLITS["lookalike"])
+    with pytest.raises(ValueError, match="reserved"):
+        S.track_samples(bench)
+
+
+def test_lookalikes_rejected_by_kind_after_20_frames():
+    """Look-alikes in view >= 20 frames at 0.3-2 m are checked in the same frames for every method; the
+    share not reported is a rate per kind."""
+    spec = S.training_split("lookalike", 79)
+    spec = dataclasses.replace(spec, run=dataclasses.replace(spec.run, frames=24))
+    rec = S.record_sequences(GeometricKinDetector(reports=False), spec, 2, 0.0)
+    r = S.evaluate_sequences(rec, mot=False, kin_model="hand")
+    lr = r["lookalikes_rejected"]
+    assert set(lr) == {"tracker", "single"} and lr["tracker"]
+    assert {k: n for k, (_, n) in lr["tracker"].items()} == {k: n for k, (_, n) in lr["single"].items()}
+    assert all(0 <= rate <= 1 and n > 0 for d in lr.values() for rate, n in d.values())
+    assert sum(n for _, n in lr["tracker"].values()) <= 2 * (24 - 19) * max(len(e[3]) for e in rec.episodes)
