@@ -41,10 +41,12 @@ from .base import Segment, segments_from_arrays, wrap_angle
 from .geometric import is_circular_sweep
 
 __all__ = [
+    "CASCADE_FEATURES",
     "FEATURE_VERSION",
     "FeatureConfig",
     "SegmentBatch",
     "SegmentFeatures",
+    "cascade_features",
     "feature_names",
     "segment_batch",
     "segment_features",
@@ -683,9 +685,12 @@ def beam_trig(angles) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     return ang, np.cos(ang), np.sin(ang), sweep
 
 
-def _segment_features(batch: SegmentBatch, c: FeatureConfig, which: np.ndarray, trig) -> SegmentFeatures:
+def _segment_features(
+    batch: SegmentBatch, c: FeatureConfig, which: np.ndarray, trig, noise=None
+) -> SegmentFeatures:
     """:func:`segment_features` without argument checks: ``which`` int64 indices, ``trig`` from
-    :func:`beam_trig` of ``batch.angles``."""
+    :func:`beam_trig` of ``batch.angles``, ``noise`` the :func:`scan_noise` of ``batch`` if the
+    caller has it already."""
     n_seg = which.shape[0]
     n_feat = len(_feature_names(c))
     x = np.empty((n_seg, n_feat), dtype=np.float32)
@@ -717,7 +722,7 @@ def _segment_features(batch: SegmentBatch, c: FeatureConfig, which: np.ndarray, 
         c.n_points,
         c.n_context,
         c.gn_iters,
-        *scan_noise(batch, c),
+        *(scan_noise(batch, c) if noise is None else noise),
         which,
         x,
         frames,
@@ -728,3 +733,160 @@ def _segment_features(batch: SegmentBatch, c: FeatureConfig, which: np.ndarray, 
     return SegmentFeatures(
         x=x, frames=frames, fit_centre=fit_centre, min_beam=min_beam, scan_x=scan_cols.astype(np.float32)
     )
+
+
+# --------------------------------------------------------------------------- cascade, stage 1
+
+#: The cheap first stage of the learned detector's cascade (:class:`detectors.learned.LearnedKinDetector`
+#: ``cascade``) scores each segment from these entries of the full feature vector only: no centroid
+#: frame, no circle fit, no resampling. :func:`cascade_features` computes them with the same
+#: expressions as :func:`segment_features` (the same float32 values, tested).
+CASCADE_FEATURES = (
+    "log_n_beams",
+    "log_range_min",
+    "omega_min",
+    "omega_max",
+    "prev_nearer",
+    "next_nearer",
+    "chord",
+    "log_scan_noise",
+    "ctx_prev1",
+    "ctx_next1",
+    "ctx_prev2",
+    "ctx_next2",
+)
+
+
+@numba.njit(cache=True, nogil=True)
+def _scan_columns(scan_noise, noise_n, out):
+    # the per-scan features, the same expressions as in _features_kernel (same bits)
+    for b in range(scan_noise.shape[0]):
+        out[b, 0] = math.log(scan_noise[b] + 1e-4)
+        out[b, 1] = math.log1p(float(noise_n[b]))
+
+
+@numba.njit(cache=True, nogil=True, fastmath=True)
+def _cascade_scores(x, w1t, b1, w2, b2, out):
+    """Stage-1 score of every row of ``x``: one hidden ReLU layer (the standardisation folded into
+    ``w1t``, ``(in, out)``), float64, ~200 multiply-adds a row against the full network's ~7,700;
+    the units in the inner (SIMD) loop (a unit-by-unit dot product is a dependency chain)."""
+    h = np.empty(w1t.shape[1])
+    for r in range(x.shape[0]):
+        for j in range(h.shape[0]):
+            h[j] = b1[j]
+        for k in range(x.shape[1]):
+            xk = x[r, k]
+            for j in range(h.shape[0]):
+                h[j] += w1t[k, j] * xk
+        s = b2
+        for j in range(h.shape[0]):
+            s += max(h[j], 0.0) * w2[j]
+        out[r] = s
+
+
+@numba.njit(cache=True, nogil=True)
+def _cascade_kernel(
+    d_flat, cos_a, sin_a, ang, scan, first, count, prev_beam, next_beam, prev_nearer, next_nearer,
+    n_beams, circular, sweep, r, d_max, occlusion_unbounded, scan_cols, which, x,
+):  # fmt: skip
+    """:data:`CASCADE_FEATURES` of the segments ``which`` into ``x`` (rows as float32 values in
+    float64). Expressions as in :func:`_features_kernel` (the context with ``n_context = 2``)."""
+    for o in range(which.shape[0]):
+        i = which[o]
+        n = count[i]
+        f = first[i]
+        row = scan[i] * n_beams
+        kmin = 0
+        dmin = d_flat[row + f]
+        for k in range(1, n):
+            b = f + k
+            if b >= n_beams:
+                b -= n_beams
+            if d_flat[row + b] < dmin:
+                dmin = d_flat[row + b]
+                kmin = k
+        last = f + n - 1
+        bl = _wrap_index(last, n_beams)
+        d_first = d_flat[row + f]
+        d_last = d_flat[row + bl]
+        # context beams
+        for side in range(2):
+            base = f if side == 0 else last
+            step = -1 if side == 0 else 1
+            d_edge = d_first if side == 0 else d_last
+            for j in range(1, 3):
+                idx = base + step * j
+                inside = True
+                if circular:
+                    idx = _wrap_index(idx, n_beams)
+                elif idx < 0 or idx >= n_beams:
+                    inside = False
+                val = _CTX_CLIP
+                if inside:
+                    dc = d_flat[row + idx]
+                    if dc < d_max:
+                        val = min(max(dc - d_edge, -_CTX_CLIP), _CTX_CLIP)
+                # ctx_prev1, ctx_next1, ctx_prev2, ctx_next2
+                x[o, 8 + side + 2 * (j - 1)] = np.float32(val)
+        bmin = _wrap_index(f + kmin, n_beams)
+        d_cest = dmin + r
+        a_m = ang[bmin]
+        pb = prev_beam[i]
+        nb = next_beam[i]
+        unb_f = pb < 0 or (occlusion_unbounded and prev_nearer[i])
+        unb_l = nb < 0 or (occlusion_unbounded and next_nearer[i])
+        omega_min = _half_width(d_cest, _mod_two_pi(sweep * (a_m - ang[f]))) + _half_width(
+            d_cest, _mod_two_pi(sweep * (ang[bl] - a_m))
+        )
+        omega_max = math.inf
+        if not (unb_f or unb_l):
+            omega_max = _half_width(d_cest, _mod_two_pi(sweep * (a_m - ang[pb]))) + _half_width(
+                d_cest, _mod_two_pi(sweep * (ang[nb] - a_m))
+            )
+        chord = math.hypot(d_last * cos_a[bl] - d_first * cos_a[f], d_last * sin_a[bl] - d_first * sin_a[f])
+        x[o, 0] = np.float32(math.log1p(float(n)))
+        x[o, 1] = np.float32(math.log(dmin))
+        x[o, 2] = np.float32(min(omega_min, _LEN_CLIP))
+        x[o, 3] = np.float32(min(omega_max, _LEN_CLIP))
+        x[o, 4] = 1.0 if prev_nearer[i] else 0.0
+        x[o, 5] = 1.0 if next_nearer[i] else 0.0
+        x[o, 6] = np.float32(min(chord, _LEN_CLIP))
+        x[o, 7] = np.float32(scan_cols[scan[i], 0])
+
+
+def cascade_features(
+    batch: SegmentBatch, config: FeatureConfig | None = None, which: np.ndarray | None = None, noise=None
+) -> np.ndarray:
+    """``(len(which), len(CASCADE_FEATURES))`` float64: the cascade's stage-1 inputs of the segments
+    ``which`` (default all), each equal to the float32 value of the same name in
+    :func:`segment_features` (``noise``: :func:`scan_noise` of ``batch`` if already computed)."""
+    c = config or FeatureConfig()
+    if c.n_context < 2:
+        raise ValueError(f"cascade_features: needs FeatureConfig.n_context >= 2, got {c.n_context}")
+    if which is None:
+        which = np.arange(batch.n_segments, dtype=np.int64)
+    x, _ = _cascade(batch, c, np.asarray(which, dtype=np.int64), beam_trig(batch.angles), noise, None)
+    return x
+
+
+def _cascade(batch: SegmentBatch, c: FeatureConfig, which: np.ndarray, trig, noise, model):
+    """``(x, score)``: :func:`_cascade_kernel` then :func:`_cascade_scores`; ``model`` ``(w1t, b1,
+    w2, b2)`` float64 (``w1t`` the hidden layer's ``(in, out)`` matrix, the input standardisation
+    folded in) or None (then ``score`` is empty)."""
+    if noise is None:
+        noise = scan_noise(batch, c)
+    scan_cols = np.empty((batch.ranges.shape[0], 2))
+    _scan_columns(noise[0], noise[1], scan_cols)
+    x = np.empty((which.shape[0], len(CASCADE_FEATURES)))
+    ang, cos_a, sin_a, sweep = trig
+    _cascade_kernel(
+        np.ascontiguousarray(batch.ranges, dtype=np.float64).reshape(-1), cos_a, sin_a, ang,
+        batch.scan, batch.first, batch.count, batch.prev_beam, batch.next_beam, batch.prev_nearer,
+        batch.next_nearer, ang.shape[0], batch.circular, sweep, float(c.r), float(c.d_max),
+        c.occlusion_unbounded, scan_cols, which, x,
+    )  # fmt: skip
+    if model is None:
+        return x, np.empty(0)
+    score = np.empty(which.shape[0])
+    _cascade_scores(x, *model, score)
+    return x, score

@@ -8,6 +8,10 @@ Pipeline (same interface and output types as :class:`detectors.GeometricKinDetec
 2. a conservative geometric **pre-gate** (``pre_gate=True``): segments with more beams than a 7 cm
    housing can return at their range (generous bounds, :data:`PRE_GATE_SLACK`,
    :data:`PRE_GATE_MARGIN`) stop here, with stage ``"diameter"``;
+2b. the **cascade** (``cascade``, on when the checkpoint has a cascade file): a 12-16-1 network on
+   cheap quantities (:data:`detectors.features.CASCADE_FEATURES`) drops the segments it scores
+   below its threshold, fitted on training seeds to keep >= 99.9 % of the kin segments the full
+   model accepts (``scripts/fit_cascade.py``); stage ``"learned"``;
 3. one feature vector per segment (:mod:`detectors.features`, ``FEATURE_VERSION``);
 4. **classification** (replaces the paper's diameter and shape filters, 4.3): an MLP gives
    ``p(kin)`` for every segment of every scan of a batch in one pass (the checkpoint's weights as
@@ -34,6 +38,7 @@ import json
 import math
 import threading
 import time
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -57,30 +62,36 @@ from .base import (
     wrap_angle,
 )
 from .features import (
+    CASCADE_FEATURES,
     FEATURE_VERSION,
     FeatureConfig,
     SegmentBatch,
     SegmentFeatures,
+    _cascade,
     _segment_batch,
     _segment_features,
     beam_trig,
     feature_names,
     local_to_observer,
+    scan_noise,
     segment_features,
 )
 from .fileio import atomic_write
 from .geometric import _LM_LAMBDA0, _LM_LAMBDA_MAX, _LM_XTOL, is_circular_sweep
 
 __all__ = [
+    "CASCADE_FORMAT",
     "CHECKPOINT_FORMAT",
     "DEFAULT_CHECKPOINT",
     "LearnedKinDetector",
     "ModelConfig",
     "SegmentNet",
     "TrainConfig",
+    "cascade_path",
     "check_thresholds",
     "duplicates",
     "expected_beams",
+    "load_cascade",
     "load_checkpoint",
     "sample_weights",
     "save_checkpoint",
@@ -111,6 +122,9 @@ _DRIVER_ROWS_MAX = 64
 #: ``PRE_GATE_MARGIN`` beams.
 PRE_GATE_SLACK = 0.8
 PRE_GATE_MARGIN = 2
+#: The cascade's stage-1 model file (``<checkpoint>.cascade.json``, written by ``scripts/fit_cascade.py``).
+CASCADE_FORMAT = "kin-envs/learned-cascade"
+CASCADE_FORMAT_VERSION = 1
 _BEAM_KEYS = ("beam_edges", "table")
 
 
@@ -485,6 +499,71 @@ def _check_weights(state: dict, nrm: dict, digest: str | None) -> None:
         raise _CorruptWeights("the weights do not match their stored SHA-256 (the file is corrupt)")
 
 
+# --------------------------------------------------------------------------- cascade
+
+
+def cascade_path(checkpoint) -> Path:
+    """Where a checkpoint's cascade stage-1 model lives: ``<checkpoint without .pt>.cascade.json``."""
+    p = Path(DEFAULT_CHECKPOINT if checkpoint is None else checkpoint)
+    return p.with_name(p.stem + ".cascade.json")
+
+
+def load_cascade(path, weights_sha256: str | None = None) -> dict:
+    """Read and check a cascade file (see ``scripts/fit_cascade.py``) → dict with ``model`` (float64
+    ``(w1t, b1, w2, b2)`` for :func:`detectors.features._cascade`), ``threshold`` (segments
+    scoring below it skip the features and the network), ``min_p_threshold`` (the lowest ``p(kin)``
+    threshold the retention was measured for) and ``info``.
+
+    ``weights_sha256``: the checkpoint's; a cascade fitted to other weights is refused. Raises
+    ``ValueError`` naming the file and what is wrong.
+    """
+    path = Path(path)
+    what = f"cascade file {path}"
+    if not path.is_file():
+        raise ValueError(f"{what} does not exist (write one with scripts/fit_cascade.py)")
+    try:
+        d = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise ValueError(f"{what}: not readable JSON ({e})") from e
+    if not isinstance(d, dict) or d.get("format") != CASCADE_FORMAT:
+        raise ValueError(f"{what}: not a learned-detector cascade (format {CASCADE_FORMAT!r})")
+    if d.get("format_version") != CASCADE_FORMAT_VERSION or d.get("feature_version") != FEATURE_VERSION:
+        raise ValueError(
+            f"{what}: format version {d.get('format_version')!r} / feature version "
+            f"{d.get('feature_version')!r}; this code reads {CASCADE_FORMAT_VERSION} / {FEATURE_VERSION}"
+        )
+    if d.get("features") != list(CASCADE_FEATURES):
+        raise ValueError(f"{what}: features {d.get('features')!r} are not {list(CASCADE_FEATURES)}")
+    if weights_sha256 is not None and d.get("checkpoint_weights_sha256") != weights_sha256:
+        raise ValueError(
+            f"{what} was fitted for other checkpoint weights (sha256 {d.get('checkpoint_weights_sha256')!r}, "
+            f"the checkpoint's {weights_sha256!r}); refit it with scripts/fit_cascade.py"
+        )
+    try:
+        f = len(CASCADE_FEATURES)
+        arr = {k: np.asarray(d[k], dtype=np.float64) for k in ("mean", "std", "w1", "b1", "w2")}
+        b2, thr, min_p = float(d["b2"]), float(d["threshold"]), float(d["min_p_threshold"])
+        h = arr["w1"].shape[0]
+        shapes_ok = (
+            arr["mean"].shape == (f,) and arr["std"].shape == (f,) and arr["w1"].shape == (h, f)
+            and arr["b1"].shape == (h,) and arr["w2"].shape == (h,) and h >= 1
+        )  # fmt: skip
+    except (KeyError, TypeError, ValueError) as e:
+        raise ValueError(f"{what}: missing or malformed entry ({type(e).__name__}: {e})") from e
+    if not shapes_ok:
+        raise ValueError(f"{what}: weights do not form a {f} -> H -> 1 network")
+    if not all(np.isfinite(v).all() for v in arr.values()) or not all(map(math.isfinite, (b2, thr, min_p))):
+        raise ValueError(f"{what}: NaN or inf weights or thresholds")
+    if (arr["std"] <= 0).any() or not 0.0 <= min_p <= 1.0:
+        raise ValueError(f"{what}: std must be > 0 and min_p_threshold in [0, 1]")
+    # the kernel takes the (in, out) matrix with the standardisation folded in
+    w1t = arr["w1"].T / arr["std"][:, None]
+    b1 = arr["b1"] - (arr["mean"] / arr["std"]) @ arr["w1"].T
+    model = (np.ascontiguousarray(w1t), np.ascontiguousarray(b1), np.ascontiguousarray(arr["w2"]), b2)
+    return {"model": model, "threshold": thr, "min_p_threshold": min_p, "info": d.get("info", {}),
+            "path": str(path)}  # fmt: skip
+
+
 # --------------------------------------------------------------------------- detector
 
 
@@ -537,6 +616,16 @@ class LearnedKinDetector(KinDetector):
             classifier"). Dropped segments get stage ``"diameter"``, ``p_kin`` NaN and the bound in
             ``seg_values["max_beams"]``. With ``False`` the outputs are those of every segment
             through the network.
+        cascade: (batch calls of two or more scans; one-scan calls run without it) a cheap first
+            stage after the pre-gate (default ``None``: on when the checkpoint
+            has a cascade file, :func:`cascade_path`, and the ``p(kin)`` thresholds are not below
+            the ones it was fitted for; ``True``: required; ``False``: off; or a cascade file's
+            path). A one-hidden-layer network on :data:`detectors.features.CASCADE_FEATURES`
+            (segment size, range, eqs. 4-5 widths, chord, context, scan noise: no circle fit)
+            scores each segment; those below its threshold skip the features and the network
+            (stage ``"learned"``, ``p_kin`` NaN, ``seg_values["cascade_score"]``). Fitted by
+            ``scripts/fit_cascade.py`` on training seeds to keep >= 99.9 % of the kin segments the
+            full model accepts (README, "The learned segment classifier").
         suppress_duplicates: of two accepted segments of one scan, next to each other among the
             accepted ones, whose kin centres lie within a housing's diameter (``2 r``: two housings
             cannot be closer), keep the higher-scored one (default True). A housing right next to the
@@ -566,6 +655,7 @@ class LearnedKinDetector(KinDetector):
         inference: str = "auto",
         torch_threads: int = 1,
         pre_gate: bool = True,
+        cascade: bool | str | Path | None = None,
         suppress_duplicates: bool = True,
     ) -> None:
         if not isinstance(suppress_duplicates, bool):
@@ -637,6 +727,7 @@ class LearnedKinDetector(KinDetector):
                     "to run BLAS on one thread; use inference='auto' or 'numba'"
                 )
         self.pre_gate = pre_gate
+        self._cascade = self._load_cascade(cascade)
         self._angles_key: np.ndarray | None = None
         self._angles_src: np.ndarray | None = None
         self._circular = True
@@ -645,6 +736,42 @@ class LearnedKinDetector(KinDetector):
         nrm = self.checkpoint["normalisation"]
         self._t_mean = np.asarray(nrm["t_mean"], dtype=np.float64)
         self._t_std = np.asarray(nrm["t_std"], dtype=np.float64)
+
+    @property
+    def cascade(self) -> bool:
+        """Whether the cascade's first stage runs (see ``cascade``)."""
+        return self._cascade is not None
+
+    def _load_cascade(self, cascade) -> dict | None:
+        if cascade is False:
+            return None
+        if not (cascade is None or cascade is True or isinstance(cascade, str | Path)):
+            raise ValueError(
+                "LearnedKinDetector: cascade must be None, True, False or a cascade file path, "
+                f"got {cascade!r}"
+            )
+        path = cascade_path(self.checkpoint["path"]) if cascade is None or cascade is True else Path(cascade)
+        if cascade is None and not path.is_file():
+            return None
+        sha = self.checkpoint.get("weights_sha256")
+        try:
+            cas = load_cascade(path, sha)
+        except ValueError as e:
+            if cascade is not None:
+                raise ValueError(f"LearnedKinDetector: {e}") from None
+            warnings.warn(f"LearnedKinDetector: cascade off: {e}", stacklevel=3)
+            return None
+        lowest = self.threshold if self.threshold is not None else float(self._noise_thresholds.min())
+        if lowest < cas["min_p_threshold"] - 1e-12:
+            # the retention was measured at the fitted thresholds: a lower one (a PR curve's
+            # permissive run, threshold calibration) needs every segment's p(kin)
+            if cascade is not None:
+                raise ValueError(
+                    f"LearnedKinDetector: threshold {lowest:g} is below the {cas['min_p_threshold']:g} "
+                    f"the cascade {path} was fitted for; use cascade=None or False"
+                )
+            return None
+        return cas
 
     # -- input checks ---------------------------------------------------------------------------
     def _check(self, ranges, angles, trusted: bool = False) -> tuple[np.ndarray, np.ndarray]:
@@ -686,11 +813,11 @@ class LearnedKinDetector(KinDetector):
 
         Returns ``(batch, features, p_kin (S,), centres (S, 2))``: the segments of all scans, their
         features (of every segment, pre-gated or not), the kin probability of each segment (NaN
-        where the pre-gate dropped it) and the kin centre each would have (observer frame ``x, y``,
-        m; with this detector's ``positioning``; regression for every segment that reached the
+        where the pre-gate or the cascade dropped it) and the kin centre each would have (observer
+        frame ``x, y``, m; with this detector's ``positioning``; regression for every segment that reached the
         network, circle fit only where ``p_kin >= threshold``, NaN elsewhere).
         """
-        batch, feats, p, centres, _, _ = self._predict(ranges, angles, all_features=True)
+        batch, feats, p, centres, _, _, _ = self._predict(ranges, angles, all_features=True)
         return batch, feats, p, centres
 
     def segment_thresholds(self, feats: SegmentFeatures) -> np.ndarray:
@@ -755,20 +882,28 @@ class LearnedKinDetector(KinDetector):
     def _predict(
         self, ranges, angles, all_centres: bool = True, all_features: bool = False, trusted: bool = False
     ):
-        """``(batch, feats, p, centres, thr, max_beams)``; ``feats`` holds the rows of the segments
-        that reached the network unless ``all_features``; ``max_beams`` is None without pre-gate."""
+        """``(batch, feats, p, centres, thr, max_beams, cascade_score)``; ``feats`` holds the rows of
+        the segments that reached the network unless ``all_features``; ``max_beams`` is None without
+        pre-gate, ``cascade_score`` (NaN where not scored) None without cascade."""
         rb, a = self._check(ranges, angles, trusted)
         batch = _segment_batch(rb, a, self.feature_config, self._circular)
         n_seg = batch.n_segments
         if n_seg == 0:
             feats = segment_features(batch, self.feature_config)
-            return batch, feats, np.zeros(0), np.zeros((0, 2)), np.zeros(0), None
-        max_beams = rows = None
+            return batch, feats, np.zeros(0), np.zeros((0, 2)), np.zeros(0), None, None
+        max_beams = rows = score = noise = None
         if self.pre_gate:
             max_beams = self.gate(batch)
             rows = np.flatnonzero(batch.count <= max_beams)
+        if self._cascade is not None:
+            noise = scan_noise(batch, self.feature_config)  # once for both stages
+            cand = np.arange(n_seg, dtype=np.int64) if rows is None else rows
+            _, s1 = _cascade(batch, self.feature_config, cand, self._trig, noise, self._cascade["model"])
+            score = np.full(n_seg, np.nan)
+            score[cand] = s1
+            rows = cand[s1 >= self._cascade["threshold"]]
         which = rows if (rows is not None and not all_features) else np.arange(n_seg, dtype=np.int64)
-        feats = _segment_features(batch, self.feature_config, which, self._trig)
+        feats = _segment_features(batch, self.feature_config, which, self._trig, noise)
         x, frames = feats.x, feats.frames
         if rows is not None and all_features:
             x, frames = x[rows], frames[rows]
@@ -806,7 +941,7 @@ class LearnedKinDetector(KinDetector):
                     centres[sel if rows is None else rows[sel]] = local_to_observer(frames[sel], uv)
         else:
             centres = self._fit_centres(batch, p >= thr)
-        return batch, feats, p, centres, thr, max_beams
+        return batch, feats, p, centres, thr, max_beams, score
 
     def _fit_centres(self, batch: SegmentBatch, which: np.ndarray) -> np.ndarray:
         """Geometric stage 4 for the segments ``which``: LM circle fit from eq. 7, else NaN.
@@ -857,10 +992,12 @@ class LearnedKinDetector(KinDetector):
         last_beam, n_beams): what ``kin_envs.envs.common.detection_arrays`` reads, straight from the
         compiled driver without building a :class:`~detectors.base.BatchDetections`. Fresh arrays
         on every call."""
-        if self._beam_table is not None and self.threshold is None:  # table thresholds: staged path
+        if (self._cascade is not None and np.ndim(ranges) == 2 and ranges.shape[0] > 1) or (
+            self._beam_table is not None and self.threshold is None
+        ):  # the cascade (batch calls, as _detect_arrays) and table thresholds: the staged path
             a = self._detect_arrays_staged(ranges, angles, True)
             cols = (a.range, a.bearing, a.x, a.y, a.score, a.first_beam, a.last_beam, a.n_beams_on)
-            return a.scan, np.stack(cols, axis=1).astype(np.float64)
+            return a.scan, np.stack(cols, axis=1).astype(np.float64).reshape(-1, 8)
         rb = self._driver_input(ranges, angles, True)
         # one scan (a single-agent env's step): the whole call compiled, only the table returns
         if rb.shape[0] == 1 and (res := self._call_driver(_drv.fused_table, rb)) is not None:
@@ -882,6 +1019,10 @@ class LearnedKinDetector(KinDetector):
             # which the fused driver does not implement
             return self._detect_arrays_staged(ranges, angles, trusted)
         rb = self._driver_input(ranges, angles, trusted)
+        if self._cascade is not None and rb.shape[0] > 1:
+            # batches: the cascade, in the staged pipeline (the fused driver has none yet); one scan
+            # per call stays in the fused driver, faster there than what the cascade saves
+            return self._detect_arrays_staged(rb, angles, True)
         # one scan: the whole call compiled, the columns handed back in a few blocks
         res = self._call_driver(_drv.fused_packed, rb) if rb.shape[0] == 1 else None
         packed = res[0] if res is not None else _drv.pack(*self._run_driver(rb))
@@ -998,7 +1139,7 @@ class LearnedKinDetector(KinDetector):
     def _detect_arrays_staged(self, ranges, angles, trusted: bool = False) -> BatchDetections:
         """:meth:`detect_arrays` through the staged Python pipeline (:meth:`_predict`): the readable
         reference of the fused driver (tests compare the two bit for bit)."""
-        batch, _, p, centres, thr, max_beams = self._predict(
+        batch, _, p, centres, thr, max_beams, score = self._predict(
             ranges, angles, all_centres=False, trusted=trusted
         )
         acc = p >= thr
@@ -1020,6 +1161,8 @@ class LearnedKinDetector(KinDetector):
         values = {"p_kin": p, "threshold": np.asarray(thr, dtype=np.float64)}
         if max_beams is not None:
             values["max_beams"] = max_beams
+        if score is not None:
+            values["cascade_score"] = score
         if dup is not None:
             values["duplicate_of"] = dup
         return BatchDetections(
@@ -1042,14 +1185,24 @@ class LearnedKinDetector(KinDetector):
             seg_next=batch.next_beam,
             seg_prev_nearer=batch.prev_nearer,
             seg_next_nearer=batch.next_nearer,
-            seg_stage=self._stages(acc, p),
+            seg_stage=self._stages(acc, batch.count, max_beams),
             seg_values=values,
         )
 
-    def _stages(self, acc: np.ndarray, p: np.ndarray) -> np.ndarray:
+    @staticmethod
+    def _seg_values(p, thr, max_beams, score) -> dict[str, np.ndarray]:
+        values = {"p_kin": p, "threshold": np.asarray(thr, dtype=np.float64)}
+        if max_beams is not None:
+            values["max_beams"] = max_beams
+        if score is not None:
+            values["cascade_score"] = score
+        return values
+
+    @staticmethod
+    def _stages(acc: np.ndarray, count: np.ndarray, max_beams) -> np.ndarray:
         stage = np.where(acc, _k.ACCEPTED, _k.LEARNED).astype(np.int8)
-        if self.pre_gate:
-            stage[np.isnan(p)] = _k.DIAMETER
+        if max_beams is not None:
+            stage[count > max_beams] = _k.DIAMETER
         return stage
 
     def results(self, arrays: BatchDetections, reports: bool | None = None) -> list[DetectionResult]:
@@ -1066,11 +1219,17 @@ class LearnedKinDetector(KinDetector):
     def segment_reports(self, arrays: BatchDetections) -> list[list[SegmentReport]]:
         """The :class:`SegmentReport` of every segment of ``arrays``, per scan (stage ``"accepted"``,
         ``"learned"`` (rejected by the classifier) or ``"diameter"`` (dropped by the pre-gate),
-        ``metrics`` ``p_kin`` and ``threshold``, plus ``max_beams`` with the pre-gate)."""
+        ``metrics`` ``p_kin`` and ``threshold``, plus ``max_beams`` with the pre-gate and
+        ``cascade_score`` with the cascade; a segment the cascade dropped is ``"learned"`` with
+        ``p_kin`` NaN)."""
         with _gc_paused():
             p, thr = arrays.seg_values["p_kin"], arrays.seg_values["threshold"]
             gate = arrays.seg_values.get("max_beams")
-            stl = arrays.seg_stage.tolist()
+            cas = arrays.seg_values.get("cascade_score")
+            stage = arrays.seg_stage
+            if cas is not None:  # dropped by the cascade: a reason of their own (code -1)
+                stage = np.where((stage == _k.LEARNED) & np.isnan(p), -1, stage)
+            stl = stage.tolist()
             # the numbers are in metrics["p_kin"]; shared reason strings keep ~100 reports per
             # cluttered scan cheap
             why = {
@@ -1079,17 +1238,17 @@ class LearnedKinDetector(KinDetector):
                     _k.ACCEPTED: f"p(kin) >= threshold {t:g}",
                     _k.DIAMETER: f"pre-gate: more beams than a {2 * self.feature_config.r:g} m housing "
                     "returns at this range",
+                    -1: "cascade: stage-1 score below "
+                    f"{self._cascade['threshold'] if self._cascade else math.nan:g}",
                 }
                 for t in np.unique(thr).tolist()
             }
             tl = thr.tolist()
-            if gate is None:
-                metrics = [{"p_kin": v, "threshold": t} for v, t in zip(p.tolist(), tl, strict=True)]
-            else:
-                metrics = [
-                    {"p_kin": v, "threshold": t, "max_beams": m}
-                    for v, t, m in zip(p.tolist(), tl, gate.tolist(), strict=True)
-                ]
+            metrics = [{"p_kin": v, "threshold": t} for v, t in zip(p.tolist(), tl, strict=True)]
+            for name, col in (("max_beams", gate), ("cascade_score", cas)):
+                if col is not None:
+                    for m, v in zip(metrics, col.tolist(), strict=True):
+                        m[name] = v
             reasons = [why[t][st] for t, st in zip(tl, stl, strict=True)]
             dup = arrays.seg_values.get("duplicate_of")
             if dup is not None:
@@ -1100,7 +1259,7 @@ class LearnedKinDetector(KinDetector):
                 map(
                     SegmentReport,
                     arrays.segments(),
-                    [STAGES[st] for st in stl],
+                    [STAGES[st] if st >= 0 else "learned" for st in stl],
                     reasons,
                     metrics,
                 )

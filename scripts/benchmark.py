@@ -251,12 +251,14 @@ def bench_detector(min_time: float) -> list[dict]:
         from detectors.learned import LearnedKinDetector
 
         # the default (inference="auto": BLAS on one thread for batches, the compiled kernel for
-        # single scans; pre-gate on), then each inference path alone and the pre-gate off
+        # single scans; pre-gate and cascade on), then each inference path alone, the pre-gate off and
+        # the cascade off
         variants["learned (default)"] = LearnedKinDetector
         variants["learned (blas)"] = lambda: LearnedKinDetector(inference="blas")
         variants["learned (numba)"] = lambda: LearnedKinDetector(inference="numba")
         variants["learned (torch, 1 thread)"] = lambda: LearnedKinDetector(inference="torch")
         variants["learned (default, no pre-gate)"] = lambda: LearnedKinDetector(pre_gate=False)
+        variants["learned (default, no cascade)"] = lambda: LearnedKinDetector(cascade=False)
     except ImportError as e:
         print(f"  learned detector skipped ({e})")
     rows = []

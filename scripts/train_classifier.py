@@ -519,7 +519,9 @@ def main(argv=None) -> dict:
                     help="checkpoint path (default: OUT/learned.pt; not inside detectors/checkpoints/)")
     ap.add_argument("--replace-shipped", action="store_true",
                     help=f"write the checkpoint over the shipped model {SHIPPED_CHECKPOINT.name} "
-                    "(detectors/checkpoints/), which the learned detector loads by default")
+                    "(detectors/checkpoints/), which the learned detector loads by default; its cascade "
+                    "(learned_default.cascade.json) is tied to the old weights and stays off until "
+                    "refitted: scripts/fit_cascade.py --replace-shipped")
     ap.add_argument("--seed", type=int, default=0, help="seed of the split, initialisation and shuffling")
     ap.add_argument("--config", default=None, help="TrainConfig overrides: JSON object or file")
     ap.add_argument("--val-fraction", type=float, default=0.15, help="fraction of scenes for validation")

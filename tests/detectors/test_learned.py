@@ -249,6 +249,9 @@ def test_reports_detections_and_batch_consistency(shipped):
                 assert math.isnan(rep.metrics["p_kin"]) and rep.segment.n_beams > rep.metrics["max_beams"]
                 assert rep.reason.startswith("pre-gate")
                 continue
+            if rep.reason.startswith("cascade"):  # dropped by the cascade's first stage
+                assert rep.stage == "learned" and math.isnan(rep.metrics["p_kin"])
+                continue
             assert rep.stage in ("accepted", "learned") and 0.0 <= rep.metrics["p_kin"] <= 1.0
             assert (rep.stage == "accepted") == (rep.metrics["p_kin"] >= rep.metrics["threshold"])
     quiet = LearnedKinDetector(reports=False).detect_batch(scan.ranges, scan.angles)
@@ -338,7 +341,7 @@ def test_pre_gate_keeps_every_housing_and_drops_wide_objects(shipped):
     assert gated.sum() == 1 and arr.seg_stage[gated][0] == 1
     assert arr.seg_count[gated][0] > arr.seg_values["max_beams"][gated][0]
     assert len(arr.x) == 1 and math.hypot(arr.x[0], arr.y[0] - 1.0) < 0.02
-    off = LearnedKinDetector(pre_gate=False).detect_arrays(ranges, ang)
+    off = LearnedKinDetector(pre_gate=False, cascade=False).detect_arrays(ranges, ang)
     assert "max_beams" not in off.seg_values and np.isfinite(off.seg_values["p_kin"]).all()
     np.testing.assert_array_equal(off.seg_values["p_kin"][~gated], arr.seg_values["p_kin"][~gated])
     with pytest.raises(ValueError, match="pre_gate"):

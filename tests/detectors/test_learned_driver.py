@@ -1,5 +1,7 @@
 """detectors._learned_driver: the fused one-dispatch driver gives the staged pipeline's outputs, bit for bit.
 
+(The cascade, which the driver does not run, is off here: tests/detectors/test_learned_cascade.py.)
+
 ``LearnedKinDetector._detect_arrays_staged`` is the readable staged pipeline (``_predict``: numpy calls
 between the stage kernels); ``detect_arrays`` / the trusted entries run the fused driver. They must agree
 on every field for every inference path, positioning, pre-gate setting and batch size, including the
@@ -59,7 +61,7 @@ SCANS = [arena(seed, noise) for seed, noise in ((0, 0.0), (1, 0.01), (2, 0.005))
     ids=["default", "numba", "blas", "torch", "no_pre_gate", "fit", "fixed_threshold"],
 )
 def test_fused_driver_is_bitwise_the_staged_pipeline(kwargs):
-    det = LearnedKinDetector(reports=False, **kwargs)
+    det = LearnedKinDetector(reports=False, cascade=False, **kwargs)
     n_det = 0
     for s in SCANS:
         # one scan (a single-agent env), a few, every robot's (BLAS above _BLAS_MIN_ROWS segments)
@@ -73,7 +75,7 @@ def test_fused_driver_is_bitwise_the_staged_pipeline(kwargs):
 
 
 def test_fused_driver_edge_cases():
-    det = LearnedKinDetector(reports=False)
+    det = LearnedKinDetector(reports=False, cascade=False)
     s = SCANS[1]
     n = s.angles.shape[0]
     empty = np.full((2, n), np.inf)
@@ -91,7 +93,7 @@ def test_fused_driver_edge_cases():
 
 
 def test_repeated_calls_with_different_scans_keep_earlier_results():
-    det = LearnedKinDetector(reports=False)
+    det = LearnedKinDetector(reports=False, cascade=False)
     scans = [arena(seed, 0.01, n_robots=8) for seed in (10, 11, 12)]
     got, kept = [], []
     for s in scans:
@@ -146,7 +148,7 @@ def _staged_table(det, r, angles):
 
 @pytest.mark.parametrize("inference", ["auto", "numba", "blas"])
 def test_table_entry_equals_the_staged_detections(inference):
-    det = LearnedKinDetector(reports=False, inference=inference)
+    det = LearnedKinDetector(reports=False, cascade=False, inference=inference)
     s = SCANS[2]
     n = s.angles.shape[0]
     # every beam its own segment (alternating ranges): 360 segments reach the network, more than
@@ -164,7 +166,7 @@ def test_table_entry_equals_the_staged_detections(inference):
 def test_four_row_network_kernel_is_bitwise_the_row_and_block_kernels():
     from detectors import _kernels as _k
 
-    det = LearnedKinDetector(reports=False)
+    det = LearnedKinDetector(reports=False, cascade=False)
     mean, std, w, b, sizes = det._numba_weights
     wt = det._numba_weights_t[2]
     rng = np.random.default_rng(1)
