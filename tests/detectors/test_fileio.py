@@ -66,12 +66,18 @@ def test_live_log_interrupted_by_ctrl_c_leaves_whole_lines(tmp_path):
         "    for i in itertools.count():\n"
         "        log.write(json.dumps({'i': i, 'pad': 'x' * 5000}) + '\\n')\n"  # lines beyond one buffer
     )
-    proc = subprocess.Popen([sys.executable, "-c", code], stderr=subprocess.PIPE)
+    # Ctrl-C reaches the child even when pytest runs with SIGINT ignored (a background job, nohup)
+    proc = subprocess.Popen([sys.executable, "-c", code], stderr=subprocess.PIPE,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.monotonic() + 60
     while (not p.exists() or p.stat().st_size < 200_000) and time.monotonic() < deadline:
         time.sleep(0.02)
     proc.send_signal(signal.SIGINT)
-    proc.communicate(timeout=60)
+    try:
+        proc.communicate(timeout=60)
+    except subprocess.TimeoutExpired:
+        proc.kill()  # never leave it writing (its log grows in memory)
+        raise AssertionError("LiveLog writer still running 60 s after Ctrl-C") from None
     raw = p.read_bytes()
     assert raw.endswith(b"\n")
     rows = [json.loads(line) for line in raw.splitlines()]

@@ -37,7 +37,10 @@ run_main(main)
 
 
 def _interrupt(cmd: list[str], ready, delay: float, env: dict | None = None) -> subprocess.CompletedProcess:
-    p = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    # a child inherits an ignored SIGINT (pytest run as a background job, nohup), and Python then installs
+    # no KeyboardInterrupt handler: restore the default so the Ctrl-C below is a real one
+    p = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.monotonic() + 120
     while not ready() and p.poll() is None and time.monotonic() < deadline:
         time.sleep(0.05)
