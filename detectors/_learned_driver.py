@@ -54,22 +54,8 @@ def front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_a
     n_rows, n = r.shape
     d = np.empty((n_rows, n))
     _k.preprocess_rows(r, d_max, d_th, circular, False, d)
-    cap = n_rows * n
-    scan_b = np.empty(cap, dtype=np.int64)
-    first_b = np.empty(cap, dtype=np.int64)
-    count_b = np.empty(cap, dtype=np.int64)
-    prev_b = np.empty(cap, dtype=np.int64)
-    nxt_b = np.empty(cap, dtype=np.int64)
-    pn_b = np.empty(cap, dtype=np.bool_)
-    nn_b = np.empty(cap, dtype=np.bool_)
-    s = _k.segment_rows(d, d_th, d_max, circular, scan_b, first_b, count_b, prev_b, nxt_b, pn_b, nn_b)
-    scan = scan_b[:s].copy()
-    first = first_b[:s].copy()
-    count = count_b[:s].copy()
-    prev = prev_b[:s].copy()
-    nxt = nxt_b[:s].copy()
-    p_near = pn_b[:s].copy()
-    n_near = nn_b[:s].copy()
+    scan, first, count, prev, nxt, p_near, n_near = _k._segment_arrays(d, d_th, d_max, circular)
+    s = scan.shape[0]
     max_beams = np.empty(s)
     if pre_gate:
         _k.housing_max_beams(d, scan, first, count, step, r_kin, slack, margin, max_beams)

@@ -330,6 +330,20 @@ def _half_width(d_cest, alpha):
     return d_cest * math.tan(alpha) if alpha < 0.5 * math.pi else math.inf
 
 
+@numba.njit(cache=True, inline="always")
+def _context_value(d_flat, row, idx, n_beams, circular, d_edge, d_max):
+    """A context feature: beam ``idx``'s range minus the segment's edge range ``d_edge``, clipped to
+    +-_CTX_CLIP; _CTX_CLIP where the beam is outside a partial sweep or has no return."""
+    if circular:
+        idx = _wrap_index(idx, n_beams)
+    elif idx < 0 or idx >= n_beams:
+        return _CTX_CLIP
+    dc = d_flat[row + idx]
+    if dc < d_max:
+        return min(max(dc - d_edge, -_CTX_CLIP), _CTX_CLIP)
+    return _CTX_CLIP
+
+
 @numba.njit(cache=True, nogil=True)
 def _features_kernel(
     d_flat,
@@ -451,18 +465,7 @@ def _features_kernel(
             step = -1 if side == 0 else 1
             d_edge = pd[0] if side == 0 else pd[n - 1]
             for j in range(1, n_context + 1):
-                idx = base + step * j
-                inside = True
-                if circular:
-                    idx = _wrap_index(idx, n_beams)
-                elif idx < 0 or idx >= n_beams:
-                    inside = False
-                val = _CTX_CLIP
-                if inside:
-                    dc = d_flat[row + idx]
-                    if dc < d_max:
-                        val = min(max(dc - d_edge, -_CTX_CLIP), _CTX_CLIP)
-                x[o, col] = val
+                x[o, col] = _context_value(d_flat, row, base + step * j, n_beams, circular, d_edge, d_max)
                 col += 1
         # eqs. 2-5 (detectors.geometric.filter_by_diameter)
         bmin = _wrap_index(f + kmin, n_beams)
@@ -815,17 +818,7 @@ def _cascade_kernel(
             step = -1 if side == 0 else 1
             d_edge = d_first if side == 0 else d_last
             for j in range(1, 3):
-                idx = base + step * j
-                inside = True
-                if circular:
-                    idx = _wrap_index(idx, n_beams)
-                elif idx < 0 or idx >= n_beams:
-                    inside = False
-                val = _CTX_CLIP
-                if inside:
-                    dc = d_flat[row + idx]
-                    if dc < d_max:
-                        val = min(max(dc - d_edge, -_CTX_CLIP), _CTX_CLIP)
+                val = _context_value(d_flat, row, base + step * j, n_beams, circular, d_edge, d_max)
                 # ctx_prev1, ctx_next1, ctx_prev2, ctx_next2
                 x[o, 8 + side + 2 * (j - 1)] = np.float32(val)
         bmin = _wrap_index(f + kmin, n_beams)
