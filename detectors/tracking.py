@@ -107,7 +107,7 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from .base import DetectionResult, wrap_angle
+from .base import DetectionResult
 from .features import scan_noise, segment_batch
 
 __all__ = ["TrackerParams", "Track", "KinTracker", "TRACK_FIELDS", "TRACK_FEATURES", "TrackKinModel",
@@ -623,6 +623,7 @@ class KinTracker:
         self._f_beams = np.zeros(cap)
         self._f_rng = np.zeros(cap)
         self._hit = np.zeros(cap, bool)
+        self._prm_of = None  # the params _prm was built from
 
     @property
     def pose(self) -> np.ndarray:
@@ -678,84 +679,80 @@ class KinTracker:
             noise: optional (n_observers,) relative range noise of each observer's scan.
             accepted: optional (k,) bool: the detector accepted the candidate at its operating point
                 (then the score cue uses ``accept_llr`` / ``reject_llr``, see :class:`TrackerParams`).
+
+        The whole frame (input checks on the values, ``min_score``, ego-motion, association, filter,
+        births, cues, the classifier's running inputs, existence, confirm / delete) is one compiled call
+        (:func:`_update_kernel`); a bad input raises before any state changes.
         """
-        pr, N = self.params, self.n_observers
+        N = self.n_observers
         obs = np.asarray(obs).reshape(-1)
         xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
         scores = np.asarray(scores, dtype=np.float64).reshape(-1)
         delta = np.asarray(odom_delta, dtype=np.float64)
         k = xy.shape[0]
-        if delta.shape != (N, 3) or not np.all(np.isfinite(delta)):
+        if delta.shape != (N, 3):
             raise ValueError(
                 f"KinTracker: odom_delta must be ({N}, 3) finite numbers (dx, dy, dtheta per observer), "
                 f"got {np.shape(odom_delta)} {odom_delta!r}"
             )
         if not (isinstance(dt, int | float) and math.isfinite(dt) and dt > 0):
             raise ValueError(f"KinTracker: dt must be a positive number of seconds, got {dt!r}")
-        if (
-            scores.shape[0] != k
-            or obs.shape[0] != k
-            or not (np.all(np.isfinite(xy)) and np.all(np.isfinite(scores)))
-        ):
+        if scores.shape[0] != k or obs.shape[0] != k:
             raise ValueError(
                 f"KinTracker: obs (k,), xy (k, 2) and scores (k,) must be finite and of one length, got "
                 f"{obs.shape}, {xy.shape} and {scores.shape}"
             )
-        if k and (not np.issubdtype(obs.dtype, np.integer) or obs.min() < 0 or obs.max() >= N):
+        if k and not np.issubdtype(obs.dtype, np.integer):
             raise ValueError(f"KinTracker: obs must be observer indices in [0, {N}), got {obs!r}")
-        noise = np.full(N, pr.range_noise) if noise is None else np.asarray(noise, np.float64).reshape(-1)
-        if noise.shape != (N,) or not np.all(np.isfinite(noise) & (noise >= 0)):
+        if self._prm_of is not self.params:  # the kernel's parameters, built once per params object
+            self._prm, self._prm_of = _param_array(self.params), self.params
+            self._noise0 = np.full(N, float(self.params.range_noise))
+        noise = self._noise0 if noise is None else np.asarray(noise, np.float64).reshape(-1)
+        if noise.shape != (N,):
             raise ValueError(f"KinTracker: noise must be {N} relative range noises >= 0, got {noise!r}")
-        obs = obs.astype(np.int64)
-        if accepted is not None:
-            accepted = np.asarray(accepted, dtype=bool).reshape(-1)
+        if accepted is None:
+            accepted = _NO_FLAGS
+        else:
+            accepted = np.asarray(accepted, dtype=np.bool_).reshape(-1)
             if accepted.shape[0] != k:
                 raise ValueError(
                     f"KinTracker: accepted must have one flag per candidate ({k}), got {accepted.shape}"
                 )
-        if k and pr.min_score > 0:
-            keep = scores >= pr.min_score
-            if not keep.all():
-                if points is not None:  # renumber the kept candidates' points
-                    owner = np.asarray(owner).reshape(-1).astype(np.int64)
-                    new = np.cumsum(keep) - 1
-                    sel = keep[owner] if owner.size else np.zeros(0, bool)
-                    points = np.asarray(points, np.float64).reshape(-1, 2)[sel]
-                    owner = new[owner[sel]]
-                obs, xy, scores = obs[keep], xy[keep], scores[keep]
-                accepted = None if accepted is None else accepted[keep]
-                k = xy.shape[0]
-        # ego-motion: each observer's new pose in its odometry frame
-        c, s = np.cos(self.poses[:, 2]), np.sin(self.poses[:, 2])
-        self.poses = np.c_[
-            self.poses[:, 0] + c * delta[:, 0] - s * delta[:, 1],
-            self.poses[:, 1] + s * delta[:, 0] + c * delta[:, 1],
-            wrap_angle(self.poses[:, 2] + delta[:, 2]),
-        ]
+        if points is None:
+            pts, own = _NO_POINTS, _NO_OWNER
+        else:
+            pts = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 2)
+            own = np.asarray(owner).reshape(-1).astype(np.int64, copy=False)
+            if own.shape[0] != pts.shape[0]:
+                raise ValueError(
+                    f"KinTracker: owner must give each of the {pts.shape[0]} points a candidate in [0, {k})"
+                )
+        # room for every kept candidate to start a track
+        ms = self.params.min_score
+        kept = k if ms <= 0 or not k else int(np.count_nonzero(scores >= ms))
+        if int(self._alive.sum()) + kept > self._alive.shape[0]:
+            self._grow(int(self._alive.sum()) + kept)
+        poses = self.poses.copy()  # a new array per frame: earlier views of ``poses`` keep their values
+        c_ = np.ascontiguousarray
+        args = (c_(obs, np.int64), c_(xy), c_(scores), c_(accepted), c_(delta), float(dt), pts, c_(own),
+                points is not None, c_(noise), poses,
+                self.odometer, self.time + dt, self._next_id, self._prm, self._alive, self._obs, self._id,
+                self._x, self._P, self._exist, self._lo_score, self._lo_shape, self._lo_motion,
+                self._lo_resid, self._res_chi2, self._res_dof, self._score_sum, self._n_scored, self._seen,
+                self._age, self._static_t, self._moved, self._confirmed, self._npts, self._head, self._fit_c,
+                self._anchor, self._anchor_var, self._anchor_odo, self._anchor_rng, self._pts, self._f_lgsum,
+                self._f_lgsq, self._f_lgmax, self._f_lglast, self._f_accsum, self._f_acclast, self._f_beams,
+                self._f_rng, self._hit)  # fmt: skip
+        status, next_id = _update_kernel(*args)
+        if status == _BAD_SORT:  # points not grouped by candidate (segment_points gives them sorted)
+            order = np.argsort(own, kind="stable")
+            args = (*args[:6], np.ascontiguousarray(pts[order]), own[order], *args[8:])
+            status, next_id = _update_kernel(*args)
+        if status:
+            raise ValueError(_update_error(status, N, k, delta, xy, scores, obs, noise, pts))
+        self.poses = poses
         self.time += dt
-        # each wheel's travel: ego-motion errors grow with it (the odometry error model's random walk)
-        half_turn = 0.5 * self.params.wheel_base * np.abs(delta[:, 2])
-        self.odometer += np.hypot(delta[:, 0], delta[:, 1]) + half_turn
-        cos, sin = np.cos(self.poses[:, 2]), np.sin(self.poses[:, 2])
-        z = self._to_odom(xy, obs, cos, sin)  # candidates in their observer's odometry frame
-        rng = np.hypot(xy[:, 0], xy[:, 1])
-        if int(self._alive.sum()) + k > self._alive.shape[0]:  # room for every candidate to start a track
-            self._grow(int(self._alive.sum()) + k)
-        pre = self._alive.copy()  # the tracks before this frame's births (existence: hit or miss)
-        ti, ci, tb, born = self._associate_and_birth(z, obs, rng, dt)
-        tracks, cands = np.concatenate([ti, tb]), np.concatenate([ci, born])
-        self._score_cue(tracks, scores[cands], None if accepted is None else accepted[cands], rng[cands])
-        beams = np.zeros(k)
-        if points is not None and len(tracks):
-            self._outline_cue(tracks, cands, points, owner, obs, noise, cos, sin, k)  # validates owner
-            beams = np.bincount(np.asarray(owner, np.int64).reshape(-1), minlength=k).astype(np.float64)
-        _feature_kernel(tracks, len(ti), scores[cands], np.zeros(0, np.bool_) if accepted is None
-                        else accepted[cands], rng[cands], beams[cands], self._f_lgsum, self._f_lgsq,
-                        self._f_lgmax, self._f_lglast, self._f_accsum, self._f_acclast, self._f_beams,
-                        self._f_rng, self._hit)  # fmt: skip
-        hit = np.zeros(self._alive.shape[0], bool)
-        hit[ti] = True
-        self._finish(pre, hit, dt)
+        self._next_id = int(next_id)
 
     def update_from_result(self, result: DetectionResult, ranges, angles, odom_delta, dt: float) -> None:
         """:meth:`update` from a detector's :class:`DetectionResult` on scan ``(ranges, angles)``: each
@@ -774,16 +771,6 @@ class KinTracker:
                           None if count[0] < 5 else [float(noise[0])])  # fmt: skip
 
     # -- steps ----------------------------------------------------------------------------------------
-    def _to_odom(self, xy, obs, cos, sin) -> np.ndarray:
-        c, s, p = cos[obs], sin[obs], self.poses[obs]
-        out = np.empty((xy.shape[0], 2))
-        out[:, 0] = c * xy[:, 0] - s * xy[:, 1] + p[:, 0]
-        out[:, 1] = s * xy[:, 0] + c * xy[:, 1] + p[:, 1]
-        return out
-
-    def _meas_var(self, rng: np.ndarray) -> np.ndarray:
-        return (self.params.meas_sigma + self.params.meas_sigma_rel * rng) ** 2
-
     def _grow(self, need: int) -> None:
         cap = self._alive.shape[0]
         while cap < need:
@@ -793,72 +780,6 @@ class KinTracker:
             b = np.zeros((cap, *a.shape[1:]), a.dtype)
             b[: a.shape[0]] = a
             setattr(self, name, b)
-
-    def _associate_and_birth(self, z, obs, rng, dt):
-        """Predict, gate, assign, Kalman-update and start tracks for unmatched candidates (one compiled
-        kernel). Returns (matched track rows, their candidates, born track rows, their candidates)."""
-        pr = self.params
-        ti, ci, tb, born, next_id = _frame_kernel(
-            np.ascontiguousarray(z), obs, rng, float(dt), self.n_observers, self._alive, self._obs, self._id,
-            self._next_id, self._x, self._P, self.poses, self._exist, self._lo_score, self._lo_shape,
-            self._lo_motion, self._lo_resid, self._res_chi2, self._res_dof, self._score_sum, self._n_scored,
-            self._seen, self._age, self._static_t, self._moved, self._confirmed, self._npts, self._head,
-            self._fit_c, self._anchor, self._anchor_var, self._anchor_odo, self._anchor_rng, self.odometer,
-            pr.process_accel**2, pr.meas_sigma, pr.meas_sigma_rel, pr.init_speed_sigma**2, pr.gate_chi2,
-            pr.birth_existence, pr.confirm_existence, pr.r,
-        )  # fmt: skip
-        self._next_id = int(next_id)
-        return ti, ci, tb, born
-
-    def _finish(self, pre, hit, dt) -> None:
-        """Existence (hit / miss of the tracks before this frame's births), motion, age, confirm / delete."""
-        pr = self.params
-        _finish_kernel(
-            pre, hit, float(dt), self._alive, self._obs, self._x, self._P, self.poses, self._exist,
-            self._confirmed, self._moved, self._lo_motion, self._static_t, self._age, self._seen,
-            self._anchor, self._anchor_var, self._anchor_odo, self._anchor_rng, self.odometer, pr.p_detect,
-            pr.clutter_ratio, pr.max_range, pr.confirm_existence, pr.delete_existence, pr.motion_dist,
-            pr.motion_gain, pr.odom_heading_rate**2, pr.odom_position_rate**2,
-        )  # fmt: skip
-
-    def _score_cue(self, ti: np.ndarray, scores: np.ndarray, accepted, rng: np.ndarray) -> None:
-        # (a) the detector's score: correlated frames -> weight < 1, clamped sum
-        pr = self.params
-        # a far object gets fewer beams and lower scores, kin and look-alikes alike: the bar falls with range.
-        # The cue is the mean evidence per frame (shrunk towards 0 by score_n0 pseudo-frames) times
-        # score_gain: frames of one object are strongly correlated, so the evidence grows with their
-        # consistency, not their count (one compiled loop over the updated tracks)
-        acc = np.zeros(0, np.bool_) if accepted is None else np.asarray(accepted, np.bool_)
-        _score_kernel(ti, np.asarray(scores, np.float64), acc, rng, self._score_sum, self._n_scored,
-                      self._lo_score, float(_logit(pr.score_prior)), pr.score_per_metre, pr.score_weight,
-                      pr.accept_llr, pr.reject_llr, pr.score_n0, pr.score_gain, pr.score_clamp)  # fmt: skip
-
-    def _outline_cue(self, ti, ci, points, owner, obs, noise, cos, sin, k) -> None:
-        # (b) the accumulated outline relative to the track centre (ego-motion compensated)
-        pr = self.params
-        pts = np.asarray(points, np.float64).reshape(-1, 2)
-        owner = np.asarray(owner).reshape(-1).astype(np.int64)
-        pts = np.ascontiguousarray(pts)
-        status = _points_check(pts, owner, k) if owner.shape[0] == pts.shape[0] else 1
-        if status == 1:
-            raise ValueError(
-                f"KinTracker: owner must give each of the {pts.shape[0]} points a candidate in [0, {k})"
-            )
-        if status == 2:
-            raise ValueError("KinTracker: points must be finite")
-        if status == 3:  # not grouped by candidate (segment_points gives them sorted already)
-            order = np.argsort(owner, kind="stable")
-            pts, owner = np.ascontiguousarray(pts[order]), owner[order]
-        odom, sig, d = _points_prep(pts, owner, obs, noise, cos, sin, self.poses,
-                                    pr.shape_sigma**2)  # fmt: skip
-        cstart = np.searchsorted(owner, np.arange(k + 1))
-        _outline_kernel(
-            ti, ci, odom, sig, d, cstart, self._obs, self.odometer, self._moved,
-            self._pts, self._npts, self._head, self._fit_c, self._lo_shape, self._x, self._P, self.time,
-            pr.r, pr.shape_delta**2, float(pr.shape_n_cap), int(pr.shape_min_points),
-            pr.shape_clamp, pr.odom_heading_rate**2, pr.odom_position_rate**2,
-            self.poses, self._lo_resid, self._res_chi2, self._res_dof, pr.resid_clamp,
-        )  # fmt: skip
 
     # -- outputs -----------------------------------------------------------------------------------------
     def _rows(self, observer: int | None) -> np.ndarray:
@@ -1549,3 +1470,175 @@ def _outline_kernel(ti, ci, pts, sig, dist, cstart, obs, odometer, moved, buf, n
             llr += 0.5 * math.log(v1 / v0) - 0.5 * e[i] * e[i] * (1.0 / v0 - 1.0 / v1)
         llr *= min(1.0, n_cap / m)
         lo_shape[t] = min(max(llr, -clamp), clamp)
+
+
+# -- the fused frame update ---------------------------------------------------------------------------------
+
+_NO_FLAGS = np.zeros(0, np.bool_)
+_NO_POINTS = np.zeros((0, 2))
+_NO_OWNER = np.zeros(0, np.int64)
+# _update_kernel's status codes (0: done)
+_BAD_DELTA, _BAD_VALUES, _BAD_OBS, _BAD_NOISE, _BAD_OWNER, _BAD_POINTS, _BAD_SORT = range(1, 8)
+
+
+def _param_array(pr: TrackerParams) -> np.ndarray:
+    """:class:`TrackerParams` as :func:`_update_kernel` reads them (derived values as the staged steps
+    computed them, so that the fused update is bitwise the staged one)."""
+    return np.array([
+        pr.process_accel**2, pr.meas_sigma, pr.meas_sigma_rel, pr.init_speed_sigma**2, pr.gate_chi2,
+        pr.birth_existence, pr.confirm_existence, pr.r, float(_logit(pr.score_prior)), pr.score_per_metre,
+        pr.score_weight, pr.accept_llr, pr.reject_llr, pr.score_n0, pr.score_gain, pr.score_clamp,
+        pr.shape_sigma**2, pr.shape_delta**2, float(pr.shape_n_cap), float(int(pr.shape_min_points)),
+        pr.shape_clamp, pr.odom_heading_rate**2, pr.odom_position_rate**2, pr.resid_clamp, pr.p_detect,
+        pr.clutter_ratio, pr.max_range, pr.delete_existence, pr.motion_dist, pr.motion_gain, pr.min_score,
+        0.5 * pr.wheel_base,
+    ], np.float64)  # fmt: skip
+
+
+def _update_error(status, N, k, delta, xy, scores, obs, noise, pts) -> str:
+    """The message of a bad input :func:`_update_kernel` found (its status code)."""
+    if status == _BAD_DELTA:
+        return (f"KinTracker: odom_delta must be ({N}, 3) finite numbers (dx, dy, dtheta per observer), "
+                f"got {delta.shape} {delta!r}")  # fmt: skip
+    if status == _BAD_VALUES:
+        return (f"KinTracker: obs (k,), xy (k, 2) and scores (k,) must be finite and of one length, got "
+                f"{obs.shape}, {xy.shape} and {scores.shape}")  # fmt: skip
+    if status == _BAD_OBS:
+        return f"KinTracker: obs must be observer indices in [0, {N}), got {obs!r}"
+    if status == _BAD_NOISE:
+        return f"KinTracker: noise must be {N} relative range noises >= 0, got {noise!r}"
+    if status == _BAD_OWNER:
+        return f"KinTracker: owner must give each of the {pts.shape[0]} points a candidate in [0, {k})"
+    return "KinTracker: points must be finite"
+
+
+@numba.njit(cache=True, nogil=True)
+def _update_kernel(obs, xy, scores, accepted, delta, dt, pts, owner, has_points, noise, poses, odometer, now,
+                   next_id, prm, alive, tobs, tid, x, P, exist, lo_score, lo_shape, lo_motion, lo_resid,
+                   res_chi2, res_dof, score_sum, n_scored, seen, age, static_t, moved, confirmed, npts, head,
+                   fit_c, anchor, anchor_var, anchor_odo, anchor_rng, buf, f_lgsum, f_lgsq, f_lgmax, f_lglast,
+                   f_accsum, f_acclast, f_beams, f_rng, hit):  # fmt: skip
+    """One frame of every observer (:meth:`KinTracker.update_batch`) in one call: checks the inputs'
+    values (a status code and no state change if one is bad), drops candidates below ``min_score``,
+    moves each observer by its odometry, then runs the frame's steps in the staged order — association,
+    filter and births (:func:`_frame_kernel`), the score cue, the per-frame fits and outline
+    (:func:`_outline_kernel`), the classifier's running inputs, existence / motion / confirm / delete.
+    ``poses`` is updated in place (the caller passes a fresh copy). Returns ``(status, next_id)``."""
+    k, N = xy.shape[0], poses.shape[0]
+    # -- the inputs' values, before any state changes
+    for o in range(N):
+        if not (np.isfinite(delta[o, 0]) and np.isfinite(delta[o, 1]) and np.isfinite(delta[o, 2])):
+            return _BAD_DELTA, next_id
+    for c in range(k):
+        if not (np.isfinite(xy[c, 0]) and np.isfinite(xy[c, 1]) and np.isfinite(scores[c])):
+            return _BAD_VALUES, next_id
+    for c in range(k):
+        if obs[c] < 0 or obs[c] >= N:
+            return _BAD_OBS, next_id
+    for o in range(N):
+        if not (np.isfinite(noise[o]) and noise[o] >= 0):
+            return _BAD_NOISE, next_id
+    if has_points:
+        status = _points_check(pts, owner, k)
+        if status == 1:
+            return _BAD_OWNER, next_id
+        if status == 2:
+            return _BAD_POINTS, next_id
+        if status == 3:
+            return _BAD_SORT, next_id
+    # -- candidates below min_score are dropped (their points too, the rest renumbered)
+    min_score = prm[30]
+    new = np.empty(k, np.int64)
+    kk = 0
+    for c in range(k):
+        if min_score <= 0.0 or scores[c] >= min_score:
+            new[c] = kk
+            kk += 1
+        else:
+            new[c] = -1
+    if kk < k:
+        ob2, xy2, sc2 = np.empty(kk, np.int64), np.empty((kk, 2)), np.empty(kk)
+        acc2 = np.empty(kk if accepted.shape[0] else 0, np.bool_)
+        for c in range(k):
+            j = new[c]
+            if j >= 0:
+                ob2[j], xy2[j, 0], xy2[j, 1], sc2[j] = obs[c], xy[c, 0], xy[c, 1], scores[c]
+                if accepted.shape[0]:
+                    acc2[j] = accepted[c]
+        obs, xy, scores, accepted = ob2, xy2, sc2, acc2
+        if has_points:
+            m = 0
+            for i in range(owner.shape[0]):
+                if new[owner[i]] >= 0:
+                    m += 1
+            pts2, own2 = np.empty((m, 2)), np.empty(m, np.int64)
+            m = 0
+            for i in range(owner.shape[0]):
+                j = new[owner[i]]
+                if j >= 0:
+                    pts2[m, 0], pts2[m, 1], own2[m] = pts[i, 0], pts[i, 1], j
+                    m += 1
+            pts, owner = pts2, own2
+        k = kk
+    # -- ego-motion: each observer's new pose in its odometry frame; the odometer (wheel travel)
+    cos, sin = np.empty(N), np.empty(N)
+    for o in range(N):
+        c, s = math.cos(poses[o, 2]), math.sin(poses[o, 2])
+        px = poses[o, 0] + c * delta[o, 0] - s * delta[o, 1]
+        py = poses[o, 1] + s * delta[o, 0] + c * delta[o, 1]
+        w = (poses[o, 2] + delta[o, 2] + math.pi) % (2.0 * math.pi) - math.pi  # wrap_angle
+        if w <= -math.pi:
+            w += 2.0 * math.pi
+        poses[o, 0], poses[o, 1], poses[o, 2] = px, py, w
+        odometer[o] += math.hypot(delta[o, 0], delta[o, 1]) + prm[31] * abs(delta[o, 2])
+        cos[o], sin[o] = math.cos(w), math.sin(w)
+    z, rng = np.empty((k, 2)), np.empty(k)  # candidates in their observer's odometry frame, and range
+    for c in range(k):
+        o = obs[c]
+        z[c, 0] = cos[o] * xy[c, 0] - sin[o] * xy[c, 1] + poses[o, 0]
+        z[c, 1] = sin[o] * xy[c, 0] + cos[o] * xy[c, 1] + poses[o, 1]
+        rng[c] = math.hypot(xy[c, 0], xy[c, 1])
+    pre = alive.copy()  # the tracks before this frame's births (existence: hit or miss)
+    ti, ci, tb, born, next_id = _frame_kernel(
+        z, obs, rng, dt, N, alive, tobs, tid, next_id, x, P, poses, exist, lo_score, lo_shape, lo_motion,
+        lo_resid, res_chi2, res_dof, score_sum, n_scored, seen, age, static_t, moved, confirmed, npts, head,
+        fit_c, anchor, anchor_var, anchor_odo, anchor_rng, odometer, prm[0], prm[1], prm[2], prm[3], prm[4],
+        prm[5], prm[6], prm[7],
+    )  # fmt: skip
+    n_m, n_t = ti.shape[0], ti.shape[0] + tb.shape[0]
+    tracks, cands = np.empty(n_t, np.int64), np.empty(n_t, np.int64)
+    tracks[:n_m] = ti
+    tracks[n_m:] = tb
+    cands[:n_m] = ci
+    cands[n_m:] = born
+    sc, rg = np.empty(n_t), np.empty(n_t)
+    ac = np.empty(n_t if accepted.shape[0] else 0, np.bool_)
+    for j in range(n_t):
+        sc[j], rg[j] = scores[cands[j]], rng[cands[j]]
+        if accepted.shape[0]:
+            ac[j] = accepted[cands[j]]
+    _score_kernel(tracks, sc, ac, rg, score_sum, n_scored, lo_score, prm[8], prm[9], prm[10], prm[11],
+                  prm[12], prm[13], prm[14], prm[15])  # fmt: skip
+    bm = np.zeros(n_t)
+    if has_points and n_t:
+        odom, sig, dist = _points_prep(pts, owner, obs, noise, cos, sin, poses, prm[16])
+        cstart = np.empty(k + 1, np.int64)  # owner is sorted: candidate c's points are cstart[c]:cstart[c+1]
+        i = 0
+        for c in range(k + 1):
+            while i < owner.shape[0] and owner[i] < c:
+                i += 1
+            cstart[c] = i
+        _outline_kernel(tracks, cands, odom, sig, dist, cstart, tobs, odometer, moved, buf, npts, head,
+                        fit_c, lo_shape, x, P, now, prm[7], prm[17], prm[18], int(prm[19]), prm[20], prm[21],
+                        prm[22], poses, lo_resid, res_chi2, res_dof, prm[23])  # fmt: skip
+        for j in range(n_t):
+            bm[j] = cstart[cands[j] + 1] - cstart[cands[j]]
+    _feature_kernel(tracks, n_m, sc, ac, rg, bm, f_lgsum, f_lgsq, f_lgmax, f_lglast, f_accsum, f_acclast,
+                    f_beams, f_rng, hit)  # fmt: skip
+    hit_t = np.zeros(alive.shape[0], np.bool_)
+    for j in range(n_m):
+        hit_t[ti[j]] = True
+    _finish_kernel(pre, hit_t, dt, alive, tobs, x, P, poses, exist, confirmed, moved, lo_motion, static_t,
+                   age, seen, anchor, anchor_var, anchor_odo, anchor_rng, odometer, prm[24], prm[25],
+                   prm[26], prm[6], prm[27], prm[28], prm[29], prm[21], prm[22])  # fmt: skip
+    return 0, next_id
