@@ -793,13 +793,27 @@ class KinTracker:
     def _kin_prob(self, rows: np.ndarray) -> np.ndarray:
         pr = self.params
         if self.kin_model is not None:
-            return self.kin_model.kin_prob(self._features(rows))
+            return self.kin_model.kin_prob(self._features_fast(rows))
         # some track of the same observer moved: the swarm around it is active
         active = np.bincount(self._obs[rows][self._moved[rows]], minlength=self.n_observers) > 0
         idle = active[self._obs[rows]] & ~self._moved[rows] & (self._static_t[rows] >= pr.static_time)
         lo = (_logit(pr.kin_prior) + self._lo_score[rows] + self._lo_resid[rows] + self._lo_shape[rows]
               + self._lo_motion[rows] + np.where(idle, pr.static_penalty, 0.0))  # fmt: skip
         return 1.0 / (1.0 + np.exp(-lo))
+
+    def _features_fast(self, rows: np.ndarray) -> np.ndarray:
+        """:meth:`_features` in one compiled loop (:func:`_features_kernel`, bitwise the same, tested) while
+        :data:`TRACK_FEATURES` are the columns it computes; else :meth:`_features` itself."""
+        if TRACK_FEATURES != _KERNEL_FEATURES:
+            return self._features(rows)
+        pr = self.params
+        return _features_kernel(
+            np.ascontiguousarray(rows, np.int64), self.n_observers, self._alive, self._confirmed, self._obs,
+            self._seen, self._x, self._P, self._anchor, self._anchor_var, self._anchor_odo, self._anchor_rng,
+            self.odometer, self._hit, self._f_lgsum, self._f_lgsq, self._f_lgmax, self._f_lglast,
+            self._f_accsum, self._f_acclast, self._f_beams, self._f_rng, self._moved, self._exist,
+            self._res_chi2, self._res_dof, pr.odom_heading_rate**2, pr.odom_position_rate**2,
+        )  # fmt: skip
 
     def _features(self, rows: np.ndarray) -> np.ndarray:
         """(len(rows), F) :data:`TRACK_FEATURES` of the track rows ``rows``."""
@@ -872,33 +886,14 @@ class KinTracker:
         zero-padded (columns :data:`TRACK_FIELDS`; positions and velocities in each observer's current robot
         frame), ``mask`` (n_observers, max_tracks) bool and ``count`` (n_observers,). Per observer, confirmed
         tracks come first, then by kin probability, when there are more than ``max_tracks``."""
-        N = self.n_observers
-        out = np.zeros((N, max_tracks, len(TRACK_FIELDS)), np.float32)
-        mask = np.zeros((N, max_tracks), bool)
+        if isinstance(max_tracks, bool) or not isinstance(max_tracks, int | np.integer) or max_tracks < 0:
+            raise ValueError(f"KinTracker.track_arrays: max_tracks must be an int >= 0, got {max_tracks!r}")
         rows = np.flatnonzero(self._alive)
-        if rows.size:
-            kp = self._kin_prob(rows)
-            o = self._obs[rows]
-            order = np.lexsort((self._id[rows], -(kp + self._confirmed[rows]), o))
-            rows, kp, o = rows[order], kp[order], o[order]
-            n_o = np.bincount(o, minlength=N)
-            rank = np.arange(rows.size) - np.repeat(np.cumsum(n_o) - n_o, n_o)
-            keep = rank < max_tracks
-            rows, kp, o, rank = rows[keep], kp[keep], o[keep], rank[keep]
-            pose = self.poses[o]
-            c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
-            d = self._x[rows, :2] - pose[:, :2]
-            v = self._x[rows, 2:]
-            cols = np.stack(
-                [self._id[rows], c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1],
-                 c * v[:, 0] + s * v[:, 1], -s * v[:, 0] + c * v[:, 1], self._exist[rows], kp,
-                 self._seen[rows], self._confirmed[rows], self._age[rows]], axis=1,
-            )  # fmt: skip
-            out[o, rank] = cols
-            mask[o, rank] = True
-        count = mask.sum(axis=1).astype(np.int64)
+        kp = self._kin_prob(rows) if rows.size else np.zeros(0)
+        out, mask, count = _slots_kernel(rows, kp, self.n_observers, int(max_tracks), self._obs, self._id,
+                                         self._confirmed, self._x, self.poses, self._exist, self._seen,
+                                         self._age)  # fmt: skip
         return {"tracks": out, "mask": mask, "count": count}
-
 
 def _kin_model(kin_model) -> TrackKinModel | None:
     if isinstance(kin_model, TrackKinModel):
@@ -1642,3 +1637,108 @@ def _update_kernel(obs, xy, scores, accepted, delta, dt, pts, owner, has_points,
                    age, seen, anchor, anchor_var, anchor_odo, anchor_rng, odometer, prm[24], prm[25],
                    prm[26], prm[6], prm[27], prm[28], prm[29], prm[21], prm[22])  # fmt: skip
     return 0, next_id
+
+
+# -- the classifier's inputs and the fixed-shape outputs, compiled -------------------------------------------
+
+#: the columns :func:`_features_kernel` computes (a copy: if :data:`TRACK_FEATURES` changes, the tracker
+#: falls back to the numpy :meth:`KinTracker._features` until the kernel follows)
+_KERNEL_FEATURES = ("mean_logit", "std_logit", "max_logit", "last_logit", "hit_logit", "accept_rate",
+                    "last_accepted", "hit_accepted", "hit", "log_frames", "log_beams", "range", "motion_z",
+                    "moved", "existence", "speed_z", "moved_share", "log_moved", "resid_z")  # fmt: skip
+
+
+@numba.njit(cache=True, nogil=True)
+def _features_kernel(rows, n_obs, alive, confirmed, obs, seen, x, P, anchor, anchor_var, anchor_odo,
+                     anchor_rng, odometer, hit, lgsum, lgsq, lgmax, lglast, accsum, acclast, beams, f_rng,
+                     moved, exist, res_chi2, res_dof, head_rate2, pos_rate2):  # fmt: skip
+    """:meth:`KinTracker._features` of the track rows ``rows`` (the same operations, one loop)."""
+    n_conf = np.zeros(n_obs)  # the scene: each observer's confirmed tracks, and those that moved
+    n_moved = np.zeros(n_obs, np.int64)
+    for t in range(alive.shape[0]):
+        if alive[t] and confirmed[t]:
+            n_conf[obs[t]] += 1.0
+            if moved[t]:
+                n_moved[obs[t]] += 1
+    X = np.empty((rows.shape[0], len(_KERNEL_FEATURES)))
+    for i in range(rows.shape[0]):
+        t = rows[i]
+        o = obs[t]
+        n = float(max(seen[t], 1))
+        disp = math.hypot(x[t, 0] - anchor[t, 0], x[t, 1] - anchor[t, 1])
+        drift = (odometer[o] - anchor_odo[t]) * (head_rate2 * anchor_rng[t] ** 2 + pos_rate2)
+        var = anchor_var[t] + 0.5 * (P[t, 0, 0] + P[t, 1, 1]) + drift
+        speed_sd = math.sqrt(max(0.5 * (P[t, 2, 2] + P[t, 3, 3]), 1e-12))
+        mean = lgsum[t] / n
+        dof = res_dof[t]
+        X[i, 0] = mean
+        X[i, 1] = math.sqrt(max(lgsq[t] / n - mean * mean, 0.0))
+        X[i, 2] = lgmax[t]
+        X[i, 3] = lglast[t]
+        X[i, 4] = lglast[t] if hit[t] else -6.0
+        X[i, 5] = accsum[t] / n
+        X[i, 6] = acclast[t]
+        X[i, 7] = acclast[t] if hit[t] else 0.0
+        X[i, 8] = 1.0 if hit[t] else 0.0
+        X[i, 9] = math.log(n)
+        X[i, 10] = math.log1p(beams[t])
+        X[i, 11] = f_rng[t]
+        X[i, 12] = min(disp / math.sqrt(var), 10.0)
+        X[i, 13] = 1.0 if moved[t] else 0.0
+        X[i, 14] = exist[t]
+        X[i, 15] = min(math.hypot(x[t, 2], x[t, 3]) / speed_sd, 10.0)
+        X[i, 16] = n_moved[o] / max(n_conf[o], 1.0)
+        X[i, 17] = math.log1p(n_moved[o])
+        X[i, 18] = min(max((res_chi2[t] - dof) / math.sqrt(2.0 * max(dof, 1.0)), -10.0), 10.0)
+    return X
+
+
+@numba.njit(cache=True, nogil=True)
+def _slots_kernel(rows, kp, n_obs, max_tracks, tobs, tid, confirmed, x, poses, exist, seen, age):
+    """:meth:`KinTracker.track_arrays`' padded slots: each observer's tracks ``rows`` (kin probability
+    ``kp``) ordered confirmed first, then by kin probability, then by id, the first ``max_tracks`` in its
+    current robot frame (columns :data:`TRACK_FIELDS`)."""
+    n = rows.shape[0]
+    cnt = np.zeros(n_obs + 1, np.int64)  # group by observer (counting sort)
+    for i in range(n):
+        cnt[tobs[rows[i]] + 1] += 1
+    for o in range(n_obs):
+        cnt[o + 1] += cnt[o]
+    order = np.empty(n, np.int64)
+    fill = cnt[:-1].copy()
+    for i in range(n):
+        o = tobs[rows[i]]
+        order[fill[o]] = i
+        fill[o] += 1
+    out = np.zeros((n_obs, max_tracks, 10), np.float32)
+    mask = np.zeros((n_obs, max_tracks), np.bool_)
+    count = np.zeros(n_obs, np.int64)
+    for o in range(n_obs):
+        g = order[cnt[o] : cnt[o + 1]]
+        ids, key = np.empty(g.shape[0], np.int64), np.empty(g.shape[0])
+        for j in range(g.shape[0]):
+            ids[j] = tid[rows[g[j]]]
+        g = g[np.argsort(ids)]  # ids are unique: the tie-break
+        for j in range(g.shape[0]):
+            key[j] = -(kp[g[j]] + (1.0 if confirmed[rows[g[j]]] else 0.0))
+        g = g[np.argsort(key, kind="mergesort")]  # stable: equal keys keep id order
+        c, s = math.cos(poses[o, 2]), math.sin(poses[o, 2])
+        m = min(g.shape[0], max_tracks)
+        for r in range(m):
+            i = g[r]
+            t = rows[i]
+            d0, d1 = x[t, 0] - poses[o, 0], x[t, 1] - poses[o, 1]
+            v0, v1 = x[t, 2], x[t, 3]
+            out[o, r, 0] = float(tid[t])
+            out[o, r, 1] = c * d0 + s * d1
+            out[o, r, 2] = -s * d0 + c * d1
+            out[o, r, 3] = c * v0 + s * v1
+            out[o, r, 4] = -s * v0 + c * v1
+            out[o, r, 5] = exist[t]
+            out[o, r, 6] = kp[i]
+            out[o, r, 7] = float(seen[t])
+            out[o, r, 8] = 1.0 if confirmed[t] else 0.0
+            out[o, r, 9] = float(age[t])
+            mask[o, r] = True
+        count[o] = m
+    return out, mask, count

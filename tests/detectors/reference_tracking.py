@@ -14,6 +14,7 @@ from scipy.optimize import linear_sum_assignment
 
 from detectors.base import wrap_angle
 from detectors.tracking import (
+    TRACK_FIELDS,
     KinTracker,
     _feature_kernel,
     _finish_kernel,
@@ -200,6 +201,42 @@ class StagedKinTracker(KinTracker):
             self.poses, self._lo_resid, self._res_chi2, self._res_dof, pr.resid_clamp,
         )  # fmt: skip
 
+
+
+    def _features_fast(self, rows):  # the numpy features
+        return self._features(rows)
+
+    def track_arrays(self, max_tracks: int) -> dict[str, np.ndarray]:
+        """Fixed-shape view for vector envs: ``tracks`` (n_observers, max_tracks, len(TRACK_FIELDS)) float32,
+        zero-padded (columns :data:`TRACK_FIELDS`; positions and velocities in each observer's current robot
+        frame), ``mask`` (n_observers, max_tracks) bool and ``count`` (n_observers,). Per observer, confirmed
+        tracks come first, then by kin probability, when there are more than ``max_tracks``."""
+        N = self.n_observers
+        out = np.zeros((N, max_tracks, len(TRACK_FIELDS)), np.float32)
+        mask = np.zeros((N, max_tracks), bool)
+        rows = np.flatnonzero(self._alive)
+        if rows.size:
+            kp = self._kin_prob(rows)
+            o = self._obs[rows]
+            order = np.lexsort((self._id[rows], -(kp + self._confirmed[rows]), o))
+            rows, kp, o = rows[order], kp[order], o[order]
+            n_o = np.bincount(o, minlength=N)
+            rank = np.arange(rows.size) - np.repeat(np.cumsum(n_o) - n_o, n_o)
+            keep = rank < max_tracks
+            rows, kp, o, rank = rows[keep], kp[keep], o[keep], rank[keep]
+            pose = self.poses[o]
+            c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
+            d = self._x[rows, :2] - pose[:, :2]
+            v = self._x[rows, 2:]
+            cols = np.stack(
+                [self._id[rows], c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1],
+                 c * v[:, 0] + s * v[:, 1], -s * v[:, 0] + c * v[:, 1], self._exist[rows], kp,
+                 self._seen[rows], self._confirmed[rows], self._age[rows]], axis=1,
+            )  # fmt: skip
+            out[o, rank] = cols
+            mask[o, rank] = True
+        count = mask.sum(axis=1).astype(np.int64)
+        return {"tracks": out, "mask": mask, "count": count}
 
 
 class ReferenceKinTracker(StagedKinTracker):

@@ -507,7 +507,8 @@ def _crowded_frames(seed, n_obs=3, n_frames=25):
 def test_fused_update_equals_the_staged_steps_with_dropped_and_unsorted_points(seed):
     """The one-call frame update is bitwise the staged steps it replaced (the reference in
     tests/detectors/reference_tracking.py), also when candidates fall below ``min_score`` (their points
-    dropped and the rest renumbered) and when the points come unsorted by candidate."""
+    dropped and the rest renumbered) and when the points come unsorted by candidate; the compiled
+    classifier inputs and ``track_arrays`` are bitwise the numpy ones."""
     from tests.detectors.reference_tracking import StagedKinTracker
 
     fused, staged = KinTracker(n_observers=3), StagedKinTracker(n_observers=3)
@@ -521,6 +522,11 @@ def test_fused_update_equals_the_staged_steps_with_dropped_and_unsorted_points(s
         for name in KinTracker._FIELDS:
             assert np.array_equal(getattr(fused, name), getattr(staged, name)), name
         assert np.array_equal(fused.poses, staged.poses) and np.array_equal(fused.odometer, staged.odometer)
+        # the compiled classifier inputs and padded slots (few slots: the ranking decides) vs numpy's
+        rows = np.flatnonzero(fused._alive)
+        assert np.array_equal(fused._features_fast(rows), staged._features(rows))
+        a, b = fused.track_arrays(3), staged.track_arrays(3)
+        assert all(np.array_equal(a[key], b[key]) for key in ("tracks", "mask", "count"))
     assert len(fused) > 5
 
 
