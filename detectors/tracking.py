@@ -482,11 +482,17 @@ def fit_known_circle(points: np.ndarray, r: float, centre0=(0.0, 0.0), iteration
 def _fit_known_circle(p, w, r, c, iterations, e):
     """Weighted Gauss-Newton on the centre ``c`` (in place, 2x2 normal equations solved in closed form);
     writes the residuals ``|p_i - c| - r`` into ``e``."""
-    m = p.shape[0]
+    _fit_span(p, 0, p.shape[0], w, r, c, iterations, e)
+
+
+@numba.njit(cache=True, nogil=True)
+def _fit_span(p, a, m, w, r, c, iterations, e):
+    """:func:`_fit_known_circle` on the points ``p[a:a + m]`` (weights ``w[:m]``, residuals into ``e[:m]``),
+    by index rather than by slices (a slice passed on costs reference counting, ~100 ns per fit)."""
     for _ in range(iterations):
         a00 = a01 = a11 = g0 = g1 = 0.0
         for i in range(m):
-            dx, dy = p[i, 0] - c[0], p[i, 1] - c[1]
+            dx, dy = p[a + i, 0] - c[0], p[a + i, 1] - c[1]
             d = max(math.sqrt(dx * dx + dy * dy), 1e-12)
             jx, jy = -dx / d, -dy / d  # d e_i / d c
             ei = d - r
@@ -505,7 +511,7 @@ def _fit_known_circle(p, w, r, c, iterations, e):
         if s0 * s0 + s1 * s1 < 1e-18:
             break
     for i in range(m):
-        e[i] = math.sqrt((p[i, 0] - c[0]) ** 2 + (p[i, 1] - c[1]) ** 2) - r
+        e[i] = math.sqrt((p[a + i, 0] - c[0]) ** 2 + (p[a + i, 1] - c[1]) ** 2) - r
 
 
 def segment_points(ranges, angles, rows, first, last, range_max: float = math.inf):
@@ -554,8 +560,8 @@ class KinTracker:
     """
 
     _FIELDS = ("_id", "_obs", "_x", "_P", "_exist", "_lo_score", "_lo_shape", "_lo_motion", "_seen", "_age",
-               "_static_t", "_moved", "_confirmed", "_anchor", "_anchor_var", "_alive", "_pts", "_npts",
-               "_head", "_fit_c", "_anchor_odo", "_anchor_rng", "_lo_resid", "_res_chi2", "_res_dof",
+               "_static_t", "_moved", "_confirmed", "_anchor", "_anchor_var", "_alive", "_pts", "_pts_aux",
+               "_npts", "_head", "_fit_c", "_anchor_odo", "_anchor_rng", "_lo_resid", "_res_chi2", "_res_dof",
                "_score_sum", "_n_scored", "_f_lgsum", "_f_lgsq", "_f_lgmax", "_f_lglast", "_f_accsum",
                "_f_acclast", "_f_beams", "_f_rng", "_hit")  # fmt: skip
 
@@ -598,7 +604,10 @@ class KinTracker:
         self._alive = np.zeros(cap, bool)
         # outline points, a ring: odometry-frame x, y; sensor sigma; range when seen; observer's odometer
         # and the time then
-        self._pts = np.zeros((cap, m, 6))
+        self._pts = np.zeros((cap, m, 2))
+        # sensor sigma, range when seen, the observer's odometer and the time then: read only by the outline
+        # refit, so kept only when it is on (shape_clamp > 0); apart from x, y, whose ring is 3x smaller
+        self._pts_aux = np.zeros((cap, m if self.params.shape_clamp > 0 else 0, 4))
         self.odometer = np.zeros(self.n_observers)  # wheel travel so far, m (ages ego-motion errors)
         self._npts = np.zeros(cap, np.int64)
         self._head = np.zeros(cap, np.int64)
@@ -740,7 +749,8 @@ class KinTracker:
                 self._x, self._P, self._exist, self._lo_score, self._lo_shape, self._lo_motion,
                 self._lo_resid, self._res_chi2, self._res_dof, self._score_sum, self._n_scored, self._seen,
                 self._age, self._static_t, self._moved, self._confirmed, self._npts, self._head, self._fit_c,
-                self._anchor, self._anchor_var, self._anchor_odo, self._anchor_rng, self._pts, self._f_lgsum,
+                self._anchor, self._anchor_var, self._anchor_odo, self._anchor_rng, self._pts, self._pts_aux,
+                self._f_lgsum,
                 self._f_lgsq, self._f_lgmax, self._f_lglast, self._f_accsum, self._f_acclast, self._f_beams,
                 self._f_rng, self._hit)  # fmt: skip
         status, next_id = _update_kernel(*args)
@@ -1374,9 +1384,9 @@ def _points_prep(pts, owner, obs, noise, cos, sin, poses, sigma2):
 
 
 @numba.njit(cache=True, nogil=True)
-def _outline_kernel(ti, ci, pts, sig, dist, cstart, obs, odometer, moved, buf, npts, head, fit_c, lo_shape,
-                    x, P, now, r, delta2, n_cap, min_points, clamp, head_rate2, pos_rate2, poses, lo_resid,
-                    res_chi2, res_dof, resid_clamp):  # fmt: skip
+def _outline_kernel(ti, ci, pts, sig, dist, cstart, obs, odometer, moved, buf, aux, npts, head, fit_c,
+                    lo_shape, x, P, now, r, delta2, n_cap, min_points, clamp, head_rate2, pos_rate2, poses,
+                    lo_resid, res_chi2, res_dof, resid_clamp):  # fmt: skip
     """Append each updated track's candidate points (odometry frame) to its ring buffer, then refit its
     outline (warm-started at the last fit's centre) and set its shape cue. A track that has moved keeps
     its last shape cue: its points no longer share one frame, and the motion cue has decided it anyway."""
@@ -1404,7 +1414,7 @@ def _outline_kernel(ti, ci, pts, sig, dist, cstart, obs, odometer, moved, buf, n
             un = max(math.sqrt(ux * ux + uy * uy), 1e-9)
             fc[0] = mx + ux / un * r * 0.7
             fc[1] = my + uy / un * r * 0.7
-            _fit_known_circle(pts[a:b], fw[:mf], r, fc, 6, fe[:mf])
+            _fit_span(pts, a, mf, fw, r, fc, 6, fe)
             # Gaussian LLR "on the circle" vs "off it by delta", the fit's 2 dof taken out of the log term
             llr = 0.0
             chi2 = 0.0
@@ -1424,21 +1434,24 @@ def _outline_kernel(ti, ci, pts, sig, dist, cstart, obs, odometer, moved, buf, n
             continue
         if b == a:
             continue
+        h, odo_t = head[t], odometer[obs[t]]
         for p in range(a, b):
-            h = head[t]
             buf[t, h, 0] = pts[p, 0]
             buf[t, h, 1] = pts[p, 1]
-            buf[t, h, 2] = sig[p]
-            buf[t, h, 3] = dist[p]
-            buf[t, h, 4] = odometer[obs[t]]
-            buf[t, h, 5] = now
-            head[t] = (h + 1) % m_max
-            if npts[t] < m_max:
-                npts[t] += 1
+            if aux.shape[1]:
+                aux[t, h, 0] = sig[p]
+                aux[t, h, 1] = dist[p]
+                aux[t, h, 2] = odo_t
+                aux[t, h, 3] = now
+            h += 1
+            if h == m_max:  # the ring wraps (no integer division per point)
+                h = 0
+        head[t] = h
+        npts[t] = min(npts[t] + (b - a), m_max)
         m = npts[t]
         if m < min_points or clamp <= 0.0:  # clamp 0: the cue is off, skip the (costly) refit
             continue
-        acc = buf[t, :m]
+        acc, acx = buf[t, :m], aux[t, :m]
         odo = odometer[obs[t]]
         vx, vy = x[t, 2], x[t, 3]
         pv = 0.5 * (P[t, 2, 2] + P[t, 3, 3])
@@ -1448,12 +1461,12 @@ def _outline_kernel(ti, ci, pts, sig, dist, cstart, obs, odometer, moved, buf, n
             # sensor noise, plus the ego-motion error accumulated since the point was seen (heading drift
             # moves it sideways in proportion to its range), plus how far the object may have gone since:
             # the point is moved along the track's velocity, with that velocity's uncertainty
-            aged = odo - acc[i, 4]
-            dt = now - acc[i, 5]
+            aged = odo - acx[i, 2]
+            dt = now - acx[i, 3]
             pp[i, 0] = acc[i, 0] + vx * dt
             pp[i, 1] = acc[i, 1] + vy * dt
             var[i] = (
-                acc[i, 2] * acc[i, 2] + aged * (head_rate2 * acc[i, 3] * acc[i, 3] + pos_rate2) + pv * dt * dt
+                acx[i, 0] * acx[i, 0] + aged * (head_rate2 * acx[i, 1] * acx[i, 1] + pos_rate2) + pv * dt * dt
             )
             wgt[i] = 1.0 / var[i]
         cen = fit_c[t]
@@ -1511,8 +1524,8 @@ def _update_error(status, N, k, delta, xy, scores, obs, noise, pts) -> str:
 def _update_kernel(obs, xy, scores, accepted, delta, dt, pts, owner, has_points, noise, poses, odometer, now,
                    next_id, prm, alive, tobs, tid, x, P, exist, lo_score, lo_shape, lo_motion, lo_resid,
                    res_chi2, res_dof, score_sum, n_scored, seen, age, static_t, moved, confirmed, npts, head,
-                   fit_c, anchor, anchor_var, anchor_odo, anchor_rng, buf, f_lgsum, f_lgsq, f_lgmax, f_lglast,
-                   f_accsum, f_acclast, f_beams, f_rng, hit):  # fmt: skip
+                   fit_c, anchor, anchor_var, anchor_odo, anchor_rng, buf, aux, f_lgsum, f_lgsq, f_lgmax,
+                   f_lglast, f_accsum, f_acclast, f_beams, f_rng, hit):  # fmt: skip
     """One frame of every observer (:meth:`KinTracker.update_batch`) in one call: checks the inputs'
     values (a status code and no state change if one is bad), drops candidates below ``min_score``,
     moves each observer by its odometry, then runs the frame's steps in the staged order — association,
@@ -1623,7 +1636,7 @@ def _update_kernel(obs, xy, scores, accepted, delta, dt, pts, owner, has_points,
             while i < owner.shape[0] and owner[i] < c:
                 i += 1
             cstart[c] = i
-        _outline_kernel(tracks, cands, odom, sig, dist, cstart, tobs, odometer, moved, buf, npts, head,
+        _outline_kernel(tracks, cands, odom, sig, dist, cstart, tobs, odometer, moved, buf, aux, npts, head,
                         fit_c, lo_shape, x, P, now, prm[7], prm[17], prm[18], int(prm[19]), prm[20], prm[21],
                         prm[22], poses, lo_resid, res_chi2, res_dof, prm[23])  # fmt: skip
         for j in range(n_t):

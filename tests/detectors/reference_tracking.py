@@ -195,7 +195,8 @@ class StagedKinTracker(KinTracker):
         cstart = np.searchsorted(owner, np.arange(k + 1))
         _outline_kernel(
             ti, ci, odom, sig, d, cstart, self._obs, self.odometer, self._moved,
-            self._pts, self._npts, self._head, self._fit_c, self._lo_shape, self._x, self._P, self.time,
+            self._pts, self._pts_aux, self._npts, self._head, self._fit_c, self._lo_shape, self._x, self._P,
+            self.time,
             pr.r, pr.shape_delta**2, float(pr.shape_n_cap), int(pr.shape_min_points),
             pr.shape_clamp, pr.odom_heading_rate**2, pr.odom_position_rate**2,
             self.poses, self._lo_resid, self._res_chi2, self._res_dof, pr.resid_clamp,
