@@ -56,3 +56,19 @@ def test_fused_update_is_bitwise_the_staged_one_on_sequence_episodes(split, n_ro
         n_tracks = max(n_tracks, len(fused))
     assert n_tracks >= 5  # the episode gave the tracker something to do
     assert any(t.moved for o in range(n) for t in fused.tracks(o)) or split == "lookalike"
+
+
+def test_tracking_cost_reports_wall_and_cpu_clock_and_the_shipped_detector():
+    """tracking_cost: the tracker against the permissive detector feeding it, by the wall and the CPU clock,
+    and against the shipped detector's own batched call; the benchmark script's report shows them."""
+    from kin_envs.detection.sequences import tracking_cost
+    from tests.scripts.helpers import load_script
+
+    c = tracking_cost(GeometricKinDetector(reports=False), n_robots=4, frames=4, skip=1, repeats=1)
+    for key in ("detector", "tracker", "outputs", "shipped"):
+        assert c[f"{key}_per_frame"] > 0 and c[f"{key}_cpu_per_frame"] > 0, key
+    assert c["ratio_cpu"] == pytest.approx(c["tracker_cpu_per_frame"] / c["detector_cpu_per_frame"])
+    assert c["ratio_shipped_cpu"] == pytest.approx(c["tracker_cpu_per_frame"] / c["shipped_cpu_per_frame"])
+    assert c["n_robots"] == 4 and c["frames"] == 3 and c["candidates_per_frame"] > 0
+    text = load_script("benchmark_tracking").report([], c)
+    assert "Tracking cost at 4 observers" in text and "CPU clock" in text and "detect_arrays" in text
