@@ -1384,6 +1384,106 @@ def _points_prep(pts, owner, obs, noise, cos, sin, poses, sigma2):
 
 
 @numba.njit(cache=True, nogil=True)
+def _frame_fit_start(pts, sig, a, b, pose, r, fw, fc, lane):
+    """One frame's fit of the points ``pts[a:b]``: weights ``1 / sig^2`` into ``fw[lane]`` and the start
+    (r behind the points' middle as seen from the observer at ``pose``) into ``fc[lane]``. One pose: no
+    odometry drift, valid while the object moves."""
+    mf = b - a
+    mx = my = 0.0
+    for p in range(a, b):
+        mx += pts[p, 0]
+        my += pts[p, 1]
+        fw[lane, p - a] = 1.0 / (sig[p] * sig[p])
+    mx /= mf
+    my /= mf
+    ux, uy = mx - pose[0], my - pose[1]
+    un = max(math.sqrt(ux * ux + uy * uy), 1e-9)
+    fc[lane, 0] = mx + ux / un * r * 0.7
+    fc[lane, 1] = my + uy / un * r * 0.7
+
+
+@numba.njit(cache=True, nogil=True)
+def _frame_fit_score(t, sig, a, b, fe, lane, delta2, resid_clamp, lo_resid, res_chi2, res_dof):
+    """Track ``t``'s per-frame residual sums from one fit's residuals ``fe[lane]``: the noise-normalised
+    chi-square and its dof, and (when the hand-tuned cue is on) the Gaussian LLR "on the circle" vs "off it
+    by delta", the fit's 2 dof taken out of the log term."""
+    mf = b - a
+    llr = 0.0
+    chi2 = 0.0
+    for p in range(a, b):
+        v0 = sig[p] * sig[p]
+        v1 = v0 + delta2
+        ee = fe[lane, p - a] * fe[lane, p - a]
+        chi2 += ee / v0
+        if resid_clamp > 0.0:  # the hand-tuned cue's LLR (its logs) only when it is on
+            llr += 0.5 * math.log(v1 / v0) * (mf - 2) / mf - 0.5 * ee * (1.0 / v0 - 1.0 / v1)
+    res_chi2[t] += chi2
+    res_dof[t] += mf - 2
+    if resid_clamp > 0.0:
+        lo_resid[t] = min(max(lo_resid[t] + llr, -resid_clamp), resid_clamp)
+
+
+@numba.njit(cache=True, nogil=True)
+def _fit_span2(p, a1, m1, a2, m2, w, r, c, iterations, e):
+    """Two :func:`_fit_span` fits at once, interleaved (lane 0: ``p[a1:a1 + m1]``, lane 1: ``p[a2:a2 + m2]``;
+    weights ``w[lane]``, centres ``c[lane]`` in place, residuals into ``e[lane]``): each lane's operations and
+    stopping rule are exactly those of :func:`_fit_span`, so its results are the same bits."""
+    go1 = go2 = True
+    for _ in range(iterations):
+        if not (go1 or go2):
+            break
+        a00 = a01 = a11 = g0 = g1 = 0.0
+        b00 = b01 = b11 = h0 = h1 = 0.0
+        for i in range(max(m1, m2)):
+            if go1 and i < m1:
+                dx, dy = p[a1 + i, 0] - c[0, 0], p[a1 + i, 1] - c[0, 1]
+                d = max(math.sqrt(dx * dx + dy * dy), 1e-12)
+                jx, jy = -dx / d, -dy / d
+                ei = d - r
+                a00 += w[0, i] * jx * jx
+                a01 += w[0, i] * jx * jy
+                a11 += w[0, i] * jy * jy
+                g0 += w[0, i] * jx * ei
+                g1 += w[0, i] * jy * ei
+            if go2 and i < m2:
+                dx, dy = p[a2 + i, 0] - c[1, 0], p[a2 + i, 1] - c[1, 1]
+                d = max(math.sqrt(dx * dx + dy * dy), 1e-12)
+                jx, jy = -dx / d, -dy / d
+                ei = d - r
+                b00 += w[1, i] * jx * jx
+                b01 += w[1, i] * jx * jy
+                b11 += w[1, i] * jy * jy
+                h0 += w[1, i] * jx * ei
+                h1 += w[1, i] * jy * ei
+        if go1:
+            det = a00 * a11 - a01 * a01
+            if det <= 1e-12 * (a00 + a11) ** 2:
+                go1 = False
+            else:
+                s0 = -(a11 * g0 - a01 * g1) / det
+                s1 = -(a00 * g1 - a01 * g0) / det
+                c[0, 0] += s0
+                c[0, 1] += s1
+                if s0 * s0 + s1 * s1 < 1e-18:
+                    go1 = False
+        if go2:
+            det = b00 * b11 - b01 * b01
+            if det <= 1e-12 * (b00 + b11) ** 2:
+                go2 = False
+            else:
+                s0 = -(b11 * h0 - b01 * h1) / det
+                s1 = -(b00 * h1 - b01 * h0) / det
+                c[1, 0] += s0
+                c[1, 1] += s1
+                if s0 * s0 + s1 * s1 < 1e-18:
+                    go2 = False
+    for i in range(m1):
+        e[0, i] = math.sqrt((p[a1 + i, 0] - c[0, 0]) ** 2 + (p[a1 + i, 1] - c[0, 1]) ** 2) - r
+    for i in range(m2):
+        e[1, i] = math.sqrt((p[a2 + i, 0] - c[1, 0]) ** 2 + (p[a2 + i, 1] - c[1, 1]) ** 2) - r
+
+
+@numba.njit(cache=True, nogil=True)
 def _outline_kernel(ti, ci, pts, sig, dist, cstart, obs, odometer, moved, buf, aux, npts, head, fit_c,
                     lo_shape, x, P, now, r, delta2, n_cap, min_points, clamp, head_rate2, pos_rate2, poses,
                     lo_resid, res_chi2, res_dof, resid_clamp):  # fmt: skip
@@ -1395,40 +1495,34 @@ def _outline_kernel(ti, ci, pts, sig, dist, cstart, obs, odometer, moved, buf, a
     m_frame = 0
     for j in range(ti.shape[0]):
         m_frame = max(m_frame, cstart[ci[j] + 1] - cstart[ci[j]])
-    fe, fw, fc = np.empty(m_frame), np.empty(m_frame), np.empty(2)
+    # per-frame known-radius fits (always: the track classifier reads their summed chi-square, resid_z), two
+    # at a time: the fits are independent, so the two interleaved Gauss-Newton loops overlap their latencies
+    # (each fit's own arithmetic is unchanged: the same bits as one at a time)
+    fe, fw, fc = np.empty((2, m_frame)), np.empty((2, m_frame)), np.empty((2, 2))
+    pend = -1
+    for j in range(ti.shape[0]):
+        if cstart[ci[j] + 1] - cstart[ci[j]] < 3:
+            continue
+        if pend < 0:
+            pend = j
+            continue
+        for lane, jj in ((0, pend), (1, j)):
+            o = obs[ti[jj]]
+            _frame_fit_start(pts, sig, cstart[ci[jj]], cstart[ci[jj] + 1], poses[o], r, fw, fc, lane)
+        a, b, a2, b2 = cstart[ci[pend]], cstart[ci[pend] + 1], cstart[ci[j]], cstart[ci[j] + 1]
+        _fit_span2(pts, a, b - a, a2, b2 - a2, fw, r, fc, 6, fe)
+        for lane, jj in ((0, pend), (1, j)):
+            _frame_fit_score(ti[jj], sig, cstart[ci[jj]], cstart[ci[jj] + 1], fe, lane, delta2, resid_clamp,
+                             lo_resid, res_chi2, res_dof)  # fmt: skip
+        pend = -1
+    if pend >= 0:
+        a, b = cstart[ci[pend]], cstart[ci[pend] + 1]
+        _frame_fit_start(pts, sig, a, b, poses[obs[ti[pend]]], r, fw, fc, 0)
+        _fit_span(pts, a, b - a, fw[0], r, fc[0], 6, fe[0])
+        _frame_fit_score(ti[pend], sig, a, b, fe, 0, delta2, resid_clamp, lo_resid, res_chi2, res_dof)
     for j in range(ti.shape[0]):
         t, c = ti[j], ci[j]
         a, b = cstart[c], cstart[c + 1]
-        mf = b - a
-        if mf >= 3:  # always: the track classifier reads the summed chi-square (resid_z)
-            # per-frame known-radius fit: one pose, so no odometry drift and valid while the object moves;
-            # start r behind the points' middle as seen from the observer
-            mx = my = 0.0
-            for p in range(a, b):
-                mx += pts[p, 0]
-                my += pts[p, 1]
-                fw[p - a] = 1.0 / (sig[p] * sig[p])
-            mx /= mf
-            my /= mf
-            ux, uy = mx - poses[obs[t], 0], my - poses[obs[t], 1]
-            un = max(math.sqrt(ux * ux + uy * uy), 1e-9)
-            fc[0] = mx + ux / un * r * 0.7
-            fc[1] = my + uy / un * r * 0.7
-            _fit_span(pts, a, mf, fw, r, fc, 6, fe)
-            # Gaussian LLR "on the circle" vs "off it by delta", the fit's 2 dof taken out of the log term
-            llr = 0.0
-            chi2 = 0.0
-            for p in range(a, b):
-                v0 = sig[p] * sig[p]
-                v1 = v0 + delta2
-                ee = fe[p - a] * fe[p - a]
-                chi2 += ee / v0
-                if resid_clamp > 0.0:  # the hand-tuned cue's LLR (its logs) only when it is on
-                    llr += 0.5 * math.log(v1 / v0) * (mf - 2) / mf - 0.5 * ee * (1.0 / v0 - 1.0 / v1)
-            res_chi2[t] += chi2
-            res_dof[t] += mf - 2
-            if resid_clamp > 0.0:
-                lo_resid[t] = min(max(lo_resid[t] + llr, -resid_clamp), resid_clamp)
         if moved[t]:  # a moving object's points share no frame: its outline is no evidence
             lo_shape[t] = 0.0
             continue
