@@ -525,17 +525,41 @@ def segment_points(ranges, angles, rows, first, last, range_max: float = math.in
 
     Returns ``(points (P, 2) x forward / y left, owner (P,))``: each valid beam's point and its segment.
     """
-    ranges = np.asarray(ranges, dtype=np.float64).reshape(-1, np.shape(angles)[0])
-    angles = np.asarray(angles, dtype=np.float64)
+    angles = np.ascontiguousarray(angles, dtype=np.float64).reshape(-1)
+    ranges = np.ascontiguousarray(ranges, dtype=np.float64).reshape(-1, angles.shape[0])
+    first = np.ascontiguousarray(first, dtype=np.int64).reshape(-1)
+    last = np.ascontiguousarray(last, dtype=np.int64).reshape(-1)
+    rows = np.ascontiguousarray(rows, dtype=np.int64).reshape(-1)
+    if not rows.shape == first.shape == last.shape:
+        raise ValueError(f"segment_points: rows, first and last must be of one length, got {rows.shape}, "
+                         f"{first.shape} and {last.shape}")  # fmt: skip
     n = angles.shape[0]
-    first = np.asarray(first, dtype=np.int64).reshape(-1)
-    count = (np.asarray(last, dtype=np.int64).reshape(-1) - first) % n + 1
-    owner = np.repeat(np.arange(first.size), count)
-    beam = (np.repeat(first, count) + np.arange(owner.size) - np.repeat(np.cumsum(count) - count, count)) % n
-    r = ranges[np.repeat(np.asarray(rows, dtype=np.int64).reshape(-1), count), beam]
-    ok = np.isfinite(r) & (r > 0) & (r < range_max)
-    r, a = r[ok], angles[beam[ok]]
-    return np.c_[r * np.cos(a), r * np.sin(a)], owner[ok]
+    if first.size and (rows.min() < 0 or rows.max() >= ranges.shape[0] or min(first.min(), last.min()) < 0
+                       or max(first.max(), last.max()) >= n):  # fmt: skip
+        raise ValueError(f"segment_points: rows must be in [0, {ranges.shape[0]}) and beams in [0, {n})")
+    return _segment_points_kernel(ranges, angles, rows, first, last, float(range_max))
+
+
+@numba.njit(cache=True, nogil=True)
+def _segment_points_kernel(ranges, angles, rows, first, last, range_max):
+    """:func:`segment_points`' loops: each segment's beams in order (wrapping), valid readings only."""
+    n = angles.shape[0]
+    total = 0
+    for j in range(first.shape[0]):
+        total += (last[j] - first[j]) % n + 1
+    pts, owner = np.empty((total, 2)), np.empty(total, np.int64)
+    m = 0
+    for j in range(first.shape[0]):
+        for q in range((last[j] - first[j]) % n + 1):
+            beam = (first[j] + q) % n
+            r = ranges[rows[j], beam]
+            if np.isfinite(r) and r > 0 and r < range_max:
+                a = angles[beam]
+                pts[m, 0] = r * math.cos(a)
+                pts[m, 1] = r * math.sin(a)
+                owner[m] = j
+                m += 1
+    return pts[:m], owner[:m]
 
 
 class KinTracker:

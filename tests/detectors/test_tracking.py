@@ -327,6 +327,12 @@ def test_segment_points_match_a_per_segment_loop():
         ref = np.c_[r[ok] * np.cos(angles[idx][ok]), r[ok] * np.sin(angles[idx][ok])]
         np.testing.assert_allclose(pts[own == k], ref)
     assert (own == 0).sum() == 4 and (own == 1).sum() == 7 and (own == 2).sum() == 4  # 0.0, inf, 12 dropped
+    ranges[1, 0] = np.nan  # NaN: no return either
+    assert (segment_points(ranges, angles, rows, first, last, range_max=12.0)[1] == 1).sum() == 6
+    with pytest.raises(ValueError, match=r"beams in \[0, 360\)"):
+        segment_points(ranges, angles, rows, first, last + 360)
+    with pytest.raises(ValueError, match="one length"):
+        segment_points(ranges, angles, rows[:2], first, last)
 
 
 def _compare(a: KinTracker, b: KinTracker) -> None:
