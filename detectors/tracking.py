@@ -657,6 +657,8 @@ class KinTracker:
         self._f_rng = np.zeros(cap)
         self._hit = np.zeros(cap, bool)
         self._prm_of = None  # the params _prm was built from
+        self._frame = 0  # frames since reset (keys the per-frame cache of the kin decision)
+        self._kp_cache = (None, None)
 
     @property
     def pose(self) -> np.ndarray:
@@ -787,6 +789,7 @@ class KinTracker:
         self.poses = poses
         self.time += dt
         self._next_id = int(next_id)
+        self._frame += 1
 
     def update_from_result(self, result: DetectionResult, ranges, angles, odom_delta, dt: float) -> None:
         """:meth:`update` from a detector's :class:`DetectionResult` on scan ``(ranges, angles)``: each
@@ -923,7 +926,12 @@ class KinTracker:
         if isinstance(max_tracks, bool) or not isinstance(max_tracks, int | np.integer) or max_tracks < 0:
             raise ValueError(f"KinTracker.track_arrays: max_tracks must be an int >= 0, got {max_tracks!r}")
         rows = np.flatnonzero(self._alive)
-        kp = self._kin_prob(rows) if rows.size else np.zeros(0)
+        # the kin decision of this frame's tracks, once per frame (an env reads it for the info and again for
+        # the observation's track channel)
+        key, kp = self._kp_cache
+        if key is None or key[0] != self._frame or key[1] is not self.kin_model or key[2] is not self.params:
+            kp = self._kin_prob(rows) if rows.size else np.zeros(0)
+            self._kp_cache = ((self._frame, self.kin_model, self.params), kp)
         out, mask, count = _slots_kernel(rows, kp, self.n_observers, int(max_tracks), self._obs, self._id,
                                          self._confirmed, self._x, self.poses, self._exist, self._seen,
                                          self._age)  # fmt: skip

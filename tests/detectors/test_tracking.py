@@ -564,3 +564,29 @@ def test_bad_frame_raises_before_any_state_changes():
             assert np.array_equal(getattr(tr, name), value), name
     tr.update_batch(obs, xy, sc, delta, DT, pts, own)  # the good frame still goes through
     assert not np.array_equal(tr.poses, before["poses"])
+
+
+def test_track_arrays_are_fresh_and_follow_updates_and_the_kin_model():
+    """track_arrays evaluates the kin decision once per frame: a second call gives equal, fresh arrays; an
+    update, or another kin model, gives what a tracker without the cache gives."""
+    frames = list(_crowded_frames(4, n_frames=8))
+
+    def run(n, kin_model="learned"):
+        tr = KinTracker(n_observers=3, kin_model=kin_model)
+        for obs, xy, sc, delta, pts, own in frames[:n]:
+            tr.update_batch(obs, xy, sc, delta, DT, pts, own)
+        return tr
+
+    def same(a, b):
+        return all(np.array_equal(a[k], b[k]) for k in ("tracks", "mask", "count"))
+
+    tr = run(6)
+    a, b = tr.track_arrays(16), tr.track_arrays(16)
+    assert same(a, b) and a["tracks"] is not b["tracks"]
+    tr.kin_model = None  # the hand-tuned fusion from now on
+    assert same(tr.track_arrays(16), run(6, "hand").track_arrays(16))
+    assert not same(tr.track_arrays(16), a)
+    tr.kin_model = run(1).kin_model
+    obs, xy, sc, delta, pts, own = frames[6]
+    tr.update_batch(obs, xy, sc, delta, DT, pts, own)
+    assert same(tr.track_arrays(16), run(7).track_arrays(16))
