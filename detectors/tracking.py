@@ -1085,14 +1085,25 @@ def _frame_kernel(z, obs, rng, dt, n_obs, alive, tobs, tid, next_id, x, P, poses
     deg_t = np.zeros(cap, np.int64)
     deg_c = np.zeros(k, np.int64)
     n_g = 0
+    # a cheap bound first: m2 >= |d|^2 / lambda_max(S) with S = P_xy + mv I, so a pair whose |d|^2 exceeds
+    # gate * lambda_max(S) (with a margin far above rounding) is outside the gate, and only the others need
+    # the exact test (in a swarm most pairs of an observer are metres apart); the gated pairs are the same
+    lam = np.empty(cap)
+    for b in range(t_cnt[n_obs]):
+        t = t_ord[b]
+        h, off = 0.5 * (P[t, 0, 0] - P[t, 1, 1]), max(abs(P[t, 0, 1]), abs(P[t, 1, 0]))
+        lam[t] = 0.5 * (P[t, 0, 0] + P[t, 1, 1]) + math.sqrt(h * h + off * off)
+    gate_b = gate * (1.0 + 1e-6)
     for o in range(n_obs):
         for a in range(c_cnt[o], c_cnt[o + 1]):
             c = c_ord[a]
             mv = (meas_sigma + meas_sigma_rel * rng[c]) ** 2
             for b in range(t_cnt[o], t_cnt[o + 1]):
                 t = t_ord[b]
-                s00, s01, s10, s11 = P[t, 0, 0] + mv, P[t, 0, 1], P[t, 1, 0], P[t, 1, 1] + mv
                 d0, d1 = z[c, 0] - x[t, 0], z[c, 1] - x[t, 1]
+                if d0 * d0 + d1 * d1 > gate_b * (lam[t] + mv):
+                    continue
+                s00, s01, s10, s11 = P[t, 0, 0] + mv, P[t, 0, 1], P[t, 1, 0], P[t, 1, 1] + mv
                 det = s00 * s11 - s01 * s10
                 m2 = (s11 * d0 * d0 - 2 * s01 * d0 * d1 + s00 * d1 * d1) / det
                 if m2 <= gate:
