@@ -569,10 +569,12 @@ class KinTracker:
     ``"hand"`` (the hand-tuned fusion of the cues, :class:`TrackerParams`), a model JSON path or a
     :class:`TrackKinModel`.
 
-    Batch-first: every observer's tracks live in one set of arrays (a row per track slot, its observer in
-    ``obs``), and one :meth:`update_batch` call advances all observers by one frame with array operations
-    and one compiled kernel for the outline cue; the Hungarian solver runs only for the observers whose
-    gates are ambiguous. :meth:`update` is the one-observer form.
+    Batch-first: every observer's tracks live in one set of preallocated arrays (a row per track slot, its
+    observer in ``obs``), and one :meth:`update_batch` call advances all observers by one frame in one
+    compiled call (:func:`_update_kernel`; the staged steps it replaced are kept as the test reference,
+    ``tests/detectors/reference_tracking.py``, and it reproduces them bitwise); the Hungarian solver runs
+    only for the ambiguous gates. :meth:`track_arrays` computes the classifier's inputs and the padded slots
+    in compiled loops too, once per frame. :meth:`update` is the one-observer form.
 
     Example::
 
