@@ -526,7 +526,9 @@ def segment_points(ranges, angles, rows, first, last, range_max: float = math.in
     Returns ``(points (P, 2) x forward / y left, owner (P,))``: each valid beam's point and its segment.
     """
     angles = np.ascontiguousarray(angles, dtype=np.float64).reshape(-1)
-    ranges = np.ascontiguousarray(ranges, dtype=np.float64).reshape(-1, angles.shape[0])
+    ranges = np.asarray(ranges)  # float32 scans stay float32 (widened per reading, exactly: no copy)
+    ranges = np.ascontiguousarray(ranges, None if ranges.dtype in (np.float32, np.float64) else np.float64)
+    ranges = ranges.reshape(-1, angles.shape[0])
     first = np.ascontiguousarray(first, dtype=np.int64).reshape(-1)
     last = np.ascontiguousarray(last, dtype=np.int64).reshape(-1)
     rows = np.ascontiguousarray(rows, dtype=np.int64).reshape(-1)
@@ -548,15 +550,18 @@ def _segment_points_kernel(ranges, angles, rows, first, last, range_max):
     for j in range(first.shape[0]):
         total += (last[j] - first[j]) % n + 1
     pts, owner = np.empty((total, 2)), np.empty(total, np.int64)
+    pre = 2 * total >= n  # many points: cos / sin once per beam rather than per point (the same values)
+    ca, sa = np.empty(n if pre else 0), np.empty(n if pre else 0)
+    for q in range(ca.shape[0]):
+        ca[q], sa[q] = math.cos(angles[q]), math.sin(angles[q])
     m = 0
     for j in range(first.shape[0]):
         for q in range((last[j] - first[j]) % n + 1):
             beam = (first[j] + q) % n
-            r = ranges[rows[j], beam]
+            r = float(ranges[rows[j], beam])
             if np.isfinite(r) and r > 0 and r < range_max:
-                a = angles[beam]
-                pts[m, 0] = r * math.cos(a)
-                pts[m, 1] = r * math.sin(a)
+                pts[m, 0] = r * (ca[beam] if pre else math.cos(angles[beam]))
+                pts[m, 1] = r * (sa[beam] if pre else math.sin(angles[beam]))
                 owner[m] = j
                 m += 1
     return pts[:m], owner[:m]

@@ -327,6 +327,10 @@ def test_segment_points_match_a_per_segment_loop():
         ref = np.c_[r[ok] * np.cos(angles[idx][ok]), r[ok] * np.sin(angles[idx][ok])]
         np.testing.assert_allclose(pts[own == k], ref)
     assert (own == 0).sum() == 4 and (own == 1).sum() == 7 and (own == 2).sum() == 4  # 0.0, inf, 12 dropped
+    r32 = ranges.astype(np.float32)  # float32 scans (the envs'): read as they are, the same as widened first
+    p32, o32 = segment_points(r32, angles, rows, first, last, range_max=12.0)
+    p64, o64 = segment_points(r32.astype(np.float64), angles, rows, first, last, range_max=12.0)
+    assert np.array_equal(p32, p64) and np.array_equal(o32, o64)
     ranges[1, 0] = np.nan  # NaN: no return either
     assert (segment_points(ranges, angles, rows, first, last, range_max=12.0)[1] == 1).sum() == 6
     with pytest.raises(ValueError, match=r"beams in \[0, 360\)"):
