@@ -578,44 +578,79 @@ def track_samples(
     """The track-level kin classifier's training rows: the recorded episodes replayed through the tracker;
     every frame, every confirmed track of every observer within ``distance`` (m; every track the
     tracker may report, not only the target window's, so that the model does not extrapolate) gives its
-    :data:`detectors.tracking.TRACK_FEATURES` and a label: 1 if it lies within ``GATE`` of another robot's
-    centre (visible or not), else 0 (obstacles, same-radius cylinders, walls). Returns ``X`` (n, F), ``y``
-    (n,), ``range`` (n,) and ``episode`` (n,). Refuses episodes on the benchmark's reserved seeds (record
-    :func:`training_split` episodes): the classifier must never see the benchmark."""
+    :data:`detectors.tracking.TRACK_FEATURES` and a label **as the benchmark scores a report there**: 1 if it
+    lies within ``GATE`` of another robot that has at least ``MIN_BEAMS`` valid beams in the observer's scan
+    of this frame; rows within ``GATE`` of a robot with fewer (but some) beams are left out ("don't care",
+    as in the metric); else 0 (obstacles, same-radius cylinders, walls, and robots hidden from the
+    observer this frame: a track that coasts on an occluded kin is a false positive per frame).
+
+    Returns ``X`` (n, F), ``y`` (n,), ``range`` (n,), ``episode`` (n,) and ``window`` (n,): the row is in
+    the target window as the benchmark bins it (the object the track lies on, the nearest within 0.2 m, in
+    view for >= 10 frames; no object: frame >= 10; and 0.3-2 m away). Refuses episodes on the benchmark's
+    reserved seeds (record :func:`training_split` episodes): the classifier must never see the benchmark."""
     if not isinstance(recorded, RecordedEpisodes):
         raise TypeError(f"track_samples: recorded must be RecordedEpisodes, got {type(recorded).__name__}")
     if not recorded.spec.training:
         raise ValueError(f"track_samples: episodes of split {recorded.spec.name!r} use the benchmark's "
                          "reserved seeds; fit on training_split(...) episodes only")  # fmt: skip
     recorded.spec.seeds(len(recorded.episodes))  # training seeds: never the reserved range
-    X, y, rng_, ep_ = [], [], [], []
-    for e_idx, (n_obs, _n_robots, _n_obst, _kinds, _parked, frames) in enumerate(recorded.episodes):
+    X, y, rng_, ep_, win_ = [], [], [], [], []
+    lo, hi = 0.3, 2.0  # the target window's distances
+    for e_idx, (n_obs, n_robots, n_obst, _kinds, _parked, frames) in enumerate(recorded.episodes):
         tracker = KinTracker(tracker_params, n_observers=n_obs, kin_model="hand")  # features only
-        for fr in frames:
+        age_r = np.zeros((n_obs, n_robots), np.int64)  # frames in view (>= 1 valid beam), as evaluated
+        age_o = np.zeros((n_obs, n_obst), np.int64)
+        for frame, fr in enumerate(frames):
             ob, xy, sc, pts, own, acc = fr.cand
             noise_est = np.where(np.isnan(fr.noise_est), tracker.params.range_noise, fr.noise_est)
             tracker.update_batch(ob, xy, sc, fr.delta, _FRAME_S, pts, own, noise_est, accepted=acc)
             for row in range(n_obs):  # observer ``row`` is robot ``row`` (swarm: all robots; lookalike: 0)
+                kin_ids, kin_beams, kin_xy, _moved, ob_ids, ob_xy, _sr = fr.truth[row]
+                vis = np.zeros(n_robots, bool)
+                vis[kin_ids] = True
+                age_r[row] = np.where(vis, age_r[row] + 1, 0)
+                vis = np.zeros(n_obst, bool)
+                vis[ob_ids] = True
+                age_o[row] = np.where(vis, age_o[row] + 1, 0)
                 t = tracker.track_features(row)
                 d = np.hypot(t["xy"][:, 0], t["xy"][:, 1])
                 keep = t["confirmed"] & (d >= distance[0]) & (d < distance[1])
                 if not keep.any():
                     continue
+                txy = t["xy"][keep]
                 x0, y0, th = fr.poses[row]
                 others = np.delete(fr.poses[:, :2], row, axis=0) - (x0, y0)
                 c, s = math.cos(th), math.sin(th)
                 kin = np.c_[c * others[:, 0] + s * others[:, 1], -s * others[:, 0] + c * others[:, 1]]
-                txy = t["xy"][keep]
+                beams = np.zeros(n_robots, np.int64)
+                beams[kin_ids] = kin_beams
+                beams = np.delete(beams, row)
                 d2 = np.hypot(txy[:, None, 0] - kin[None, :, 0], txy[:, None, 1] - kin[None, :, 1])
+                j = d2.argmin(1) if kin.shape[0] else np.zeros(txy.shape[0], np.int64)
                 near = d2.min(1) <= GATE if kin.shape[0] else np.zeros(txy.shape[0], bool)
-                X.append(t["features"][keep])
-                y.append(near)
-                rng_.append(d[keep])
-                ep_.append(np.full(int(keep.sum()), e_idx))
+                b = beams[j] if kin.shape[0] else np.zeros(txy.shape[0], np.int64)
+                label = near & (b >= MIN_BEAMS)
+                use = ~(near & (b > 0) & (b < MIN_BEAMS))  # a kin with one beam: "don't care"
+                # the target window as the benchmark bins a report: by the nearest object within 0.2 m
+                obj = np.r_[kin_xy, ob_xy].reshape(-1, 2)
+                age = np.r_[age_r[row][kin_ids], age_o[row][ob_ids]]
+                if obj.shape[0]:
+                    do = np.hypot(txy[:, None, 0] - obj[None, :, 0], txy[:, None, 1] - obj[None, :, 1])
+                    jo = do.argmin(1)
+                    oage = np.where(do.min(1) <= 0.2, age[jo], frame + 1)
+                    orng = np.where(do.min(1) <= 0.2, np.hypot(obj[jo, 0], obj[jo, 1]), d[keep])
+                else:
+                    oage, orng = np.full(txy.shape[0], frame + 1), d[keep]
+                win = (oage >= 10) & (orng >= lo) & (orng < hi)
+                X.append(t["features"][keep][use])
+                y.append(label[use])
+                rng_.append(d[keep][use])
+                ep_.append(np.full(int(use.sum()), e_idx))
+                win_.append(win[use])
     F = len(TRACK_FEATURES)
     cat = lambda a, shape: np.concatenate(a) if a else np.zeros(shape)  # noqa: E731
     return {"X": cat(X, (0, F)), "y": cat(y, 0).astype(bool), "range": cat(rng_, 0),
-            "episode": cat(ep_, 0).astype(np.int64)}  # fmt: skip
+            "episode": cat(ep_, 0).astype(np.int64), "window": cat(win_, 0).astype(bool)}  # fmt: skip
 
 
 #: Operating points :func:`fit_kin_model` tries (the model's probability at which a track is called kin).
@@ -625,16 +660,19 @@ KIN_MODEL_THRESHOLDS = (0.2, 0.25, 0.3, 0.35, 0.4, 0.45, 0.5, 0.55, 0.6)
 def fit_kin_model(
     recorded: list[RecordedEpisodes],
     tracker_params: TrackerParams | None = None,
-    hidden=(),
-    l2: float = 1e-4,
+    hidden=(8,),
+    l2: float = 1e-3,
     min_frames: int = 3,
     thresholds=KIN_MODEL_THRESHOLDS,
     info: dict | None = None,
     tol: float = 0.0,
+    outside_weight: float = 0.2,
 ) -> tuple[TrackKinModel, list[dict]]:
     """Fit the track-level kin classifier (:class:`detectors.tracking.TrackKinModel`) on training-seed
     episodes: :func:`track_samples` of each recorded set, each set weighing the same in the loss (a swarm
-    set has many more tracks than a look-alike one), then the operating point: the threshold in
+    set has many more tracks than a look-alike one) and, within a set, rows outside the target window
+    ``outside_weight`` times a row inside it (the model serves the window first, without extrapolating
+    elsewhere), then the operating point: the threshold in
     ``thresholds`` with the best mean :func:`tune_objective` over the sets (the model's output is shifted
     so that it is ``kin_prob`` 0.5); with ``tol > 0`` the highest threshold within ``tol`` of the best
     (fewer false tracks outside the target window where the objective is flat; off by default: on held-out
@@ -644,16 +682,20 @@ def fit_kin_model(
     Returns the model and one row per threshold (``threshold``, ``objective``, ``per_set``)."""
     if not recorded:
         raise ValueError("fit_kin_model: need at least one RecordedEpisodes")
+    if not (isinstance(outside_weight, int | float) and 0 < outside_weight <= 1):
+        raise ValueError(f"fit_kin_model: outside_weight must be in (0, 1], got {outside_weight!r}")
     samples = [track_samples(r, tracker_params) for r in recorded]
     samples = [s for s in samples if s["y"].size]
     if not samples:
         raise ValueError("fit_kin_model: the recorded episodes gave no confirmed tracks")
     X = np.concatenate([s["X"] for s in samples])
     y = np.concatenate([s["y"] for s in samples])
-    w = np.concatenate([np.full(s["y"].size, 1.0 / s["y"].size) for s in samples])
+    w = [np.where(s["window"], 1.0, float(outside_weight)) for s in samples]
+    w = np.concatenate([v / v.sum() for v in w])
     names = [f"{r.spec.name}@{r.spec.first_seed}x{len(r.episodes)}" for r in recorded]
     base = TrackKinModel.fit(X, y, w, hidden=hidden, l2=l2, min_frames=min_frames,
                              info={**(info or {}), "sets": names, "rows": int(y.size),
+                                   "outside_weight": outside_weight,
                                    "kin_share": float(y.mean())})  # fmt: skip
     rows = []
     for thr in thresholds:
