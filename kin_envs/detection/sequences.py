@@ -496,6 +496,7 @@ def evaluate_sequences(
                 for name, per_obs in fr.singles.items():
                     if singles:
                         dets[name] = (per_obs[row], None)
+                matches = {}
                 for name, (dxy, ids) in dets.items():
                     m = match(dxy, gt_xy, GATE, gt_ignore=gt_ignore)
                     matched_gt = np.zeros(gt_xy.shape[0], bool)
@@ -532,12 +533,21 @@ def evaluate_sequences(
                             if ages[g] >= 1:
                                 sr_frames[name][0] += 1
                                 sr_frames[name][1] += int(not matched_gt[g])
+                    matches[name] = (m, dxy)
                     if name == "tracker":
                         _track_bookkeeping(bk, m, ids, kin_ids, counted, kin_xy, dxy, frame)
-                        if diagnose:
-                            _diagnose(diag, m, dxy, tr, tracker.params.kin_threshold, kin_ids, counted,
-                                      kin_xy, bk.age_robot[kin_ids], ob_ids, ob_xy, bk.age_obst[ob_ids],
-                                      kinds, parked, xy[ob == row])  # fmt: skip
+                if diagnose:
+                    f = tracker.track_features(row)  # which tracks were updated this frame
+                    updated = set(f["id"][f["features"][:, TRACK_FEATURES.index("hit")] > 0].tolist())
+                    hidden = np.setdiff1d(np.delete(np.arange(n_robots), row), kin_ids)
+                    x0, y0, th = fr.poses[row]
+                    hd = fr.poses[hidden, :2] - (x0, y0)
+                    c, s = math.cos(th), math.sin(th)
+                    hidden_xy = np.c_[c * hd[:, 0] + s * hd[:, 1], -s * hd[:, 0] + c * hd[:, 1]]
+                    _diagnose(diag, *matches["tracker"], tr, tracker.params.kin_threshold, kin_ids, counted,
+                              kin_xy, bk.age_robot[kin_ids], ob_ids, ob_xy, bk.age_obst[ob_ids], kinds,
+                              parked, xy[ob == row], moved=moved, hidden_xy=hidden_xy, updated=updated,
+                              single=matches.get("single"), frame=frame)  # fmt: skip
         accs.extend(b.mot for b in book)
         observers_all.extend(book)
     mot_summary = _mot_summary(mm, accs) if mot else {}
@@ -666,7 +676,7 @@ def fit_kin_model(
     thresholds=KIN_MODEL_THRESHOLDS,
     info: dict | None = None,
     tol: float = 0.0,
-    outside_weight: float = 0.2,
+    outside_weight: float = 0.5,
 ) -> tuple[TrackKinModel, list[dict]]:
     """Fit the track-level kin classifier (:class:`detectors.tracking.TrackKinModel`) on training-seed
     episodes: :func:`track_samples` of each recorded set, each set weighing the same in the loss (a swarm
@@ -709,59 +719,99 @@ def fit_kin_model(
 
 
 def _diagnose(diag, m, dxy, tr, kin_threshold, kin_ids, counted, kin_xy, kin_age, ob_ids, ob_xy, ob_age,
-              kinds_all, parked, cand_xy) -> None:  # fmt: skip
+              kinds_all, parked, cand_xy, moved=None, hidden_xy=None, updated=None, single=None,
+              frame=10) -> None:  # fmt: skip
     """Count the tracker's errors on objects in view >= 10 frames at 0.3-2 m (the targets' window) by cause.
 
     False positives, by the nearest object within 0.2 m: ``fp:duplicate`` (a kin already matched by
     another track), ``fp:lagging`` (an unmatched kin, but beyond the gate), ``fp:<obstacle kind>``
-    (prism, box, cylinder, ...), ``fp:none``. Misses of a counted kin: ``fn:unconfirmed`` (a track
-    within the gate, not yet confirmed), ``fn:low_kin_parked`` / ``fn:low_kin_moving`` (a confirmed track
-    whose kin probability is below the threshold; the kin parked or wandering), ``fn:lagging`` (the
-    nearest track within 0.2 m but outside the gate), ``fn:no_track`` (the permissive detector had a
-    candidate within the gate) and ``fn:no_candidate``."""
-    in_win = (kin_age >= 10) & (np.hypot(kin_xy[:, 0], kin_xy[:, 1]) >= 0.3) & (
-        np.hypot(kin_xy[:, 0], kin_xy[:, 1]) < 2.0
-    )
+    (prism, box, cylinder, ...), ``fp:hidden_kin`` (within the gate of a robot that has no valid beam in
+    this frame: occluded; ``hidden_xy``), ``fp:none``; suffix ``_coast`` when the track was not updated
+    this frame (``updated``: the ids updated). Misses of a counted kin: ``fn:unconfirmed`` (a track within
+    the gate, not yet confirmed), ``fn:low_kin_parked`` / ``fn:low_kin_stuck`` / ``fn:low_kin_moving`` (a
+    confirmed track whose kin probability is below the threshold; the kin parked, a wanderer that has
+    not moved 0.1 m from its start (``moved``), or one that has), ``fn:lagging`` (the nearest track within
+    0.2 m but outside the gate), ``fn:no_track`` (the permissive detector had a candidate within the
+    gate) and ``fn:no_candidate``.
+
+    With ``single`` (the single-scan detector's ``(match, positions)`` on the same frame): the window's
+    kin frames as ``vs_single:both_tp`` / ``both_fn`` / ``tracker_only`` / ``single_only``, the misses
+    where the single scan was right by the same causes (``lost:<cause>``), and the single scan's false
+    positives by the same kinds (``single_fp:<kind>``)."""
+    r = np.hypot(kin_xy[:, 0], kin_xy[:, 1])
+    in_win = (kin_age >= 10) & (r >= 0.3) & (r < 2.0)
     n_k = kin_xy.shape[0]
-    matched_kin = np.zeros(n_k, bool)
-    for g in m.gt[m.gt >= 0]:
-        if g < n_k:
-            matched_kin[g] = True
+
+    def matched(mm):
+        out = np.zeros(n_k, bool)
+        for g in mm.gt[mm.gt >= 0]:
+            if g < n_k:
+                out[g] = True
+        return out
+
+    matched_kin = matched(m)
     kinds = [kinds_all[j] for j in ob_ids]
-    for d in np.flatnonzero(m.fp):
-        p = dxy[d]
-        dk = np.hypot(*(kin_xy - p).T) if n_k else np.zeros(0)
-        do = np.hypot(*(ob_xy - p).T) if ob_xy.shape[0] else np.zeros(0)
-        jk = int(np.argmin(dk)) if dk.size else -1
-        jo = int(np.argmin(do)) if do.size else -1
-        if jk >= 0 and dk[jk] <= 0.2 and (jo < 0 or dk[jk] <= do[jo]):
-            if in_win[jk]:
-                diag["fp:duplicate" if matched_kin[jk] else "fp:lagging"] += 1
-        elif jo >= 0 and do[jo] <= 0.2:
-            r = float(np.hypot(*ob_xy[jo]))
-            if ob_age[jo] >= 10 and 0.3 <= r < 2.0:
-                diag[f"fp:{kinds[jo]}"] += 1
-        elif 0.3 <= float(np.hypot(*p)) < 2.0:
-            diag["fp:none"] += 1
-    for g in np.flatnonzero(in_win & counted & ~matched_kin):
+
+    def fp_causes(mm, pos, mk):
+        out = []
+        for d in np.flatnonzero(mm.fp):
+            p = pos[d]
+            dk = np.hypot(*(kin_xy - p).T) if n_k else np.zeros(0)
+            do = np.hypot(*(ob_xy - p).T) if ob_xy.shape[0] else np.zeros(0)
+            jk = int(np.argmin(dk)) if dk.size else -1
+            jo = int(np.argmin(do)) if do.size else -1
+            if jk >= 0 and dk[jk] <= 0.2 and (jo < 0 or dk[jk] <= do[jo]):
+                if in_win[jk]:
+                    out.append((d, "duplicate" if mk[jk] else "lagging"))
+            elif jo >= 0 and do[jo] <= 0.2:
+                ro = float(np.hypot(*ob_xy[jo]))
+                if ob_age[jo] >= 10 and 0.3 <= ro < 2.0:
+                    out.append((d, kinds[jo]))
+            elif 0.3 <= float(np.hypot(*p)) < 2.0 and frame >= 9:
+                hid = hidden_xy is not None and hidden_xy.shape[0] > 0
+                hid = hid and np.hypot(*(hidden_xy - p).T).min() <= GATE
+                out.append((d, "hidden_kin" if hid else "none"))
+        return out
+
+    ids = tr[:, 0].astype(np.int64) if tr.shape[0] else np.zeros(0, np.int64)
+    rep = np.flatnonzero((tr[:, 8] > 0) & (tr[:, 6] >= kin_threshold)) if tr.shape[0] else np.zeros(0, int)
+    for d, c in fp_causes(m, dxy, matched_kin):
+        coast = updated is not None and int(ids[rep[d]]) not in updated if rep.size > d else False
+        diag[f"fp:{c}{'_coast' if coast else ''}"] += 1
+    single_kin = None
+    if single is not None:
+        single_kin = matched(single[0])
+        for _, c in fp_causes(single[0], single[1], single_kin):
+            diag[f"single_fp:{c}"] += 1
+    for g in np.flatnonzero(in_win & counted):
         g = int(g)
+        if single_kin is not None:
+            key = {(True, True): "both_tp", (False, False): "both_fn", (True, False): "tracker_only",
+                   (False, True): "single_only"}[(bool(matched_kin[g]), bool(single_kin[g]))]  # fmt: skip
+            diag[f"vs_single:{key}"] += 1
+        if matched_kin[g]:
+            continue
         diag["fn:total"] += 1
         d = np.hypot(*(tr[:, 1:3] - kin_xy[g]).T) if tr.shape[0] else np.zeros(0)
         if d.size and d.min() <= GATE:
             t = tr[int(np.argmin(d))]
             if t[8] <= 0:
-                diag["fn:unconfirmed"] += 1
+                cause = "unconfirmed"
             elif t[6] < kin_threshold:
-                diag["fn:low_kin_parked" if parked[kin_ids[g]] else "fn:low_kin_moving"] += 1
+                still = moved is not None and moved[g] < 0.1
+                cause = "low_kin_" + ("parked" if parked[kin_ids[g]] else "stuck" if still else "moving")
             else:
-                diag["fn:other"] += 1  # e.g. the match went to a neighbour
+                cause = "other"  # e.g. the match went to a neighbour
         elif d.size and d.min() <= 0.2:
-            diag["fn:lagging"] += 1
+            cause = "lagging"
         elif cand_xy.shape[0] and np.hypot(*(cand_xy - kin_xy[g]).T).min() <= GATE:
-            diag["fn:no_track"] += 1
+            cause = "no_track"
         else:
-            diag["fn:no_candidate"] += 1
-    diag["tp"] += int((in_win & matched_kin).sum())
+            cause = "no_candidate"
+        diag[f"fn:{cause}"] += 1
+        if single_kin is not None and single_kin[g]:
+            diag[f"lost:{cause}"] += 1
+    diag["tp"] += int((in_win & matched_kin & counted).sum())
 
 
 def _warm_up(detectors, tracker_params) -> float:

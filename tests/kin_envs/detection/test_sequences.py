@@ -197,6 +197,24 @@ def test_track_samples_label_as_the_benchmark_scores_a_report():
     assert s["window"].tolist() == [False] * 18 + [True] * 7  # from the 10th frame in view on
 
 
+def test_diagnosis_against_the_single_scan_adds_up():
+    """The diagnosis splits the window's kin frames by who got them right, and every tracker miss where the
+    single scan was right has one cause: the counts add up to the target window's own."""
+    spec = S.training_split("swarm", 81)
+    spec = dataclasses.replace(spec, run=dataclasses.replace(spec.run, frames=16))
+    rec = S.record_sequences(GeometricKinDetector(reports=False), spec, 1, 0.01)
+    r = S.evaluate_sequences(rec, mot=False, diagnose=True, kin_model="hand")
+    d, tw = r["diagnosis"], S.target_window(r)
+    v = {k: d.get(f"vs_single:{k}", 0) for k in ("both_tp", "both_fn", "tracker_only", "single_only")}
+    assert v["both_tp"] + v["tracker_only"] == d["tp"] == tw["tracker"]["all"]["tp"]
+    assert v["both_tp"] + v["single_only"] == tw["single"]["all"]["tp"]
+    assert v["both_fn"] + v["single_only"] == d.get("fn:total", 0) == tw["tracker"]["all"]["fn"]
+    lost = sum(n for k, n in d.items() if k.startswith("lost:"))
+    assert lost == v["single_only"] and sum(n for k, n in d.items() if k.startswith("fn:") and k != "fn:total") \
+        == d.get("fn:total", 0)
+    assert sum(n for k, n in d.items() if k.startswith("fp:")) == tw["tracker"]["all"]["fp"]
+
+
 def test_lookalikes_rejected_by_kind_after_20_frames():
     """Look-alikes in view >= 20 frames at 0.3-2 m are checked in the same frames for every method; the
     share not reported is a rate per kind."""
