@@ -204,11 +204,14 @@ def test_per_frame_residual_cue_separates_a_circle_from_a_hexagon_over_frames():
 def test_parked_track_keeps_its_kin_probability_by_default():
     """A static circle the detector keeps accepting stays kin (a parked kin) while another track moves; the
     static penalty (off by default) is what would turn it into a same-radius cylinder. The hand-tuned
-    fusion and the shipped classifier alike."""
+    fusion and the shipped classifier alike (the classifier reads the candidates' points: their beams and
+    the per-frame circle fits are among its inputs)."""
+    arc = 0.035 * np.c_[np.cos(np.linspace(2.5, 3.8, 5)), np.sin(np.linspace(2.5, 3.8, 5))]
     for model in ("hand", "learned"):
         tr = KinTracker(kin_model=model)
         for k in range(50):
-            tr.update([[1.0, 0.0], [1.5, -0.5 + 0.02 * k]], [0.97, 0.97], STILL, DT)
+            xy = np.array([[1.0, 0.0], [1.5, -0.5 + 0.02 * k]])
+            tr.update(xy, [0.97, 0.97], STILL, DT, points=[c + (0.035, 0.0) + arc for c in xy])
         kp = tr.kin_prob()
         assert kp[0] > 0.5 and kp[1] > 0.5, model
         assert not tr.tracks()[0].moved and tr.tracks()[1].moved
