@@ -210,8 +210,8 @@ def test_diagnosis_against_the_single_scan_adds_up():
     assert v["both_tp"] + v["single_only"] == tw["single"]["all"]["tp"]
     assert v["both_fn"] + v["single_only"] == d.get("fn:total", 0) == tw["tracker"]["all"]["fn"]
     lost = sum(n for k, n in d.items() if k.startswith("lost:"))
-    assert lost == v["single_only"] and sum(n for k, n in d.items() if k.startswith("fn:") and k != "fn:total") \
-        == d.get("fn:total", 0)
+    causes = sum(n for k, n in d.items() if k.startswith("fn:") and k != "fn:total")
+    assert lost == v["single_only"] and causes == d.get("fn:total", 0)
     assert sum(n for k, n in d.items() if k.startswith("fp:")) == tw["tracker"]["all"]["fp"]
 
 
