@@ -49,10 +49,12 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--hidden", type=int, nargs="*", default=[8],
                    help="hidden layer sizes of the classifier (no sizes: logistic regression)")  # fmt: skip
     p.add_argument("--l2", type=float, default=1e-3, help="L2 penalty on the weights")
-    p.add_argument("--outside-weight", type=float, default=0.2,
+    p.add_argument("--outside-weight", type=float, default=0.5,
                    help="weight of a training row outside the target window (inside: 1)")  # fmt: skip
     p.add_argument("--min-frames", type=int, default=3,
                    help="tracks seen in fewer frames take the detector's own decision")  # fmt: skip
+    p.add_argument("--report-coasting", action="store_true",
+                   help="let tracks not updated this frame keep the model's kin probability (default: 0)")
     p.add_argument("--ship", action="store_true",
                    help="also write the model to detectors/checkpoints/tracker_kin_default.json")  # fmt: skip
     p.add_argument("--out", type=Path, default=Path("outputs/fit_track_classifier"), help="output directory")
@@ -102,7 +104,8 @@ def main(argv: list[str] | None = None) -> dict:
     if isinstance(ck, str | Path) and Path(ck).is_file():
         info["detector_checkpoint_sha256"] = sha256_file(ck)
     model, rows = S.fit_kin_model(recorded, hidden=tuple(args.hidden), l2=args.l2, min_frames=args.min_frames,
-                                  info=info, outside_weight=args.outside_weight)  # fmt: skip
+                                  info=info, outside_weight=args.outside_weight,
+                                  hit_only=not args.report_coasting)  # fmt: skip
     hand = [S.tune_objective(S.evaluate_sequences(r, mot=False, singles=False, kin_model="hand"))
             for r in recorded]  # fmt: skip
     names = [r.spec.name for r in recorded]

@@ -677,12 +677,14 @@ def fit_kin_model(
     info: dict | None = None,
     tol: float = 0.0,
     outside_weight: float = 0.5,
+    hit_only: bool = True,
 ) -> tuple[TrackKinModel, list[dict]]:
     """Fit the track-level kin classifier (:class:`detectors.tracking.TrackKinModel`) on training-seed
     episodes: :func:`track_samples` of each recorded set, each set weighing the same in the loss (a swarm
     set has many more tracks than a look-alike one) and, within a set, rows outside the target window
     ``outside_weight`` times a row inside it (the model serves the window first, without extrapolating
-    elsewhere), then the operating point: the threshold in
+    elsewhere) and, with ``hit_only``, tracks not updated this frame are not kin (:class:`TrackKinModel`),
+    then the operating point: the threshold in
     ``thresholds`` with the best mean :func:`tune_objective` over the sets (the model's output is shifted
     so that it is ``kin_prob`` 0.5); with ``tol > 0`` the highest threshold within ``tol`` of the best
     (fewer false tracks outside the target window where the objective is flat; off by default: on held-out
@@ -703,7 +705,7 @@ def fit_kin_model(
     w = [np.where(s["window"], 1.0, float(outside_weight)) for s in samples]
     w = np.concatenate([v / v.sum() for v in w])
     names = [f"{r.spec.name}@{r.spec.first_seed}x{len(r.episodes)}" for r in recorded]
-    base = TrackKinModel.fit(X, y, w, hidden=hidden, l2=l2, min_frames=min_frames,
+    base = TrackKinModel.fit(X, y, w, hidden=hidden, l2=l2, min_frames=min_frames, hit_only=hit_only,
                              info={**(info or {}), "sets": names, "rows": int(y.size),
                                    "outside_weight": outside_weight,
                                    "kin_share": float(y.mean())})  # fmt: skip

@@ -441,6 +441,17 @@ def test_kin_model_decides_and_young_tracks_take_the_detectors_decision():
         tr.update_batch([0, 0], xy, [0.9, 0.9], np.zeros((1, 3)), DT, accepted=[True, False])
     np.testing.assert_allclose(tr.kin_prob(), 1 / (1 + math.exp(-5.0)))  # 3 frames: the model's
     assert [t.is_kin for t in tr.tracks()] == [True, True]
+    # hit_only: a track not updated this frame is not kin (the model answers "in view, this frame")
+    m = _rule_model("hit", 0.0, 5.0, min_frames=3)
+    m = TrackKinModel(m.mean, m.scale, m.layers, info=m.info, min_frames=3, hit_only=True)
+    assert TrackKinModel.from_dict(m.to_dict()).hit_only and m.shifted(0.4).hit_only
+    tr = KinTracker(kin_model=m)
+    for _ in range(3):
+        tr.update_batch([0, 0], xy, [0.9, 0.9], np.zeros((1, 3)), DT, accepted=[True, False])
+    tr.update_batch([0], xy[:1], [0.9], np.zeros((1, 3)), DT, accepted=[True])  # the second coasts
+    assert tr.kin_prob()[0] > 0.99 and tr.kin_prob()[1] == 0.0
+    with pytest.raises(ValueError, match="hit_only"):
+        TrackKinModel(m.mean, m.scale, m.layers, hit_only=1)
     # the hand-tuned fusion stays selectable and is what "hand" gives
     hand = KinTracker(kin_model="hand")
     assert hand.kin_model is None
