@@ -53,6 +53,8 @@ def main(argv: list[str] | None = None) -> dict:
                    help="weight of a training row outside the target window (inside: 1)")  # fmt: skip
     p.add_argument("--min-frames", type=int, default=3,
                    help="tracks seen in fewer frames take the detector's own decision")  # fmt: skip
+    p.add_argument("--tol", type=float, default=0.001,
+                   help="operating point: the highest threshold within this of the best objective")
     p.add_argument("--report-coasting", action="store_true",
                    help="let tracks not updated this frame keep the model's kin probability (default: 0)")
     p.add_argument("--ship", action="store_true",
@@ -69,6 +71,8 @@ def main(argv: list[str] | None = None) -> dict:
         p.error(f"--frames must be >= 2, got {args.frames}")
     if args.min_frames < 0 or any(h < 1 for h in args.hidden) or not args.l2 >= 0:
         p.error("--min-frames must be >= 0, --hidden sizes >= 1 and --l2 >= 0")
+    if not 0 <= args.tol < 1:
+        p.error(f"--tol must be in [0, 1), got {args.tol}")
     if not 0 < args.outside_weight <= 1:
         p.error(f"--outside-weight must be in (0, 1], got {args.outside_weight}")
     if not 0 <= args.noise <= 0.05:
@@ -105,7 +109,7 @@ def main(argv: list[str] | None = None) -> dict:
         info["detector_checkpoint_sha256"] = sha256_file(ck)
     model, rows = S.fit_kin_model(recorded, hidden=tuple(args.hidden), l2=args.l2, min_frames=args.min_frames,
                                   info=info, outside_weight=args.outside_weight,
-                                  hit_only=not args.report_coasting)  # fmt: skip
+                                  hit_only=not args.report_coasting, tol=args.tol)  # fmt: skip
     hand = [S.tune_objective(S.evaluate_sequences(r, mot=False, singles=False, kin_model="hand"))
             for r in recorded]  # fmt: skip
     names = [r.spec.name for r in recorded]
