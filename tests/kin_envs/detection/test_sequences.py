@@ -159,8 +159,8 @@ def test_track_samples_label_tracks_and_refuse_the_benchmark_seeds():
     model, rows = S.fit_kin_model([rec], thresholds=(0.3, 0.6))
     assert [r["threshold"] for r in rows] == [0.3, 0.6]
     top = max(r["objective"] for r in rows)
-    best = [r["threshold"] for r in rows if r["objective"] == top]
-    assert model.info["threshold"] == max(best)  # ties: the highest
+    best = [r["threshold"] for r in rows if r["objective"] >= top - 1e-3]
+    assert model.info["threshold"] == max(best)  # the highest within tol (0.001) of the best
     assert model.min_frames == 3 and s["window"].shape == s["y"].shape
     bench = dataclasses.replace(rec, spec=S.SEQUENCE_SPLITS["lookalike"])
     with pytest.raises(ValueError, match="reserved"):
