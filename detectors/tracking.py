@@ -141,7 +141,7 @@ TRACK_FEATURES = ("mean_logit", "std_logit", "max_logit", "last_logit", "hit_log
 _I_LOG_FRAMES, _I_HIT_ACC = TRACK_FEATURES.index("log_frames"), TRACK_FEATURES.index("hit_accepted")
 _I_HIT = TRACK_FEATURES.index("hit")
 
-#: The shipped track-level kin classifier (``scripts/tune_tracker.py --fit-kin-model`` writes it).
+#: The shipped track-level kin classifier (``scripts/fit_track_classifier.py --ship`` writes it).
 DEFAULT_KIN_MODEL = Path(__file__).resolve().parent / "checkpoints" / "tracker_kin_default.json"
 
 
