@@ -444,6 +444,12 @@ class TrackKinModel:
         return TrackKinModel(self.mean, self.scale, self.layers, info=self.info, min_frames=min_frames,
                              hit_only=self.hit_only)
 
+    def with_hit_only(self, hit_only: bool) -> TrackKinModel:
+        """The same model with another ``hit_only`` (e.g. ``False`` for a tracker fed only the detector's
+        accepted detections, where a coasting track is often a kin the detector missed this frame)."""
+        return TrackKinModel(self.mean, self.scale, self.layers, info=self.info, min_frames=self.min_frames,
+                             hit_only=hit_only)
+
 
 @dataclass(frozen=True, eq=False)
 class Track:

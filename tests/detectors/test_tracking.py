@@ -445,6 +445,7 @@ def test_kin_model_decides_and_young_tracks_take_the_detectors_decision():
     m = _rule_model("hit", 0.0, 5.0, min_frames=3)
     m = TrackKinModel(m.mean, m.scale, m.layers, info=m.info, min_frames=3, hit_only=True)
     assert TrackKinModel.from_dict(m.to_dict()).hit_only and m.shifted(0.4).hit_only
+    assert not m.with_hit_only(False).hit_only and m.with_min_frames(2).hit_only
     tr = KinTracker(kin_model=m)
     for _ in range(3):
         tr.update_batch([0, 0], xy, [0.9, 0.9], np.zeros((1, 3)), DT, accepted=[True, False])
