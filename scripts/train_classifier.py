@@ -128,6 +128,21 @@ def split_by_scene(seeds: np.ndarray, val_fraction: float, rng: np.random.Genera
     return np.isin(seeds, rng.choice(uniq, n_val, replace=False))
 
 
+def few_beam_labels(label: np.ndarray, n_beams: np.ndarray, min_kin_beams: int) -> np.ndarray:
+    """``label`` with kin segments of fewer than ``min_kin_beams`` beams made non-kin (the benchmark
+    counts a kin from 2 valid beams: a 1-beam detection can never be a true positive there)."""
+    return np.where(np.asarray(n_beams) < min_kin_beams, 0, label).astype(np.asarray(label).dtype)
+
+
+def focus_weights(weight, n_beams, range_min, factor: float, beams, range_m) -> np.ndarray:
+    """``weight`` times ``factor`` for every segment with ``beams[0] <= n_beams <= beams[1]`` whose
+    nearest reading lies in ``[range_m[0], range_m[1])`` (kin and look-alikes alike: capacity for the
+    few-beam regime, not a shifted threshold)."""
+    n, r = np.asarray(n_beams), np.asarray(range_min)
+    focus = (n >= beams[0]) & (n <= beams[1]) & (r >= range_m[0]) & (r < range_m[1])
+    return np.where(focus, np.asarray(weight) * factor, weight).astype(np.float32)
+
+
 def targets(segs: dict) -> np.ndarray:
     """Kin centres in each segment's local frame (NaN for non-kin)."""
     return observer_to_local(segs["frames"].astype(np.float64), segs["centre"].astype(np.float64)).astype(
@@ -628,14 +643,9 @@ def main(argv=None) -> dict:
     tgt = targets(segs)
     keep = ~segs["same_radius"]  # indistinguishable from kin in one scan: not a training negative
 
-    if args.min_kin_beams > 1:  # as the benchmark's ground truth: too few beams is not a kin to find
-        segs["label"] = np.where(segs["n_beams"] < args.min_kin_beams, 0, segs["label"]).astype(np.int8)
-    weight = sample_weights(segs["label"], segs["category"], tcfg)
-    if args.focus_weight != 1:
-        (b0, b1), (r0, r1) = args.focus_beams, args.focus_range
-        focus = (segs["n_beams"] >= b0) & (segs["n_beams"] <= b1)
-        focus &= (segs["range_min"] >= r0) & (segs["range_min"] < r1)
-        weight = np.where(focus, weight * args.focus_weight, weight).astype(np.float32)
+    segs["label"] = few_beam_labels(segs["label"], segs["n_beams"], args.min_kin_beams)
+    weight = focus_weights(sample_weights(segs["label"], segs["category"], tcfg), segs["n_beams"],
+                           segs["range_min"], args.focus_weight, args.focus_beams, args.focus_range)
     if args.keep_easy < 1:  # a share of the easy negatives, up-weighted (validation keeps them all)
         easy = np.isin(segs["category"], [CATEGORIES.index("boundary"), CATEGORIES.index("wall")])
         drop = easy & ~is_val & (rng.random(easy.shape[0]) >= args.keep_easy)
