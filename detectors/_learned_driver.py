@@ -34,7 +34,7 @@ import numba
 import numpy as np
 
 from . import _kernels as _k
-from .features import _features_kernel, _scan_noise_kernel
+from .features import _cascade_kernel, _cascade_scores, _features_kernel, _scan_columns, _scan_noise_kernel
 
 #: index of each field in the ``(D, 8)`` detection table (``kin_envs.envs.info.DETECTION_FIELDS[:8]``)
 TABLE_FIELDS = ("range", "bearing", "x", "y", "score", "first_beam", "last_beam", "n_beams")
@@ -42,14 +42,20 @@ TABLE_FIELDS = ("range", "bearing", "x", "y", "score", "first_beam", "last_beam"
 
 @numba.njit(cache=True, nogil=True)
 def front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_ang, cos_a, sin_a, sweep,
-          occlusion_unbounded, n_points, n_context, gn_iters, n_feat):  # fmt: skip
+          occlusion_unbounded, n_points, n_context, gn_iters, n_feat, cascade, c_w1t, c_b1, c_w2, c_b2,
+          c_threshold):  # fmt: skip
     """Stages 1-3 for ``B`` scans ``r`` (B, n) (float32 or float64 readings, not validated here).
 
+    ``cascade``: run the cascade's stage 1 (``c_w1t, c_b1, c_w2, c_b2``, the model of
+    :func:`detectors.learned.load_cascade`) on the segments the pre-gate keeps; those scoring below
+    ``c_threshold`` do not reach the features and the network (as ``LearnedKinDetector._predict``).
+
     Returns ``(d, scan, first, count, prev, next, prev_nearer, next_nearer, max_beams, rows, x,
-    frames, scan_cols)``: the pre-processed ranges, the segments (as
+    frames, scan_cols, cascade_score)``: the pre-processed ranges, the segments (as
     :func:`detectors._kernels.segment_arrays`), the pre-gate bound of every segment (NaN without the
     gate), the segments ``rows`` that reach the network, their ``(R, F)`` float32 features and local
-    frames, and each scan's float64 noise features (:func:`detectors.features._features_kernel`).
+    frames, each scan's float64 noise features (:func:`detectors.features._features_kernel`) and
+    every segment's stage-1 score (NaN where not scored).
     """
     n_rows, n = r.shape
     d = np.empty((n_rows, n))
@@ -66,18 +72,34 @@ def front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_a
                 keep[n_keep] = i
                 n_keep += 1
         rows = keep[:n_keep].copy()
-        # (a further selection stage, e.g. a cascade, would narrow ``rows`` here)
     else:
         max_beams[:] = np.nan
         rows = np.arange(s)
+    scan_cols = np.empty((n_rows, 2))
+    cscore = np.full(s, np.nan)
+    noise = np.empty(n_rows)
+    noise_n = np.empty(n_rows, dtype=np.int64)
+    if s > 0:
+        _scan_noise_kernel(d, d_th, d_max, circular, noise, noise_n)
+    if cascade and s > 0:
+        # stage 1 on the pre-gate's survivors; only those scoring >= c_threshold go on
+        _scan_columns(noise, noise_n, scan_cols)
+        xc = np.empty((rows.shape[0], 12))
+        _cascade_kernel(d.reshape(-1), cos_a, sin_a, trig_ang, scan, first, count, prev, nxt, p_near, n_near,
+                        n, circular, sweep, r_kin, d_max, occlusion_unbounded, scan_cols, rows, xc)  # fmt: skip
+        s1 = np.empty(rows.shape[0])
+        _cascade_scores(xc, c_w1t, c_b1, c_w2, c_b2, s1)
+        n_keep = 0
+        for o in range(rows.shape[0]):
+            cscore[rows[o]] = s1[o]
+            if s1[o] >= c_threshold:
+                rows[n_keep] = rows[o]
+                n_keep += 1
+        rows = rows[:n_keep].copy()
     n_sel = rows.shape[0]
     x = np.empty((n_sel, n_feat), dtype=np.float32)
     frames = np.empty((n_sel, 4))
-    scan_cols = np.empty((n_rows, 2))
     if s > 0:
-        noise = np.empty(n_rows)
-        noise_n = np.empty(n_rows, dtype=np.int64)
-        _scan_noise_kernel(d, d_th, d_max, circular, noise, noise_n)
         fit_centre = np.empty((n_sel, 2))
         min_beam = np.empty(n_sel, dtype=np.int64)
         _features_kernel(
@@ -85,7 +107,7 @@ def front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_a
             circular, sweep, r_kin, d_max, occlusion_unbounded, n_points, n_context, gn_iters, noise,
             noise_n, rows, x, frames, fit_centre, min_beam, scan_cols,
         )  # fmt: skip
-    return d, scan, first, count, prev, nxt, p_near, n_near, max_beams, rows, x, frames, scan_cols
+    return d, scan, first, count, prev, nxt, p_near, n_near, max_beams, rows, x, frames, scan_cols, cscore
 
 
 @numba.njit(cache=True, inline="always")
@@ -278,8 +300,8 @@ def fused_table(r, front_args, kernel_max, rows_max, mean, std, weights, weights
 def pack(fr, bk):
     """The :class:`~detectors.base.BatchDetections` columns from :func:`front` / :func:`back` outputs
     as a few blocks (each column a row of one; fewer arrays to hand back to Python): ``(seg_i (5, S)
-    int64: scan, first, count, prev, next; seg_b (2, S) bool: prev_nearer, next_nearer; seg_f (3, S):
-    p_kin, threshold, max_beams; stage (S,) int8; det (D,) int64; det_f (5, D): range, bearing, x, y,
+    int64: scan, first, count, prev, next; seg_b (2, S) bool: prev_nearer, next_nearer; seg_f (4, S):
+    p_kin, threshold, max_beams, cascade_score; stage (S,) int8; det (D,) int64; det_f (5, D): range, bearing, x, y,
     score; det_i (4, D) int64: scan, first_beam, last_beam, n_beams)``."""
     n_beams = fr[0].shape[1]
     scan, first, count = fr[1], fr[2], fr[3]
@@ -288,7 +310,7 @@ def pack(fr, bk):
     n_det = det.shape[0]
     seg_i = np.empty((5, n_seg), dtype=np.int64)
     seg_b = np.empty((2, n_seg), dtype=np.bool_)
-    seg_f = np.empty((3, n_seg))
+    seg_f = np.empty((4, n_seg))
     for i in range(n_seg):
         seg_i[0, i] = scan[i]
         seg_i[1, i] = first[i]
@@ -300,6 +322,7 @@ def pack(fr, bk):
         seg_f[0, i] = p[i]
         seg_f[1, i] = thr[i]
         seg_f[2, i] = fr[8][i]
+        seg_f[3, i] = fr[13][i]
     det_f = np.empty((5, n_det))
     det_i = np.empty((4, n_det), dtype=np.int64)
     for k in range(n_det):
@@ -321,7 +344,7 @@ def fused_packed(r, front_args, kernel_max, rows_max, mean, std, weights, weight
     done, fr, _, bk = fused(r, front_args, kernel_max, rows_max, mean, std, weights, weights_t, biases,
                             sizes, back_args)  # fmt: skip
     if not done:  # fr's segments but no back outputs: nothing to pack
-        return False, (np.empty((5, 0), dtype=np.int64), np.empty((2, 0), dtype=np.bool_), np.empty((3, 0)),
+        return False, (np.empty((5, 0), dtype=np.int64), np.empty((2, 0), dtype=np.bool_), np.empty((4, 0)),
                        np.empty(0, dtype=np.int8), np.empty(0, dtype=np.int64), np.empty((5, 0)),
                        np.empty((4, 0), dtype=np.int64))  # fmt: skip
     return True, pack(fr, bk)

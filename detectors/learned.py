@@ -992,15 +992,13 @@ class LearnedKinDetector(KinDetector):
         last_beam, n_beams): what ``kin_envs.envs.common.detection_arrays`` reads, straight from the
         compiled driver without building a :class:`~detectors.base.BatchDetections`. Fresh arrays
         on every call."""
-        if (self._cascade is not None and np.ndim(ranges) == 2 and ranges.shape[0] > 1) or (
-            self._beam_table is not None and self.threshold is None
-        ):  # the cascade (batch calls, as _detect_arrays) and table thresholds: the staged path
+        if self._beam_table is not None and self.threshold is None:  # table thresholds: the staged path
             a = self._detect_arrays_staged(ranges, angles, True)
             cols = (a.range, a.bearing, a.x, a.y, a.score, a.first_beam, a.last_beam, a.n_beams_on)
             return a.scan, np.stack(cols, axis=1).astype(np.float64).reshape(-1, 8)
         rb = self._driver_input(ranges, angles, True)
         # one scan (a single-agent env's step): the whole call compiled, only the table returns
-        if rb.shape[0] == 1 and (res := self._call_driver(_drv.fused_table, rb)) is not None:
+        if rb.shape[0] == 1 and (res := self._call_driver(_drv.fused_table, rb, False)) is not None:
             scan, table = res
         else:
             fr, bk = self._run_driver(rb)
@@ -1019,12 +1017,9 @@ class LearnedKinDetector(KinDetector):
             # which the fused driver does not implement
             return self._detect_arrays_staged(ranges, angles, trusted)
         rb = self._driver_input(ranges, angles, trusted)
-        if self._cascade is not None and rb.shape[0] > 1:
-            # batches: the cascade, in the staged pipeline (the fused driver has none yet); one scan
-            # per call stays in the fused driver, faster there than what the cascade saves
-            return self._detect_arrays_staged(rb, angles, True)
+        cascade = self._uses_cascade(rb)
         # one scan: the whole call compiled, the columns handed back in a few blocks
-        res = self._call_driver(_drv.fused_packed, rb) if rb.shape[0] == 1 else None
+        res = self._call_driver(_drv.fused_packed, rb, cascade) if rb.shape[0] == 1 else None
         packed = res[0] if res is not None else _drv.pack(*self._run_driver(rb))
         seg_i, seg_b, seg_f, stage, det, det_f, det_i = packed
         n_seg = seg_i.shape[1]
@@ -1040,11 +1035,12 @@ class LearnedKinDetector(KinDetector):
                 dup[det[drop]] = det[d[drop]]
                 keep = ~drop
                 det, det_f, det_i = det[keep], det_f[:, keep], det_i[:, keep]
-        values = (
-            {"p_kin": seg_f[0], "threshold": seg_f[1]}
-            if not self.pre_gate or n_seg == 0
-            else {"p_kin": seg_f[0], "threshold": seg_f[1], "max_beams": seg_f[2]}
-        )
+        values = {"p_kin": seg_f[0], "threshold": seg_f[1]}
+        if n_seg > 0:  # (the staged pipeline's values of an empty batch: p_kin and threshold only)
+            if self.pre_gate:
+                values["max_beams"] = seg_f[2]
+            if cascade:
+                values["cascade_score"] = seg_f[3]
         if dup is not None:
             values["duplicate_of"] = dup
         return BatchDetections(
@@ -1071,9 +1067,17 @@ class LearnedKinDetector(KinDetector):
             seg_values=values,
         )
 
+    def _uses_cascade(self, rb: np.ndarray) -> bool:
+        """Whether a call on the checked ranges ``rb`` runs the cascade: on batches (>= 2 scans) when
+        it is on. One-scan calls (a single-agent env's ~30 segments) go without: there it costs
+        more than it saves (measured; README, Performance), so a scan alone can differ from the same
+        scan in a batch where the cascade drops a segment the full model would accept (~0.04 % of the
+        accepted kin segments, ``scripts/fit_cascade.py``)."""
+        return self._cascade is not None and rb.shape[0] > 1
+
     def _driver_args(self) -> tuple:
-        """The fused driver's constant arguments ``(front_args, back_args)`` for the current beam
-        layout and settings (see :meth:`_driver_consts`)."""
+        """The fused driver's constant arguments ``(front_args, front_args with the cascade or None,
+        back_args)`` for the current beam layout and settings (see :meth:`_driver_consts`)."""
         c = self.feature_config
         ang, cos_a, sin_a, sweep = self._trig
         fixed = -1.0 if self.threshold is None else self.threshold
@@ -1082,16 +1086,23 @@ class LearnedKinDetector(KinDetector):
             PRE_GATE_SLACK, float(PRE_GATE_MARGIN), ang, cos_a, sin_a, float(sweep), c.occlusion_unbounded,
             int(c.n_points), int(c.n_context), int(c.gn_iters), len(feature_names(c)),
         )  # fmt: skip
+        # the cascade's model, or empty stand-ins of the same types (one compiled signature)
+        off = (False, np.zeros((0, 0)), np.zeros(0), np.zeros(0), 0.0, 0.0)
+        front_cas = None
+        if self._cascade is not None:
+            w1t, b1, w2, b2 = self._cascade["model"]
+            front_cas = (*front, True, w1t, b1, w2, float(b2), float(self._cascade["threshold"]))
         back = (
             ang, self.pre_gate, float(fixed), self._noise_edges, self._noise_thresholds,
             self.positioning == "regression", self._t_mean, self._t_std, float(c.r), 200, _LM_XTOL,
             _LM_LAMBDA0, _LM_LAMBDA_MAX,
         )  # fmt: skip
-        return front, back
+        return (*front, *off), front_cas, back
 
-    def _driver_consts(self) -> tuple[tuple, tuple]:
-        """:meth:`_driver_args`, cached; rebuilt when ``_check`` saw a new beam layout or
-        ``threshold``, ``pre_gate`` or ``positioning`` changed."""
+    def _driver_consts(self, cascade: bool = False) -> tuple[tuple, tuple]:
+        """``(front_args, back_args)`` of :meth:`_driver_args` (with the cascade if ``cascade``),
+        cached; rebuilt when ``_check`` saw a new beam layout or ``threshold``, ``pre_gate`` or
+        ``positioning`` changed."""
         cached = self._drv_args
         if (
             cached is None
@@ -1100,20 +1111,21 @@ class LearnedKinDetector(KinDetector):
         ):
             key = (self._trig, self.threshold, self.pre_gate, self.positioning)
             self._drv_args = cached = (key, *self._driver_args())
-        return cached[1], cached[2]
+        return (cached[2] if cascade else cached[1]), cached[3]
 
     def _driver_input(self, ranges, angles, trusted: bool) -> np.ndarray:
         """Checked ranges as the driver takes them (C-contiguous float64, one compiled signature)."""
         rb, _ = self._check(ranges, angles, trusted)
         return np.ascontiguousarray(rb, dtype=np.float64)
 
-    def _call_driver(self, kernel, rb: np.ndarray):
+    def _call_driver(self, kernel, rb: np.ndarray, cascade: bool):
         """``kernel`` (:func:`~detectors._learned_driver.fused` or a variant) on ``rb`` with this
-        detector's arguments: its outputs after ``done``, or None when the network did not run in it
-        (inference ``"blas"`` / ``"torch"``, or ``"auto"`` on ``_BLAS_MIN_ROWS`` rows or more)."""
+        detector's arguments (the cascade if ``cascade``): its outputs after ``done``, or None when the
+        network did not run in it (inference ``"blas"`` / ``"torch"``, or ``"auto"`` on
+        ``_BLAS_MIN_ROWS`` rows or more)."""
         if self._kernel_max == 0:
             return None
-        front_args, back_args = self._driver_consts()
+        front_args, back_args = self._driver_consts(cascade)
         mean, std, w, b, sizes = self._numba_weights
         done, *res = kernel(
             rb, front_args, self._kernel_max, _DRIVER_ROWS_MAX, mean, std, w, self._numba_weights_t[2], b,
@@ -1126,7 +1138,7 @@ class LearnedKinDetector(KinDetector):
         ``(front outputs, back outputs)``. The network runs inside the compiled call unless this
         detector's inference puts it in BLAS (``"auto"`` from ``_BLAS_MIN_ROWS`` rows) or torch: then
         it runs here, between the driver's two kernels."""
-        front_args, back_args = self._driver_consts()
+        front_args, back_args = self._driver_consts(self._uses_cascade(rb))
         mean, std, w, b, sizes = self._numba_weights
         done, fr, _, bk = _drv.fused(
             rb, front_args, self._kernel_max, _DRIVER_ROWS_MAX, mean, std, w, self._numba_weights_t[2], b,
