@@ -36,6 +36,8 @@ import numpy as np
 from . import _kernels as _k
 from .features import _cascade_kernel, _cascade_scores, _features_kernel, _scan_columns, _scan_noise_kernel
 
+_CAS_CHUNK = 256  # segments per chunk of the cascade's stage 1 in :func:`front`
+
 #: index of each field in the ``(D, 8)`` detection table (``kin_envs.envs.info.DETECTION_FIELDS[:8]``)
 TABLE_FIELDS = ("range", "bearing", "x", "y", "score", "first_beam", "last_beam", "n_beams")
 
@@ -84,11 +86,15 @@ def front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_a
     if cascade and s > 0:
         # stage 1 on the pre-gate's survivors; only those scoring >= c_threshold go on
         _scan_columns(noise, noise_n, scan_cols)
-        xc = np.empty((rows.shape[0], 12))
-        _cascade_kernel(d.reshape(-1), cos_a, sin_a, trig_ang, scan, first, count, prev, nxt, p_near, n_near,
-                        n, circular, sweep, r_kin, d_max, occlusion_unbounded, scan_cols, rows, xc)  # fmt: skip
+        # in chunks: the inputs stay in cache (a row's score does not depend on its chunk)
+        xc = np.empty((_CAS_CHUNK, 12))
         s1 = np.empty(rows.shape[0])
-        _cascade_scores(xc, c_w1t, c_b1, c_w2, c_b2, s1)
+        d_flat = d.reshape(-1)
+        for c0 in range(0, rows.shape[0], _CAS_CHUNK):
+            c1 = min(c0 + _CAS_CHUNK, rows.shape[0])
+            _cascade_kernel(d_flat, cos_a, sin_a, trig_ang, scan, first, count, prev, nxt, p_near, n_near, n,
+                            circular, sweep, r_kin, d_max, occlusion_unbounded, scan_cols, rows[c0:c1], xc)  # fmt: skip
+            _cascade_scores(xc[: c1 - c0], c_w1t, c_b1, c_w2, c_b2, s1[c0:c1])
         n_keep = 0
         for o in range(rows.shape[0]):
             cscore[rows[o]] = s1[o]

@@ -768,23 +768,39 @@ def _scan_columns(scan_noise, noise_n, out):
         out[b, 1] = math.log1p(float(noise_n[b]))
 
 
+_CAS_BLOCK = 32  # rows per block of _cascade_scores
+_N_CAS = len(CASCADE_FEATURES)  # a compile-time constant: the input loop unrolls
+
+
 @numba.njit(cache=True, nogil=True, fastmath=True)
 def _cascade_scores(x, w1t, b1, w2, b2, out):
     """Stage-1 score of every row of ``x``: one hidden ReLU layer (the standardisation folded into
-    ``w1t``, ``(in, out)``), float64, ~200 multiply-adds a row against the full network's ~7,700;
-    the units in the inner (SIMD) loop (a unit-by-unit dot product is a dependency chain)."""
-    h = np.empty(w1t.shape[1])
-    for r in range(x.shape[0]):
-        for j in range(h.shape[0]):
-            h[j] = b1[j]
-        for k in range(x.shape[1]):
-            xk = x[r, k]
-            for j in range(h.shape[0]):
-                h[j] += w1t[k, j] * xk
-        s = b2
-        for j in range(h.shape[0]):
-            s += max(h[j], 0.0) * w2[j]
-        out[r] = s
+    ``w1t``, ``(in, out)``), float64, ~200 multiply-adds a row against the full network's ~7,700.
+
+    Rows go through in blocks of 32 in the SIMD lanes (inputs transposed), a unit's 12 inputs unrolled:
+    each row's score is computed by the same instructions whatever block it is in (no reduction
+    across rows for the compiler to reorder), ~2x faster than a row at a time with the units in the
+    lanes (measured)."""
+    n_hid = w1t.shape[1]
+    xt = np.empty((_N_CAS, _CAS_BLOCK))
+    s = np.empty(_CAS_BLOCK)
+    for r0 in range(0, x.shape[0], _CAS_BLOCK):
+        m = min(_CAS_BLOCK, x.shape[0] - r0)
+        for k in range(_N_CAS):
+            for q in range(m):
+                xt[k, q] = x[r0 + q, k]
+        for q in range(m):
+            s[q] = b2
+        for j in range(n_hid):
+            bj = b1[j]
+            w2j = w2[j]
+            for q in range(m):
+                a = bj
+                for k in range(_N_CAS):
+                    a += w1t[k, j] * xt[k, q]
+                s[q] += max(a, 0.0) * w2j
+        for q in range(m):
+            out[r0 + q] = s[q]
 
 
 @numba.njit(cache=True, nogil=True)
