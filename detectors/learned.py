@@ -106,16 +106,14 @@ POSITIONING = ("regression", "fit")
 INFERENCE = ("auto", "blas", "numba", "torch")
 _CHUNK = 4096  # segments per forward chunk
 _BLAS_CHUNK = 1024  # rows per BLAS chain: the activations stay in cache
-#: "auto" inference: fewer rows than this go through the compiled kernel (as fast there, and no
-#: thread-scoping cost per call: a single scan has ~10-150 segments), more through BLAS.
-_BLAS_MIN_ROWS = 256
 #: below this many segments per call ``"numba"`` inference runs :func:`detectors._kernels.mlp_forward_rows`
-#: (bitwise the same outputs; 1 row: ~2 us vs ~31 us; 32 rows 0.83x, 40 rows 0.99x the block kernel's
-#: time, measured under load in one run)
-_ROWS_KERNEL_MAX = 40
-#: the fused driver's network runs :func:`detectors._learned_driver.mlp_rows4` below this many rows
-#: (as fast as the block kernel at 64 rows, ~1.5x faster than the row kernel on 5-35, under load)
-_DRIVER_ROWS_MAX = 64
+#: (bitwise the same outputs; the block kernel computes at least 8 rows: 1 row ~2 us vs ~10 us, 8 rows
+#: 8.7 vs 10.3 us, 12 rows 12.6 vs 11.4 us, measured under load in one run)
+_ROWS_KERNEL_MAX = 10
+#: the fused driver's network runs :func:`detectors._learned_driver.mlp_rows4` below this many rows,
+#: the block kernel from there (rows4 vs block: 12 rows 9.9 vs 11.4 us, 16 rows 13.0 vs 11.7 us, 64 rows
+#: 48 vs 22 us; measured under load in one run)
+_DRIVER_ROWS_MAX = 14
 #: Pre-gate bounds (``LearnedKinDetector(pre_gate=True)``): a segment is dropped before the network
 #: when it has more beams than a housing can return, computed with the housing's centre at
 #: ``PRE_GATE_SLACK * min(d_i)`` (readings up to 25 % too long: 12 sigma of 2 % noise) plus
@@ -599,9 +597,10 @@ class LearnedKinDetector(KinDetector):
             (pass False when only detections are needed; ``reports`` is then empty).
         inference: ``"blas"`` (the exported float32 weights as numpy matrix products, BLAS on
             one thread inside each call (threadpoolctl), the caller's setting restored afterwards),
-            ``"numba"`` (the exported weights in a compiled float32 kernel), ``"auto"`` (default:
-            ``"numba"`` below 256 segments per call, ``"blas"`` above, or ``"numba"`` throughout
-            without threadpoolctl; the two agree to float32 rounding, ~1e-6 in ``p(kin)``) or
+            ``"numba"`` (the exported weights in compiled float32 kernels, inside the fused driver's
+            one compiled call), ``"auto"`` (default: ``"numba"``, measured faster than one-thread
+            BLAS at every batch size since its block kernel keeps partial sums in registers,
+            README, Performance; ``"blas"`` agrees to float32 rounding, ~1e-6 in ``p(kin)``) or
             ``"torch"`` (the checkpoint's module, run on ``torch_threads`` threads inside each call,
             the caller's torch setting restored afterwards). Only ``"torch"`` runs on ``device``.
         torch_threads: torch intra-op threads during inference (``"torch"``).
@@ -711,7 +710,7 @@ class LearnedKinDetector(KinDetector):
         #: the fused driver runs the network itself on fewer rows than this (see ``_run_driver``)
         self._kernel_max = {
             "numba": 2**62,
-            "auto": _BLAS_MIN_ROWS if _blas_controller() is not None else 2**62,
+            "auto": 2**62,
         }.get(inference, 0)
         self._drv_args = None
         if inference != "torch":
@@ -854,7 +853,7 @@ class LearnedKinDetector(KinDetector):
         """``(S, 3)`` float64 network outputs for ``(S, F)`` float32 features."""
         inf = self.inference
         if inf == "auto":
-            inf = "blas" if x.shape[0] >= _BLAS_MIN_ROWS and _blas_controller() is not None else "numba"
+            inf = "numba"
         if inf == "blas":
             return _blas_forward(x, self._blas_weights)
         if inf == "numba":
@@ -1121,8 +1120,7 @@ class LearnedKinDetector(KinDetector):
     def _call_driver(self, kernel, rb: np.ndarray, cascade: bool):
         """``kernel`` (:func:`~detectors._learned_driver.fused` or a variant) on ``rb`` with this
         detector's arguments (the cascade if ``cascade``): its outputs after ``done``, or None when the
-        network did not run in it (inference ``"blas"`` / ``"torch"``, or ``"auto"`` on
-        ``_BLAS_MIN_ROWS`` rows or more)."""
+        network did not run in it (inference ``"blas"`` / ``"torch"``)."""
         if self._kernel_max == 0:
             return None
         front_args, back_args = self._driver_consts(cascade)
@@ -1136,7 +1134,7 @@ class LearnedKinDetector(KinDetector):
     def _run_driver(self, rb: np.ndarray):
         """The fused driver (:mod:`detectors._learned_driver`) on ``rb`` (:meth:`_driver_input`):
         ``(front outputs, back outputs)``. The network runs inside the compiled call unless this
-        detector's inference puts it in BLAS (``"auto"`` from ``_BLAS_MIN_ROWS`` rows) or torch: then
+        detector's inference puts it in BLAS or torch: then
         it runs here, between the driver's two kernels."""
         front_args, back_args = self._driver_consts(self._uses_cascade(rb))
         mean, std, w, b, sizes = self._numba_weights

@@ -17,7 +17,7 @@ pytest.importorskip("torch")  # the only reason to skip: CI installs torch
 
 from detectors import _learned_driver as _drv  # noqa: E402
 from detectors.base import wrap_angle  # noqa: E402
-from detectors.learned import _BLAS_MIN_ROWS, LearnedKinDetector  # noqa: E402
+from detectors.learned import LearnedKinDetector  # noqa: E402
 from kin_envs import LidarSpec, World, scenes  # noqa: E402
 
 FIELDS = (
@@ -64,14 +64,14 @@ def test_fused_driver_is_bitwise_the_staged_pipeline(kwargs):
     det = LearnedKinDetector(reports=False, cascade=False, **kwargs)
     n_det = 0
     for s in SCANS:
-        # one scan (a single-agent env), a few, every robot's (BLAS above _BLAS_MIN_ROWS segments)
+        # one scan (a single-agent env), a few, every robot's (hundreds of rows: the block kernel)
         for r in (s.ranges[:1], s.ranges[2:5], s.ranges):
             ref = det._detect_arrays_staged(r.astype(np.float64), s.angles)
             assert_same(det.detect_arrays(r, s.angles), ref)
             assert_same(det._detect_arrays_trusted(r, s.angles), ref)
             n_det += ref.n_detections
     assert n_det > 0
-    assert sum(det.detect_arrays(s.ranges, s.angles).n_segments for s in SCANS) >= _BLAS_MIN_ROWS
+    assert sum(det.detect_arrays(s.ranges, s.angles).n_segments for s in SCANS) >= 256
 
 
 def test_fused_driver_edge_cases():
@@ -82,7 +82,7 @@ def test_fused_driver_edge_cases():
     empty[1, :] = 0.0  # "no return" in both RPLIDAR spellings: no segment at all
     one_wall = np.full((1, n), 3.0)  # a round room: one segment without a break, dropped by the pre-gate
     mixed = np.vstack([empty, s.ranges[:1].astype(np.float64), one_wall])
-    # every beam its own segment: more than _BLAS_MIN_ROWS rows, the one-scan call hands over to BLAS
+    # every beam its own segment: 360 rows in one scan
     comb = np.where(np.arange(n) % 2 == 0, 1.0, 1.5)[None, :]
     for r in (empty, one_wall, mixed, comb, empty[:1]):
         ref = det._detect_arrays_staged(r, s.angles)
@@ -151,8 +151,7 @@ def test_table_entry_equals_the_staged_detections(inference):
     det = LearnedKinDetector(reports=False, cascade=False, inference=inference)
     s = SCANS[2]
     n = s.angles.shape[0]
-    # every beam its own segment (alternating ranges): 360 segments reach the network, more than
-    # _BLAS_MIN_ROWS, so the one-scan compiled call hands over to the BLAS path
+    # every beam its own segment (alternating ranges): 360 segments reach the network in one scan
     comb = np.where(np.arange(n) % 2 == 0, 1.0, 1.5)[None, :]
     det._detect_table_trusted(s.ranges[:1], s.angles)  # the layout is checked once, then trusted
     for r in (s.ranges[:1], s.ranges[5:6], s.ranges[:3], comb, s.ranges):
