@@ -44,7 +44,7 @@ TABLE_FIELDS = ("range", "bearing", "x", "y", "score", "first_beam", "last_beam"
 
 @numba.njit(cache=True, nogil=True)
 def front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_ang, cos_a, sin_a, sweep,
-          occlusion_unbounded, n_points, n_context, gn_iters, n_feat, cascade, c_w1t, c_b1, c_w2, c_b2,
+          tan_tab, occlusion_unbounded, n_points, n_context, gn_iters, n_feat, cascade, c_w1t, c_b1, c_w2, c_b2,
           c_threshold):  # fmt: skip
     """Stages 1-3 for ``B`` scans ``r`` (B, n) (float32 or float64 readings, not validated here).
 
@@ -93,7 +93,8 @@ def front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_a
         for c0 in range(0, rows.shape[0], _CAS_CHUNK):
             c1 = min(c0 + _CAS_CHUNK, rows.shape[0])
             _cascade_kernel(d_flat, cos_a, sin_a, trig_ang, scan, first, count, prev, nxt, p_near, n_near, n,
-                            circular, sweep, r_kin, d_max, occlusion_unbounded, scan_cols, rows[c0:c1], xc)  # fmt: skip
+                            circular, sweep, r_kin, d_max, occlusion_unbounded, scan_cols, rows[c0:c1], xc,
+                            tan_tab)  # fmt: skip
             _cascade_scores(xc[: c1 - c0], c_w1t, c_b1, c_w2, c_b2, s1[c0:c1])
         n_keep = 0
         for o in range(rows.shape[0]):
@@ -111,7 +112,7 @@ def front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_a
         _features_kernel(
             d.reshape(-1), cos_a, sin_a, trig_ang, scan, first, count, prev, nxt, p_near, n_near, n,
             circular, sweep, r_kin, d_max, occlusion_unbounded, n_points, n_context, gn_iters, noise,
-            noise_n, rows, x, frames, fit_centre, min_beam, scan_cols,
+            noise_n, rows, x, frames, fit_centre, min_beam, scan_cols, tan_tab,
         )  # fmt: skip
     return d, scan, first, count, prev, nxt, p_near, n_near, max_beams, rows, x, frames, scan_cols, cscore
 

@@ -114,6 +114,9 @@ _ROWS_KERNEL_MAX = 10
 #: the block kernel from there (rows4 vs block: 12 rows 9.9 vs 11.4 us, 16 rows 13.0 vs 11.7 us, 64 rows
 #: 48 vs 22 us; measured under load in one run)
 _DRIVER_ROWS_MAX = 14
+#: eqs. 4-5's tan looked up (:func:`detectors.features.beam_trig`) for beams up to this many apart minus
+#: one: every pre-gated segment of a 1-degree lidar at >= ~0.5 m (a 360 x 32 table, 92 kB)
+_TAN_OFFSETS = 32
 #: Pre-gate bounds (``LearnedKinDetector(pre_gate=True)``): a segment is dropped before the network
 #: when it has more beams than a housing can return, computed with the housing's centre at
 #: ``PRE_GATE_SLACK * min(d_i)`` (readings up to 25 % too long: 12 sigma of 2 % noise) plus
@@ -792,7 +795,7 @@ class LearnedKinDetector(KinDetector):
             self._circular = is_circular_sweep(a)
             self._step = step
             self._angles_key = a.copy()
-            self._trig = beam_trig(self._angles_key)
+            self._trig = beam_trig(self._angles_key, _TAN_OFFSETS)
         if trusted:
             self._angles_src = angles  # the caller's (never mutated) layout array, checked above
         bad = rb < 0.0  # NaN / +inf mean "no return" and are fine
@@ -1078,11 +1081,11 @@ class LearnedKinDetector(KinDetector):
         """The fused driver's constant arguments ``(front_args, front_args with the cascade or None,
         back_args)`` for the current beam layout and settings (see :meth:`_driver_consts`)."""
         c = self.feature_config
-        ang, cos_a, sin_a, sweep = self._trig
+        ang, cos_a, sin_a, sweep, tan_tab = self._trig
         fixed = -1.0 if self.threshold is None else self.threshold
         front = (
             float(c.d_th), float(c.d_max), self._circular, self.pre_gate, self._step, float(c.r),
-            PRE_GATE_SLACK, float(PRE_GATE_MARGIN), ang, cos_a, sin_a, float(sweep), c.occlusion_unbounded,
+            PRE_GATE_SLACK, float(PRE_GATE_MARGIN), ang, cos_a, sin_a, float(sweep), tan_tab, c.occlusion_unbounded,
             int(c.n_points), int(c.n_context), int(c.gn_iters), len(feature_names(c)),
         )  # fmt: skip
         # the cascade's model, or empty stand-ins of the same types (one compiled signature)
