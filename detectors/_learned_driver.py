@@ -44,8 +44,8 @@ TABLE_FIELDS = ("range", "bearing", "x", "y", "score", "first_beam", "last_beam"
 
 @numba.njit(cache=True, nogil=True)
 def front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_ang, cos_a, sin_a, sweep,
-          tan_tab, occlusion_unbounded, n_points, n_context, gn_iters, n_feat, cascade, c_w1t, c_b1, c_w2, c_b2,
-          c_threshold):  # fmt: skip
+          tan_tab, occlusion_unbounded, n_points, n_context, gn_iters, n_feat, cascade, c_w1t, c_b1, c_w2,
+          c_b2, c_threshold):  # fmt: skip
     """Stages 1-3 for ``B`` scans ``r`` (B, n) (float32 or float64 readings, not validated here).
 
     ``cascade``: run the cascade's stage 1 (``c_w1t, c_b1, c_w2, c_b2``, the model of
@@ -260,21 +260,21 @@ def mlp_rows4(x, mean, std, weights_t, biases, sizes, out):
                 out[r0 + q, j] = a[q, j]
 
 
-@numba.njit(cache=True, nogil=True)
-def fused(r, front_args, kernel_max, rows_max, mean, std, weights, weights_t, biases, sizes, back_args):
-    """:func:`front`, the network compiled and :func:`back` in one dispatch when fewer than
-    ``kernel_max`` segments reach the network (``done`` True); else only ``front`` (``done`` False,
-    ``out`` and the ``back`` part empty). ``front_args`` / ``back_args``: the other arguments of
-    :func:`front` / :func:`back` after ``r`` / ``scan_cols``.
+@numba.njit(cache=True, nogil=True, inline="always")
+def fused(r, front_args, rows_max, mean, std, weights, weights_t, biases, sizes, back_args):
+    """:func:`front`, the network compiled (:func:`mlp_rows4` below ``rows_max`` rows, else the block
+    kernel :func:`detectors._kernels.mlp_forward`; bitwise the same) and :func:`back` in one
+    dispatch. ``front_args`` / ``back_args``: the other arguments of :func:`front` / :func:`back`
+    after ``r`` / ``scan_cols``.
 
-    Returns ``(done, front outputs, out (R, 3) float64, back outputs)``."""
+    Returns ``(front outputs, out (R, 3) float64, back outputs)``. Called from compiled code only
+    (:func:`fused_table`, :func:`fused_packed`): handing the intermediate arrays back to Python cost
+    ~0.9 ms per 64 dense-arena scans (measured; large arrays freed outside the call come back as
+    fresh pages), and as a separate compiled function (not inlined into its callers) ~0.5 ms more
+    (measured, not understood)."""
     fr = front(r, *front_args)
-    rows, x = fr[9], fr[10]
-    n_sel = rows.shape[0]
-    if n_sel >= kernel_max:
-        empty = (np.empty(0), np.empty(0), np.empty(0, dtype=np.int8), np.empty(0, dtype=np.int64),
-                 np.empty((0, 8)))  # fmt: skip
-        return False, fr, np.empty((0, 3)), empty
+    x = fr[10]
+    n_sel = x.shape[0]
     out32 = np.empty((n_sel, 3), dtype=np.float32)
     if n_sel > 0:
         if n_sel < rows_max:
@@ -282,7 +282,7 @@ def fused(r, front_args, kernel_max, rows_max, mean, std, weights, weights_t, bi
         else:
             _k.mlp_forward(x, mean, std, weights, biases, sizes, out32)
     out = out32.astype(np.float64)
-    return True, fr, out, back_rest(out, fr, back_args)
+    return fr, out, back_rest(out, fr, back_args)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -292,15 +292,11 @@ def back_rest(out, fr, back_args):
 
 
 @numba.njit(cache=True, nogil=True)
-def fused_table(r, front_args, kernel_max, rows_max, mean, std, weights, weights_t, biases, sizes, back_args):
-    """:func:`fused` returning only ``(done, scan row (D,), table (D, 8))`` of the detections: what the
-    envs read (fewer arrays cross back into Python). ``done`` False (as :func:`fused`): nothing was
-    computed past :func:`front`, call :func:`fused` instead."""
-    done, fr, _, bk = fused(r, front_args, kernel_max, rows_max, mean, std, weights, weights_t, biases,
-                            sizes, back_args)  # fmt: skip
-    if not done:
-        return False, np.empty(0, dtype=np.int64), np.empty((0, 8))
-    return True, fr[1][bk[3]], bk[4]
+def fused_table(r, front_args, rows_max, mean, std, weights, weights_t, biases, sizes, back_args):
+    """:func:`fused` returning only ``(scan row (D,), table (D, 8))`` of the detections: what the
+    envs read (fewer arrays cross back into Python)."""
+    fr, _, bk = fused(r, front_args, rows_max, mean, std, weights, weights_t, biases, sizes, back_args)
+    return fr[1][bk[3]], bk[4]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -308,8 +304,8 @@ def pack(fr, bk):
     """The :class:`~detectors.base.BatchDetections` columns from :func:`front` / :func:`back` outputs
     as a few blocks (each column a row of one; fewer arrays to hand back to Python): ``(seg_i (5, S)
     int64: scan, first, count, prev, next; seg_b (2, S) bool: prev_nearer, next_nearer; seg_f (4, S):
-    p_kin, threshold, max_beams, cascade_score; stage (S,) int8; det (D,) int64; det_f (5, D): range, bearing, x, y,
-    score; det_i (4, D) int64: scan, first_beam, last_beam, n_beams)``."""
+    p_kin, threshold, max_beams, cascade_score; stage (S,) int8; det (D,) int64; det_f (5, D): range,
+    bearing, x, y, score; det_i (4, D) int64: scan, first_beam, last_beam, n_beams)``."""
     n_beams = fr[0].shape[1]
     scan, first, count = fr[1], fr[2], fr[3]
     p, thr, stage, det, table = bk
@@ -344,14 +340,9 @@ def pack(fr, bk):
 
 
 @numba.njit(cache=True, nogil=True)
-def fused_packed(r, front_args, kernel_max, rows_max, mean, std, weights, weights_t, biases, sizes,
-                 back_args):  # fmt: skip
-    """:func:`fused` returning ``(done, pack(...))`` (:func:`pack`; empty blocks when not ``done``): one
-    scan's ``detect_arrays`` hands 7 arrays back to Python instead of 19 (~1 us each)."""
-    done, fr, _, bk = fused(r, front_args, kernel_max, rows_max, mean, std, weights, weights_t, biases,
-                            sizes, back_args)  # fmt: skip
-    if not done:  # fr's segments but no back outputs: nothing to pack
-        return False, (np.empty((5, 0), dtype=np.int64), np.empty((2, 0), dtype=np.bool_), np.empty((4, 0)),
-                       np.empty(0, dtype=np.int8), np.empty(0, dtype=np.int64), np.empty((5, 0)),
-                       np.empty((4, 0), dtype=np.int64))  # fmt: skip
-    return True, pack(fr, bk)
+def fused_packed(r, front_args, rows_max, mean, std, weights, weights_t, biases, sizes, back_args):
+    """:func:`fused` returning :func:`pack` of its outputs: ``detect_arrays`` hands 7 arrays back to
+    Python instead of 19 (~1 us each) and none of the intermediate ones."""
+    fr, _, bk = fused(r, front_args, rows_max, mean, std, weights, weights_t, biases, sizes, back_args)
+    return pack(fr, bk)
+

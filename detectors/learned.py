@@ -710,11 +710,8 @@ class LearnedKinDetector(KinDetector):
         self._numba_weights = _export_weights(self.model)
         mean, std, w, b, sizes = self._numba_weights
         self._numba_weights_t = (mean, std, np.ascontiguousarray(w.transpose(0, 2, 1)), b, sizes)
-        #: the fused driver runs the network itself on fewer rows than this (see ``_run_driver``)
-        self._kernel_max = {
-            "numba": 2**62,
-            "auto": 2**62,
-        }.get(inference, 0)
+        #: the fused driver runs the network itself (else ``_run_driver``)
+        self._network_compiled = inference in ("auto", "numba")
         self._drv_args = None
         if inference != "torch":
             if self.device.type != "cpu":
@@ -999,8 +996,9 @@ class LearnedKinDetector(KinDetector):
             cols = (a.range, a.bearing, a.x, a.y, a.score, a.first_beam, a.last_beam, a.n_beams_on)
             return a.scan, np.stack(cols, axis=1).astype(np.float64).reshape(-1, 8)
         rb = self._driver_input(ranges, angles, True)
-        # one scan (a single-agent env's step): the whole call compiled, only the table returns
-        if rb.shape[0] == 1 and (res := self._call_driver(_drv.fused_table, rb, False)) is not None:
+        # the whole call compiled, only the table returns (returning the driver's intermediate
+        # arrays to Python costs ~0.9 ms per 64 dense-arena scans, measured)
+        if (res := self._call_driver(_drv.fused_table, rb, self._uses_cascade(rb))) is not None:
             scan, table = res
         else:
             fr, bk = self._run_driver(rb)
@@ -1020,9 +1018,11 @@ class LearnedKinDetector(KinDetector):
             return self._detect_arrays_staged(ranges, angles, trusted)
         rb = self._driver_input(ranges, angles, trusted)
         cascade = self._uses_cascade(rb)
-        # one scan: the whole call compiled, the columns handed back in a few blocks
-        res = self._call_driver(_drv.fused_packed, rb, cascade) if rb.shape[0] == 1 else None
-        packed = res[0] if res is not None else _drv.pack(*self._run_driver(rb))
+        # the whole call compiled, the columns handed back in a few blocks (not the driver's
+        # intermediate arrays: returning them to Python costs ~0.9 ms per 64 dense-arena scans)
+        packed = self._call_driver(_drv.fused_packed, rb, cascade)
+        if packed is None:
+            packed = _drv.pack(*self._run_driver(rb))
         seg_i, seg_b, seg_f, stage, det, det_f, det_i = packed
         n_seg = seg_i.shape[1]
         dup = None
@@ -1085,8 +1085,8 @@ class LearnedKinDetector(KinDetector):
         fixed = -1.0 if self.threshold is None else self.threshold
         front = (
             float(c.d_th), float(c.d_max), self._circular, self.pre_gate, self._step, float(c.r),
-            PRE_GATE_SLACK, float(PRE_GATE_MARGIN), ang, cos_a, sin_a, float(sweep), tan_tab, c.occlusion_unbounded,
-            int(c.n_points), int(c.n_context), int(c.gn_iters), len(feature_names(c)),
+            PRE_GATE_SLACK, float(PRE_GATE_MARGIN), ang, cos_a, sin_a, float(sweep), tan_tab,
+            c.occlusion_unbounded, int(c.n_points), int(c.n_context), int(c.gn_iters), len(feature_names(c)),
         )  # fmt: skip
         # the cascade's model, or empty stand-ins of the same types (one compiled signature)
         off = (False, np.zeros((0, 0)), np.zeros(0), np.zeros(0), 0.0, 0.0)
@@ -1121,33 +1121,23 @@ class LearnedKinDetector(KinDetector):
         return np.ascontiguousarray(rb, dtype=np.float64)
 
     def _call_driver(self, kernel, rb: np.ndarray, cascade: bool):
-        """``kernel`` (:func:`~detectors._learned_driver.fused` or a variant) on ``rb`` with this
-        detector's arguments (the cascade if ``cascade``): its outputs after ``done``, or None when the
-        network did not run in it (inference ``"blas"`` / ``"torch"``)."""
-        if self._kernel_max == 0:
+        """``kernel`` (:func:`~detectors._learned_driver.fused_table` or
+        :func:`~detectors._learned_driver.fused_packed`) on ``rb`` with this detector's arguments (the
+        cascade if ``cascade``): its outputs, or None when the network does not run compiled
+        (inference ``"blas"`` / ``"torch"``: then :meth:`_run_driver`)."""
+        if not self._network_compiled:
             return None
         front_args, back_args = self._driver_consts(cascade)
         mean, std, w, b, sizes = self._numba_weights
-        done, *res = kernel(
-            rb, front_args, self._kernel_max, _DRIVER_ROWS_MAX, mean, std, w, self._numba_weights_t[2], b,
-            sizes, back_args,
-        )  # fmt: skip
-        return tuple(res) if done else None
+        return kernel(rb, front_args, _DRIVER_ROWS_MAX, mean, std, w, self._numba_weights_t[2], b, sizes,
+                      back_args)  # fmt: skip
 
     def _run_driver(self, rb: np.ndarray):
-        """The fused driver (:mod:`detectors._learned_driver`) on ``rb`` (:meth:`_driver_input`):
-        ``(front outputs, back outputs)``. The network runs inside the compiled call unless this
-        detector's inference puts it in BLAS or torch: then
-        it runs here, between the driver's two kernels."""
+        """The driver's two kernels with the network in between in Python (BLAS or torch
+        inference): ``(front outputs, back outputs)`` for :func:`~detectors._learned_driver.pack`."""
         front_args, back_args = self._driver_consts(self._uses_cascade(rb))
-        mean, std, w, b, sizes = self._numba_weights
-        done, fr, _, bk = _drv.fused(
-            rb, front_args, self._kernel_max, _DRIVER_ROWS_MAX, mean, std, w, self._numba_weights_t[2], b,
-            sizes, back_args,
-        )  # fmt: skip
-        if not done:
-            bk = _drv.back_rest(self._forward(fr[10]), fr, back_args)
-        return fr, bk
+        fr = _drv.front(rb, *front_args)
+        return fr, _drv.back_rest(self._forward(fr[10]), fr, back_args)
 
     def _detect_arrays_staged(self, ranges, angles, trusted: bool = False) -> BatchDetections:
         """:meth:`detect_arrays` through the staged Python pipeline (:meth:`_predict`): the readable

@@ -300,9 +300,8 @@ def test_learned_blas_inference_leaves_the_callers_blas_threads_alone():
     ref = numba_.detect_arrays(ranges, angles)
     np.testing.assert_allclose(results[1].seg_values["p_kin"], ref.seg_values["p_kin"], rtol=0, atol=1e-5)
     for r in (ranges, ranges[:1]):
-        np.testing.assert_array_equal(
-            auto.detect_arrays(r, angles).seg_values["p_kin"], numba_.detect_arrays(r, angles).seg_values["p_kin"]
-        )
+        got, want = auto.detect_arrays(r, angles), numba_.detect_arrays(r, angles)
+        np.testing.assert_array_equal(got.seg_values["p_kin"], want.seg_values["p_kin"])
 
 
 @pytest.mark.parametrize("kind", ["geometric", "learned-numba"])
