@@ -5,17 +5,19 @@ all per-call overhead: ~30 small numpy calls and Python glue around ~55 us of co
 the stages run back to back inside compiled code and write the compact result columns:
 
 * :func:`front`: pre-processing and segmentation (:mod:`detectors._kernels`), the pre-gate, the scan
-  noise and the features of the segments that pass it (:mod:`detectors.features`' kernels);
+  noise, for batches the cascade's stage 1 (inputs and scores in cache-sized chunks, threshold), and the
+  features of the segments that pass (:mod:`detectors.features`' kernels);
 * :func:`back`: from the network's ``(R, 3)`` outputs, ``p(kin)``, the per-noise thresholds, the
   stage codes, the kin centres (regression or circle fit) and the detection columns;
-* :func:`fused`: ``front``, the network in a compiled kernel (:func:`mlp_rows4`, bitwise
-  :func:`detectors._kernels.mlp_forward_rows`, below ``rows_max`` rows, else
-  :func:`~detectors._kernels.mlp_forward`) and ``back``, when the
-  network is to run compiled on fewer than ``kernel_max`` rows; otherwise it stops after ``front`` and
-  the detector runs BLAS / torch in Python, then ``back``;
-* :func:`fused_table` / :func:`fused_packed`: ``fused`` for one scan, handing back only the env's
-  ``(row, table)`` or the result columns packed in 7 blocks (:func:`pack`): each array that crosses
-  back into Python costs ~1 us, a fixed cost that matters at ~50 us a call.
+* :func:`fused` (inlined into its callers): ``front``, the network in a compiled kernel
+  (:func:`mlp_rows4` below ``rows_max`` rows, else the block kernel
+  :func:`~detectors._kernels.mlp_forward`; bitwise the same) and ``back``;
+* :func:`fused_table` / :func:`fused_packed`: ``fused`` handing back only the env's ``(row, table)``
+  or the result columns packed in 7 blocks (:func:`pack`), for one scan or a batch: each array that
+  crosses back into Python costs ~1 us, and the large intermediate ones (ranges, features) ~0.9 ms
+  per 64 dense-arena scans (freed outside the call, their pages come back fresh on the next).
+  With ``inference="blas"`` / ``"torch"`` the detector calls ``front``, runs the network in Python,
+  then ``back_rest``.
 
 The stage kernels are called with the same arguments as the staged Python pipeline
 (``LearnedKinDetector._predict``, kept as the readable reference) passes them, and every expression
