@@ -142,7 +142,9 @@ class CommonConfig:
         tracker: multi-frame kin tracking of the detections (:class:`detectors.KinTracker`, fed with
             the detector's operating-point detections and the robot's wheel odometry): ``None``/
             ``False`` (off), ``True`` (default parameters) or a dict of ``detectors.TrackerParams``
-            fields. Adds ``info["kin_tracks"]``. Needs a detector.
+            fields plus optionally ``"kin_model"``: the track classifier, ``"learned"`` (default, the
+            shipped one), ``"hand"`` (the hand-tuned fusion of the cues) or a path to a track-classifier
+            JSON (``scripts/fit_track_classifier.py``). Adds ``info["kin_tracks"]``. Needs a detector.
         max_tracks: slots of ``info["kin_tracks"]`` (fixed-shape info).
         obs_tracks: fill the observation's detection channel from the tracker's confirmed kin tracks
             (their centre; score = kin probability) instead of the frame's raw detections.
@@ -214,6 +216,8 @@ class CommonConfig:
                 )
             if self.detector is None:
                 raise ValueError(f"{w}: tracker={self.tracker!r} needs a detector, but detector=None")
+            if isinstance(self.tracker, dict):
+                _tracker_options(w, self.tracker)  # bad keys / values raise here, naming them
         if self.obs_tracks and (self.tracker is None or mode is None):
             raise ValueError(f"{w}: obs_tracks=True needs tracker=True and obs_detections ('topk' or 'mask')")
 
@@ -221,13 +225,47 @@ class CommonConfig:
         """The configured :class:`detectors.KinTracker` (imported lazily), or ``None``."""
         if self.tracker is None:
             return None
-        from detectors.tracking import KinTracker, TrackerParams
+        from detectors.tracking import KinTracker
 
-        params = TrackerParams() if self.tracker is True else TrackerParams.from_dict(self.tracker)
-        return KinTracker(params, n_observers=n_observers)
+        params, kin_model = _tracker_options(self.env_id, {} if self.tracker is True else self.tracker)
+        return KinTracker(params, n_observers=n_observers, kin_model=kin_model)
 
     def lidar_spec(self) -> LidarSpec:
         return LidarSpec(noise_sigma=float(self.noise_sigma), dropout_prob=float(self.dropout_prob))
+
+
+#: the track classifiers ``tracker={"kin_model": ...}`` names (any other string is a model JSON path)
+TRACKER_KIN_MODELS = ("learned", "hand")
+
+
+def _tracker_options(where: str, opts: Mapping):
+    """``(detectors.TrackerParams, kin_model)`` of a ``tracker`` dict: ``TrackerParams`` fields plus
+    ``"kin_model"``; an unknown key or a bad value raises a ``ValueError`` naming it."""
+    from pathlib import Path
+
+    from detectors.tracking import TrackerParams, TrackKinModel
+
+    names = sorted(f.name for f in dataclasses.fields(TrackerParams))
+    bad = sorted(str(k) for k in opts if k != "kin_model" and k not in names)
+    if bad:
+        raise ValueError(f"{where}: tracker has unknown key(s) {bad}; expected 'kin_model' or "
+                         f"detectors.TrackerParams fields {names}")  # fmt: skip
+    try:
+        params = TrackerParams(**{k: v for k, v in opts.items() if k != "kin_model"})
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"{where}: tracker: {e}") from e
+    kin_model = opts.get("kin_model", "learned")
+    named = isinstance(kin_model, str) and kin_model in TRACKER_KIN_MODELS
+    if named or isinstance(kin_model, TrackKinModel):
+        return params, kin_model
+    if not isinstance(kin_model, str | Path):
+        raise ValueError(f"{where}: tracker['kin_model'] must be one of {list(TRACKER_KIN_MODELS)} or a path "
+                         f"to a track-classifier JSON, got {kin_model!r}")  # fmt: skip
+    try:
+        return params, TrackKinModel.load(kin_model)  # loaded once: every reset reuses it
+    except ValueError as e:
+        raise ValueError(f"{where}: tracker['kin_model'] must be one of {list(TRACKER_KIN_MODELS)} or a path "
+                         f"to a track-classifier JSON, got {kin_model!r}: {e}") from e
 
 
 # --- detector -----------------------------------------------------------------------------------
