@@ -286,8 +286,9 @@ def _cast_prims(x0, y0, h, skip, reach, cx, cy, cr, cid, n_ci, sx1, sy1, sx2, sy
     for q in range(n_ci):
         keep[m] = q
         m += f_count[q] > 0.0
+    # indices as unsigned integers: numba's negative-index wraparound costs ~20 % in these loops
     for u in range(m):
-        q = keep[u]
+        q = np.uint64(keep[u])
         c = cid[q]
         dx = cx[q] - x0
         dy = cy[q] - y0
@@ -299,20 +300,21 @@ def _cast_prims(x0, y0, h, skip, reach, cx, cy, cr, cid, n_ci, sx1, sy1, sx2, sy
             i += 1
             if i == n_beams:
                 i = 0
-            bd = best_d[i]
+            w = np.uint64(i)
+            bd = best_d[w]
             if bd < near:
                 continue  # occluded
             # direction of heading - i*res, by rotation (no trig in the inner loop)
-            ux = ch * cos_tab[i] + sh * sin_tab[i]
-            uy = sh * cos_tab[i] - ch * sin_tab[i]
+            ux = ch * cos_tab[w] + sh * sin_tab[w]
+            uy = sh * cos_tab[w] - ch * sin_tab[w]
             b = dx * ux + dy * uy
             disc = b * b - cc
             if disc < 0.0 or b <= 0.0:
                 continue
             t = b - math.sqrt(disc)
-            if t > 0.0 and (t < bd or (t == bd and c < best_p[i])):
-                best_d[i] = t
-                best_p[i] = c
+            if t > 0.0 and (t < bd or (t == bd and c < best_p[w])):
+                best_d[w] = t
+                best_p[w] = c
     for q in range(n_si):
         ax = sx1[q] - x0
         ay = sy1[q] - y0
@@ -375,7 +377,7 @@ def _cast_prims(x0, y0, h, skip, reach, cx, cy, cr, cid, n_ci, sx1, sy1, sx2, sy
         f_near[k] = f_near[v]
         k += f_count[v] > 0.0
     for v in range(k):
-        q = keep[v]
+        q = np.uint64(keep[v])
         p = n_c + sid[q]
         ax = sx1[q] - x0
         ay = sy1[q] - y0
@@ -387,20 +389,21 @@ def _cast_prims(x0, y0, h, skip, reach, cx, cy, cr, cid, n_ci, sx1, sy1, sx2, sy
             i += 1
             if i == n_beams:
                 i = 0
-            bd = best_d[i]
+            w = np.uint64(i)
+            bd = best_d[w]
             if bd < near_d:
                 continue  # occluded
-            ux = ch * cos_tab[i] + sh * sin_tab[i]
-            uy = sh * cos_tab[i] - ch * sin_tab[i]
+            ux = ch * cos_tab[w] + sh * sin_tab[w]
+            uy = sh * cos_tab[w] - ch * sin_tab[w]
             den = ux * ey - uy * ex  # cross(u, e)
             if den == 0.0:
                 continue
             # origin + t u = A + s e  ->  t = cross(A, e)/cross(u, e), s = cross(A, u)/cross(u, e)
             t = (ax * ey - ay * ex) / den
             sp = (ax * uy - ay * ux) / den
-            if t > 0.0 and 0.0 <= sp <= 1.0 and (t < bd or (t == bd and p < best_p[i])):
-                best_d[i] = t
-                best_p[i] = p
+            if t > 0.0 and 0.0 <= sp <= 1.0 and (t < bd or (t == bd and p < best_p[w])):
+                best_d[w] = t
+                best_p[w] = p
 
 
 @numba.njit(cache=True, nogil=True)
@@ -812,8 +815,10 @@ def _segment_beams(ax, ay, ex, ey, p, near, i, cnt, n_beams, bux, buy, best_d, b
 def _scan_kernel_grid(
     ox, oy, heading, tabs, range_min, range_max, circles, circle_skip, segments, prim_kind, prim_index,
     gx, gy, cs, nx, ny, c_start, c_cols, c_ids, c_pad, g_start, g_cols, g_off, g_seg, g_sid, g_pad, s_start,
-    s_items, dyn_c, dyn_s, out_ranges, out_true, out_kind, out_index,
+    s_items, dyn_c, dyn_s, fs, js, out_ranges, out_true, out_kind, out_index,
 ):  # fmt: skip
+    """The grid's scan of every origin (see "broad phase" above). ``fs`` / ``js``: :func:`grid_scratch`,
+    reused across calls (allocating ~30 arrays per call cost more than a one-robot scan's casting)."""
     n_beams = tabs.shape[1]
     cos_tab = tabs[0]
     sin_tab = tabs[1]
@@ -823,8 +828,9 @@ def _scan_kernel_grid(
     # the moving circles, binned by centre for this call; those outside the grid are tested by everyone
     n_d = dyn_c.shape[0]
     n_cells = nx * ny
-    d_start = np.zeros(n_cells + 1, np.int64)
-    d_cell = np.empty(n_d, np.int64)
+    d_start = js[6, : n_cells + 1]
+    d_start[:] = 0
+    d_cell = js[4]
     xmax = gx + nx * cs
     ymax = gy + ny * cs
     d_pad = 0.0
@@ -842,9 +848,10 @@ def _scan_kernel_grid(
     for c in range(n_cells):
         d_start[c + 1] += d_start[c]
     n_in = d_start[n_cells]
-    fill = d_start[:n_cells].copy()
-    d_cols = np.empty((3, n_d))
-    d_ids = np.empty(n_d, np.int64)
+    fill = js[7]
+    fill[:n_cells] = d_start[:n_cells]
+    d_cols = fs[19:22]
+    d_ids = js[5]
     o = n_in
     for k in range(n_d):
         c = dyn_c[k]
@@ -860,38 +867,15 @@ def _scan_kernel_grid(
         d_cols[2, p] = circles[c, 2]
         d_ids[p] = c
     # scratch: candidate circles (k*), groups (g*), long segments (s*)
-    cap = c_ids.shape[0] + n_d + 1
-    kx = np.empty(cap)
-    ky = np.empty(cap)
-    kr = np.empty(cap)
-    kid = np.empty(cap, np.int64)
-    kb = np.empty(cap)
-    kc = np.empty(cap)
-    kn = np.empty(cap)
-    cap = g_off.shape[0]
-    gx_ = np.empty(cap)
-    gy_ = np.empty(cap)
-    gr_ = np.empty(cap)
-    gid = np.empty(cap, np.int64)
-    gb = np.empty(cap)
-    gc = np.empty(cap)
-    gn = np.empty(cap)
-    order = np.empty(cap, np.int64)
-    cap = s_items.shape[0] + dyn_s.shape[0] + 1
-    sid = np.empty(cap, np.int64)
-    s1 = np.empty(cap)
-    s2 = np.empty(cap)
-    s3 = np.empty(cap)
-    s4 = np.empty(cap)
-    sb = np.empty(cap)
-    sc = np.empty(cap)
-    sn = np.empty(cap)
-    stamp = np.zeros(segments.shape[0], np.int64)
-    bucket = np.empty(_N_BUCKETS + 1, np.int64)
-    best_d = np.empty(n_beams)
-    best_p = np.empty(n_beams, dtype=np.int32)
-    bux = np.empty(n_beams)
-    buy = np.empty(n_beams)
+    kx, ky, kr, kb, kc, kn = fs[0], fs[1], fs[2], fs[3], fs[4], fs[5]
+    gx_, gy_, gr_, gb, gc, gn = fs[6], fs[7], fs[8], fs[9], fs[10], fs[11]
+    s1, s2, s3, s4, sb, sc, sn = fs[12], fs[13], fs[14], fs[15], fs[16], fs[17], fs[18]
+    best_d, bux, buy = fs[22, :n_beams], fs[23, :n_beams], fs[24, :n_beams]  # (_write_row: n_beams long)
+    kid, gid, order, sid = js[0], js[1], js[2], js[3]
+    bucket, best_p, stamp = js[8], js[9, :n_beams], js[10]
+    # stamp tags stay unique across calls (the scratch is reused): the last one is kept in js[11, 0]
+    tag0 = js[11, 0]
+    js[11, 0] = tag0 + ox.shape[0]
     to_bucket = _N_BUCKETS / range_max
     rc = reach + _TOL
     rc2 = rc * rc
@@ -965,8 +949,8 @@ def _scan_kernel_grid(
             for i in range(int(max(fi0, 0.0)), int(min(fi1, nx - 1.0)) + 1):
                 for q in range(s_start[i * ny + j0], s_start[i * ny + j1 + 1]):
                     s = s_items[np.uint64(q)]
-                    if stamp[s] != n + 1:
-                        stamp[s] = n + 1
+                    if stamp[s] != tag0 + n + 1:
+                        stamp[s] = tag0 + n + 1
                         sid[ns] = s
                         ns += 1
         for q in range(dyn_s.shape[0]):
@@ -1152,7 +1136,7 @@ def cast_scan(
                 f"cast_scan: the grid indexes {grid.n_circles} circles and {grid.n_segments} segments, "
                 f"got {len(circles)} and {len(segments)}; rebuild it with build_lidar_grid"
             )
-        _scan_kernel_grid(*args, *grid_args(grid), ranges, true, kind, index)
+        _scan_kernel_grid(*args, *grid_args(grid), *grid_scratch(grid, nb), ranges, true, kind, index)
     return ranges, true, kind, index
 
 
@@ -1165,12 +1149,22 @@ def grid_args(grid: LidarGrid) -> tuple:
             grid.dynamic_segments)  # fmt: skip
 
 
+def grid_scratch(grid: LidarGrid, n_beams: int) -> tuple[np.ndarray, np.ndarray]:
+    """Work arrays of the grid kernel for ``grid`` and ``n_beams`` beams, passed after :func:`grid_args`.
+    A caller that scans often (``World``) keeps one pair; they must not be used by two scans at once."""
+    n_d = len(grid.dynamic_circles)
+    cap = max(len(grid.circle_ids) + n_d, grid.groups.shape[1], len(grid.segment_items) + len(grid.dynamic_segments),
+              n_beams, grid.shape[0] * grid.shape[1], grid.n_segments, _N_BUCKETS) + 1
+    js = np.zeros((12, cap), np.int64)
+    return np.zeros((25, cap)), js
+
+
 def cast_prepared(ox, oy, heading, skip, static: tuple, grid: tuple | None):
     """:func:`cast_scan` for callers that keep their arguments in the kernel's form (``World.scan``:
     the conversions and checks cost more than a one-robot scan's kernel). ``ox``, ``oy``, ``heading``:
     ``(N,)`` contiguous float64; ``skip``: ``(N,)`` int64; ``static``: ``(beam_tables, range_min,
     range_max, circles, segments, prim_kind, prim_index)`` as :func:`cast_scan` converts them; ``grid``:
-    :func:`grid_args` or ``None``. Returns float32 readings as :func:`cast_scan`."""
+    :func:`grid_args` followed by :func:`grid_scratch`, or ``None``. Returns float32 readings as :func:`cast_scan`."""
     tabs, range_min, range_max, circles, segments, prim_kind, prim_index = static
     n, nb = ox.shape[0], tabs.shape[1]
     out = (np.empty((n, nb), np.float32), np.empty((n, nb), np.float32), np.empty((n, nb), np.int8),

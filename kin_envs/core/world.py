@@ -33,6 +33,7 @@ from kin_envs.core.lidar import (
     cast_prepared,
     default_cell_size,
     grid_args,
+    grid_scratch,
     polygon_edges,
 )
 from kin_envs.core.odometry import Odometry, OdometrySpec
@@ -446,7 +447,8 @@ class World:
         self._segments = np.ascontiguousarray(self._segments)
         self._lidar_static = (beam_tables(spec.n_beams), float(spec.range_min), float(spec.range_max),
                               self._circles, self._segments, self._prim_kind, self._prim_index)  # fmt: skip
-        self._lidar_grid_args = None if self._lidar_grid is None else grid_args(self._lidar_grid)
+        self._lidar_grid_args = None if self._lidar_grid is None else (
+            grid_args(self._lidar_grid) + grid_scratch(self._lidar_grid, spec.n_beams))
 
     def _update_lidar_geometry(self, poses: np.ndarray) -> None:
         self._circles[: self.n_robots, :2] = poses[:, :2]
