@@ -707,7 +707,8 @@ def build_lidar_grid(
     c_start, order = _by_centre(c[:, 0], c[:, 1], gx, gy, cs, nx, ny)
     g_start, g_order = _by_centre(group_circles[:, 0], group_circles[:, 1], gx, gy, cs, nx, ny)
     rows = group_rows[g_order]
-    seg_ids = (np.concatenate([np.arange(a, b) for a, b in rows]) if len(rows) else np.zeros(0)).astype(np.int64)
+    seg_ids = np.concatenate([np.arange(a, b) for a, b in rows]) if len(rows) else np.zeros(0)
+    seg_ids = seg_ids.astype(np.int64)
     s_start, s_items = _bin(seg_box, single, gx, gy, cs, nx, ny)
     return LidarGrid(
         origin=(gx, gy),
@@ -733,18 +734,17 @@ def build_lidar_grid(
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _item_pass(x0, y0, hw, skip, reach, n_beams, inv_res, xs_, ys_, rs_, ids_, a, b, m, solid, kx_, ky_, kr_,
-               kid_, fb_, fc_, fn_):  # fmt: skip
-    """Pass 1 over the circles (``solid``) or group bounding circles ``a..b-1`` of the columns ``xs_``,
-    ``ys_``, ``rs_`` (ids ``ids_``, or ``None`` for groups: the item index is kept): the reach test and
-    beam interval of :func:`_cast_prims`' circle pass; the items with beams to test are appended at ``m``
-    (first beam, count, nearest distance, and the circle's coordinates). Returns the new count. A group
-    whose bounding circle holds the origin gets every beam."""
+def _circle_pass(x0, y0, hw, skip, reach, n_beams, inv_res, xs_, ys_, rs_, ids_, a, b, m, kx_, ky_, kr_, kid_,
+                 fb_, fc_, fn_):  # fmt: skip
+    """Pass 1 over the circles ``a..b-1`` of the columns ``xs_``, ``ys_``, ``rs_`` (ids ``ids_``): the
+    reach test and beam interval of :func:`_cast_prims`' circle pass, bit for bit; the circles with beams
+    to test are appended at ``m`` (coordinates, id, first beam, count, nearest distance). Returns the new
+    count. (Separate from :func:`_group_pass`: one function with a flag was no longer vectorised.)"""
     rc = reach + _TOL
     xs = xs_[a:b]
     ys = ys_[a:b]
     rs = rs_[a:b]
-    ids = ids_[a:b] if solid else ids_[0:0]
+    ids = ids_[a:b]
     kx = kx_[m:]
     ky = ky_[m:]
     kr = kr_[m:]
@@ -759,27 +759,63 @@ def _item_pass(x0, y0, hw, skip, reach, n_beams, inv_res, xs_, ys_, rs_, ids_, a
         d2 = dx * dx + dy * dy
         d = math.sqrt(d2)
         cc = d2 - r * r
-        if solid:
-            ok = (d2 <= (rc + r) * (rc + r)) & (ids[q] != skip) & (d - r <= reach) & (d > r) & (cc > 0.0)
-        else:
-            ok = (d2 <= (rc + r) * (rc + r)) & (d - r <= reach)
+        ok = (d2 <= (rc + r) * (rc + r)) & (ids[q] != skip) & (d - r <= reach) & (d > r) & (cc > 0.0)
         sq = math.sqrt(max(cc, 1e-300))
         z = r / sq
         half = (z if z < 0.05 else _fast_atan2(r, sq)) + _EPS
         phi = _fast_atan2(dy, dx) - hw
         k0 = np.ceil(-(phi + half) * inv_res)
         k1 = np.floor(-(phi - half) * inv_res)
-        full = cc <= 0.0  # (groups only: ok excludes it for circles)
-        fb[q] = 0.0 if full else _first_beam(k0, n_beams)
-        cnt = float(n_beams) if full else k1 - k0 + 1.0
-        fc[q] = cnt if ok else 0.0
+        fb[q] = _first_beam(k0, n_beams)
+        fc[q] = k1 - k0 + 1.0 if ok else 0.0
         fn[q] = d - r - _TOL
     k = 0
     for q in range(b - a):
         kx[k] = xs[q]
         ky[k] = ys[q]
         kr[k] = rs[q]
-        kid[k] = ids[q] if solid else a + q
+        kid[k] = ids[q]
+        fb[k] = fb[q]
+        fc[k] = fc[q]
+        fn[k] = fn[q]
+        k += fc[q] > 0.0
+    return m + k
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _group_pass(x0, y0, hw, reach, n_beams, inv_res, xs_, ys_, rs_, a, b, m, kg_, fb_, fc_, fn_):
+    """:func:`_circle_pass` for groups' bounding circles: the group index is kept, and a group whose
+    bounding circle holds the origin gets every beam."""
+    rc = reach + _TOL
+    xs = xs_[a:b]
+    ys = ys_[a:b]
+    rs = rs_[a:b]
+    kg = kg_[m:]
+    fb = fb_[m:]
+    fc = fc_[m:]
+    fn = fn_[m:]
+    for q in range(b - a):
+        dx = xs[q] - x0
+        dy = ys[q] - y0
+        r = rs[q]
+        d2 = dx * dx + dy * dy
+        d = math.sqrt(d2)
+        cc = d2 - r * r
+        ok = (d2 <= (rc + r) * (rc + r)) & (d - r <= reach)
+        sq = math.sqrt(max(cc, 1e-300))
+        z = r / sq
+        half = (z if z < 0.05 else _fast_atan2(r, sq)) + _EPS
+        phi = _fast_atan2(dy, dx) - hw
+        k0 = np.ceil(-(phi + half) * inv_res)
+        k1 = np.floor(-(phi - half) * inv_res)
+        full = cc <= 0.0
+        fb[q] = 0.0 if full else _first_beam(k0, n_beams)
+        cnt = float(n_beams) if full else k1 - k0 + 1.0
+        fc[q] = cnt if ok else 0.0
+        fn[q] = d - r - _TOL
+    k = 0
+    for q in range(b - a):
+        kg[k] = a + q
         fb[k] = fb[q]
         fc[k] = fc[q]
         fn[k] = fn[q]
@@ -868,7 +904,7 @@ def _scan_kernel_grid(
         d_ids[p] = c
     # scratch: candidate circles (k*), groups (g*), long segments (s*)
     kx, ky, kr, kb, kc, kn = fs[0], fs[1], fs[2], fs[3], fs[4], fs[5]
-    gx_, gy_, gr_, gb, gc, gn = fs[6], fs[7], fs[8], fs[9], fs[10], fs[11]
+    gb, gc, gn = fs[9], fs[10], fs[11]
     s1, s2, s3, s4, sb, sc, sn = fs[12], fs[13], fs[14], fs[15], fs[16], fs[17], fs[18]
     best_d, bux, buy = fs[22, :n_beams], fs[23, :n_beams], fs[24, :n_beams]  # (_write_row: n_beams long)
     kid, gid, order, sid = js[0], js[1], js[2], js[3]
@@ -926,17 +962,17 @@ def _scan_kernel_grid(
                 if a == b:
                     continue
                 if layer == 0:
-                    mc = _item_pass(x0, y0, hw, skip, reach, n_beams, inv_res, c_cols[0], c_cols[1], c_cols[2],
-                                    c_ids, a, b, mc, True, kx, ky, kr, kid, kb, kc, kn)  # fmt: skip
+                    mc = _circle_pass(x0, y0, hw, skip, reach, n_beams, inv_res, c_cols[0], c_cols[1],
+                                      c_cols[2], c_ids, a, b, mc, kx, ky, kr, kid, kb, kc, kn)  # fmt: skip
                 elif layer == 1:
-                    mc = _item_pass(x0, y0, hw, skip, reach, n_beams, inv_res, d_cols[0], d_cols[1], d_cols[2],
-                                    d_ids, a, b, mc, True, kx, ky, kr, kid, kb, kc, kn)  # fmt: skip
+                    mc = _circle_pass(x0, y0, hw, skip, reach, n_beams, inv_res, d_cols[0], d_cols[1],
+                                      d_cols[2], d_ids, a, b, mc, kx, ky, kr, kid, kb, kc, kn)  # fmt: skip
                 else:
-                    mg = _item_pass(x0, y0, hw, skip, reach, n_beams, inv_res, g_cols[0], g_cols[1], g_cols[2],
-                                    c_ids, a, b, mg, False, gx_, gy_, gr_, gid, gb, gc, gn)  # fmt: skip
+                    mg = _group_pass(x0, y0, hw, reach, n_beams, inv_res, g_cols[0], g_cols[1], g_cols[2],
+                                     a, b, mg, gid, gb, gc, gn)  # fmt: skip
         if n_in < n_d:
-            mc = _item_pass(x0, y0, hw, skip, reach, n_beams, inv_res, d_cols[0], d_cols[1], d_cols[2], d_ids,
-                            n_in, n_d, mc, True, kx, ky, kr, kid, kb, kc, kn)  # fmt: skip
+            mc = _circle_pass(x0, y0, hw, skip, reach, n_beams, inv_res, d_cols[0], d_cols[1], d_cols[2],
+                              d_ids, n_in, n_d, mc, kx, ky, kr, kid, kb, kc, kn)  # fmt: skip
         # --- long segments of the cells within reach (each once: stamp), and the moving segments
         ns = 0
         fi0 = (x0 - reach - gx) / cs
@@ -1077,7 +1113,8 @@ def _scan_kernel_grid(
                     k1 = np.floor(-(th_a + min(0.0, span) - _EPS) * inv_res)
                     i2 = int(_first_beam(k0, n_beams)) - 1
                     cnt2 = int(k1 - k0 + 1.0)
-                _segment_beams(ax, ay, ex, ey, n_c + g_sid[k], near, i2, cnt2, n_beams, bux, buy, best_d, best_p)
+                _segment_beams(ax, ay, ex, ey, n_c + g_sid[k], near, i2, cnt2, n_beams, bux, buy, best_d,
+                               best_p)
         _write_row(n, best_d, best_p, 0, prim_kind, prim_index, range_min, range_max, out_ranges, out_true,
                    out_kind, out_index)
 
@@ -1153,8 +1190,9 @@ def grid_scratch(grid: LidarGrid, n_beams: int) -> tuple[np.ndarray, np.ndarray]
     """Work arrays of the grid kernel for ``grid`` and ``n_beams`` beams, passed after :func:`grid_args`.
     A caller that scans often (``World``) keeps one pair; they must not be used by two scans at once."""
     n_d = len(grid.dynamic_circles)
-    cap = max(len(grid.circle_ids) + n_d, grid.groups.shape[1], len(grid.segment_items) + len(grid.dynamic_segments),
-              n_beams, grid.shape[0] * grid.shape[1], grid.n_segments, _N_BUCKETS) + 1
+    cap = max(len(grid.circle_ids) + n_d, grid.groups.shape[1],
+              len(grid.segment_items) + len(grid.dynamic_segments), n_beams, grid.shape[0] * grid.shape[1],
+              grid.n_segments, _N_BUCKETS) + 1  # fmt: skip
     js = np.zeros((12, cap), np.int64)
     return np.zeros((25, cap)), js
 
@@ -1164,7 +1202,8 @@ def cast_prepared(ox, oy, heading, skip, static: tuple, grid: tuple | None):
     the conversions and checks cost more than a one-robot scan's kernel). ``ox``, ``oy``, ``heading``:
     ``(N,)`` contiguous float64; ``skip``: ``(N,)`` int64; ``static``: ``(beam_tables, range_min,
     range_max, circles, segments, prim_kind, prim_index)`` as :func:`cast_scan` converts them; ``grid``:
-    :func:`grid_args` followed by :func:`grid_scratch`, or ``None``. Returns float32 readings as :func:`cast_scan`."""
+    :func:`grid_args` followed by :func:`grid_scratch`, or ``None``. Returns float32 readings as
+    :func:`cast_scan`."""
     tabs, range_min, range_max, circles, segments, prim_kind, prim_index = static
     n, nb = ox.shape[0], tabs.shape[1]
     out = (np.empty((n, nb), np.float32), np.empty((n, nb), np.float32), np.empty((n, nb), np.int8),
