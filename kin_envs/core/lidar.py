@@ -1193,8 +1193,9 @@ def grid_scratch(grid: LidarGrid, n_beams: int) -> tuple[np.ndarray, np.ndarray]
     cap = max(len(grid.circle_ids) + n_d, grid.groups.shape[1],
               len(grid.segment_items) + len(grid.dynamic_segments), n_beams, grid.shape[0] * grid.shape[1],
               grid.n_segments, _N_BUCKETS) + 1  # fmt: skip
-    js = np.zeros((12, cap), np.int64)
-    return np.zeros((25, cap)), js
+    # the float rows are always written before they are read; the int rows hold the stamps (and their
+    # last tag), which must start below every tag
+    return np.empty((25, cap)), np.zeros((12, cap), np.int64)
 
 
 def cast_prepared(ox, oy, heading, skip, static: tuple, grid: tuple | None):
