@@ -82,15 +82,19 @@ absorbs.
    *hand-tuned fusion*, ``KinTracker(kin_model="hand")``.
 
 6. *The kin decision* by default (``kin_model="learned"``) is a **learned track-level classifier**
-   (:class:`TrackKinModel`, shipped as ``checkpoints/tracker_kin_default.json``): a logistic regression
-   over per-track features (:data:`TRACK_FEATURES`: the detector's score log-odds averaged, spread,
-   maximum and last; the detector's own decisions; frames seen, beams, range; the motion statistic in the
-   odometry frame; existence; the share of the observer's tracks that moved; the per-frame circle fits'
-   summed chi-square, cue r's statistic), fitted on training-seed
+   (:class:`TrackKinModel`, shipped as ``checkpoints/tracker_kin_default.json``): a small network (one
+   tanh layer of 8 units) over per-track features (:data:`TRACK_FEATURES`: the detector's score log-odds
+   averaged, spread, maximum and last; the detector's own decisions; frames seen, beams, range; the motion
+   statistic in the odometry frame; existence; the share of the observer's tracks that moved; the
+   per-frame circle fits' summed chi-square, cue r's statistic), fitted on training-seed
    sequence episodes (``scripts/fit_track_classifier.py``). A track seen in fewer than its ``min_frames``
    frames takes the detector's own decision of its last frame instead, so that a young track is never
    worse than the single scan. The cues above still run (their state feeds the features); only their
-   hand-set weights are replaced.
+   hand-set weights are replaced. It is fitted on candidates *with* their scan points (``points`` /
+   ``owner``: the beams and the per-frame circle fits are among its inputs); a caller without points
+   should use ``kin_model="hand"``. The shipped model answers "a kin in view here, this frame" (its
+   labels are the per-frame benchmark's) and gives a track not updated this frame probability 0
+   (``TrackKinModel.hit_only``).
 
 Tracks are plain arrays inside (the hot path); :meth:`KinTracker.tracks` builds :class:`Track` objects and
 :meth:`KinTracker.track_arrays` fixed-shape padded arrays (for vector envs) on demand.
@@ -135,8 +139,9 @@ TRACK_FEATURES = ("mean_logit", "std_logit", "max_logit", "last_logit", "hit_log
                   "moved", "existence", "speed_z", "moved_share", "log_moved", "resid_z")  # fmt: skip
 
 _I_LOG_FRAMES, _I_HIT_ACC = TRACK_FEATURES.index("log_frames"), TRACK_FEATURES.index("hit_accepted")
+_I_HIT = TRACK_FEATURES.index("hit")
 
-#: The shipped track-level kin classifier (``scripts/tune_tracker.py --fit-kin-model`` writes it).
+#: The shipped track-level kin classifier (``scripts/fit_track_classifier.py --ship`` writes it).
 DEFAULT_KIN_MODEL = Path(__file__).resolve().parent / "checkpoints" / "tracker_kin_default.json"
 
 
@@ -288,9 +293,14 @@ class TrackKinModel:
         min_frames: a track seen in fewer frames takes the detector's own decision of its last frame
             instead (kin probability 0.75 if updated this frame by a candidate the detector accepted at its
             operating point, else 0.25): a young track's features say little more than that one frame.
+        hit_only: a track not updated this frame gets kin probability 0. The model is fitted to say
+            "a kin in view here, this frame" (the per-frame benchmark's question); a track that coasts
+            had no candidate at all from a permissive detector, so the object is hidden or gone. Off:
+            coasting tracks keep the model's probability (e.g. to keep following an occluded kin).
     """
 
-    def __init__(self, mean, scale, layers, features=TRACK_FEATURES, info=None, min_frames: int = 0) -> None:
+    def __init__(self, mean, scale, layers, features=TRACK_FEATURES, info=None, min_frames: int = 0,
+                 hit_only: bool = False) -> None:  # fmt: skip
         if tuple(features) != TRACK_FEATURES:
             raise ValueError(f"TrackKinModel: features {list(features)} are not this tracker's "
                              f"{list(TRACK_FEATURES)}; re-fit (scripts/fit_track_classifier.py)")  # fmt: skip
@@ -314,6 +324,9 @@ class TrackKinModel:
         if isinstance(min_frames, bool) or int(min_frames) != min_frames or min_frames < 0:
             raise ValueError(f"TrackKinModel: min_frames must be an integer >= 0, got {min_frames!r}")
         self.min_frames = int(min_frames)
+        if not isinstance(hit_only, bool | np.bool_):
+            raise ValueError(f"TrackKinModel: hit_only must be a bool, got {hit_only!r}")
+        self.hit_only = bool(hit_only)
         self.info = dict(info or {})
 
     def logit(self, X: np.ndarray) -> np.ndarray:
@@ -332,21 +345,23 @@ class TrackKinModel:
         if self.min_frames > 0:
             young = X[:, _I_LOG_FRAMES] < math.log(self.min_frames) - 1e-9
             p = np.where(young, np.where(X[:, _I_HIT_ACC] > 0.75, 0.75, 0.25), p)
+        if self.hit_only:
+            p = np.where(X[:, _I_HIT] > 0.5, p, 0.0)
         return p
 
     def to_dict(self) -> dict:
         return {"features": list(TRACK_FEATURES), "mean": self.mean.tolist(), "scale": self.scale.tolist(),
                 "layers": [[W.tolist(), b.tolist()] for W, b in self.layers], "min_frames": self.min_frames,
-                "info": self.info}  # fmt: skip
+                "hit_only": self.hit_only, "info": self.info}  # fmt: skip
 
     @classmethod
     def from_dict(cls, d: dict) -> TrackKinModel:
-        keys = {"features", "mean", "scale", "layers", "info", "min_frames"}
+        keys = {"features", "mean", "scale", "layers", "info", "min_frames", "hit_only"}
         if not isinstance(d, dict) or set(d) - keys or not {"mean", "scale", "layers"} <= set(d):
             raise ValueError(f"TrackKinModel: expected a dict with keys {sorted(keys)}, got "
                              f"{sorted(d) if isinstance(d, dict) else type(d).__name__}")  # fmt: skip
         return cls(d["mean"], d["scale"], d["layers"], d.get("features", TRACK_FEATURES), d.get("info"),
-                   d.get("min_frames", 0))
+                   d.get("min_frames", 0), d.get("hit_only", False))
 
     @classmethod
     def load(cls, path=None) -> TrackKinModel:
@@ -360,7 +375,8 @@ class TrackKinModel:
 
     @classmethod
     def fit(cls, X, y, weight=None, hidden: Sequence[int] = (), l2: float = 1e-3, seed: int = 0,
-            max_iter: int = 500, info=None, min_frames: int = 0) -> TrackKinModel:  # fmt: skip
+            max_iter: int = 500, info=None, min_frames: int = 0,
+            hit_only: bool = False) -> TrackKinModel:  # fmt: skip
         """Fit on feature rows ``X`` (n, F) and labels ``y`` (n,) in {0, 1}: weighted cross-entropy plus
         ``l2`` times the squared weights, minimised by scipy's L-BFGS from a seeded initialisation
         (deterministic for a given input)."""
@@ -410,7 +426,7 @@ class TrackKinModel:
             return f, np.concatenate([np.r_[gW.ravel(), gb] for gW, gb in reversed(grads)])
 
         res = minimize(loss, theta0, jac=True, method="L-BFGS-B", options={"maxiter": int(max_iter)})
-        return cls(mean, scale, unpack(res.x), min_frames=min_frames,
+        return cls(mean, scale, unpack(res.x), min_frames=min_frames, hit_only=hit_only,
                    info={**(info or {}), "loss": float(res.fun), "hidden": [int(h) for h in hidden],
                          "l2": l2})  # fmt: skip
 
@@ -421,11 +437,18 @@ class TrackKinModel:
         layers = [(W.copy(), b.copy()) for W, b in self.layers]
         layers[-1][1][0] -= math.log(threshold / (1 - threshold))
         return TrackKinModel(self.mean, self.scale, layers, info={**self.info, "threshold": float(threshold)},
-                             min_frames=self.min_frames)  # fmt: skip
+                             min_frames=self.min_frames, hit_only=self.hit_only)  # fmt: skip
 
     def with_min_frames(self, min_frames: int) -> TrackKinModel:
         """The same model with another ``min_frames``."""
-        return TrackKinModel(self.mean, self.scale, self.layers, info=self.info, min_frames=min_frames)
+        return TrackKinModel(self.mean, self.scale, self.layers, info=self.info, min_frames=min_frames,
+                             hit_only=self.hit_only)
+
+    def with_hit_only(self, hit_only: bool) -> TrackKinModel:
+        """The same model with another ``hit_only`` (e.g. ``False`` for a tracker fed only the detector's
+        accepted detections, where a coasting track is often a kin the detector missed this frame)."""
+        return TrackKinModel(self.mean, self.scale, self.layers, info=self.info, min_frames=self.min_frames,
+                             hit_only=hit_only)
 
 
 @dataclass(frozen=True, eq=False)

@@ -8,7 +8,9 @@ the seeded ``swarm`` and ``lookalike`` episodes at each range-noise level, and w
   P / R / F1 overall and per distance bin), P / R / F1 against frames since the kin came into view
   (1, 2, 5, 10, 20) and against distance, for the tracker and each single-scan detector; time to
   confirm; false tracks per minute; MOTA / IDF1 / identity switches; same-radius cylinders rejected once
-  every kin in view has moved >= 0.2 m; tracker vs detector time per frame; and the tracking cost at
+  every kin in view has moved >= 0.2 m; the tracker against the single scan in the target window (kin
+  frames each got right, the causes of the tracker's misses where the single scan was right, false
+  positives of both by object); tracker vs detector time per frame; and the tracking cost at
   ``--cost-robots`` (64) observers: the tracker's update against the permissive detector feeding it, timed
   alternately on the same frames, warm, compile time apart (``--cost-robots 0`` skips it);
 * ``results.json``: the same as data;
@@ -57,6 +59,24 @@ def _prf(row) -> str:
     return f"{_f(row['precision'])} / {_f(row['recall'])} / {_f(row['f1'])}"
 
 
+def _diagnosis_lines(d: dict | None) -> list[str]:
+    """The tracker against the single scan in the target window (``sequences._diagnose``), in two lines."""
+    if not d:
+        return []
+    v = {k: d.get(f"vs_single:{k}", 0) for k in ("both_tp", "tracker_only", "single_only", "both_fn")}
+
+    def by(prefix):
+        items = sorted(((k[len(prefix) :], n) for k, n in d.items() if k.startswith(prefix)),
+                       key=lambda x: -x[1])  # fmt: skip
+        return ", ".join(f"{k} {n}" for k, n in items) or "none"
+
+    return [f"- target window, kin frames: both right {v['both_tp']}, tracker only {v['tracker_only']}, "
+            f"single scan only {v['single_only']} (the tracker's cause: {by('lost:')}), both wrong "
+            f"{v['both_fn']}",
+            f"- target window, false positives by object: tracker {by('fp:')}; single scan "
+            f"{by('single_fp:')}"]  # fmt: skip
+
+
 def report(results: list[dict], cost: dict | None = None) -> str:
     lines = [
         f"# Sequence benchmark (version {SEQUENCE_VERSION})",
@@ -99,6 +119,7 @@ def report(results: list[dict], cost: dict | None = None) -> str:
             f"identity switches {mot['num_switches']}",
             f"- same-radius cylinders rejected once every kin in view moved >= 0.2 m: {sr}",
             f"- look-alikes in view >= 20 frames at 0.3-2 m, share of frames not reported, by kind: {lk}",
+            *_diagnosis_lines(r.get("diagnosis")),
             f"- per frame, all observers: detector {1e3 * sec['detector_per_frame']:.2f} ms, tracker "
             f"{1e3 * sec['tracker_per_frame']:.2f} ms "
             f"({100 * sec['tracker_per_frame'] / max(sec['detector_per_frame'], 1e-12):.0f} %), timed warm "
@@ -240,7 +261,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
         n = spec.n_episodes if args.full else args.episodes
         want_gif = not args.no_gif and recording is None and split == "lookalike" and nz > 0
         r = run_sequences(detector, split, n, nz, baselines=baselines, record=0 if want_gif else None,
-                          kin_model=args.kin_model)  # fmt: skip
+                          kin_model=args.kin_model, diagnose=True)  # fmt: skip
         if want_gif:
             recording = r.pop("recording")
         results.append(r)

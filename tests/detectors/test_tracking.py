@@ -204,11 +204,14 @@ def test_per_frame_residual_cue_separates_a_circle_from_a_hexagon_over_frames():
 def test_parked_track_keeps_its_kin_probability_by_default():
     """A static circle the detector keeps accepting stays kin (a parked kin) while another track moves; the
     static penalty (off by default) is what would turn it into a same-radius cylinder. The hand-tuned
-    fusion and the shipped classifier alike."""
+    fusion and the shipped classifier alike (the classifier reads the candidates' points: their beams and
+    the per-frame circle fits are among its inputs)."""
+    arc = 0.035 * np.c_[np.cos(np.linspace(2.5, 3.8, 5)), np.sin(np.linspace(2.5, 3.8, 5))]
     for model in ("hand", "learned"):
         tr = KinTracker(kin_model=model)
         for k in range(50):
-            tr.update([[1.0, 0.0], [1.5, -0.5 + 0.02 * k]], [0.97, 0.97], STILL, DT)
+            xy = np.array([[1.0, 0.0], [1.5, -0.5 + 0.02 * k]])
+            tr.update(xy, [0.97, 0.97], STILL, DT, points=[c + (0.035, 0.0) + arc for c in xy])
         kp = tr.kin_prob()
         assert kp[0] > 0.5 and kp[1] > 0.5, model
         assert not tr.tracks()[0].moved and tr.tracks()[1].moved
@@ -438,6 +441,18 @@ def test_kin_model_decides_and_young_tracks_take_the_detectors_decision():
         tr.update_batch([0, 0], xy, [0.9, 0.9], np.zeros((1, 3)), DT, accepted=[True, False])
     np.testing.assert_allclose(tr.kin_prob(), 1 / (1 + math.exp(-5.0)))  # 3 frames: the model's
     assert [t.is_kin for t in tr.tracks()] == [True, True]
+    # hit_only: a track not updated this frame is not kin (the model answers "in view, this frame")
+    m = _rule_model("hit", 0.0, 5.0, min_frames=3)
+    m = TrackKinModel(m.mean, m.scale, m.layers, info=m.info, min_frames=3, hit_only=True)
+    assert TrackKinModel.from_dict(m.to_dict()).hit_only and m.shifted(0.4).hit_only
+    assert not m.with_hit_only(False).hit_only and m.with_min_frames(2).hit_only
+    tr = KinTracker(kin_model=m)
+    for _ in range(3):
+        tr.update_batch([0, 0], xy, [0.9, 0.9], np.zeros((1, 3)), DT, accepted=[True, False])
+    tr.update_batch([0], xy[:1], [0.9], np.zeros((1, 3)), DT, accepted=[True])  # the second coasts
+    assert tr.kin_prob()[0] > 0.99 and tr.kin_prob()[1] == 0.0
+    with pytest.raises(ValueError, match="hit_only"):
+        TrackKinModel(m.mean, m.scale, m.layers, hit_only=1)
     # the hand-tuned fusion stays selectable and is what "hand" gives
     hand = KinTracker(kin_model="hand")
     assert hand.kin_model is None

@@ -20,6 +20,7 @@ def test_one_episode_run(tmp_path):
     md = (out / "results.md").read_text()
     assert "Frames since the kin came into view" in md and "Target window" in md
     assert "Tracking cost at 4 observers" in md
+    assert "target window, kin frames: both right" in md and "single scan only" in md
 
 
 def test_tune_tracker_script(tmp_path):
