@@ -5,17 +5,19 @@ all per-call overhead: ~30 small numpy calls and Python glue around ~55 us of co
 the stages run back to back inside compiled code and write the compact result columns:
 
 * :func:`front`: pre-processing and segmentation (:mod:`detectors._kernels`), the pre-gate, the scan
-  noise and the features of the segments that pass it (:mod:`detectors.features`' kernels);
+  noise, for batches the cascade's stage 1 (inputs and scores in cache-sized chunks, threshold), and the
+  features of the segments that pass (:mod:`detectors.features`' kernels);
 * :func:`back`: from the network's ``(R, 3)`` outputs, ``p(kin)``, the per-noise thresholds, the
   stage codes, the kin centres (regression or circle fit) and the detection columns;
-* :func:`fused`: ``front``, the network in a compiled kernel (:func:`mlp_rows4`, bitwise
-  :func:`detectors._kernels.mlp_forward_rows`, below ``rows_max`` rows, else
-  :func:`~detectors._kernels.mlp_forward`) and ``back``, when the
-  network is to run compiled on fewer than ``kernel_max`` rows; otherwise it stops after ``front`` and
-  the detector runs BLAS / torch in Python, then ``back``;
-* :func:`fused_table` / :func:`fused_packed`: ``fused`` for one scan, handing back only the env's
-  ``(row, table)`` or the result columns packed in 7 blocks (:func:`pack`): each array that crosses
-  back into Python costs ~1 us, a fixed cost that matters at ~50 us a call.
+* :func:`fused` (inlined into its callers): ``front``, the network in a compiled kernel
+  (:func:`mlp_rows4` below ``rows_max`` rows, else the block kernel
+  :func:`~detectors._kernels.mlp_forward`; bitwise the same) and ``back``;
+* :func:`fused_table` / :func:`fused_packed`: ``fused`` handing back only the env's ``(row, table)``
+  or the result columns packed in 7 blocks (:func:`pack`), for one scan or a batch: each array that
+  crosses back into Python costs ~1 us, and the large intermediate ones (ranges, features) ~0.9 ms
+  per 64 dense-arena scans (freed outside the call, their pages come back fresh on the next).
+  With ``inference="blas"`` / ``"torch"`` the detector calls ``front``, runs the network in Python,
+  then ``back_rest``.
 
 The stage kernels are called with the same arguments as the staged Python pipeline
 (``LearnedKinDetector._predict``, kept as the readable reference) passes them, and every expression
@@ -34,7 +36,9 @@ import numba
 import numpy as np
 
 from . import _kernels as _k
-from .features import _features_kernel, _scan_noise_kernel
+from .features import _cascade_kernel, _cascade_scores, _features_kernel, _scan_columns, _scan_noise_kernel
+
+_CAS_CHUNK = 256  # segments per chunk of the cascade's stage 1 in :func:`front`
 
 #: index of each field in the ``(D, 8)`` detection table (``kin_envs.envs.info.DETECTION_FIELDS[:8]``)
 TABLE_FIELDS = ("range", "bearing", "x", "y", "score", "first_beam", "last_beam", "n_beams")
@@ -42,14 +46,20 @@ TABLE_FIELDS = ("range", "bearing", "x", "y", "score", "first_beam", "last_beam"
 
 @numba.njit(cache=True, nogil=True)
 def front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_ang, cos_a, sin_a, sweep,
-          occlusion_unbounded, n_points, n_context, gn_iters, n_feat):  # fmt: skip
+          tan_tab, occlusion_unbounded, n_points, n_context, gn_iters, n_feat, cascade, c_w1t, c_b1, c_w2,
+          c_b2, c_threshold):  # fmt: skip
     """Stages 1-3 for ``B`` scans ``r`` (B, n) (float32 or float64 readings, not validated here).
 
+    ``cascade``: run the cascade's stage 1 (``c_w1t, c_b1, c_w2, c_b2``, the model of
+    :func:`detectors.learned.load_cascade`) on the segments the pre-gate keeps; those scoring below
+    ``c_threshold`` do not reach the features and the network (as ``LearnedKinDetector._predict``).
+
     Returns ``(d, scan, first, count, prev, next, prev_nearer, next_nearer, max_beams, rows, x,
-    frames, scan_cols)``: the pre-processed ranges, the segments (as
+    frames, scan_cols, cascade_score)``: the pre-processed ranges, the segments (as
     :func:`detectors._kernels.segment_arrays`), the pre-gate bound of every segment (NaN without the
     gate), the segments ``rows`` that reach the network, their ``(R, F)`` float32 features and local
-    frames, and each scan's float64 noise features (:func:`detectors.features._features_kernel`).
+    frames, each scan's float64 noise features (:func:`detectors.features._features_kernel`) and
+    every segment's stage-1 score (NaN where not scored).
     """
     n_rows, n = r.shape
     d = np.empty((n_rows, n))
@@ -66,26 +76,47 @@ def front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_a
                 keep[n_keep] = i
                 n_keep += 1
         rows = keep[:n_keep].copy()
-        # (a further selection stage, e.g. a cascade, would narrow ``rows`` here)
     else:
         max_beams[:] = np.nan
         rows = np.arange(s)
+    scan_cols = np.empty((n_rows, 2))
+    cscore = np.full(s, np.nan)
+    noise = np.empty(n_rows)
+    noise_n = np.empty(n_rows, dtype=np.int64)
+    if s > 0:
+        _scan_noise_kernel(d, d_th, d_max, circular, noise, noise_n)
+    if cascade and s > 0:
+        # stage 1 on the pre-gate's survivors; only those scoring >= c_threshold go on
+        _scan_columns(noise, noise_n, scan_cols)
+        # in chunks: the inputs stay in cache (a row's score does not depend on its chunk)
+        xc = np.empty((_CAS_CHUNK, 12))
+        s1 = np.empty(rows.shape[0])
+        d_flat = d.reshape(-1)
+        for c0 in range(0, rows.shape[0], _CAS_CHUNK):
+            c1 = min(c0 + _CAS_CHUNK, rows.shape[0])
+            _cascade_kernel(d_flat, cos_a, sin_a, trig_ang, scan, first, count, prev, nxt, p_near, n_near, n,
+                            circular, sweep, r_kin, d_max, occlusion_unbounded, scan_cols, rows[c0:c1], xc,
+                            tan_tab)  # fmt: skip
+            _cascade_scores(xc[: c1 - c0], c_w1t, c_b1, c_w2, c_b2, s1[c0:c1])
+        n_keep = 0
+        for o in range(rows.shape[0]):
+            cscore[rows[o]] = s1[o]
+            if s1[o] >= c_threshold:
+                rows[n_keep] = rows[o]
+                n_keep += 1
+        rows = rows[:n_keep].copy()
     n_sel = rows.shape[0]
     x = np.empty((n_sel, n_feat), dtype=np.float32)
     frames = np.empty((n_sel, 4))
-    scan_cols = np.empty((n_rows, 2))
     if s > 0:
-        noise = np.empty(n_rows)
-        noise_n = np.empty(n_rows, dtype=np.int64)
-        _scan_noise_kernel(d, d_th, d_max, circular, noise, noise_n)
         fit_centre = np.empty((n_sel, 2))
         min_beam = np.empty(n_sel, dtype=np.int64)
         _features_kernel(
             d.reshape(-1), cos_a, sin_a, trig_ang, scan, first, count, prev, nxt, p_near, n_near, n,
             circular, sweep, r_kin, d_max, occlusion_unbounded, n_points, n_context, gn_iters, noise,
-            noise_n, rows, x, frames, fit_centre, min_beam, scan_cols,
+            noise_n, rows, x, frames, fit_centre, min_beam, scan_cols, tan_tab,
         )  # fmt: skip
-    return d, scan, first, count, prev, nxt, p_near, n_near, max_beams, rows, x, frames, scan_cols
+    return d, scan, first, count, prev, nxt, p_near, n_near, max_beams, rows, x, frames, scan_cols, cscore
 
 
 @numba.njit(cache=True, inline="always")
@@ -231,21 +262,21 @@ def mlp_rows4(x, mean, std, weights_t, biases, sizes, out):
                 out[r0 + q, j] = a[q, j]
 
 
-@numba.njit(cache=True, nogil=True)
-def fused(r, front_args, kernel_max, rows_max, mean, std, weights, weights_t, biases, sizes, back_args):
-    """:func:`front`, the network compiled and :func:`back` in one dispatch when fewer than
-    ``kernel_max`` segments reach the network (``done`` True); else only ``front`` (``done`` False,
-    ``out`` and the ``back`` part empty). ``front_args`` / ``back_args``: the other arguments of
-    :func:`front` / :func:`back` after ``r`` / ``scan_cols``.
+@numba.njit(cache=True, nogil=True, inline="always")
+def fused(r, front_args, rows_max, mean, std, weights, weights_t, biases, sizes, back_args):
+    """:func:`front`, the network compiled (:func:`mlp_rows4` below ``rows_max`` rows, else the block
+    kernel :func:`detectors._kernels.mlp_forward`; bitwise the same) and :func:`back` in one
+    dispatch. ``front_args`` / ``back_args``: the other arguments of :func:`front` / :func:`back`
+    after ``r`` / ``scan_cols``.
 
-    Returns ``(done, front outputs, out (R, 3) float64, back outputs)``."""
+    Returns ``(front outputs, out (R, 3) float64, back outputs)``. Called from compiled code only
+    (:func:`fused_table`, :func:`fused_packed`): handing the intermediate arrays back to Python cost
+    ~0.9 ms per 64 dense-arena scans (measured; large arrays freed outside the call come back as
+    fresh pages), and as a separate compiled function (not inlined into its callers) ~0.5 ms more
+    (measured, not understood)."""
     fr = front(r, *front_args)
-    rows, x = fr[9], fr[10]
-    n_sel = rows.shape[0]
-    if n_sel >= kernel_max:
-        empty = (np.empty(0), np.empty(0), np.empty(0, dtype=np.int8), np.empty(0, dtype=np.int64),
-                 np.empty((0, 8)))  # fmt: skip
-        return False, fr, np.empty((0, 3)), empty
+    x = fr[10]
+    n_sel = x.shape[0]
     out32 = np.empty((n_sel, 3), dtype=np.float32)
     if n_sel > 0:
         if n_sel < rows_max:
@@ -253,7 +284,7 @@ def fused(r, front_args, kernel_max, rows_max, mean, std, weights, weights_t, bi
         else:
             _k.mlp_forward(x, mean, std, weights, biases, sizes, out32)
     out = out32.astype(np.float64)
-    return True, fr, out, back_rest(out, fr, back_args)
+    return fr, out, back_rest(out, fr, back_args)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -263,24 +294,20 @@ def back_rest(out, fr, back_args):
 
 
 @numba.njit(cache=True, nogil=True)
-def fused_table(r, front_args, kernel_max, rows_max, mean, std, weights, weights_t, biases, sizes, back_args):
-    """:func:`fused` returning only ``(done, scan row (D,), table (D, 8))`` of the detections: what the
-    envs read (fewer arrays cross back into Python). ``done`` False (as :func:`fused`): nothing was
-    computed past :func:`front`, call :func:`fused` instead."""
-    done, fr, _, bk = fused(r, front_args, kernel_max, rows_max, mean, std, weights, weights_t, biases,
-                            sizes, back_args)  # fmt: skip
-    if not done:
-        return False, np.empty(0, dtype=np.int64), np.empty((0, 8))
-    return True, fr[1][bk[3]], bk[4]
+def fused_table(r, front_args, rows_max, mean, std, weights, weights_t, biases, sizes, back_args):
+    """:func:`fused` returning only ``(scan row (D,), table (D, 8))`` of the detections: what the
+    envs read (fewer arrays cross back into Python)."""
+    fr, _, bk = fused(r, front_args, rows_max, mean, std, weights, weights_t, biases, sizes, back_args)
+    return fr[1][bk[3]], bk[4]
 
 
 @numba.njit(cache=True, nogil=True)
 def pack(fr, bk):
     """The :class:`~detectors.base.BatchDetections` columns from :func:`front` / :func:`back` outputs
     as a few blocks (each column a row of one; fewer arrays to hand back to Python): ``(seg_i (5, S)
-    int64: scan, first, count, prev, next; seg_b (2, S) bool: prev_nearer, next_nearer; seg_f (3, S):
-    p_kin, threshold, max_beams; stage (S,) int8; det (D,) int64; det_f (5, D): range, bearing, x, y,
-    score; det_i (4, D) int64: scan, first_beam, last_beam, n_beams)``."""
+    int64: scan, first, count, prev, next; seg_b (2, S) bool: prev_nearer, next_nearer; seg_f (4, S):
+    p_kin, threshold, max_beams, cascade_score; stage (S,) int8; det (D,) int64; det_f (5, D): range,
+    bearing, x, y, score; det_i (4, D) int64: scan, first_beam, last_beam, n_beams)``."""
     n_beams = fr[0].shape[1]
     scan, first, count = fr[1], fr[2], fr[3]
     p, thr, stage, det, table = bk
@@ -288,7 +315,7 @@ def pack(fr, bk):
     n_det = det.shape[0]
     seg_i = np.empty((5, n_seg), dtype=np.int64)
     seg_b = np.empty((2, n_seg), dtype=np.bool_)
-    seg_f = np.empty((3, n_seg))
+    seg_f = np.empty((4, n_seg))
     for i in range(n_seg):
         seg_i[0, i] = scan[i]
         seg_i[1, i] = first[i]
@@ -300,6 +327,7 @@ def pack(fr, bk):
         seg_f[0, i] = p[i]
         seg_f[1, i] = thr[i]
         seg_f[2, i] = fr[8][i]
+        seg_f[3, i] = fr[13][i]
     det_f = np.empty((5, n_det))
     det_i = np.empty((4, n_det), dtype=np.int64)
     for k in range(n_det):
@@ -314,14 +342,9 @@ def pack(fr, bk):
 
 
 @numba.njit(cache=True, nogil=True)
-def fused_packed(r, front_args, kernel_max, rows_max, mean, std, weights, weights_t, biases, sizes,
-                 back_args):  # fmt: skip
-    """:func:`fused` returning ``(done, pack(...))`` (:func:`pack`; empty blocks when not ``done``): one
-    scan's ``detect_arrays`` hands 7 arrays back to Python instead of 19 (~1 us each)."""
-    done, fr, _, bk = fused(r, front_args, kernel_max, rows_max, mean, std, weights, weights_t, biases,
-                            sizes, back_args)  # fmt: skip
-    if not done:  # fr's segments but no back outputs: nothing to pack
-        return False, (np.empty((5, 0), dtype=np.int64), np.empty((2, 0), dtype=np.bool_), np.empty((3, 0)),
-                       np.empty(0, dtype=np.int8), np.empty(0, dtype=np.int64), np.empty((5, 0)),
-                       np.empty((4, 0), dtype=np.int64))  # fmt: skip
-    return True, pack(fr, bk)
+def fused_packed(r, front_args, rows_max, mean, std, weights, weights_t, biases, sizes, back_args):
+    """:func:`fused` returning :func:`pack` of its outputs: ``detect_arrays`` hands 7 arrays back to
+    Python instead of 19 (~1 us each) and none of the intermediate ones."""
+    fr, _, bk = fused(r, front_args, rows_max, mean, std, weights, weights_t, biases, sizes, back_args)
+    return pack(fr, bk)
+

@@ -106,16 +106,17 @@ POSITIONING = ("regression", "fit")
 INFERENCE = ("auto", "blas", "numba", "torch")
 _CHUNK = 4096  # segments per forward chunk
 _BLAS_CHUNK = 1024  # rows per BLAS chain: the activations stay in cache
-#: "auto" inference: fewer rows than this go through the compiled kernel (as fast there, and no
-#: thread-scoping cost per call: a single scan has ~10-150 segments), more through BLAS.
-_BLAS_MIN_ROWS = 256
 #: below this many segments per call ``"numba"`` inference runs :func:`detectors._kernels.mlp_forward_rows`
-#: (bitwise the same outputs; 1 row: ~2 us vs ~31 us; 32 rows 0.83x, 40 rows 0.99x the block kernel's
-#: time, measured under load in one run)
-_ROWS_KERNEL_MAX = 40
-#: the fused driver's network runs :func:`detectors._learned_driver.mlp_rows4` below this many rows
-#: (as fast as the block kernel at 64 rows, ~1.5x faster than the row kernel on 5-35, under load)
-_DRIVER_ROWS_MAX = 64
+#: (bitwise the same outputs; the block kernel computes at least 8 rows: 1 row ~2 us vs ~10 us, 8 rows
+#: 8.7 vs 10.3 us, 12 rows 12.6 vs 11.4 us, measured under load in one run)
+_ROWS_KERNEL_MAX = 10
+#: the fused driver's network runs :func:`detectors._learned_driver.mlp_rows4` below this many rows,
+#: the block kernel from there (rows4 vs block: 12 rows 9.9 vs 11.4 us, 16 rows 13.0 vs 11.7 us, 64 rows
+#: 48 vs 22 us; measured under load in one run)
+_DRIVER_ROWS_MAX = 14
+#: eqs. 4-5's tan looked up (:func:`detectors.features.beam_trig`) for beams up to this many apart minus
+#: one: every pre-gated segment of a 1-degree lidar at >= ~0.5 m (a 360 x 32 table, 92 kB)
+_TAN_OFFSETS = 32
 #: Pre-gate bounds (``LearnedKinDetector(pre_gate=True)``): a segment is dropped before the network
 #: when it has more beams than a housing can return, computed with the housing's centre at
 #: ``PRE_GATE_SLACK * min(d_i)`` (readings up to 25 % too long: 12 sigma of 2 % noise) plus
@@ -599,9 +600,10 @@ class LearnedKinDetector(KinDetector):
             (pass False when only detections are needed; ``reports`` is then empty).
         inference: ``"blas"`` (the exported float32 weights as numpy matrix products, BLAS on
             one thread inside each call (threadpoolctl), the caller's setting restored afterwards),
-            ``"numba"`` (the exported weights in a compiled float32 kernel), ``"auto"`` (default:
-            ``"numba"`` below 256 segments per call, ``"blas"`` above, or ``"numba"`` throughout
-            without threadpoolctl; the two agree to float32 rounding, ~1e-6 in ``p(kin)``) or
+            ``"numba"`` (the exported weights in compiled float32 kernels, inside the fused driver's
+            one compiled call), ``"auto"`` (default: ``"numba"``, measured faster than one-thread
+            BLAS at every batch size since its block kernel keeps partial sums in registers,
+            README, Performance; ``"blas"`` agrees to float32 rounding, ~1e-6 in ``p(kin)``) or
             ``"torch"`` (the checkpoint's module, run on ``torch_threads`` threads inside each call,
             the caller's torch setting restored afterwards). Only ``"torch"`` runs on ``device``.
         torch_threads: torch intra-op threads during inference (``"torch"``).
@@ -708,11 +710,8 @@ class LearnedKinDetector(KinDetector):
         self._numba_weights = _export_weights(self.model)
         mean, std, w, b, sizes = self._numba_weights
         self._numba_weights_t = (mean, std, np.ascontiguousarray(w.transpose(0, 2, 1)), b, sizes)
-        #: the fused driver runs the network itself on fewer rows than this (see ``_run_driver``)
-        self._kernel_max = {
-            "numba": 2**62,
-            "auto": _BLAS_MIN_ROWS if _blas_controller() is not None else 2**62,
-        }.get(inference, 0)
+        #: the fused driver runs the network itself (else ``_run_driver``)
+        self._network_compiled = inference in ("auto", "numba")
         self._drv_args = None
         if inference != "torch":
             if self.device.type != "cpu":
@@ -793,7 +792,7 @@ class LearnedKinDetector(KinDetector):
             self._circular = is_circular_sweep(a)
             self._step = step
             self._angles_key = a.copy()
-            self._trig = beam_trig(self._angles_key)
+            self._trig = beam_trig(self._angles_key, _TAN_OFFSETS)
         if trusted:
             self._angles_src = angles  # the caller's (never mutated) layout array, checked above
         bad = rb < 0.0  # NaN / +inf mean "no return" and are fine
@@ -854,7 +853,7 @@ class LearnedKinDetector(KinDetector):
         """``(S, 3)`` float64 network outputs for ``(S, F)`` float32 features."""
         inf = self.inference
         if inf == "auto":
-            inf = "blas" if x.shape[0] >= _BLAS_MIN_ROWS and _blas_controller() is not None else "numba"
+            inf = "numba"
         if inf == "blas":
             return _blas_forward(x, self._blas_weights)
         if inf == "numba":
@@ -992,15 +991,14 @@ class LearnedKinDetector(KinDetector):
         last_beam, n_beams): what ``kin_envs.envs.common.detection_arrays`` reads, straight from the
         compiled driver without building a :class:`~detectors.base.BatchDetections`. Fresh arrays
         on every call."""
-        if (self._cascade is not None and np.ndim(ranges) == 2 and ranges.shape[0] > 1) or (
-            self._beam_table is not None and self.threshold is None
-        ):  # the cascade (batch calls, as _detect_arrays) and table thresholds: the staged path
+        if self._beam_table is not None and self.threshold is None:  # table thresholds: the staged path
             a = self._detect_arrays_staged(ranges, angles, True)
             cols = (a.range, a.bearing, a.x, a.y, a.score, a.first_beam, a.last_beam, a.n_beams_on)
             return a.scan, np.stack(cols, axis=1).astype(np.float64).reshape(-1, 8)
         rb = self._driver_input(ranges, angles, True)
-        # one scan (a single-agent env's step): the whole call compiled, only the table returns
-        if rb.shape[0] == 1 and (res := self._call_driver(_drv.fused_table, rb)) is not None:
+        # the whole call compiled, only the table returns (returning the driver's intermediate
+        # arrays to Python costs ~0.9 ms per 64 dense-arena scans, measured)
+        if (res := self._call_driver(_drv.fused_table, rb, self._uses_cascade(rb))) is not None:
             scan, table = res
         else:
             fr, bk = self._run_driver(rb)
@@ -1019,13 +1017,12 @@ class LearnedKinDetector(KinDetector):
             # which the fused driver does not implement
             return self._detect_arrays_staged(ranges, angles, trusted)
         rb = self._driver_input(ranges, angles, trusted)
-        if self._cascade is not None and rb.shape[0] > 1:
-            # batches: the cascade, in the staged pipeline (the fused driver has none yet); one scan
-            # per call stays in the fused driver, faster there than what the cascade saves
-            return self._detect_arrays_staged(rb, angles, True)
-        # one scan: the whole call compiled, the columns handed back in a few blocks
-        res = self._call_driver(_drv.fused_packed, rb) if rb.shape[0] == 1 else None
-        packed = res[0] if res is not None else _drv.pack(*self._run_driver(rb))
+        cascade = self._uses_cascade(rb)
+        # the whole call compiled, the columns handed back in a few blocks (not the driver's
+        # intermediate arrays: returning them to Python costs ~0.9 ms per 64 dense-arena scans)
+        packed = self._call_driver(_drv.fused_packed, rb, cascade)
+        if packed is None:
+            packed = _drv.pack(*self._run_driver(rb))
         seg_i, seg_b, seg_f, stage, det, det_f, det_i = packed
         n_seg = seg_i.shape[1]
         dup = None
@@ -1040,11 +1037,12 @@ class LearnedKinDetector(KinDetector):
                 dup[det[drop]] = det[d[drop]]
                 keep = ~drop
                 det, det_f, det_i = det[keep], det_f[:, keep], det_i[:, keep]
-        values = (
-            {"p_kin": seg_f[0], "threshold": seg_f[1]}
-            if not self.pre_gate or n_seg == 0
-            else {"p_kin": seg_f[0], "threshold": seg_f[1], "max_beams": seg_f[2]}
-        )
+        values = {"p_kin": seg_f[0], "threshold": seg_f[1]}
+        if n_seg > 0:  # (the staged pipeline's values of an empty batch: p_kin and threshold only)
+            if self.pre_gate:
+                values["max_beams"] = seg_f[2]
+            if cascade:
+                values["cascade_score"] = seg_f[3]
         if dup is not None:
             values["duplicate_of"] = dup
         return BatchDetections(
@@ -1071,27 +1069,42 @@ class LearnedKinDetector(KinDetector):
             seg_values=values,
         )
 
+    def _uses_cascade(self, rb: np.ndarray) -> bool:
+        """Whether a call on the checked ranges ``rb`` runs the cascade: on batches (>= 2 scans) when
+        it is on. One-scan calls (a single-agent env's ~30 segments) go without: there it costs
+        more than it saves (measured; README, Performance), so a scan alone can differ from the same
+        scan in a batch where the cascade drops a segment the full model would accept (~0.04 % of the
+        accepted kin segments, ``scripts/fit_cascade.py``)."""
+        return self._cascade is not None and rb.shape[0] > 1
+
     def _driver_args(self) -> tuple:
-        """The fused driver's constant arguments ``(front_args, back_args)`` for the current beam
-        layout and settings (see :meth:`_driver_consts`)."""
+        """The fused driver's constant arguments ``(front_args, front_args with the cascade or None,
+        back_args)`` for the current beam layout and settings (see :meth:`_driver_consts`)."""
         c = self.feature_config
-        ang, cos_a, sin_a, sweep = self._trig
+        ang, cos_a, sin_a, sweep, tan_tab = self._trig
         fixed = -1.0 if self.threshold is None else self.threshold
         front = (
             float(c.d_th), float(c.d_max), self._circular, self.pre_gate, self._step, float(c.r),
-            PRE_GATE_SLACK, float(PRE_GATE_MARGIN), ang, cos_a, sin_a, float(sweep), c.occlusion_unbounded,
-            int(c.n_points), int(c.n_context), int(c.gn_iters), len(feature_names(c)),
+            PRE_GATE_SLACK, float(PRE_GATE_MARGIN), ang, cos_a, sin_a, float(sweep), tan_tab,
+            c.occlusion_unbounded, int(c.n_points), int(c.n_context), int(c.gn_iters), len(feature_names(c)),
         )  # fmt: skip
+        # the cascade's model, or empty stand-ins of the same types (one compiled signature)
+        off = (False, np.zeros((0, 0)), np.zeros(0), np.zeros(0), 0.0, 0.0)
+        front_cas = None
+        if self._cascade is not None:
+            w1t, b1, w2, b2 = self._cascade["model"]
+            front_cas = (*front, True, w1t, b1, w2, float(b2), float(self._cascade["threshold"]))
         back = (
             ang, self.pre_gate, float(fixed), self._noise_edges, self._noise_thresholds,
             self.positioning == "regression", self._t_mean, self._t_std, float(c.r), 200, _LM_XTOL,
             _LM_LAMBDA0, _LM_LAMBDA_MAX,
         )  # fmt: skip
-        return front, back
+        return (*front, *off), front_cas, back
 
-    def _driver_consts(self) -> tuple[tuple, tuple]:
-        """:meth:`_driver_args`, cached; rebuilt when ``_check`` saw a new beam layout or
-        ``threshold``, ``pre_gate`` or ``positioning`` changed."""
+    def _driver_consts(self, cascade: bool = False) -> tuple[tuple, tuple]:
+        """``(front_args, back_args)`` of :meth:`_driver_args` (with the cascade if ``cascade``),
+        cached; rebuilt when ``_check`` saw a new beam layout or ``threshold``, ``pre_gate`` or
+        ``positioning`` changed."""
         cached = self._drv_args
         if (
             cached is None
@@ -1100,41 +1113,31 @@ class LearnedKinDetector(KinDetector):
         ):
             key = (self._trig, self.threshold, self.pre_gate, self.positioning)
             self._drv_args = cached = (key, *self._driver_args())
-        return cached[1], cached[2]
+        return (cached[2] if cascade else cached[1]), cached[3]
 
     def _driver_input(self, ranges, angles, trusted: bool) -> np.ndarray:
         """Checked ranges as the driver takes them (C-contiguous float64, one compiled signature)."""
         rb, _ = self._check(ranges, angles, trusted)
         return np.ascontiguousarray(rb, dtype=np.float64)
 
-    def _call_driver(self, kernel, rb: np.ndarray):
-        """``kernel`` (:func:`~detectors._learned_driver.fused` or a variant) on ``rb`` with this
-        detector's arguments: its outputs after ``done``, or None when the network did not run in it
-        (inference ``"blas"`` / ``"torch"``, or ``"auto"`` on ``_BLAS_MIN_ROWS`` rows or more)."""
-        if self._kernel_max == 0:
+    def _call_driver(self, kernel, rb: np.ndarray, cascade: bool):
+        """``kernel`` (:func:`~detectors._learned_driver.fused_table` or
+        :func:`~detectors._learned_driver.fused_packed`) on ``rb`` with this detector's arguments (the
+        cascade if ``cascade``): its outputs, or None when the network does not run compiled
+        (inference ``"blas"`` / ``"torch"``: then :meth:`_run_driver`)."""
+        if not self._network_compiled:
             return None
-        front_args, back_args = self._driver_consts()
+        front_args, back_args = self._driver_consts(cascade)
         mean, std, w, b, sizes = self._numba_weights
-        done, *res = kernel(
-            rb, front_args, self._kernel_max, _DRIVER_ROWS_MAX, mean, std, w, self._numba_weights_t[2], b,
-            sizes, back_args,
-        )  # fmt: skip
-        return tuple(res) if done else None
+        return kernel(rb, front_args, _DRIVER_ROWS_MAX, mean, std, w, self._numba_weights_t[2], b, sizes,
+                      back_args)  # fmt: skip
 
     def _run_driver(self, rb: np.ndarray):
-        """The fused driver (:mod:`detectors._learned_driver`) on ``rb`` (:meth:`_driver_input`):
-        ``(front outputs, back outputs)``. The network runs inside the compiled call unless this
-        detector's inference puts it in BLAS (``"auto"`` from ``_BLAS_MIN_ROWS`` rows) or torch: then
-        it runs here, between the driver's two kernels."""
-        front_args, back_args = self._driver_consts()
-        mean, std, w, b, sizes = self._numba_weights
-        done, fr, _, bk = _drv.fused(
-            rb, front_args, self._kernel_max, _DRIVER_ROWS_MAX, mean, std, w, self._numba_weights_t[2], b,
-            sizes, back_args,
-        )  # fmt: skip
-        if not done:
-            bk = _drv.back_rest(self._forward(fr[10]), fr, back_args)
-        return fr, bk
+        """The driver's two kernels with the network in between in Python (BLAS or torch
+        inference): ``(front outputs, back outputs)`` for :func:`~detectors._learned_driver.pack`."""
+        front_args, back_args = self._driver_consts(self._uses_cascade(rb))
+        fr = _drv.front(rb, *front_args)
+        return fr, _drv.back_rest(self._forward(fr[10]), fr, back_args)
 
     def _detect_arrays_staged(self, ranges, angles, trusted: bool = False) -> BatchDetections:
         """:meth:`detect_arrays` through the staged Python pipeline (:meth:`_predict`): the readable

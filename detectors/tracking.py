@@ -111,7 +111,7 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from .base import DetectionResult, wrap_angle
+from .base import DetectionResult
 from .features import scan_noise, segment_batch
 
 __all__ = ["TrackerParams", "Track", "KinTracker", "TRACK_FIELDS", "TRACK_FEATURES", "TrackKinModel",
@@ -277,6 +277,22 @@ class TrackerParams:
         return cls(**d)
 
 
+@numba.njit(cache=True, nogil=True)
+def _dense_layer(h, W, b):
+    """``h @ W + b``, one row at a time on one thread."""
+    n, k = h.shape
+    m = W.shape[1]
+    out = np.empty((n, m))
+    for r in range(n):
+        for j in range(m):
+            out[r, j] = b[j]
+        for i in range(k):  # the units in the inner loop: contiguous rows of W, vectorised
+            v = h[r, i]
+            for j in range(m):
+                out[r, j] += v * W[i, j]
+    return out
+
+
 class TrackKinModel:
     """Track-level kin classifier: a small network in numpy over :data:`TRACK_FEATURES` (standardised),
     ``tanh`` hidden layers (none: logistic regression), one output logit.
@@ -333,9 +349,11 @@ class TrackKinModel:
         """(n,) kin log-odds of the feature rows ``X`` (n, F)."""
         h = (np.asarray(X, np.float64).reshape(-1, len(TRACK_FEATURES)) - self.mean) / self.scale
         for i, (W, b) in enumerate(self.layers):
-            h = h @ W + b
+            # compiled, not ``h @ W``: OpenBLAS threads a (n, 19) x (19, 8) product, and on a busy 2-core
+            # machine that cost ~7x a single-threaded loop (measured at 64 observers)
+            h = _dense_layer(np.ascontiguousarray(h), W, b)
             if i < len(self.layers) - 1:
-                h = np.tanh(h)
+                h = np.tanh(h)  # numpy's SIMD tanh: ~4x numba's scalar libm call
         return h[:, 0]
 
     def kin_prob(self, X: np.ndarray) -> np.ndarray:
@@ -505,11 +523,17 @@ def fit_known_circle(points: np.ndarray, r: float, centre0=(0.0, 0.0), iteration
 def _fit_known_circle(p, w, r, c, iterations, e):
     """Weighted Gauss-Newton on the centre ``c`` (in place, 2x2 normal equations solved in closed form);
     writes the residuals ``|p_i - c| - r`` into ``e``."""
-    m = p.shape[0]
+    _fit_span(p, 0, p.shape[0], w, r, c, iterations, e)
+
+
+@numba.njit(cache=True, nogil=True)
+def _fit_span(p, a, m, w, r, c, iterations, e):
+    """:func:`_fit_known_circle` on the points ``p[a:a + m]`` (weights ``w[:m]``, residuals into ``e[:m]``),
+    by index rather than by slices (a slice passed on costs reference counting, ~100 ns per fit)."""
     for _ in range(iterations):
         a00 = a01 = a11 = g0 = g1 = 0.0
         for i in range(m):
-            dx, dy = p[i, 0] - c[0], p[i, 1] - c[1]
+            dx, dy = p[a + i, 0] - c[0], p[a + i, 1] - c[1]
             d = max(math.sqrt(dx * dx + dy * dy), 1e-12)
             jx, jy = -dx / d, -dy / d  # d e_i / d c
             ei = d - r
@@ -528,7 +552,7 @@ def _fit_known_circle(p, w, r, c, iterations, e):
         if s0 * s0 + s1 * s1 < 1e-18:
             break
     for i in range(m):
-        e[i] = math.sqrt((p[i, 0] - c[0]) ** 2 + (p[i, 1] - c[1]) ** 2) - r
+        e[i] = math.sqrt((p[a + i, 0] - c[0]) ** 2 + (p[a + i, 1] - c[1]) ** 2) - r
 
 
 def segment_points(ranges, angles, rows, first, last, range_max: float = math.inf):
@@ -542,17 +566,46 @@ def segment_points(ranges, angles, rows, first, last, range_max: float = math.in
 
     Returns ``(points (P, 2) x forward / y left, owner (P,))``: each valid beam's point and its segment.
     """
-    ranges = np.asarray(ranges, dtype=np.float64).reshape(-1, np.shape(angles)[0])
-    angles = np.asarray(angles, dtype=np.float64)
+    angles = np.ascontiguousarray(angles, dtype=np.float64).reshape(-1)
+    ranges = np.asarray(ranges)  # float32 scans stay float32 (widened per reading, exactly: no copy)
+    ranges = np.ascontiguousarray(ranges, None if ranges.dtype in (np.float32, np.float64) else np.float64)
+    ranges = ranges.reshape(-1, angles.shape[0])
+    first = np.ascontiguousarray(first, dtype=np.int64).reshape(-1)
+    last = np.ascontiguousarray(last, dtype=np.int64).reshape(-1)
+    rows = np.ascontiguousarray(rows, dtype=np.int64).reshape(-1)
+    if not rows.shape == first.shape == last.shape:
+        raise ValueError(f"segment_points: rows, first and last must be of one length, got {rows.shape}, "
+                         f"{first.shape} and {last.shape}")  # fmt: skip
     n = angles.shape[0]
-    first = np.asarray(first, dtype=np.int64).reshape(-1)
-    count = (np.asarray(last, dtype=np.int64).reshape(-1) - first) % n + 1
-    owner = np.repeat(np.arange(first.size), count)
-    beam = (np.repeat(first, count) + np.arange(owner.size) - np.repeat(np.cumsum(count) - count, count)) % n
-    r = ranges[np.repeat(np.asarray(rows, dtype=np.int64).reshape(-1), count), beam]
-    ok = np.isfinite(r) & (r > 0) & (r < range_max)
-    r, a = r[ok], angles[beam[ok]]
-    return np.c_[r * np.cos(a), r * np.sin(a)], owner[ok]
+    if first.size and (rows.min() < 0 or rows.max() >= ranges.shape[0] or min(first.min(), last.min()) < 0
+                       or max(first.max(), last.max()) >= n):  # fmt: skip
+        raise ValueError(f"segment_points: rows must be in [0, {ranges.shape[0]}) and beams in [0, {n})")
+    return _segment_points_kernel(ranges, angles, rows, first, last, float(range_max))
+
+
+@numba.njit(cache=True, nogil=True)
+def _segment_points_kernel(ranges, angles, rows, first, last, range_max):
+    """:func:`segment_points`' loops: each segment's beams in order (wrapping), valid readings only."""
+    n = angles.shape[0]
+    total = 0
+    for j in range(first.shape[0]):
+        total += (last[j] - first[j]) % n + 1
+    pts, owner = np.empty((total, 2)), np.empty(total, np.int64)
+    pre = 2 * total >= n  # many points: cos / sin once per beam rather than per point (the same values)
+    ca, sa = np.empty(n if pre else 0), np.empty(n if pre else 0)
+    for q in range(ca.shape[0]):
+        ca[q], sa[q] = math.cos(angles[q]), math.sin(angles[q])
+    m = 0
+    for j in range(first.shape[0]):
+        for q in range((last[j] - first[j]) % n + 1):
+            beam = (first[j] + q) % n
+            r = float(ranges[rows[j], beam])
+            if np.isfinite(r) and r > 0 and r < range_max:
+                pts[m, 0] = r * (ca[beam] if pre else math.cos(angles[beam]))
+                pts[m, 1] = r * (sa[beam] if pre else math.sin(angles[beam]))
+                owner[m] = j
+                m += 1
+    return pts[:m], owner[:m]
 
 
 class KinTracker:
@@ -562,10 +615,12 @@ class KinTracker:
     ``"hand"`` (the hand-tuned fusion of the cues, :class:`TrackerParams`), a model JSON path or a
     :class:`TrackKinModel`.
 
-    Batch-first: every observer's tracks live in one set of arrays (a row per track slot, its observer in
-    ``obs``), and one :meth:`update_batch` call advances all observers by one frame with array operations
-    and one compiled kernel for the outline cue; the Hungarian solver runs only for the observers whose
-    gates are ambiguous. :meth:`update` is the one-observer form.
+    Batch-first: every observer's tracks live in one set of preallocated arrays (a row per track slot, its
+    observer in ``obs``), and one :meth:`update_batch` call advances all observers by one frame in one
+    compiled call (:func:`_update_kernel`; the staged steps it replaced are kept as the test reference,
+    ``tests/detectors/reference_tracking.py``, and it reproduces them bitwise); the Hungarian solver runs
+    only for the ambiguous gates. :meth:`track_arrays` computes the classifier's inputs and the padded slots
+    in compiled loops too, once per frame. :meth:`update` is the one-observer form.
 
     Example::
 
@@ -577,8 +632,8 @@ class KinTracker:
     """
 
     _FIELDS = ("_id", "_obs", "_x", "_P", "_exist", "_lo_score", "_lo_shape", "_lo_motion", "_seen", "_age",
-               "_static_t", "_moved", "_confirmed", "_anchor", "_anchor_var", "_alive", "_pts", "_npts",
-               "_head", "_fit_c", "_anchor_odo", "_anchor_rng", "_lo_resid", "_res_chi2", "_res_dof",
+               "_static_t", "_moved", "_confirmed", "_anchor", "_anchor_var", "_alive", "_pts", "_pts_aux",
+               "_npts", "_head", "_fit_c", "_anchor_odo", "_anchor_rng", "_lo_resid", "_res_chi2", "_res_dof",
                "_score_sum", "_n_scored", "_f_lgsum", "_f_lgsq", "_f_lgmax", "_f_lglast", "_f_accsum",
                "_f_acclast", "_f_beams", "_f_rng", "_hit")  # fmt: skip
 
@@ -621,7 +676,10 @@ class KinTracker:
         self._alive = np.zeros(cap, bool)
         # outline points, a ring: odometry-frame x, y; sensor sigma; range when seen; observer's odometer
         # and the time then
-        self._pts = np.zeros((cap, m, 6))
+        self._pts = np.zeros((cap, m, 2))
+        # sensor sigma, range when seen, the observer's odometer and the time then: read only by the outline
+        # refit, so kept only when it is on (shape_clamp > 0); apart from x, y, whose ring is 3x smaller
+        self._pts_aux = np.zeros((cap, m if self.params.shape_clamp > 0 else 0, 4))
         self.odometer = np.zeros(self.n_observers)  # wheel travel so far, m (ages ego-motion errors)
         self._npts = np.zeros(cap, np.int64)
         self._head = np.zeros(cap, np.int64)
@@ -646,6 +704,9 @@ class KinTracker:
         self._f_beams = np.zeros(cap)
         self._f_rng = np.zeros(cap)
         self._hit = np.zeros(cap, bool)
+        self._prm_of = None  # the params _prm was built from
+        self._frame = 0  # frames since reset (keys the per-frame cache of the kin decision)
+        self._kp_cache = (None, None)
 
     @property
     def pose(self) -> np.ndarray:
@@ -701,84 +762,82 @@ class KinTracker:
             noise: optional (n_observers,) relative range noise of each observer's scan.
             accepted: optional (k,) bool: the detector accepted the candidate at its operating point
                 (then the score cue uses ``accept_llr`` / ``reject_llr``, see :class:`TrackerParams`).
+
+        The whole frame (input checks on the values, ``min_score``, ego-motion, association, filter,
+        births, cues, the classifier's running inputs, existence, confirm / delete) is one compiled call
+        (:func:`_update_kernel`); a bad input raises before any state changes.
         """
-        pr, N = self.params, self.n_observers
+        N = self.n_observers
         obs = np.asarray(obs).reshape(-1)
         xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
         scores = np.asarray(scores, dtype=np.float64).reshape(-1)
         delta = np.asarray(odom_delta, dtype=np.float64)
         k = xy.shape[0]
-        if delta.shape != (N, 3) or not np.all(np.isfinite(delta)):
+        if delta.shape != (N, 3):
             raise ValueError(
                 f"KinTracker: odom_delta must be ({N}, 3) finite numbers (dx, dy, dtheta per observer), "
                 f"got {np.shape(odom_delta)} {odom_delta!r}"
             )
         if not (isinstance(dt, int | float) and math.isfinite(dt) and dt > 0):
             raise ValueError(f"KinTracker: dt must be a positive number of seconds, got {dt!r}")
-        if (
-            scores.shape[0] != k
-            or obs.shape[0] != k
-            or not (np.all(np.isfinite(xy)) and np.all(np.isfinite(scores)))
-        ):
+        if scores.shape[0] != k or obs.shape[0] != k:
             raise ValueError(
                 f"KinTracker: obs (k,), xy (k, 2) and scores (k,) must be finite and of one length, got "
                 f"{obs.shape}, {xy.shape} and {scores.shape}"
             )
-        if k and (not np.issubdtype(obs.dtype, np.integer) or obs.min() < 0 or obs.max() >= N):
+        if k and not np.issubdtype(obs.dtype, np.integer):
             raise ValueError(f"KinTracker: obs must be observer indices in [0, {N}), got {obs!r}")
-        noise = np.full(N, pr.range_noise) if noise is None else np.asarray(noise, np.float64).reshape(-1)
-        if noise.shape != (N,) or not np.all(np.isfinite(noise) & (noise >= 0)):
+        if self._prm_of is not self.params:  # the kernel's parameters, built once per params object
+            self._prm, self._prm_of = _param_array(self.params), self.params
+            self._noise0 = np.full(N, float(self.params.range_noise))
+        noise = self._noise0 if noise is None else np.asarray(noise, np.float64).reshape(-1)
+        if noise.shape != (N,):
             raise ValueError(f"KinTracker: noise must be {N} relative range noises >= 0, got {noise!r}")
-        obs = obs.astype(np.int64)
-        if accepted is not None:
-            accepted = np.asarray(accepted, dtype=bool).reshape(-1)
+        if accepted is None:
+            accepted = _NO_FLAGS
+        else:
+            accepted = np.asarray(accepted, dtype=np.bool_).reshape(-1)
             if accepted.shape[0] != k:
                 raise ValueError(
                     f"KinTracker: accepted must have one flag per candidate ({k}), got {accepted.shape}"
                 )
-        if k and pr.min_score > 0:
-            keep = scores >= pr.min_score
-            if not keep.all():
-                if points is not None:  # renumber the kept candidates' points
-                    owner = np.asarray(owner).reshape(-1).astype(np.int64)
-                    new = np.cumsum(keep) - 1
-                    sel = keep[owner] if owner.size else np.zeros(0, bool)
-                    points = np.asarray(points, np.float64).reshape(-1, 2)[sel]
-                    owner = new[owner[sel]]
-                obs, xy, scores = obs[keep], xy[keep], scores[keep]
-                accepted = None if accepted is None else accepted[keep]
-                k = xy.shape[0]
-        # ego-motion: each observer's new pose in its odometry frame
-        c, s = np.cos(self.poses[:, 2]), np.sin(self.poses[:, 2])
-        self.poses = np.c_[
-            self.poses[:, 0] + c * delta[:, 0] - s * delta[:, 1],
-            self.poses[:, 1] + s * delta[:, 0] + c * delta[:, 1],
-            wrap_angle(self.poses[:, 2] + delta[:, 2]),
-        ]
+        if points is None:
+            pts, own = _NO_POINTS, _NO_OWNER
+        else:
+            pts = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 2)
+            own = np.asarray(owner).reshape(-1).astype(np.int64, copy=False)
+            if own.shape[0] != pts.shape[0]:
+                raise ValueError(
+                    f"KinTracker: owner must give each of the {pts.shape[0]} points a candidate in [0, {k})"
+                )
+        # room for every kept candidate to start a track
+        ms = self.params.min_score
+        kept = k if ms <= 0 or not k else int(np.count_nonzero(scores >= ms))
+        if int(self._alive.sum()) + kept > self._alive.shape[0]:
+            self._grow(int(self._alive.sum()) + kept)
+        poses = self.poses.copy()  # a new array per frame: earlier views of ``poses`` keep their values
+        c_ = np.ascontiguousarray
+        args = (c_(obs, np.int64), c_(xy), c_(scores), c_(accepted), c_(delta), float(dt), pts, c_(own),
+                points is not None, c_(noise), poses,
+                self.odometer, self.time + dt, self._next_id, self._prm, self._alive, self._obs, self._id,
+                self._x, self._P, self._exist, self._lo_score, self._lo_shape, self._lo_motion,
+                self._lo_resid, self._res_chi2, self._res_dof, self._score_sum, self._n_scored, self._seen,
+                self._age, self._static_t, self._moved, self._confirmed, self._npts, self._head, self._fit_c,
+                self._anchor, self._anchor_var, self._anchor_odo, self._anchor_rng, self._pts, self._pts_aux,
+                self._f_lgsum,
+                self._f_lgsq, self._f_lgmax, self._f_lglast, self._f_accsum, self._f_acclast, self._f_beams,
+                self._f_rng, self._hit)  # fmt: skip
+        status, next_id = _update_kernel(*args)
+        if status == _BAD_SORT:  # points not grouped by candidate (segment_points gives them sorted)
+            order = np.argsort(own, kind="stable")
+            args = (*args[:6], np.ascontiguousarray(pts[order]), own[order], *args[8:])
+            status, next_id = _update_kernel(*args)
+        if status:
+            raise ValueError(_update_error(status, N, k, delta, xy, scores, obs, noise, pts))
+        self.poses = poses
         self.time += dt
-        # each wheel's travel: ego-motion errors grow with it (the odometry error model's random walk)
-        half_turn = 0.5 * self.params.wheel_base * np.abs(delta[:, 2])
-        self.odometer += np.hypot(delta[:, 0], delta[:, 1]) + half_turn
-        cos, sin = np.cos(self.poses[:, 2]), np.sin(self.poses[:, 2])
-        z = self._to_odom(xy, obs, cos, sin)  # candidates in their observer's odometry frame
-        rng = np.hypot(xy[:, 0], xy[:, 1])
-        if int(self._alive.sum()) + k > self._alive.shape[0]:  # room for every candidate to start a track
-            self._grow(int(self._alive.sum()) + k)
-        pre = self._alive.copy()  # the tracks before this frame's births (existence: hit or miss)
-        ti, ci, tb, born = self._associate_and_birth(z, obs, rng, dt)
-        tracks, cands = np.concatenate([ti, tb]), np.concatenate([ci, born])
-        self._score_cue(tracks, scores[cands], None if accepted is None else accepted[cands], rng[cands])
-        beams = np.zeros(k)
-        if points is not None and len(tracks):
-            self._outline_cue(tracks, cands, points, owner, obs, noise, cos, sin, k)  # validates owner
-            beams = np.bincount(np.asarray(owner, np.int64).reshape(-1), minlength=k).astype(np.float64)
-        _feature_kernel(tracks, len(ti), scores[cands], np.zeros(0, np.bool_) if accepted is None
-                        else accepted[cands], rng[cands], beams[cands], self._f_lgsum, self._f_lgsq,
-                        self._f_lgmax, self._f_lglast, self._f_accsum, self._f_acclast, self._f_beams,
-                        self._f_rng, self._hit)  # fmt: skip
-        hit = np.zeros(self._alive.shape[0], bool)
-        hit[ti] = True
-        self._finish(pre, hit, dt)
+        self._next_id = int(next_id)
+        self._frame += 1
 
     def update_from_result(self, result: DetectionResult, ranges, angles, odom_delta, dt: float) -> None:
         """:meth:`update` from a detector's :class:`DetectionResult` on scan ``(ranges, angles)``: each
@@ -797,16 +856,6 @@ class KinTracker:
                           None if count[0] < 5 else [float(noise[0])])  # fmt: skip
 
     # -- steps ----------------------------------------------------------------------------------------
-    def _to_odom(self, xy, obs, cos, sin) -> np.ndarray:
-        c, s, p = cos[obs], sin[obs], self.poses[obs]
-        out = np.empty((xy.shape[0], 2))
-        out[:, 0] = c * xy[:, 0] - s * xy[:, 1] + p[:, 0]
-        out[:, 1] = s * xy[:, 0] + c * xy[:, 1] + p[:, 1]
-        return out
-
-    def _meas_var(self, rng: np.ndarray) -> np.ndarray:
-        return (self.params.meas_sigma + self.params.meas_sigma_rel * rng) ** 2
-
     def _grow(self, need: int) -> None:
         cap = self._alive.shape[0]
         while cap < need:
@@ -816,72 +865,6 @@ class KinTracker:
             b = np.zeros((cap, *a.shape[1:]), a.dtype)
             b[: a.shape[0]] = a
             setattr(self, name, b)
-
-    def _associate_and_birth(self, z, obs, rng, dt):
-        """Predict, gate, assign, Kalman-update and start tracks for unmatched candidates (one compiled
-        kernel). Returns (matched track rows, their candidates, born track rows, their candidates)."""
-        pr = self.params
-        ti, ci, tb, born, next_id = _frame_kernel(
-            np.ascontiguousarray(z), obs, rng, float(dt), self.n_observers, self._alive, self._obs, self._id,
-            self._next_id, self._x, self._P, self.poses, self._exist, self._lo_score, self._lo_shape,
-            self._lo_motion, self._lo_resid, self._res_chi2, self._res_dof, self._score_sum, self._n_scored,
-            self._seen, self._age, self._static_t, self._moved, self._confirmed, self._npts, self._head,
-            self._fit_c, self._anchor, self._anchor_var, self._anchor_odo, self._anchor_rng, self.odometer,
-            pr.process_accel**2, pr.meas_sigma, pr.meas_sigma_rel, pr.init_speed_sigma**2, pr.gate_chi2,
-            pr.birth_existence, pr.confirm_existence, pr.r,
-        )  # fmt: skip
-        self._next_id = int(next_id)
-        return ti, ci, tb, born
-
-    def _finish(self, pre, hit, dt) -> None:
-        """Existence (hit / miss of the tracks before this frame's births), motion, age, confirm / delete."""
-        pr = self.params
-        _finish_kernel(
-            pre, hit, float(dt), self._alive, self._obs, self._x, self._P, self.poses, self._exist,
-            self._confirmed, self._moved, self._lo_motion, self._static_t, self._age, self._seen,
-            self._anchor, self._anchor_var, self._anchor_odo, self._anchor_rng, self.odometer, pr.p_detect,
-            pr.clutter_ratio, pr.max_range, pr.confirm_existence, pr.delete_existence, pr.motion_dist,
-            pr.motion_gain, pr.odom_heading_rate**2, pr.odom_position_rate**2,
-        )  # fmt: skip
-
-    def _score_cue(self, ti: np.ndarray, scores: np.ndarray, accepted, rng: np.ndarray) -> None:
-        # (a) the detector's score: correlated frames -> weight < 1, clamped sum
-        pr = self.params
-        # a far object gets fewer beams and lower scores, kin and look-alikes alike: the bar falls with range.
-        # The cue is the mean evidence per frame (shrunk towards 0 by score_n0 pseudo-frames) times
-        # score_gain: frames of one object are strongly correlated, so the evidence grows with their
-        # consistency, not their count (one compiled loop over the updated tracks)
-        acc = np.zeros(0, np.bool_) if accepted is None else np.asarray(accepted, np.bool_)
-        _score_kernel(ti, np.asarray(scores, np.float64), acc, rng, self._score_sum, self._n_scored,
-                      self._lo_score, float(_logit(pr.score_prior)), pr.score_per_metre, pr.score_weight,
-                      pr.accept_llr, pr.reject_llr, pr.score_n0, pr.score_gain, pr.score_clamp)  # fmt: skip
-
-    def _outline_cue(self, ti, ci, points, owner, obs, noise, cos, sin, k) -> None:
-        # (b) the accumulated outline relative to the track centre (ego-motion compensated)
-        pr = self.params
-        pts = np.asarray(points, np.float64).reshape(-1, 2)
-        owner = np.asarray(owner).reshape(-1).astype(np.int64)
-        pts = np.ascontiguousarray(pts)
-        status = _points_check(pts, owner, k) if owner.shape[0] == pts.shape[0] else 1
-        if status == 1:
-            raise ValueError(
-                f"KinTracker: owner must give each of the {pts.shape[0]} points a candidate in [0, {k})"
-            )
-        if status == 2:
-            raise ValueError("KinTracker: points must be finite")
-        if status == 3:  # not grouped by candidate (segment_points gives them sorted already)
-            order = np.argsort(owner, kind="stable")
-            pts, owner = np.ascontiguousarray(pts[order]), owner[order]
-        odom, sig, d = _points_prep(pts, owner, obs, noise, cos, sin, self.poses,
-                                    pr.shape_sigma**2)  # fmt: skip
-        cstart = np.searchsorted(owner, np.arange(k + 1))
-        _outline_kernel(
-            ti, ci, odom, sig, d, cstart, self._obs, self.odometer, self._moved,
-            self._pts, self._npts, self._head, self._fit_c, self._lo_shape, self._x, self._P, self.time,
-            pr.r, pr.shape_delta**2, float(pr.shape_n_cap), int(pr.shape_min_points),
-            pr.shape_clamp, pr.odom_heading_rate**2, pr.odom_position_rate**2,
-            self.poses, self._lo_resid, self._res_chi2, self._res_dof, pr.resid_clamp,
-        )  # fmt: skip
 
     # -- outputs -----------------------------------------------------------------------------------------
     def _rows(self, observer: int | None) -> np.ndarray:
@@ -895,13 +878,27 @@ class KinTracker:
     def _kin_prob(self, rows: np.ndarray) -> np.ndarray:
         pr = self.params
         if self.kin_model is not None:
-            return self.kin_model.kin_prob(self._features(rows))
+            return self.kin_model.kin_prob(self._features_fast(rows))
         # some track of the same observer moved: the swarm around it is active
         active = np.bincount(self._obs[rows][self._moved[rows]], minlength=self.n_observers) > 0
         idle = active[self._obs[rows]] & ~self._moved[rows] & (self._static_t[rows] >= pr.static_time)
         lo = (_logit(pr.kin_prior) + self._lo_score[rows] + self._lo_resid[rows] + self._lo_shape[rows]
               + self._lo_motion[rows] + np.where(idle, pr.static_penalty, 0.0))  # fmt: skip
         return 1.0 / (1.0 + np.exp(-lo))
+
+    def _features_fast(self, rows: np.ndarray) -> np.ndarray:
+        """:meth:`_features` in one compiled loop (:func:`_features_kernel`, bitwise the same, tested) while
+        :data:`TRACK_FEATURES` are the columns it computes; else :meth:`_features` itself."""
+        if TRACK_FEATURES != _KERNEL_FEATURES:
+            return self._features(rows)
+        pr = self.params
+        return _features_kernel(
+            np.ascontiguousarray(rows, np.int64), self.n_observers, self._alive, self._confirmed, self._obs,
+            self._seen, self._x, self._P, self._anchor, self._anchor_var, self._anchor_odo, self._anchor_rng,
+            self.odometer, self._hit, self._f_lgsum, self._f_lgsq, self._f_lgmax, self._f_lglast,
+            self._f_accsum, self._f_acclast, self._f_beams, self._f_rng, self._moved, self._exist,
+            self._res_chi2, self._res_dof, pr.odom_heading_rate**2, pr.odom_position_rate**2,
+        )  # fmt: skip
 
     def _features(self, rows: np.ndarray) -> np.ndarray:
         """(len(rows), F) :data:`TRACK_FEATURES` of the track rows ``rows``."""
@@ -974,33 +971,19 @@ class KinTracker:
         zero-padded (columns :data:`TRACK_FIELDS`; positions and velocities in each observer's current robot
         frame), ``mask`` (n_observers, max_tracks) bool and ``count`` (n_observers,). Per observer, confirmed
         tracks come first, then by kin probability, when there are more than ``max_tracks``."""
-        N = self.n_observers
-        out = np.zeros((N, max_tracks, len(TRACK_FIELDS)), np.float32)
-        mask = np.zeros((N, max_tracks), bool)
+        if isinstance(max_tracks, bool) or not isinstance(max_tracks, int | np.integer) or max_tracks < 0:
+            raise ValueError(f"KinTracker.track_arrays: max_tracks must be an int >= 0, got {max_tracks!r}")
         rows = np.flatnonzero(self._alive)
-        if rows.size:
-            kp = self._kin_prob(rows)
-            o = self._obs[rows]
-            order = np.lexsort((self._id[rows], -(kp + self._confirmed[rows]), o))
-            rows, kp, o = rows[order], kp[order], o[order]
-            n_o = np.bincount(o, minlength=N)
-            rank = np.arange(rows.size) - np.repeat(np.cumsum(n_o) - n_o, n_o)
-            keep = rank < max_tracks
-            rows, kp, o, rank = rows[keep], kp[keep], o[keep], rank[keep]
-            pose = self.poses[o]
-            c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
-            d = self._x[rows, :2] - pose[:, :2]
-            v = self._x[rows, 2:]
-            cols = np.stack(
-                [self._id[rows], c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1],
-                 c * v[:, 0] + s * v[:, 1], -s * v[:, 0] + c * v[:, 1], self._exist[rows], kp,
-                 self._seen[rows], self._confirmed[rows], self._age[rows]], axis=1,
-            )  # fmt: skip
-            out[o, rank] = cols
-            mask[o, rank] = True
-        count = mask.sum(axis=1).astype(np.int64)
+        # the kin decision of this frame's tracks, once per frame (an env reads it for the info and again for
+        # the observation's track channel)
+        key, kp = self._kp_cache
+        if key is None or key[0] != self._frame or key[1] is not self.kin_model or key[2] is not self.params:
+            kp = self._kin_prob(rows) if rows.size else np.zeros(0)
+            self._kp_cache = ((self._frame, self.kin_model, self.params), kp)
+        out, mask, count = _slots_kernel(rows, kp, self.n_observers, int(max_tracks), self._obs, self._id,
+                                         self._confirmed, self._x, self.poses, self._exist, self._seen,
+                                         self._age)  # fmt: skip
         return {"tracks": out, "mask": mask, "count": count}
-
 
 def _kin_model(kin_model) -> TrackKinModel | None:
     if isinstance(kin_model, TrackKinModel):
@@ -1150,14 +1133,25 @@ def _frame_kernel(z, obs, rng, dt, n_obs, alive, tobs, tid, next_id, x, P, poses
     deg_t = np.zeros(cap, np.int64)
     deg_c = np.zeros(k, np.int64)
     n_g = 0
+    # a cheap bound first: m2 >= |d|^2 / lambda_max(S) with S = P_xy + mv I, so a pair whose |d|^2 exceeds
+    # gate * lambda_max(S) (with a margin far above rounding) is outside the gate, and only the others need
+    # the exact test (in a swarm most pairs of an observer are metres apart); the gated pairs are the same
+    lam = np.empty(cap)
+    for b in range(t_cnt[n_obs]):
+        t = t_ord[b]
+        h, off = 0.5 * (P[t, 0, 0] - P[t, 1, 1]), max(abs(P[t, 0, 1]), abs(P[t, 1, 0]))
+        lam[t] = 0.5 * (P[t, 0, 0] + P[t, 1, 1]) + math.sqrt(h * h + off * off)
+    gate_b = gate * (1.0 + 1e-6)
     for o in range(n_obs):
         for a in range(c_cnt[o], c_cnt[o + 1]):
             c = c_ord[a]
             mv = (meas_sigma + meas_sigma_rel * rng[c]) ** 2
             for b in range(t_cnt[o], t_cnt[o + 1]):
                 t = t_ord[b]
-                s00, s01, s10, s11 = P[t, 0, 0] + mv, P[t, 0, 1], P[t, 1, 0], P[t, 1, 1] + mv
                 d0, d1 = z[c, 0] - x[t, 0], z[c, 1] - x[t, 1]
+                if d0 * d0 + d1 * d1 > gate_b * (lam[t] + mv):
+                    continue
+                s00, s01, s10, s11 = P[t, 0, 0] + mv, P[t, 0, 1], P[t, 1, 0], P[t, 1, 1] + mv
                 det = s00 * s11 - s01 * s10
                 m2 = (s11 * d0 * d0 - 2 * s01 * d0 * d1 + s00 * d1 * d1) / det
                 if m2 <= gate:
@@ -1481,9 +1475,109 @@ def _points_prep(pts, owner, obs, noise, cos, sin, poses, sigma2):
 
 
 @numba.njit(cache=True, nogil=True)
-def _outline_kernel(ti, ci, pts, sig, dist, cstart, obs, odometer, moved, buf, npts, head, fit_c, lo_shape,
-                    x, P, now, r, delta2, n_cap, min_points, clamp, head_rate2, pos_rate2, poses, lo_resid,
-                    res_chi2, res_dof, resid_clamp):  # fmt: skip
+def _frame_fit_start(pts, sig, a, b, pose, r, fw, fc, lane):
+    """One frame's fit of the points ``pts[a:b]``: weights ``1 / sig^2`` into ``fw[lane]`` and the start
+    (r behind the points' middle as seen from the observer at ``pose``) into ``fc[lane]``. One pose: no
+    odometry drift, valid while the object moves."""
+    mf = b - a
+    mx = my = 0.0
+    for p in range(a, b):
+        mx += pts[p, 0]
+        my += pts[p, 1]
+        fw[lane, p - a] = 1.0 / (sig[p] * sig[p])
+    mx /= mf
+    my /= mf
+    ux, uy = mx - pose[0], my - pose[1]
+    un = max(math.sqrt(ux * ux + uy * uy), 1e-9)
+    fc[lane, 0] = mx + ux / un * r * 0.7
+    fc[lane, 1] = my + uy / un * r * 0.7
+
+
+@numba.njit(cache=True, nogil=True)
+def _frame_fit_score(t, sig, a, b, fe, lane, delta2, resid_clamp, lo_resid, res_chi2, res_dof):
+    """Track ``t``'s per-frame residual sums from one fit's residuals ``fe[lane]``: the noise-normalised
+    chi-square and its dof, and (when the hand-tuned cue is on) the Gaussian LLR "on the circle" vs "off it
+    by delta", the fit's 2 dof taken out of the log term."""
+    mf = b - a
+    llr = 0.0
+    chi2 = 0.0
+    for p in range(a, b):
+        v0 = sig[p] * sig[p]
+        v1 = v0 + delta2
+        ee = fe[lane, p - a] * fe[lane, p - a]
+        chi2 += ee / v0
+        if resid_clamp > 0.0:  # the hand-tuned cue's LLR (its logs) only when it is on
+            llr += 0.5 * math.log(v1 / v0) * (mf - 2) / mf - 0.5 * ee * (1.0 / v0 - 1.0 / v1)
+    res_chi2[t] += chi2
+    res_dof[t] += mf - 2
+    if resid_clamp > 0.0:
+        lo_resid[t] = min(max(lo_resid[t] + llr, -resid_clamp), resid_clamp)
+
+
+@numba.njit(cache=True, nogil=True)
+def _fit_span2(p, a1, m1, a2, m2, w, r, c, iterations, e):
+    """Two :func:`_fit_span` fits at once, interleaved (lane 0: ``p[a1:a1 + m1]``, lane 1: ``p[a2:a2 + m2]``;
+    weights ``w[lane]``, centres ``c[lane]`` in place, residuals into ``e[lane]``): each lane's operations and
+    stopping rule are exactly those of :func:`_fit_span`, so its results are the same bits."""
+    go1 = go2 = True
+    for _ in range(iterations):
+        if not (go1 or go2):
+            break
+        a00 = a01 = a11 = g0 = g1 = 0.0
+        b00 = b01 = b11 = h0 = h1 = 0.0
+        for i in range(max(m1, m2)):
+            if go1 and i < m1:
+                dx, dy = p[a1 + i, 0] - c[0, 0], p[a1 + i, 1] - c[0, 1]
+                d = max(math.sqrt(dx * dx + dy * dy), 1e-12)
+                jx, jy = -dx / d, -dy / d
+                ei = d - r
+                a00 += w[0, i] * jx * jx
+                a01 += w[0, i] * jx * jy
+                a11 += w[0, i] * jy * jy
+                g0 += w[0, i] * jx * ei
+                g1 += w[0, i] * jy * ei
+            if go2 and i < m2:
+                dx, dy = p[a2 + i, 0] - c[1, 0], p[a2 + i, 1] - c[1, 1]
+                d = max(math.sqrt(dx * dx + dy * dy), 1e-12)
+                jx, jy = -dx / d, -dy / d
+                ei = d - r
+                b00 += w[1, i] * jx * jx
+                b01 += w[1, i] * jx * jy
+                b11 += w[1, i] * jy * jy
+                h0 += w[1, i] * jx * ei
+                h1 += w[1, i] * jy * ei
+        if go1:
+            det = a00 * a11 - a01 * a01
+            if det <= 1e-12 * (a00 + a11) ** 2:
+                go1 = False
+            else:
+                s0 = -(a11 * g0 - a01 * g1) / det
+                s1 = -(a00 * g1 - a01 * g0) / det
+                c[0, 0] += s0
+                c[0, 1] += s1
+                if s0 * s0 + s1 * s1 < 1e-18:
+                    go1 = False
+        if go2:
+            det = b00 * b11 - b01 * b01
+            if det <= 1e-12 * (b00 + b11) ** 2:
+                go2 = False
+            else:
+                s0 = -(b11 * h0 - b01 * h1) / det
+                s1 = -(b00 * h1 - b01 * h0) / det
+                c[1, 0] += s0
+                c[1, 1] += s1
+                if s0 * s0 + s1 * s1 < 1e-18:
+                    go2 = False
+    for i in range(m1):
+        e[0, i] = math.sqrt((p[a1 + i, 0] - c[0, 0]) ** 2 + (p[a1 + i, 1] - c[0, 1]) ** 2) - r
+    for i in range(m2):
+        e[1, i] = math.sqrt((p[a2 + i, 0] - c[1, 0]) ** 2 + (p[a2 + i, 1] - c[1, 1]) ** 2) - r
+
+
+@numba.njit(cache=True, nogil=True)
+def _outline_kernel(ti, ci, pts, sig, dist, cstart, obs, odometer, moved, buf, aux, npts, head, fit_c,
+                    lo_shape, x, P, now, r, delta2, n_cap, min_points, clamp, head_rate2, pos_rate2, poses,
+                    lo_resid, res_chi2, res_dof, resid_clamp):  # fmt: skip
     """Append each updated track's candidate points (odometry frame) to its ring buffer, then refit its
     outline (warm-started at the last fit's centre) and set its shape cue. A track that has moved keeps
     its last shape cue: its points no longer share one frame, and the motion cue has decided it anyway."""
@@ -1492,60 +1586,57 @@ def _outline_kernel(ti, ci, pts, sig, dist, cstart, obs, odometer, moved, buf, n
     m_frame = 0
     for j in range(ti.shape[0]):
         m_frame = max(m_frame, cstart[ci[j] + 1] - cstart[ci[j]])
-    fe, fw, fc = np.empty(m_frame), np.empty(m_frame), np.empty(2)
+    # per-frame known-radius fits (always: the track classifier reads their summed chi-square, resid_z), two
+    # at a time: the fits are independent, so the two interleaved Gauss-Newton loops overlap their latencies
+    # (each fit's own arithmetic is unchanged: the same bits as one at a time)
+    fe, fw, fc = np.empty((2, m_frame)), np.empty((2, m_frame)), np.empty((2, 2))
+    pend = -1
+    for j in range(ti.shape[0]):
+        if cstart[ci[j] + 1] - cstart[ci[j]] < 3:
+            continue
+        if pend < 0:
+            pend = j
+            continue
+        for lane, jj in ((0, pend), (1, j)):
+            o = obs[ti[jj]]
+            _frame_fit_start(pts, sig, cstart[ci[jj]], cstart[ci[jj] + 1], poses[o], r, fw, fc, lane)
+        a, b, a2, b2 = cstart[ci[pend]], cstart[ci[pend] + 1], cstart[ci[j]], cstart[ci[j] + 1]
+        _fit_span2(pts, a, b - a, a2, b2 - a2, fw, r, fc, 6, fe)
+        for lane, jj in ((0, pend), (1, j)):
+            _frame_fit_score(ti[jj], sig, cstart[ci[jj]], cstart[ci[jj] + 1], fe, lane, delta2, resid_clamp,
+                             lo_resid, res_chi2, res_dof)  # fmt: skip
+        pend = -1
+    if pend >= 0:
+        a, b = cstart[ci[pend]], cstart[ci[pend] + 1]
+        _frame_fit_start(pts, sig, a, b, poses[obs[ti[pend]]], r, fw, fc, 0)
+        _fit_span(pts, a, b - a, fw[0], r, fc[0], 6, fe[0])
+        _frame_fit_score(ti[pend], sig, a, b, fe, 0, delta2, resid_clamp, lo_resid, res_chi2, res_dof)
     for j in range(ti.shape[0]):
         t, c = ti[j], ci[j]
         a, b = cstart[c], cstart[c + 1]
-        mf = b - a
-        if mf >= 3:  # always: the track classifier reads the summed chi-square (resid_z)
-            # per-frame known-radius fit: one pose, so no odometry drift and valid while the object moves;
-            # start r behind the points' middle as seen from the observer
-            mx = my = 0.0
-            for p in range(a, b):
-                mx += pts[p, 0]
-                my += pts[p, 1]
-                fw[p - a] = 1.0 / (sig[p] * sig[p])
-            mx /= mf
-            my /= mf
-            ux, uy = mx - poses[obs[t], 0], my - poses[obs[t], 1]
-            un = max(math.sqrt(ux * ux + uy * uy), 1e-9)
-            fc[0] = mx + ux / un * r * 0.7
-            fc[1] = my + uy / un * r * 0.7
-            _fit_known_circle(pts[a:b], fw[:mf], r, fc, 6, fe[:mf])
-            # Gaussian LLR "on the circle" vs "off it by delta", the fit's 2 dof taken out of the log term
-            llr = 0.0
-            chi2 = 0.0
-            for p in range(a, b):
-                v0 = sig[p] * sig[p]
-                v1 = v0 + delta2
-                ee = fe[p - a] * fe[p - a]
-                chi2 += ee / v0
-                if resid_clamp > 0.0:  # the hand-tuned cue's LLR (its logs) only when it is on
-                    llr += 0.5 * math.log(v1 / v0) * (mf - 2) / mf - 0.5 * ee * (1.0 / v0 - 1.0 / v1)
-            res_chi2[t] += chi2
-            res_dof[t] += mf - 2
-            if resid_clamp > 0.0:
-                lo_resid[t] = min(max(lo_resid[t] + llr, -resid_clamp), resid_clamp)
         if moved[t]:  # a moving object's points share no frame: its outline is no evidence
             lo_shape[t] = 0.0
             continue
         if b == a:
             continue
+        h, odo_t = head[t], odometer[obs[t]]
         for p in range(a, b):
-            h = head[t]
             buf[t, h, 0] = pts[p, 0]
             buf[t, h, 1] = pts[p, 1]
-            buf[t, h, 2] = sig[p]
-            buf[t, h, 3] = dist[p]
-            buf[t, h, 4] = odometer[obs[t]]
-            buf[t, h, 5] = now
-            head[t] = (h + 1) % m_max
-            if npts[t] < m_max:
-                npts[t] += 1
+            if aux.shape[1]:
+                aux[t, h, 0] = sig[p]
+                aux[t, h, 1] = dist[p]
+                aux[t, h, 2] = odo_t
+                aux[t, h, 3] = now
+            h += 1
+            if h == m_max:  # the ring wraps (no integer division per point)
+                h = 0
+        head[t] = h
+        npts[t] = min(npts[t] + (b - a), m_max)
         m = npts[t]
         if m < min_points or clamp <= 0.0:  # clamp 0: the cue is off, skip the (costly) refit
             continue
-        acc = buf[t, :m]
+        acc, acx = buf[t, :m], aux[t, :m]
         odo = odometer[obs[t]]
         vx, vy = x[t, 2], x[t, 3]
         pv = 0.5 * (P[t, 2, 2] + P[t, 3, 3])
@@ -1555,12 +1646,12 @@ def _outline_kernel(ti, ci, pts, sig, dist, cstart, obs, odometer, moved, buf, n
             # sensor noise, plus the ego-motion error accumulated since the point was seen (heading drift
             # moves it sideways in proportion to its range), plus how far the object may have gone since:
             # the point is moved along the track's velocity, with that velocity's uncertainty
-            aged = odo - acc[i, 4]
-            dt = now - acc[i, 5]
+            aged = odo - acx[i, 2]
+            dt = now - acx[i, 3]
             pp[i, 0] = acc[i, 0] + vx * dt
             pp[i, 1] = acc[i, 1] + vy * dt
             var[i] = (
-                acc[i, 2] * acc[i, 2] + aged * (head_rate2 * acc[i, 3] * acc[i, 3] + pos_rate2) + pv * dt * dt
+                acx[i, 0] * acx[i, 0] + aged * (head_rate2 * acx[i, 1] * acx[i, 1] + pos_rate2) + pv * dt * dt
             )
             wgt[i] = 1.0 / var[i]
         cen = fit_c[t]
@@ -1572,3 +1663,280 @@ def _outline_kernel(ti, ci, pts, sig, dist, cstart, obs, odometer, moved, buf, n
             llr += 0.5 * math.log(v1 / v0) - 0.5 * e[i] * e[i] * (1.0 / v0 - 1.0 / v1)
         llr *= min(1.0, n_cap / m)
         lo_shape[t] = min(max(llr, -clamp), clamp)
+
+
+# -- the fused frame update ---------------------------------------------------------------------------------
+
+_NO_FLAGS = np.zeros(0, np.bool_)
+_NO_POINTS = np.zeros((0, 2))
+_NO_OWNER = np.zeros(0, np.int64)
+# _update_kernel's status codes (0: done)
+_BAD_DELTA, _BAD_VALUES, _BAD_OBS, _BAD_NOISE, _BAD_OWNER, _BAD_POINTS, _BAD_SORT = range(1, 8)
+
+
+def _param_array(pr: TrackerParams) -> np.ndarray:
+    """:class:`TrackerParams` as :func:`_update_kernel` reads them (derived values as the staged steps
+    computed them, so that the fused update is bitwise the staged one)."""
+    return np.array([
+        pr.process_accel**2, pr.meas_sigma, pr.meas_sigma_rel, pr.init_speed_sigma**2, pr.gate_chi2,
+        pr.birth_existence, pr.confirm_existence, pr.r, float(_logit(pr.score_prior)), pr.score_per_metre,
+        pr.score_weight, pr.accept_llr, pr.reject_llr, pr.score_n0, pr.score_gain, pr.score_clamp,
+        pr.shape_sigma**2, pr.shape_delta**2, float(pr.shape_n_cap), float(int(pr.shape_min_points)),
+        pr.shape_clamp, pr.odom_heading_rate**2, pr.odom_position_rate**2, pr.resid_clamp, pr.p_detect,
+        pr.clutter_ratio, pr.max_range, pr.delete_existence, pr.motion_dist, pr.motion_gain, pr.min_score,
+        0.5 * pr.wheel_base,
+    ], np.float64)  # fmt: skip
+
+
+def _update_error(status, N, k, delta, xy, scores, obs, noise, pts) -> str:
+    """The message of a bad input :func:`_update_kernel` found (its status code)."""
+    if status == _BAD_DELTA:
+        return (f"KinTracker: odom_delta must be ({N}, 3) finite numbers (dx, dy, dtheta per observer), "
+                f"got {delta.shape} {delta!r}")  # fmt: skip
+    if status == _BAD_VALUES:
+        return (f"KinTracker: obs (k,), xy (k, 2) and scores (k,) must be finite and of one length, got "
+                f"{obs.shape}, {xy.shape} and {scores.shape}")  # fmt: skip
+    if status == _BAD_OBS:
+        return f"KinTracker: obs must be observer indices in [0, {N}), got {obs!r}"
+    if status == _BAD_NOISE:
+        return f"KinTracker: noise must be {N} relative range noises >= 0, got {noise!r}"
+    if status == _BAD_OWNER:
+        return f"KinTracker: owner must give each of the {pts.shape[0]} points a candidate in [0, {k})"
+    return "KinTracker: points must be finite"
+
+
+@numba.njit(cache=True, nogil=True)
+def _update_kernel(obs, xy, scores, accepted, delta, dt, pts, owner, has_points, noise, poses, odometer, now,
+                   next_id, prm, alive, tobs, tid, x, P, exist, lo_score, lo_shape, lo_motion, lo_resid,
+                   res_chi2, res_dof, score_sum, n_scored, seen, age, static_t, moved, confirmed, npts, head,
+                   fit_c, anchor, anchor_var, anchor_odo, anchor_rng, buf, aux, f_lgsum, f_lgsq, f_lgmax,
+                   f_lglast, f_accsum, f_acclast, f_beams, f_rng, hit):  # fmt: skip
+    """One frame of every observer (:meth:`KinTracker.update_batch`) in one call: checks the inputs'
+    values (a status code and no state change if one is bad), drops candidates below ``min_score``,
+    moves each observer by its odometry, then runs the frame's steps in the staged order — association,
+    filter and births (:func:`_frame_kernel`), the score cue, the per-frame fits and outline
+    (:func:`_outline_kernel`), the classifier's running inputs, existence / motion / confirm / delete.
+    ``poses`` is updated in place (the caller passes a fresh copy). Returns ``(status, next_id)``."""
+    k, N = xy.shape[0], poses.shape[0]
+    # -- the inputs' values, before any state changes
+    for o in range(N):
+        if not (np.isfinite(delta[o, 0]) and np.isfinite(delta[o, 1]) and np.isfinite(delta[o, 2])):
+            return _BAD_DELTA, next_id
+    for c in range(k):
+        if not (np.isfinite(xy[c, 0]) and np.isfinite(xy[c, 1]) and np.isfinite(scores[c])):
+            return _BAD_VALUES, next_id
+    for c in range(k):
+        if obs[c] < 0 or obs[c] >= N:
+            return _BAD_OBS, next_id
+    for o in range(N):
+        if not (np.isfinite(noise[o]) and noise[o] >= 0):
+            return _BAD_NOISE, next_id
+    if has_points:
+        status = _points_check(pts, owner, k)
+        if status == 1:
+            return _BAD_OWNER, next_id
+        if status == 2:
+            return _BAD_POINTS, next_id
+        if status == 3:
+            return _BAD_SORT, next_id
+    # -- candidates below min_score are dropped (their points too, the rest renumbered)
+    min_score = prm[30]
+    new = np.empty(k, np.int64)
+    kk = 0
+    for c in range(k):
+        if min_score <= 0.0 or scores[c] >= min_score:
+            new[c] = kk
+            kk += 1
+        else:
+            new[c] = -1
+    if kk < k:
+        ob2, xy2, sc2 = np.empty(kk, np.int64), np.empty((kk, 2)), np.empty(kk)
+        acc2 = np.empty(kk if accepted.shape[0] else 0, np.bool_)
+        for c in range(k):
+            j = new[c]
+            if j >= 0:
+                ob2[j], xy2[j, 0], xy2[j, 1], sc2[j] = obs[c], xy[c, 0], xy[c, 1], scores[c]
+                if accepted.shape[0]:
+                    acc2[j] = accepted[c]
+        obs, xy, scores, accepted = ob2, xy2, sc2, acc2
+        if has_points:
+            m = 0
+            for i in range(owner.shape[0]):
+                if new[owner[i]] >= 0:
+                    m += 1
+            pts2, own2 = np.empty((m, 2)), np.empty(m, np.int64)
+            m = 0
+            for i in range(owner.shape[0]):
+                j = new[owner[i]]
+                if j >= 0:
+                    pts2[m, 0], pts2[m, 1], own2[m] = pts[i, 0], pts[i, 1], j
+                    m += 1
+            pts, owner = pts2, own2
+        k = kk
+    # -- ego-motion: each observer's new pose in its odometry frame; the odometer (wheel travel)
+    cos, sin = np.empty(N), np.empty(N)
+    for o in range(N):
+        c, s = math.cos(poses[o, 2]), math.sin(poses[o, 2])
+        px = poses[o, 0] + c * delta[o, 0] - s * delta[o, 1]
+        py = poses[o, 1] + s * delta[o, 0] + c * delta[o, 1]
+        w = (poses[o, 2] + delta[o, 2] + math.pi) % (2.0 * math.pi) - math.pi  # wrap_angle
+        if w <= -math.pi:
+            w += 2.0 * math.pi
+        poses[o, 0], poses[o, 1], poses[o, 2] = px, py, w
+        odometer[o] += math.hypot(delta[o, 0], delta[o, 1]) + prm[31] * abs(delta[o, 2])
+        cos[o], sin[o] = math.cos(w), math.sin(w)
+    z, rng = np.empty((k, 2)), np.empty(k)  # candidates in their observer's odometry frame, and range
+    for c in range(k):
+        o = obs[c]
+        z[c, 0] = cos[o] * xy[c, 0] - sin[o] * xy[c, 1] + poses[o, 0]
+        z[c, 1] = sin[o] * xy[c, 0] + cos[o] * xy[c, 1] + poses[o, 1]
+        rng[c] = math.hypot(xy[c, 0], xy[c, 1])
+    pre = alive.copy()  # the tracks before this frame's births (existence: hit or miss)
+    ti, ci, tb, born, next_id = _frame_kernel(
+        z, obs, rng, dt, N, alive, tobs, tid, next_id, x, P, poses, exist, lo_score, lo_shape, lo_motion,
+        lo_resid, res_chi2, res_dof, score_sum, n_scored, seen, age, static_t, moved, confirmed, npts, head,
+        fit_c, anchor, anchor_var, anchor_odo, anchor_rng, odometer, prm[0], prm[1], prm[2], prm[3], prm[4],
+        prm[5], prm[6], prm[7],
+    )  # fmt: skip
+    n_m, n_t = ti.shape[0], ti.shape[0] + tb.shape[0]
+    tracks, cands = np.empty(n_t, np.int64), np.empty(n_t, np.int64)
+    tracks[:n_m] = ti
+    tracks[n_m:] = tb
+    cands[:n_m] = ci
+    cands[n_m:] = born
+    sc, rg = np.empty(n_t), np.empty(n_t)
+    ac = np.empty(n_t if accepted.shape[0] else 0, np.bool_)
+    for j in range(n_t):
+        sc[j], rg[j] = scores[cands[j]], rng[cands[j]]
+        if accepted.shape[0]:
+            ac[j] = accepted[cands[j]]
+    _score_kernel(tracks, sc, ac, rg, score_sum, n_scored, lo_score, prm[8], prm[9], prm[10], prm[11],
+                  prm[12], prm[13], prm[14], prm[15])  # fmt: skip
+    bm = np.zeros(n_t)
+    if has_points and n_t:
+        odom, sig, dist = _points_prep(pts, owner, obs, noise, cos, sin, poses, prm[16])
+        cstart = np.empty(k + 1, np.int64)  # owner is sorted: candidate c's points are cstart[c]:cstart[c+1]
+        i = 0
+        for c in range(k + 1):
+            while i < owner.shape[0] and owner[i] < c:
+                i += 1
+            cstart[c] = i
+        _outline_kernel(tracks, cands, odom, sig, dist, cstart, tobs, odometer, moved, buf, aux, npts, head,
+                        fit_c, lo_shape, x, P, now, prm[7], prm[17], prm[18], int(prm[19]), prm[20], prm[21],
+                        prm[22], poses, lo_resid, res_chi2, res_dof, prm[23])  # fmt: skip
+        for j in range(n_t):
+            bm[j] = cstart[cands[j] + 1] - cstart[cands[j]]
+    _feature_kernel(tracks, n_m, sc, ac, rg, bm, f_lgsum, f_lgsq, f_lgmax, f_lglast, f_accsum, f_acclast,
+                    f_beams, f_rng, hit)  # fmt: skip
+    hit_t = np.zeros(alive.shape[0], np.bool_)
+    for j in range(n_m):
+        hit_t[ti[j]] = True
+    _finish_kernel(pre, hit_t, dt, alive, tobs, x, P, poses, exist, confirmed, moved, lo_motion, static_t,
+                   age, seen, anchor, anchor_var, anchor_odo, anchor_rng, odometer, prm[24], prm[25],
+                   prm[26], prm[6], prm[27], prm[28], prm[29], prm[21], prm[22])  # fmt: skip
+    return 0, next_id
+
+
+# -- the classifier's inputs and the fixed-shape outputs, compiled -------------------------------------------
+
+#: the columns :func:`_features_kernel` computes (a copy: if :data:`TRACK_FEATURES` changes, the tracker
+#: falls back to the numpy :meth:`KinTracker._features` until the kernel follows)
+_KERNEL_FEATURES = ("mean_logit", "std_logit", "max_logit", "last_logit", "hit_logit", "accept_rate",
+                    "last_accepted", "hit_accepted", "hit", "log_frames", "log_beams", "range", "motion_z",
+                    "moved", "existence", "speed_z", "moved_share", "log_moved", "resid_z")  # fmt: skip
+
+
+@numba.njit(cache=True, nogil=True)
+def _features_kernel(rows, n_obs, alive, confirmed, obs, seen, x, P, anchor, anchor_var, anchor_odo,
+                     anchor_rng, odometer, hit, lgsum, lgsq, lgmax, lglast, accsum, acclast, beams, f_rng,
+                     moved, exist, res_chi2, res_dof, head_rate2, pos_rate2):  # fmt: skip
+    """:meth:`KinTracker._features` of the track rows ``rows`` (the same operations, one loop)."""
+    n_conf = np.zeros(n_obs)  # the scene: each observer's confirmed tracks, and those that moved
+    n_moved = np.zeros(n_obs, np.int64)
+    for t in range(alive.shape[0]):
+        if alive[t] and confirmed[t]:
+            n_conf[obs[t]] += 1.0
+            if moved[t]:
+                n_moved[obs[t]] += 1
+    X = np.empty((rows.shape[0], len(_KERNEL_FEATURES)))
+    for i in range(rows.shape[0]):
+        t = rows[i]
+        o = obs[t]
+        n = float(max(seen[t], 1))
+        disp = math.hypot(x[t, 0] - anchor[t, 0], x[t, 1] - anchor[t, 1])
+        drift = (odometer[o] - anchor_odo[t]) * (head_rate2 * anchor_rng[t] ** 2 + pos_rate2)
+        var = anchor_var[t] + 0.5 * (P[t, 0, 0] + P[t, 1, 1]) + drift
+        speed_sd = math.sqrt(max(0.5 * (P[t, 2, 2] + P[t, 3, 3]), 1e-12))
+        mean = lgsum[t] / n
+        dof = res_dof[t]
+        X[i, 0] = mean
+        X[i, 1] = math.sqrt(max(lgsq[t] / n - mean * mean, 0.0))
+        X[i, 2] = lgmax[t]
+        X[i, 3] = lglast[t]
+        X[i, 4] = lglast[t] if hit[t] else -6.0
+        X[i, 5] = accsum[t] / n
+        X[i, 6] = acclast[t]
+        X[i, 7] = acclast[t] if hit[t] else 0.0
+        X[i, 8] = 1.0 if hit[t] else 0.0
+        X[i, 9] = math.log(n)
+        X[i, 10] = math.log1p(beams[t])
+        X[i, 11] = f_rng[t]
+        X[i, 12] = min(disp / math.sqrt(var), 10.0)
+        X[i, 13] = 1.0 if moved[t] else 0.0
+        X[i, 14] = exist[t]
+        X[i, 15] = min(math.hypot(x[t, 2], x[t, 3]) / speed_sd, 10.0)
+        X[i, 16] = n_moved[o] / max(n_conf[o], 1.0)
+        X[i, 17] = math.log1p(n_moved[o])
+        X[i, 18] = min(max((res_chi2[t] - dof) / math.sqrt(2.0 * max(dof, 1.0)), -10.0), 10.0)
+    return X
+
+
+@numba.njit(cache=True, nogil=True)
+def _slots_kernel(rows, kp, n_obs, max_tracks, tobs, tid, confirmed, x, poses, exist, seen, age):
+    """:meth:`KinTracker.track_arrays`' padded slots: each observer's tracks ``rows`` (kin probability
+    ``kp``) ordered confirmed first, then by kin probability, then by id, the first ``max_tracks`` in its
+    current robot frame (columns :data:`TRACK_FIELDS`)."""
+    n = rows.shape[0]
+    cnt = np.zeros(n_obs + 1, np.int64)  # group by observer (counting sort)
+    for i in range(n):
+        cnt[tobs[rows[i]] + 1] += 1
+    for o in range(n_obs):
+        cnt[o + 1] += cnt[o]
+    order = np.empty(n, np.int64)
+    fill = cnt[:-1].copy()
+    for i in range(n):
+        o = tobs[rows[i]]
+        order[fill[o]] = i
+        fill[o] += 1
+    out = np.zeros((n_obs, max_tracks, 10), np.float32)
+    mask = np.zeros((n_obs, max_tracks), np.bool_)
+    count = np.zeros(n_obs, np.int64)
+    for o in range(n_obs):
+        g = order[cnt[o] : cnt[o + 1]]
+        ids, key = np.empty(g.shape[0], np.int64), np.empty(g.shape[0])
+        for j in range(g.shape[0]):
+            ids[j] = tid[rows[g[j]]]
+        g = g[np.argsort(ids)]  # ids are unique: the tie-break
+        for j in range(g.shape[0]):
+            key[j] = -(kp[g[j]] + (1.0 if confirmed[rows[g[j]]] else 0.0))
+        g = g[np.argsort(key, kind="mergesort")]  # stable: equal keys keep id order
+        c, s = math.cos(poses[o, 2]), math.sin(poses[o, 2])
+        m = min(g.shape[0], max_tracks)
+        for r in range(m):
+            i = g[r]
+            t = rows[i]
+            d0, d1 = x[t, 0] - poses[o, 0], x[t, 1] - poses[o, 1]
+            v0, v1 = x[t, 2], x[t, 3]
+            out[o, r, 0] = float(tid[t])
+            out[o, r, 1] = c * d0 + s * d1
+            out[o, r, 2] = -s * d0 + c * d1
+            out[o, r, 3] = c * v0 + s * v1
+            out[o, r, 4] = -s * v0 + c * v1
+            out[o, r, 5] = exist[t]
+            out[o, r, 6] = kp[i]
+            out[o, r, 7] = float(seen[t])
+            out[o, r, 8] = 1.0 if confirmed[t] else 0.0
+            out[o, r, 9] = float(age[t])
+            mask[o, r] = True
+        count[o] = m
+    return out, mask, count

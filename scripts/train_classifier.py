@@ -128,6 +128,21 @@ def split_by_scene(seeds: np.ndarray, val_fraction: float, rng: np.random.Genera
     return np.isin(seeds, rng.choice(uniq, n_val, replace=False))
 
 
+def few_beam_labels(label: np.ndarray, n_beams: np.ndarray, min_kin_beams: int) -> np.ndarray:
+    """``label`` with kin segments of fewer than ``min_kin_beams`` beams made non-kin (the benchmark
+    counts a kin from 2 valid beams: a 1-beam detection can never be a true positive there)."""
+    return np.where(np.asarray(n_beams) < min_kin_beams, 0, label).astype(np.asarray(label).dtype)
+
+
+def focus_weights(weight, n_beams, range_min, factor: float, beams, range_m) -> np.ndarray:
+    """``weight`` times ``factor`` for every segment with ``beams[0] <= n_beams <= beams[1]`` whose
+    nearest reading lies in ``[range_m[0], range_m[1])`` (kin and look-alikes alike: capacity for the
+    few-beam regime, not a shifted threshold)."""
+    n, r = np.asarray(n_beams), np.asarray(range_min)
+    focus = (n >= beams[0]) & (n <= beams[1]) & (r >= range_m[0]) & (r < range_m[1])
+    return np.where(focus, np.asarray(weight) * factor, weight).astype(np.float32)
+
+
 def targets(segs: dict) -> np.ndarray:
     """Kin centres in each segment's local frame (NaN for non-kin)."""
     return observer_to_local(segs["frames"].astype(np.float64), segs["centre"].astype(np.float64)).astype(
@@ -513,6 +528,17 @@ def main(argv=None) -> dict:
                     help="keep this random fraction of the arena-boundary and wall segments in training, "
                     "each weighted 1 / fraction (they are most of the data and the easiest negatives: a "
                     "smaller share trains faster at the same expected loss); validation keeps them all")
+    ap.add_argument("--min-kin-beams", type=int, default=1,
+                    help="kin segments with fewer beams are trained as non-kin (2: the benchmark's "
+                    "ground-truth rule, a kin counts with >= 2 valid beams: a 1-beam detection is never a "
+                    "true positive)")
+    ap.add_argument("--focus-weight", type=float, default=1.0,
+                    help="loss weight of every segment (kin and not) with --focus-beams beams whose nearest "
+                    "reading is in --focus-range: training capacity spent on the few-beam regime")
+    ap.add_argument("--focus-beams", type=int, nargs=2, default=[2, 3], metavar=("MIN", "MAX"),
+                    help="beam-count range of --focus-weight (inclusive)")
+    ap.add_argument("--focus-range", type=float, nargs=2, default=[1.0, 2.0], metavar=("MIN", "MAX"),
+                    help="nearest-reading range of --focus-weight, m")
     ap.add_argument("--out", type=Path, default=Path("outputs/train_classifier"),
                     help="output directory for the checkpoint, logs and evaluation (default: %(default)s)")
     ap.add_argument("--checkpoint", type=Path, default=None,
@@ -569,6 +595,9 @@ def main(argv=None) -> dict:
         ap.error(f"--val-fraction must be in (0, 1), got {args.val_fraction}")
     if not 0 < args.keep_easy <= 1:
         ap.error(f"--keep-easy must be in (0, 1], got {args.keep_easy}")
+    if args.min_kin_beams < 1 or not (math.isfinite(args.focus_weight) and args.focus_weight > 0):
+        ap.error(f"--min-kin-beams must be >= 1 and --focus-weight > 0, got {args.min_kin_beams}, "
+                 f"{args.focus_weight}")
     if args.eval_scenes < 0 or args.threads < 1:
         ap.error("--eval-scenes must be >= 0 and --threads >= 1")
     try:
@@ -614,7 +643,9 @@ def main(argv=None) -> dict:
     tgt = targets(segs)
     keep = ~segs["same_radius"]  # indistinguishable from kin in one scan: not a training negative
 
-    weight = sample_weights(segs["label"], segs["category"], tcfg)
+    segs["label"] = few_beam_labels(segs["label"], segs["n_beams"], args.min_kin_beams)
+    weight = focus_weights(sample_weights(segs["label"], segs["category"], tcfg), segs["n_beams"],
+                           segs["range_min"], args.focus_weight, args.focus_beams, args.focus_range)
     if args.keep_easy < 1:  # a share of the easy negatives, up-weighted (validation keeps them all)
         easy = np.isin(segs["category"], [CATEGORIES.index("boundary"), CATEGORIES.index("wall")])
         drop = easy & ~is_val & (rng.random(easy.shape[0]) >= args.keep_easy)
@@ -679,6 +710,8 @@ def main(argv=None) -> dict:
             for path, m in zip(args.data, manifests, strict=True)
         ],
         "keep_easy": args.keep_easy,
+        "min_kin_beams": args.min_kin_beams,
+        "focus": {"weight": args.focus_weight, "beams": args.focus_beams, "range_m": args.focus_range},
         "split": {
             "val_fraction": args.val_fraction,
             "val_scenes": int(len(val_seeds)),

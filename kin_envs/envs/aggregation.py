@@ -139,7 +139,8 @@ class AggregationEnv(ParallelEnv):
     * unless ``detector=None``, ``kin_detections``: ``max_detections`` (16) slots of ``range,
       bearing, x, y, score, first_beam, last_beam, n_beams, kin_index`` (``kin_index`` -1 = false
       detection) and ``kin_detections_count``;
-    * with ``tracker=True`` (opt-in; or a dict of ``detectors.TrackerParams`` fields), ``kin_tracks``:
+    * with ``tracker=True`` (opt-in; or a dict of ``detectors.TrackerParams`` fields and ``"kin_model"``:
+      ``"learned"``, ``"hand"`` or a track-classifier JSON path, see ``tracker`` below), ``kin_tracks``:
       ``max_tracks`` (16) slots of ``detectors.tracking.TRACK_FIELDS`` (``id, x, y, vx, vy, existence,
       kin_prob, frames_seen, confirmed, age``; robot frame) and ``kin_tracks_count``: one
       ``detectors.KinTracker`` batched over all robots, fed each step with every robot's detections and
@@ -160,8 +161,10 @@ class AggregationEnv(ParallelEnv):
       (0.1); ``collision_penalty`` (1.0); ``max_kin_truth`` (16 info slots);
     * common: ``noise_sigma``, ``dropout_prob``, ``detector`` (``"geometric"``), ``obs_detections``,
       ``obs_top_k``, ``max_detections`` (16 info slots), ``frame_stack``, ``action_type``,
-      ``control_dt``, ``tracker`` (None) and ``max_tracks`` (16 info slots; ``obs_tracks`` is not
-      supported here yet);
+      ``control_dt``, ``tracker`` (None; ``True`` or a dict of ``detectors.TrackerParams`` fields plus
+      ``"kin_model"``: the track classifier, ``"learned"`` (default, shipped), ``"hand"`` (the hand-tuned
+      fusion) or a path to a track-classifier JSON; an unknown key or a bad value raises naming it) and
+      ``max_tracks`` (16 info slots; ``obs_tracks`` is not supported here yet);
     * rendering: ``render_mode`` (None, ``"rgb_array"``, ``"human"``), ``render_size`` (512 px),
       ``render_beams`` (True) and ``render_agent`` (0: whose beams and detections are drawn).
 

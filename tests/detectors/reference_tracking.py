@@ -1,14 +1,246 @@
-"""The tracker's frame steps and score cue as they were before the compiled kernels (numpy, one array
-operation per step): the reference the compiled :class:`detectors.tracking.KinTracker` must reproduce
-(same tracks)."""
+"""The tracker as it was before the fused frame update, as test references:
+
+* :class:`StagedKinTracker`: the frame update as a sequence of Python steps calling the compiled stage
+  kernels (predict / gate / assign / update / birth, score cue, outline and per-frame fits, classifier
+  inputs, existence / motion / confirm / delete), which :func:`detectors.tracking._update_kernel` now runs
+  in one call: the fused tracker must reproduce it bitwise;
+* :class:`ReferenceKinTracker`: the staged tracker with the frame steps and score cue in numpy (one array
+  operation per step), as before the compiled kernels: the compiled tracker must give the same tracks."""
+
+import math
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from detectors.tracking import KinTracker
+from detectors.base import wrap_angle
+from detectors.tracking import (
+    TRACK_FIELDS,
+    KinTracker,
+    _feature_kernel,
+    _finish_kernel,
+    _frame_kernel,
+    _logit,
+    _outline_kernel,
+    _points_check,
+    _points_prep,
+    _score_kernel,
+)
 
 
-class ReferenceKinTracker(KinTracker):
+class StagedKinTracker(KinTracker):
+    """:class:`KinTracker` with the frame update as separate steps (the overridable methods below)."""
+
+    def update_batch(
+        self, obs, xy, scores, odom_delta, dt: float, points=None, owner=None, noise=None, accepted=None
+    ) -> None:
+        """Advance every observer by one frame.
+
+        Args:
+            obs: (k,) observer of each candidate, in [0, n_observers).
+            xy: (k, 2) candidate centres in their observer's current robot frame (x forward, y left), m.
+            scores: (k,) candidate scores in [0, 1] (higher = more kin-like).
+            odom_delta: (n_observers, 3) each observer's odometry increment since the previous frame.
+            dt: s since the previous frame (> 0).
+            points: optional (P, 2) scan points of the candidates, their observer's robot frame, m ...
+            owner: ... (P,) and the candidate each point belongs to.
+            noise: optional (n_observers,) relative range noise of each observer's scan.
+            accepted: optional (k,) bool: the detector accepted the candidate at its operating point
+                (then the score cue uses ``accept_llr`` / ``reject_llr``, see :class:`TrackerParams`).
+        """
+        pr, N = self.params, self.n_observers
+        obs = np.asarray(obs).reshape(-1)
+        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        scores = np.asarray(scores, dtype=np.float64).reshape(-1)
+        delta = np.asarray(odom_delta, dtype=np.float64)
+        k = xy.shape[0]
+        if delta.shape != (N, 3) or not np.all(np.isfinite(delta)):
+            raise ValueError(
+                f"KinTracker: odom_delta must be ({N}, 3) finite numbers (dx, dy, dtheta per observer), "
+                f"got {np.shape(odom_delta)} {odom_delta!r}"
+            )
+        if not (isinstance(dt, int | float) and math.isfinite(dt) and dt > 0):
+            raise ValueError(f"KinTracker: dt must be a positive number of seconds, got {dt!r}")
+        if (
+            scores.shape[0] != k
+            or obs.shape[0] != k
+            or not (np.all(np.isfinite(xy)) and np.all(np.isfinite(scores)))
+        ):
+            raise ValueError(
+                f"KinTracker: obs (k,), xy (k, 2) and scores (k,) must be finite and of one length, got "
+                f"{obs.shape}, {xy.shape} and {scores.shape}"
+            )
+        if k and (not np.issubdtype(obs.dtype, np.integer) or obs.min() < 0 or obs.max() >= N):
+            raise ValueError(f"KinTracker: obs must be observer indices in [0, {N}), got {obs!r}")
+        noise = np.full(N, pr.range_noise) if noise is None else np.asarray(noise, np.float64).reshape(-1)
+        if noise.shape != (N,) or not np.all(np.isfinite(noise) & (noise >= 0)):
+            raise ValueError(f"KinTracker: noise must be {N} relative range noises >= 0, got {noise!r}")
+        obs = obs.astype(np.int64)
+        if accepted is not None:
+            accepted = np.asarray(accepted, dtype=bool).reshape(-1)
+            if accepted.shape[0] != k:
+                raise ValueError(
+                    f"KinTracker: accepted must have one flag per candidate ({k}), got {accepted.shape}"
+                )
+        if k and pr.min_score > 0:
+            keep = scores >= pr.min_score
+            if not keep.all():
+                if points is not None:  # renumber the kept candidates' points
+                    owner = np.asarray(owner).reshape(-1).astype(np.int64)
+                    new = np.cumsum(keep) - 1
+                    sel = keep[owner] if owner.size else np.zeros(0, bool)
+                    points = np.asarray(points, np.float64).reshape(-1, 2)[sel]
+                    owner = new[owner[sel]]
+                obs, xy, scores = obs[keep], xy[keep], scores[keep]
+                accepted = None if accepted is None else accepted[keep]
+                k = xy.shape[0]
+        # ego-motion: each observer's new pose in its odometry frame
+        c, s = np.cos(self.poses[:, 2]), np.sin(self.poses[:, 2])
+        self.poses = np.c_[
+            self.poses[:, 0] + c * delta[:, 0] - s * delta[:, 1],
+            self.poses[:, 1] + s * delta[:, 0] + c * delta[:, 1],
+            wrap_angle(self.poses[:, 2] + delta[:, 2]),
+        ]
+        self.time += dt
+        # each wheel's travel: ego-motion errors grow with it (the odometry error model's random walk)
+        half_turn = 0.5 * self.params.wheel_base * np.abs(delta[:, 2])
+        self.odometer += np.hypot(delta[:, 0], delta[:, 1]) + half_turn
+        cos, sin = np.cos(self.poses[:, 2]), np.sin(self.poses[:, 2])
+        z = self._to_odom(xy, obs, cos, sin)  # candidates in their observer's odometry frame
+        rng = np.hypot(xy[:, 0], xy[:, 1])
+        if int(self._alive.sum()) + k > self._alive.shape[0]:  # room for every candidate to start a track
+            self._grow(int(self._alive.sum()) + k)
+        pre = self._alive.copy()  # the tracks before this frame's births (existence: hit or miss)
+        ti, ci, tb, born = self._associate_and_birth(z, obs, rng, dt)
+        tracks, cands = np.concatenate([ti, tb]), np.concatenate([ci, born])
+        self._score_cue(tracks, scores[cands], None if accepted is None else accepted[cands], rng[cands])
+        beams = np.zeros(k)
+        if points is not None and len(tracks):
+            self._outline_cue(tracks, cands, points, owner, obs, noise, cos, sin, k)  # validates owner
+            beams = np.bincount(np.asarray(owner, np.int64).reshape(-1), minlength=k).astype(np.float64)
+        _feature_kernel(tracks, len(ti), scores[cands], np.zeros(0, np.bool_) if accepted is None
+                        else accepted[cands], rng[cands], beams[cands], self._f_lgsum, self._f_lgsq,
+                        self._f_lgmax, self._f_lglast, self._f_accsum, self._f_acclast, self._f_beams,
+                        self._f_rng, self._hit)  # fmt: skip
+        hit = np.zeros(self._alive.shape[0], bool)
+        hit[ti] = True
+        self._finish(pre, hit, dt)
+
+    def _to_odom(self, xy, obs, cos, sin) -> np.ndarray:
+        c, s, p = cos[obs], sin[obs], self.poses[obs]
+        out = np.empty((xy.shape[0], 2))
+        out[:, 0] = c * xy[:, 0] - s * xy[:, 1] + p[:, 0]
+        out[:, 1] = s * xy[:, 0] + c * xy[:, 1] + p[:, 1]
+        return out
+
+    def _meas_var(self, rng: np.ndarray) -> np.ndarray:
+        return (self.params.meas_sigma + self.params.meas_sigma_rel * rng) ** 2
+
+    def _associate_and_birth(self, z, obs, rng, dt):
+        """Predict, gate, assign, Kalman-update and start tracks for unmatched candidates (one compiled
+        kernel). Returns (matched track rows, their candidates, born track rows, their candidates)."""
+        pr = self.params
+        ti, ci, tb, born, next_id = _frame_kernel(
+            np.ascontiguousarray(z), obs, rng, float(dt), self.n_observers, self._alive, self._obs, self._id,
+            self._next_id, self._x, self._P, self.poses, self._exist, self._lo_score, self._lo_shape,
+            self._lo_motion, self._lo_resid, self._res_chi2, self._res_dof, self._score_sum, self._n_scored,
+            self._seen, self._age, self._static_t, self._moved, self._confirmed, self._npts, self._head,
+            self._fit_c, self._anchor, self._anchor_var, self._anchor_odo, self._anchor_rng, self.odometer,
+            pr.process_accel**2, pr.meas_sigma, pr.meas_sigma_rel, pr.init_speed_sigma**2, pr.gate_chi2,
+            pr.birth_existence, pr.confirm_existence, pr.r,
+        )  # fmt: skip
+        self._next_id = int(next_id)
+        return ti, ci, tb, born
+
+    def _finish(self, pre, hit, dt) -> None:
+        """Existence (hit / miss of the tracks before this frame's births), motion, age, confirm / delete."""
+        pr = self.params
+        _finish_kernel(
+            pre, hit, float(dt), self._alive, self._obs, self._x, self._P, self.poses, self._exist,
+            self._confirmed, self._moved, self._lo_motion, self._static_t, self._age, self._seen,
+            self._anchor, self._anchor_var, self._anchor_odo, self._anchor_rng, self.odometer, pr.p_detect,
+            pr.clutter_ratio, pr.max_range, pr.confirm_existence, pr.delete_existence, pr.motion_dist,
+            pr.motion_gain, pr.odom_heading_rate**2, pr.odom_position_rate**2,
+        )  # fmt: skip
+
+    def _score_cue(self, ti: np.ndarray, scores: np.ndarray, accepted, rng: np.ndarray) -> None:
+        # (a) the detector's score: correlated frames -> weight < 1, clamped sum
+        pr = self.params
+        # a far object gets fewer beams and lower scores, kin and look-alikes alike: the bar falls with range.
+        # The cue is the mean evidence per frame (shrunk towards 0 by score_n0 pseudo-frames) times
+        # score_gain: frames of one object are strongly correlated, so the evidence grows with their
+        # consistency, not their count (one compiled loop over the updated tracks)
+        acc = np.zeros(0, np.bool_) if accepted is None else np.asarray(accepted, np.bool_)
+        _score_kernel(ti, np.asarray(scores, np.float64), acc, rng, self._score_sum, self._n_scored,
+                      self._lo_score, float(_logit(pr.score_prior)), pr.score_per_metre, pr.score_weight,
+                      pr.accept_llr, pr.reject_llr, pr.score_n0, pr.score_gain, pr.score_clamp)  # fmt: skip
+
+    def _outline_cue(self, ti, ci, points, owner, obs, noise, cos, sin, k) -> None:
+        # (b) the accumulated outline relative to the track centre (ego-motion compensated)
+        pr = self.params
+        pts = np.asarray(points, np.float64).reshape(-1, 2)
+        owner = np.asarray(owner).reshape(-1).astype(np.int64)
+        pts = np.ascontiguousarray(pts)
+        status = _points_check(pts, owner, k) if owner.shape[0] == pts.shape[0] else 1
+        if status == 1:
+            raise ValueError(
+                f"KinTracker: owner must give each of the {pts.shape[0]} points a candidate in [0, {k})"
+            )
+        if status == 2:
+            raise ValueError("KinTracker: points must be finite")
+        if status == 3:  # not grouped by candidate (segment_points gives them sorted already)
+            order = np.argsort(owner, kind="stable")
+            pts, owner = np.ascontiguousarray(pts[order]), owner[order]
+        odom, sig, d = _points_prep(pts, owner, obs, noise, cos, sin, self.poses,
+                                    pr.shape_sigma**2)  # fmt: skip
+        cstart = np.searchsorted(owner, np.arange(k + 1))
+        _outline_kernel(
+            ti, ci, odom, sig, d, cstart, self._obs, self.odometer, self._moved,
+            self._pts, self._pts_aux, self._npts, self._head, self._fit_c, self._lo_shape, self._x, self._P,
+            self.time,
+            pr.r, pr.shape_delta**2, float(pr.shape_n_cap), int(pr.shape_min_points),
+            pr.shape_clamp, pr.odom_heading_rate**2, pr.odom_position_rate**2,
+            self.poses, self._lo_resid, self._res_chi2, self._res_dof, pr.resid_clamp,
+        )  # fmt: skip
+
+
+
+    def _features_fast(self, rows):  # the numpy features
+        return self._features(rows)
+
+    def track_arrays(self, max_tracks: int) -> dict[str, np.ndarray]:
+        """Fixed-shape view for vector envs: ``tracks`` (n_observers, max_tracks, len(TRACK_FIELDS)) float32,
+        zero-padded (columns :data:`TRACK_FIELDS`; positions and velocities in each observer's current robot
+        frame), ``mask`` (n_observers, max_tracks) bool and ``count`` (n_observers,). Per observer, confirmed
+        tracks come first, then by kin probability, when there are more than ``max_tracks``."""
+        N = self.n_observers
+        out = np.zeros((N, max_tracks, len(TRACK_FIELDS)), np.float32)
+        mask = np.zeros((N, max_tracks), bool)
+        rows = np.flatnonzero(self._alive)
+        if rows.size:
+            kp = self._kin_prob(rows)
+            o = self._obs[rows]
+            order = np.lexsort((self._id[rows], -(kp + self._confirmed[rows]), o))
+            rows, kp, o = rows[order], kp[order], o[order]
+            n_o = np.bincount(o, minlength=N)
+            rank = np.arange(rows.size) - np.repeat(np.cumsum(n_o) - n_o, n_o)
+            keep = rank < max_tracks
+            rows, kp, o, rank = rows[keep], kp[keep], o[keep], rank[keep]
+            pose = self.poses[o]
+            c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
+            d = self._x[rows, :2] - pose[:, :2]
+            v = self._x[rows, 2:]
+            cols = np.stack(
+                [self._id[rows], c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1],
+                 c * v[:, 0] + s * v[:, 1], -s * v[:, 0] + c * v[:, 1], self._exist[rows], kp,
+                 self._seen[rows], self._confirmed[rows], self._age[rows]], axis=1,
+            )  # fmt: skip
+            out[o, rank] = cols
+            mask[o, rank] = True
+        count = mask.sum(axis=1).astype(np.int64)
+        return {"tracks": out, "mask": mask, "count": count}
+
+
+class ReferenceKinTracker(StagedKinTracker):
     """:class:`KinTracker` with the numpy steps (predict, gate, Hungarian, Kalman update, birth,
     existence, motion, confirm / delete)."""
 

@@ -148,3 +148,47 @@ def test_empty_and_partial_scans():
     batch = segment_batch(ranges[None], angles)
     assert not batch.circular and batch.n_segments == 1
     assert np.isfinite(segment_features(batch).x).all()
+
+
+def test_quantile_selection_is_numbas_np_quantile():
+    # scan_noise's in-place selection must give numba's np.quantile bit for bit (the value the
+    # features were trained with): random sizes, ties, tiny and repeated values
+    import numba
+
+    from detectors.features import _quantile
+
+    ref = numba.njit(lambda a, q: np.quantile(a, q))
+    rng = np.random.default_rng(0)
+    for trial in range(600):
+        n = int(rng.integers(2, 400))
+        a = [rng.random(n), np.round(rng.random(n) * 5) / 7, np.abs(rng.normal(size=n)) * 1e-3,
+             np.full(n, 0.25)][trial % 4]  # fmt: skip
+        for q in (0.3, 0.05, 0.5, 0.95):
+            b = a.copy()
+            assert _quantile(b, n, q) == ref(a, q), (trial, n, q)
+            assert np.array_equal(np.sort(b), np.sort(a))  # only reordered
+
+
+@pytest.mark.parametrize("layout", ["full turn", "reversed", "270 degrees"])
+def test_tan_table_gives_the_same_features(layout):
+    # the detector's beam_trig(angles, 32) looks eqs. 4-5's tan up; features and cascade inputs must
+    # be the very values computed without the table (random arena scans, every segment)
+    from detectors.features import _cascade, _segment_features, beam_trig, cascade_features
+
+    scan = scan_of(scenes.random_arena(12, 25, seed=4).replace(lidar=LidarSpec(noise_sigma=0.01)))
+    ranges, angles = scan.ranges.astype(np.float64), scan.angles
+    if layout == "reversed":
+        ranges, angles = ranges[:, ::-1].copy(), angles[::-1].copy()
+    elif layout == "270 degrees":
+        ranges, angles = ranges[:, :271].copy(), angles[:271].copy()
+    batch = segment_batch(ranges, angles)
+    assert batch.circular == (layout != "270 degrees") and batch.n_segments > 100
+    which = np.arange(batch.n_segments, dtype=np.int64)
+    ref = segment_features(batch)
+    for n_off in (1, 2, 32, 400):
+        trig = beam_trig(angles, n_off)
+        got = _segment_features(batch, FeatureConfig(), which, trig)
+        for name in ("x", "frames", "fit_centre", "min_beam"):
+            assert np.array_equal(getattr(got, name), getattr(ref, name)), (n_off, name)
+        x, _ = _cascade(batch, FeatureConfig(), which, trig, None, None)
+        assert np.array_equal(x, cascade_features(batch)), n_off

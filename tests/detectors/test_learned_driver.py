@@ -17,7 +17,7 @@ pytest.importorskip("torch")  # the only reason to skip: CI installs torch
 
 from detectors import _learned_driver as _drv  # noqa: E402
 from detectors.base import wrap_angle  # noqa: E402
-from detectors.learned import _BLAS_MIN_ROWS, LearnedKinDetector  # noqa: E402
+from detectors.learned import LearnedKinDetector  # noqa: E402
 from kin_envs import LidarSpec, World, scenes  # noqa: E402
 
 FIELDS = (
@@ -64,14 +64,14 @@ def test_fused_driver_is_bitwise_the_staged_pipeline(kwargs):
     det = LearnedKinDetector(reports=False, cascade=False, **kwargs)
     n_det = 0
     for s in SCANS:
-        # one scan (a single-agent env), a few, every robot's (BLAS above _BLAS_MIN_ROWS segments)
+        # one scan (a single-agent env), a few, every robot's (hundreds of rows: the block kernel)
         for r in (s.ranges[:1], s.ranges[2:5], s.ranges):
             ref = det._detect_arrays_staged(r.astype(np.float64), s.angles)
             assert_same(det.detect_arrays(r, s.angles), ref)
             assert_same(det._detect_arrays_trusted(r, s.angles), ref)
             n_det += ref.n_detections
     assert n_det > 0
-    assert sum(det.detect_arrays(s.ranges, s.angles).n_segments for s in SCANS) >= _BLAS_MIN_ROWS
+    assert sum(det.detect_arrays(s.ranges, s.angles).n_segments for s in SCANS) >= 256
 
 
 def test_fused_driver_edge_cases():
@@ -82,7 +82,7 @@ def test_fused_driver_edge_cases():
     empty[1, :] = 0.0  # "no return" in both RPLIDAR spellings: no segment at all
     one_wall = np.full((1, n), 3.0)  # a round room: one segment without a break, dropped by the pre-gate
     mixed = np.vstack([empty, s.ranges[:1].astype(np.float64), one_wall])
-    # every beam its own segment: more than _BLAS_MIN_ROWS rows, the one-scan call hands over to BLAS
+    # every beam its own segment: 360 rows in one scan
     comb = np.where(np.arange(n) % 2 == 0, 1.0, 1.5)[None, :]
     for r in (empty, one_wall, mixed, comb, empty[:1]):
         ref = det._detect_arrays_staged(r, s.angles)
@@ -151,8 +151,7 @@ def test_table_entry_equals_the_staged_detections(inference):
     det = LearnedKinDetector(reports=False, cascade=False, inference=inference)
     s = SCANS[2]
     n = s.angles.shape[0]
-    # every beam its own segment (alternating ranges): 360 segments reach the network, more than
-    # _BLAS_MIN_ROWS, so the one-scan compiled call hands over to the BLAS path
+    # every beam its own segment (alternating ranges): 360 segments reach the network in one scan
     comb = np.where(np.arange(n) % 2 == 0, 1.0, 1.5)[None, :]
     det._detect_table_trusted(s.ranges[:1], s.angles)  # the layout is checked once, then trusted
     for r in (s.ranges[:1], s.ranges[5:6], s.ranges[:3], comb, s.ranges):
@@ -178,3 +177,70 @@ def test_four_row_network_kernel_is_bitwise_the_row_and_block_kernels():
         _k.mlp_forward(x, mean, std, w, b, sizes, outs[2])
         assert np.array_equal(outs[0].view(np.int32), outs[1].view(np.int32)), n
         assert np.array_equal(outs[0].view(np.int32), outs[2].view(np.int32)), n
+
+
+def _random_arena_batches():
+    # random arenas of several densities and noise levels, every robot's scan (batched calls)
+    for seed, noise, n_robots in ((10, 0.01, 24), (11, 0.0, 12), (12, 0.005, 40)):
+        scan = arena(seed, noise, n_robots=n_robots, n_obstacles=30)
+        yield scan.ranges, scan.angles
+
+
+@pytest.mark.parametrize("suppress", [True, False])
+@pytest.mark.parametrize("cascade", [True, False])
+def test_batched_fused_driver_with_cascade_is_bitwise_the_staged_pipeline(cascade, suppress):
+    # batches (>= 2 scans) run the cascade inside the one compiled call: every field, seg_values
+    # (cascade_score included) and the env's table equal the staged pipeline's
+    det = LearnedKinDetector(reports=False, cascade=cascade, suppress_duplicates=suppress)
+    assert det.cascade == cascade
+    n_dropped = 0
+    for ranges, angles in _random_arena_batches():
+        for r in (ranges[:2], ranges):
+            ref = det._detect_arrays_staged(r.astype(np.float64), angles)
+            assert_same(det.detect_arrays(r, angles), ref)
+            row, tab = det._detect_table_trusted(r, angles)
+            ref_row, ref_tab = _staged_table(det, r, angles)
+            assert np.array_equal(row, ref_row) and np.array_equal(tab, ref_tab)
+            if cascade:
+                p, score = ref.seg_values["p_kin"], ref.seg_values["cascade_score"]
+                n_dropped += int((np.isfinite(score) & np.isnan(p)).sum())
+    assert n_dropped > 0 or not cascade  # the cascade did drop segments here
+
+
+def test_fused_driver_with_a_small_random_network(tmp_path):
+    # kernels for any layer widths the checkpoint loader accepts: a random 52 -> 7 -> 5 -> 3 network
+    # (odd widths: the block kernel's odd last unit and input remainder), with the shipped cascade
+    # re-tied to its weights, bitwise the staged pipeline on one scan and on batches
+    import json
+
+    import torch
+
+    from detectors.learned import (
+        SegmentNet,
+        cascade_path,
+        load_checkpoint,
+        save_checkpoint,
+    )
+
+    _, ck = load_checkpoint()
+    torch.manual_seed(0)
+    net = SegmentNet(type(ck["model_config"])(n_features=ck["model_config"].n_features, hidden=(7, 5)))
+    nrm = ck["normalisation"]
+    net.set_normalisation(nrm["x_mean"], nrm["x_std"], nrm["t_mean"], nrm["t_std"])
+    with torch.no_grad():
+        net.head.bias[0] = 2.0  # some segments above threshold
+    path = save_checkpoint(tmp_path / "small.pt", net, ck["feature_config"], thresholds=ck["thresholds"])
+    card = json.loads(cascade_path(None).read_text())
+    card["checkpoint_weights_sha256"] = load_checkpoint(path)[1]["weights_sha256"]
+    cascade_path(path).write_text(json.dumps(card))
+    plain = LearnedKinDetector(path, reports=False, cascade=False)
+    for cascade in (True, False):
+        det = LearnedKinDetector(path, reports=False, cascade=cascade)
+        n_det = 0
+        for ranges, angles in _random_arena_batches():
+            for r in (ranges[:1], ranges[3:5], ranges):
+                # (one-scan calls run without the cascade: LearnedKinDetector._uses_cascade)
+                ref = (plain if r.shape[0] == 1 else det)._detect_arrays_staged(r.astype(np.float64), angles)
+                assert_same(det.detect_arrays(r, angles), ref)
+                n_det += ref.n_detections
+        assert n_det > 0

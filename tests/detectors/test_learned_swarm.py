@@ -38,9 +38,12 @@ def _near(ev, lo=0.3, hi=1.0):
 
 
 def test_kin_score_higher_than_false_positives(evaluations):
+    # detections of >= 2 beams, the benchmark's ground truth: the shipped model is trained to give
+    # 1-beam segments (never a counted kin there) a low score, kin or not
     for _, permissive in evaluations.values():
-        tp = [d.detection.score for d in permissive.detections if d.matched]
-        fp = [d.detection.score for d in permissive.detections if not d.matched and not d.source.same_radius]
+        dets = [d for d in permissive.detections if d.detection.n_beams >= 2]
+        tp = [d.detection.score for d in dets if d.matched]
+        fp = [d.detection.score for d in dets if not d.matched and not d.source.same_radius]
         assert np.median(tp) > 0.5 > np.median(fp)
 
 

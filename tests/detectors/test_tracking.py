@@ -330,6 +330,16 @@ def test_segment_points_match_a_per_segment_loop():
         ref = np.c_[r[ok] * np.cos(angles[idx][ok]), r[ok] * np.sin(angles[idx][ok])]
         np.testing.assert_allclose(pts[own == k], ref)
     assert (own == 0).sum() == 4 and (own == 1).sum() == 7 and (own == 2).sum() == 4  # 0.0, inf, 12 dropped
+    r32 = ranges.astype(np.float32)  # float32 scans (the envs'): read as they are, the same as widened first
+    p32, o32 = segment_points(r32, angles, rows, first, last, range_max=12.0)
+    p64, o64 = segment_points(r32.astype(np.float64), angles, rows, first, last, range_max=12.0)
+    assert np.array_equal(p32, p64) and np.array_equal(o32, o64)
+    ranges[1, 0] = np.nan  # NaN: no return either
+    assert (segment_points(ranges, angles, rows, first, last, range_max=12.0)[1] == 1).sum() == 6
+    with pytest.raises(ValueError, match=r"beams in \[0, 360\)"):
+        segment_points(ranges, angles, rows, first, last + 360)
+    with pytest.raises(ValueError, match="one length"):
+        segment_points(ranges, angles, rows[:2], first, last)
 
 
 def _compare(a: KinTracker, b: KinTracker) -> None:
@@ -497,3 +507,105 @@ def test_kin_model_json_round_trip_and_bad_files(tmp_path):
         KinTracker(kin_model=3)
     # the shipped model loads and fits this tracker's features
     assert KinTracker(kin_model="learned").kin_model.info.get("threshold") is not None
+
+
+# -- the fused frame update ------------------------------------------------------------------------------
+
+
+def _crowded_frames(seed, n_obs=3, n_frames=25):
+    """Random candidates (some below ``min_score``), their 3-point arcs and odometry, per frame."""
+    rng = np.random.default_rng(seed)
+    pos = rng.uniform(-1.5, 1.5, (n_obs, 8, 2))
+    vel = rng.normal(0, 0.3, (n_obs, 8, 2)) * (rng.random((n_obs, 8, 1)) < 0.5)
+    arc = 0.035 * np.c_[np.cos(np.linspace(2.5, 3.8, 3)), np.sin(np.linspace(2.5, 3.8, 3))]
+    for _ in range(n_frames):
+        pos += vel * DT
+        keep = rng.random((n_obs, 8)) < 0.8
+        obs = np.nonzero(keep)[0]
+        xy = pos[keep] + rng.normal(0, 0.01, (keep.sum(), 2))
+        sc = rng.uniform(0.0, 0.95, xy.shape[0])  # some below min_score (0.1): dropped with their points
+        pts = (xy[:, None, :] + arc + rng.normal(0, 0.002, (xy.shape[0], 3, 2))).reshape(-1, 2)
+        yield obs, xy, sc, rng.normal(0, 0.01, (n_obs, 3)), pts, np.repeat(np.arange(xy.shape[0]), 3)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_fused_update_equals_the_staged_steps_with_dropped_and_unsorted_points(seed):
+    """The one-call frame update is bitwise the staged steps it replaced (the reference in
+    tests/detectors/reference_tracking.py), also when candidates fall below ``min_score`` (their points
+    dropped and the rest renumbered) and when the points come unsorted by candidate; the compiled
+    classifier inputs and ``track_arrays`` are bitwise the numpy ones."""
+    from tests.detectors.reference_tracking import StagedKinTracker
+
+    fused, staged = KinTracker(n_observers=3), StagedKinTracker(n_observers=3)
+    for f, (obs, xy, sc, delta, pts, own) in enumerate(_crowded_frames(seed)):
+        if f % 2:  # shuffled points: the tracker groups them by candidate itself
+            order = np.random.default_rng(f).permutation(own.size)
+            pts, own = pts[order], own[order]
+        acc = sc > 0.5 if f % 3 else None
+        fused.update_batch(obs, xy, sc, delta, DT, pts, own, accepted=acc)
+        staged.update_batch(obs, xy, sc, delta, DT, pts, own, accepted=acc)
+        for name in KinTracker._FIELDS:
+            assert np.array_equal(getattr(fused, name), getattr(staged, name)), name
+        assert np.array_equal(fused.poses, staged.poses) and np.array_equal(fused.odometer, staged.odometer)
+        # the compiled classifier inputs and padded slots (few slots: the ranking decides) vs numpy's
+        rows = np.flatnonzero(fused._alive)
+        assert np.array_equal(fused._features_fast(rows), staged._features(rows))
+        a, b = fused.track_arrays(3), staged.track_arrays(3)
+        assert all(np.array_equal(a[key], b[key]) for key in ("tracks", "mask", "count"))
+    assert len(fused) > 5
+
+
+def test_bad_frame_raises_before_any_state_changes():
+    frames = list(_crowded_frames(3, n_frames=6))
+    tr = KinTracker(n_observers=3)
+    for obs, xy, sc, delta, pts, own in frames[:5]:
+        tr.update_batch(obs, xy, sc, delta, DT, pts, own)
+    before = {name: getattr(tr, name).copy() for name in (*KinTracker._FIELDS, "poses", "odometer")}
+    obs, xy, sc, delta, pts, own = frames[5]
+    bad_pts, bad_own, bad_delta, bad_xy = pts.copy(), own.copy(), delta.copy(), xy.copy()
+    bad_pts[-1, 0] = np.nan
+    bad_own[-1] = xy.shape[0]
+    bad_delta[1, 2] = np.inf
+    bad_xy[0, 1] = np.nan
+    cases = [
+        ((obs, xy, sc, delta, DT, bad_pts, own), "points must be finite"),
+        ((obs, xy, sc, delta, DT, pts, bad_own), "owner must give each"),
+        ((obs, xy, sc, bad_delta, DT, pts, own), "odom_delta"),
+        ((obs, bad_xy, sc, delta, DT, pts, own), "must be finite and of one length"),
+        ((obs + 3, xy, sc, delta, DT, pts, own), r"obs must be observer indices in \[0, 3\)"),
+    ]
+    for args, match in cases:
+        with pytest.raises(ValueError, match=match):
+            tr.update_batch(*args)
+        with pytest.raises(ValueError, match="noise must be 3"):
+            tr.update_batch(obs, xy, sc, delta, DT, pts, own, noise=[0.01, -1.0, 0.01])
+        for name, value in before.items():
+            assert np.array_equal(getattr(tr, name), value), name
+    tr.update_batch(obs, xy, sc, delta, DT, pts, own)  # the good frame still goes through
+    assert not np.array_equal(tr.poses, before["poses"])
+
+
+def test_track_arrays_are_fresh_and_follow_updates_and_the_kin_model():
+    """track_arrays evaluates the kin decision once per frame: a second call gives equal, fresh arrays; an
+    update, or another kin model, gives what a tracker without the cache gives."""
+    frames = list(_crowded_frames(4, n_frames=8))
+
+    def run(n, kin_model="learned"):
+        tr = KinTracker(n_observers=3, kin_model=kin_model)
+        for obs, xy, sc, delta, pts, own in frames[:n]:
+            tr.update_batch(obs, xy, sc, delta, DT, pts, own)
+        return tr
+
+    def same(a, b):
+        return all(np.array_equal(a[k], b[k]) for k in ("tracks", "mask", "count"))
+
+    tr = run(6)
+    a, b = tr.track_arrays(16), tr.track_arrays(16)
+    assert same(a, b) and a["tracks"] is not b["tracks"]
+    tr.kin_model = None  # the hand-tuned fusion from now on
+    assert same(tr.track_arrays(16), run(6, "hand").track_arrays(16))
+    assert not same(tr.track_arrays(16), a)
+    tr.kin_model = run(1).kin_model
+    obs, xy, sc, delta, pts, own = frames[6]
+    tr.update_batch(obs, xy, sc, delta, DT, pts, own)
+    assert same(tr.track_arrays(16), run(7).track_arrays(16))

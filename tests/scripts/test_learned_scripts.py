@@ -82,9 +82,11 @@ def test_train_classifier_several_datasets_and_easy_share(dataset, tmp_path):
     cfg = json.dumps({"epochs": 1, "hidden": [8], "batch_size": 256})
     run("train_classifier.py", "--data", dataset, bench, "--out", tmp_path / "train", "--checkpoint", ckpt,
         "--config", cfg, "--val-fraction", 0.3, "--calibrate", "--keep-easy", 0.5,
-        "--calib-families", 0, 3, 4, 5)  # fmt: skip
+        "--calib-families", 0, 3, 4, 5, "--min-kin-beams", 2, "--focus-weight", 2)  # fmt: skip
     side = json.loads(ckpt.with_suffix(".json").read_text())
     assert [d["seeds"]["first"] for d in side["data"]] == [10, 40] and side["keep_easy"] == 0.5
+    assert side["min_kin_beams"] == 2
+    assert side["focus"] == {"weight": 2.0, "beams": [2, 3], "range_m": [1.0, 2.0]}
     n_train = side["split"]["train_segments"]
     total = sum(d["counts"]["segments"] - d["counts"]["same_radius_cylinder"] for d in side["data"])
     assert 0 < n_train < total - side["split"]["val_segments"]  # some easy negatives were dropped
@@ -93,6 +95,23 @@ def test_train_classifier_several_datasets_and_easy_share(dataset, tmp_path):
     out = run("train_classifier.py", "--data", dataset, "--out", tmp_path / "t3", "--keep-easy", 0,
               check=False)  # fmt: skip
     assert out.returncode == 2 and "--keep-easy" in out.stderr
+    out = run("train_classifier.py", "--data", dataset, "--out", tmp_path / "t4", "--focus-weight", 0,
+              check=False)  # fmt: skip
+    assert out.returncode == 2 and "--focus-weight" in out.stderr
+
+
+def test_few_beam_labels_and_focus_weights():
+    from tests.scripts.helpers import load_script
+
+    mod = load_script("train_classifier")
+    label = np.array([1, 1, 1, 0, 1], np.int8)
+    n_beams = np.array([1, 2, 3, 1, 1])
+    assert mod.few_beam_labels(label, n_beams, 1).tolist() == [1, 1, 1, 0, 1]
+    out = mod.few_beam_labels(label, n_beams, 2)
+    assert out.tolist() == [0, 1, 1, 0, 0] and out.dtype == np.int8
+    w = mod.focus_weights(np.array([1, 2, 1, 1, 1], np.float32), np.array([2, 3, 4, 2, 2]),
+                          np.array([1.5, 1.0, 1.5, 2.0, 0.9]), 3.0, (2, 3), (1.0, 2.0))  # fmt: skip
+    assert w.tolist() == [3, 6, 1, 1, 1] and w.dtype == np.float32
 
 
 def test_scripts_reject_bad_configs(dataset, tmp_path):

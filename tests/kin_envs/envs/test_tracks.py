@@ -125,3 +125,77 @@ def test_swarm_env_tracks_every_agent_with_fixed_shape_info():
         aggregation_v1.parallel_env(tracker=True, obs_detections="topk", obs_tracks=True)
     with pytest.raises(ValueError, match="needs a detector"):
         aggregation_v1.parallel_env(tracker=True, detector=None)
+
+
+def _constant_model(path, logit: float = 5.0):
+    """A track-classifier JSON whose kin log-odds is ``logit`` for every track (any age)."""
+    from detectors.fileio import write_json
+    from detectors.tracking import TRACK_FEATURES, TrackKinModel
+
+    F = len(TRACK_FEATURES)
+    model = TrackKinModel(np.zeros(F), np.ones(F), [(np.zeros((F, 1)), np.array([logit]))])
+    write_json(path, model.to_dict())
+    return str(path)
+
+
+def test_tracker_kin_model_option_selects_the_track_classifier(tmp_path):
+    """KinSeek-v1's tracker={"kin_model": ...}: "hand" is the hand-tuned fusion, "learned" (default) the
+    shipped classifier, a JSON path that model (its constant log-odds shows in info["kin_tracks"])."""
+    path = _constant_model(tmp_path / "const.json")
+    for opts, want in [(True, "learned"), ({"kin_model": "hand", "p_detect": 0.7}, "hand"),
+                       ({"kin_model": "learned"}, "learned"), ({"kin_model": path}, "const")]:  # fmt: skip
+        env = gym.make(IDS[0], tracker=opts, noise_sigma=0.005)
+        tr = env.unwrapped.tracker
+        assert (tr.kin_model is None) == (want == "hand")
+        if want == "learned":
+            from detectors.tracking import DEFAULT_KIN_MODEL, TrackKinModel
+
+            assert tr.kin_model.to_dict() == TrackKinModel.load(DEFAULT_KIN_MODEL).to_dict()
+        if want == "hand":
+            assert tr.params.p_detect == 0.7
+        env.reset(seed=4)  # an episode whose learner sees the kin and obstacles in 30 random steps
+        env.action_space.seed(4)
+        probs = []
+        for _ in range(30):
+            _, _, term, trunc, info = env.step(env.action_space.sample())
+            probs.append(unpad(info, "kin_tracks")["kin_prob"])
+            if term or trunc:
+                env.reset(seed=104)
+        probs = np.concatenate(probs)
+        assert probs.size > 0  # the tracker had tracks to decide on
+        if want == "const":
+            np.testing.assert_allclose(probs, 1 / (1 + np.exp(-5.0)), rtol=1e-6)  # float32 info slots
+
+
+@pytest.mark.parametrize("tracker, match", [
+    ({"kin_model": "neural"}, r"tracker\['kin_model'\] must be one of \['learned', 'hand'\].*'neural'"),
+    ({"kin_model": 3}, r"tracker\['kin_model'\] must be .* got 3"),
+    ({"kin_model": "hand", "bogus": 1}, r"unknown key\(s\) \['bogus'\]"),
+    ({"p_detect": 2.0}, "p_detect must be in"),
+])  # fmt: skip
+def test_bad_tracker_kin_model_or_key_raises_naming_it(tracker, match):
+    from kin_envs import aggregation_v1
+
+    with pytest.raises(ValueError, match=match):
+        gym.make(IDS[0], tracker=tracker)
+    with pytest.raises(ValueError, match=match):
+        aggregation_v1.parallel_env(n_robots=4, tracker=tracker)
+
+
+def test_swarm_env_tracker_kin_model_option(tmp_path):
+    """aggregation_v1 (PettingZoo): tracker={"kin_model": path} reaches the batched tracker: every agent's
+    tracks carry the model's kin probability; "hand" selects the hand-tuned fusion."""
+    from kin_envs import aggregation_v1
+
+    env = aggregation_v1.parallel_env(n_robots=6, tracker={"kin_model": _constant_model(tmp_path / "c.json")},
+                                      noise_sigma=0.005)  # fmt: skip
+    env.reset(seed=1)
+    rng = np.random.default_rng(1)
+    probs = []
+    for _ in range(10):
+        _, _, _, _, infos = env.step({a: rng.uniform(-1, 1, 2).astype(np.float32) for a in env.agents})
+        probs += [unpad(info, "kin_tracks")["kin_prob"] for info in infos.values()]
+    probs = np.concatenate(probs)
+    assert probs.size > 0
+    np.testing.assert_allclose(probs, 1 / (1 + np.exp(-5.0)), rtol=1e-6)
+    assert aggregation_v1.parallel_env(n_robots=4, tracker={"kin_model": "hand"}).tracker.kin_model is None

@@ -1,0 +1,74 @@
+"""The fused frame update of detectors.KinTracker (one compiled call per frame) against the staged tracker
+it replaced (tests/detectors/reference_tracking.py), on the sequence benchmark's training episodes: every
+state array, pose, odometer and output bitwise equal, frame after frame."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from detectors.features import scan_noise, segment_batch
+from detectors.geometric import GeometricKinDetector
+from detectors.tracking import KinTracker
+from kin_envs.detection.benchmark import permissive
+from kin_envs.detection.sequences import _candidates, episode, training_split
+from tests.detectors.reference_tracking import StagedKinTracker
+
+
+def _assert_same(a: KinTracker, b: KinTracker) -> None:
+    for name in KinTracker._FIELDS:
+        x, y = getattr(a, name), getattr(b, name)
+        assert x.shape == y.shape and np.array_equal(x, y), name
+    for name in ("poses", "odometer"):
+        assert np.array_equal(getattr(a, name), getattr(b, name)), name
+    assert (a._next_id, a.time) == (b._next_id, b.time)
+    ta, tb = a.track_arrays(16), b.track_arrays(16)
+    assert all(np.array_equal(ta[k], tb[k]) for k in ta)
+
+
+@pytest.mark.parametrize("split, n_robots", [("swarm", 8), ("lookalike", None)])
+def test_fused_update_is_bitwise_the_staged_one_on_sequence_episodes(split, n_robots):
+    spec = training_split(split, 7)
+    run = replace(spec.run, frames=25)
+    if n_robots:
+        spec = replace(spec, scenes=replace(spec.scenes, n_robots=(n_robots, n_robots)))
+    spec = replace(spec, run=run)
+    ep = episode(spec, spec.first_seed, 0.01)
+    det = GeometricKinDetector(reports=False)
+    perm = permissive(det)
+    n = len(ep.observers)
+    fused, staged = KinTracker(n_observers=n), StagedKinTracker(n_observers=n)
+    n_tracks = 0
+    for frame in range(run.frames):
+        if frame:
+            ep.step(frame)
+        delta = ep.world.odometry_delta[ep.observers] if frame else np.zeros((n, 3))
+        scan = ep.scan()
+        ob, xy, sc, pts, own, acc = _candidates(perm.detect_batch(scan.ranges, scan.angles), scan,
+                                                det.detect_batch(scan.ranges, scan.angles))  # fmt: skip
+        noise, count = scan_noise(segment_batch(scan.ranges, scan.angles))
+        noise = np.where(count >= 5, noise, 0.01)
+        # alternate the optional inputs: decisions given or not, noise given or the default
+        kw = {"noise": noise if frame % 2 else None, "accepted": acc if frame % 3 else None}
+        fused.update_batch(ob, xy, sc, delta, 0.1, pts, own, **kw)
+        staged.update_batch(ob, xy, sc, delta, 0.1, pts, own, **kw)
+        _assert_same(fused, staged)
+        n_tracks = max(n_tracks, len(fused))
+    assert n_tracks >= 5  # the episode gave the tracker something to do
+    assert any(t.moved for o in range(n) for t in fused.tracks(o)) or split == "lookalike"
+
+
+def test_tracking_cost_reports_wall_and_cpu_clock_and_the_shipped_detector():
+    """tracking_cost: the tracker against the permissive detector feeding it, by the wall and the CPU clock,
+    and against the shipped detector's own batched call; the benchmark script's report shows them."""
+    from kin_envs.detection.sequences import tracking_cost
+    from tests.scripts.helpers import load_script
+
+    c = tracking_cost(GeometricKinDetector(reports=False), n_robots=4, frames=4, skip=1, repeats=1)
+    for key in ("detector", "tracker", "outputs", "shipped"):
+        assert c[f"{key}_per_frame"] > 0 and c[f"{key}_cpu_per_frame"] > 0, key
+    assert c["ratio_cpu"] == pytest.approx(c["tracker_cpu_per_frame"] / c["detector_cpu_per_frame"])
+    assert c["ratio_shipped_cpu"] == pytest.approx(c["tracker_cpu_per_frame"] / c["shipped_cpu_per_frame"])
+    assert c["n_robots"] == 4 and c["frames"] == 3 and c["candidates_per_frame"] > 0
+    text = load_script("benchmark_tracking").report([], c)
+    assert "Tracking cost at 4 observers" in text and "CPU clock" in text and "detect_arrays" in text
