@@ -286,8 +286,9 @@ def _cast_prims(x0, y0, h, skip, reach, cx, cy, cr, cid, n_ci, sx1, sy1, sx2, sy
     for q in range(n_ci):
         keep[m] = q
         m += f_count[q] > 0.0
+    # indices as unsigned integers: numba's negative-index wraparound costs ~20 % in these loops
     for u in range(m):
-        q = keep[u]
+        q = np.uint64(keep[u])
         c = cid[q]
         dx = cx[q] - x0
         dy = cy[q] - y0
@@ -299,20 +300,21 @@ def _cast_prims(x0, y0, h, skip, reach, cx, cy, cr, cid, n_ci, sx1, sy1, sx2, sy
             i += 1
             if i == n_beams:
                 i = 0
-            bd = best_d[i]
+            w = np.uint64(i)
+            bd = best_d[w]
             if bd < near:
                 continue  # occluded
             # direction of heading - i*res, by rotation (no trig in the inner loop)
-            ux = ch * cos_tab[i] + sh * sin_tab[i]
-            uy = sh * cos_tab[i] - ch * sin_tab[i]
+            ux = ch * cos_tab[w] + sh * sin_tab[w]
+            uy = sh * cos_tab[w] - ch * sin_tab[w]
             b = dx * ux + dy * uy
             disc = b * b - cc
             if disc < 0.0 or b <= 0.0:
                 continue
             t = b - math.sqrt(disc)
-            if t > 0.0 and (t < bd or (t == bd and c < best_p[i])):
-                best_d[i] = t
-                best_p[i] = c
+            if t > 0.0 and (t < bd or (t == bd and c < best_p[w])):
+                best_d[w] = t
+                best_p[w] = c
     for q in range(n_si):
         ax = sx1[q] - x0
         ay = sy1[q] - y0
@@ -375,7 +377,7 @@ def _cast_prims(x0, y0, h, skip, reach, cx, cy, cr, cid, n_ci, sx1, sy1, sx2, sy
         f_near[k] = f_near[v]
         k += f_count[v] > 0.0
     for v in range(k):
-        q = keep[v]
+        q = np.uint64(keep[v])
         p = n_c + sid[q]
         ax = sx1[q] - x0
         ay = sy1[q] - y0
@@ -387,20 +389,21 @@ def _cast_prims(x0, y0, h, skip, reach, cx, cy, cr, cid, n_ci, sx1, sy1, sx2, sy
             i += 1
             if i == n_beams:
                 i = 0
-            bd = best_d[i]
+            w = np.uint64(i)
+            bd = best_d[w]
             if bd < near_d:
                 continue  # occluded
-            ux = ch * cos_tab[i] + sh * sin_tab[i]
-            uy = sh * cos_tab[i] - ch * sin_tab[i]
+            ux = ch * cos_tab[w] + sh * sin_tab[w]
+            uy = sh * cos_tab[w] - ch * sin_tab[w]
             den = ux * ey - uy * ex  # cross(u, e)
             if den == 0.0:
                 continue
             # origin + t u = A + s e  ->  t = cross(A, e)/cross(u, e), s = cross(A, u)/cross(u, e)
             t = (ax * ey - ay * ex) / den
             sp = (ax * uy - ay * ux) / den
-            if t > 0.0 and 0.0 <= sp <= 1.0 and (t < bd or (t == bd and p < best_p[i])):
-                best_d[i] = t
-                best_p[i] = p
+            if t > 0.0 and 0.0 <= sp <= 1.0 and (t < bd or (t == bd and p < best_p[w])):
+                best_d[w] = t
+                best_p[w] = p
 
 
 @numba.njit(cache=True, nogil=True)
@@ -486,39 +489,62 @@ def _scan_kernel(
                    out_kind, out_index)
 
 
-# --- broad phase: a uniform grid --------------------------------------------------------------------
+# --- broad phase: a loose uniform grid of objects ---------------------------------------------------
 #
 # The brute-force kernel above culls every (robot, primitive) pair, so a scan costs O(all primitives).
-# The grid kernel visits the cells around each robot in rings of growing Chebyshev distance and stops
-# once the nearest point of the next ring is farther than every beam's current hit; a cell is also
-# skipped when it is farther than the current hit of every beam that crosses it (occlusion). Each
-# primitive it visits goes through the same arithmetic as the brute force, and a hit replaces the
-# current one when it is nearer *or equally near with a lower primitive id*: the result is then the
-# minimum of (distance, id) over the primitives, which is what the brute force's in-order strict ``<``
-# computes, so both kernels return bit-identical scans whatever order the cells are visited in.
+# The grid kernel indexes the static geometry once per world, as *items*: circles, and *groups* (runs of
+# consecutive segments that chain end to start and fit in a small circle: the edges of one box, prism or
+# polygon), each binned by the centre of its bounding circle (a loose grid: a cell's extent is widened by
+# the largest item radius, so an item is listed once and never cast twice). Per robot, pass 1 runs over
+# the column runs of cells within reach (contiguous in the cell-major lists, so the per-item tests are
+# vectorised as in :func:`_cast_prims`) and keeps each item's beam interval; long segments (the arena
+# boundary, walls, large polygons) are listed in every cell they touch and gathered once. Pass 2 casts
+# the circles, the long segments, and then the groups front to back (a bucket sort on their nearest
+# distance): a group whose whole beam interval already hit something nearer is skipped without touching
+# its edges. Every exact test is the brute force's arithmetic, and a hit replaces the current one when it
+# is nearer *or equally near with a lower primitive id*: the result is the minimum of (distance, id) over
+# the primitives, which is what the brute force's in-order strict ``<`` computes, so both kernels return
+# bit-identical scans whatever order the items come in.
+#
+# Indices into arrays are taken as slices from 0 or as unsigned integers where they could not be proved
+# non-negative: numba's negative-index wraparound otherwise stops LLVM vectorising the candidate passes
+# (measured 2.5x slower).
 
+#: buckets of the front-to-back sort of groups over ``[0, range_max]``
+_N_BUCKETS = 48
 
 
 @dataclass(frozen=True, eq=False)
 class LidarGrid:
-    """Static primitives binned in a uniform grid (CSR lists per cell), built once per world.
+    """Static primitives indexed in a loose uniform grid, built once per world (:func:`build_lidar_grid`).
 
-    Cell ``(ix, iy)`` has id ``ix * ny + iy`` and covers ``origin + cell_size * [ix, ix+1) x [iy, iy+1)``;
-    a primitive is listed in every cell its bounding box touches. The primitives in ``dynamic_*`` move
-    between scans (robots' housings, movable obstacles): they are binned again on every scan. Build it
-    with :func:`build_lidar_grid`; it stays valid while the static rows of the primitive arrays do not
-    change (a world's static geometry never does).
+    Cell ``(ix, iy)`` has id ``ix * ny + iy`` and covers ``origin + cell_size * [ix, ix+1) x [iy, iy+1)``.
+    Circles and groups (consecutive segments chaining end to start within a circle of radius
+    ``cell_size / 2``: one convex obstacle's edges) are listed once, in the cell of their (bounding)
+    centre, as contiguous columns cell by cell; every other static segment is listed in each cell its
+    bounding box touches. The primitives in ``dynamic_*`` move between scans (robots' housings, movable
+    obstacles) and are indexed again on every scan, as are static circles too large for the grid. The grid
+    stays valid while the static rows of the primitive arrays do not change (a world's static geometry
+    never does).
     """
 
     origin: tuple[float, float]  #: (x, y) of the grid's lower-left corner, m
     cell_size: float  #: m
     shape: tuple[int, int]  #: (nx, ny) cells
-    circle_start: np.ndarray  #: (nx*ny + 1,) int32 CSR offsets into ``circle_items``
-    circle_items: np.ndarray  #: int32 static circle indices, cell by cell
-    segment_start: np.ndarray  #: (nx*ny + 1,) int32 CSR offsets into ``segment_items``
-    segment_items: np.ndarray  #: int32 static segment indices, cell by cell
-    dynamic_circles: np.ndarray  #: int32 indices of the moving circles
-    dynamic_segments: np.ndarray  #: int32 indices of the moving segments
+    circle_start: np.ndarray  #: (nx*ny + 1,) int64 CSR offsets into the circle columns
+    circles: np.ndarray  #: (3, k) float64 x, y, r of the listed static circles, cell by cell
+    circle_ids: np.ndarray  #: (k,) int64 their primitive ids
+    circle_pad: float  #: m, the largest listed circle radius
+    group_start: np.ndarray  #: (nx*ny + 1,) int64 CSR offsets into the group columns
+    groups: np.ndarray  #: (3, g) float64 bounding circle x, y, r of the groups, cell by cell
+    group_offsets: np.ndarray  #: (g + 1,) int64 rows of each group in ``group_segments``
+    group_segments: np.ndarray  #: (sum, 4) float64 the groups' segments, group by group
+    group_segment_ids: np.ndarray  #: (sum,) int64 their segment indices
+    group_pad: float  #: m, the largest group radius
+    segment_start: np.ndarray  #: (nx*ny + 1,) int64 CSR offsets into ``segment_items``
+    segment_items: np.ndarray  #: int64 long static segments, listed in every cell they touch
+    dynamic_circles: np.ndarray  #: int64 circles indexed on every scan
+    dynamic_segments: np.ndarray  #: int64 segments tested by every robot
     n_circles: int
     n_segments: int
 
@@ -553,20 +579,11 @@ def _cell_range(lo, hi, g0, cs, n):
 
 
 @numba.njit(cache=True, nogil=True)
-def _bin(box, ids, gx, gy, cs, nx, ny, inside_only):
-    """CSR lists of ``ids`` (bounding boxes ``box``) per cell. With ``inside_only``, the ids whose box
-    is not entirely inside the grid come back apart (``overflow``) instead of being binned."""
+def _bin(box, ids, gx, gy, cs, nx, ny):
+    """CSR lists of ``ids`` (bounding boxes ``box``) in every cell their box touches."""
     n_cells = nx * ny
-    start = np.zeros(n_cells + 1, np.int32)
-    inside = np.ones(ids.shape[0], np.bool_)
-    xmax = gx + nx * cs
-    ymax = gy + ny * cs
-    n_over = 0
+    start = np.zeros(n_cells + 1, np.int64)
     for k in range(ids.shape[0]):
-        if inside_only and not (box[k, 0] > gx and box[k, 1] > gy and box[k, 2] < xmax and box[k, 3] < ymax):
-            inside[k] = False
-            n_over += 1
-            continue
         i0, i1 = _cell_range(box[k, 0], box[k, 2], gx, cs, nx)
         j0, j1 = _cell_range(box[k, 1], box[k, 3], gy, cs, ny)
         for i in range(i0, i1 + 1):
@@ -574,15 +591,9 @@ def _bin(box, ids, gx, gy, cs, nx, ny, inside_only):
                 start[i * ny + j + 1] += 1
     for c in range(n_cells):
         start[c + 1] += start[c]
-    items = np.empty(start[n_cells], np.int32)
+    items = np.empty(start[n_cells], np.int64)
     fill = start[:n_cells].copy()
-    overflow = np.empty(n_over, np.int32)
-    n_over = 0
     for k in range(ids.shape[0]):
-        if not inside[k]:
-            overflow[n_over] = ids[k]
-            n_over += 1
-            continue
         i0, i1 = _cell_range(box[k, 0], box[k, 2], gx, cs, nx)
         j0, j1 = _cell_range(box[k, 1], box[k, 3], gy, cs, ny)
         for i in range(i0, i1 + 1):
@@ -590,15 +601,45 @@ def _bin(box, ids, gx, gy, cs, nx, ny, inside_only):
                 c = i * ny + j
                 items[fill[c]] = ids[k]
                 fill[c] += 1
-    return start, items, overflow
+    return start, items
+
+
+def _by_centre(x: np.ndarray, y: np.ndarray, gx: float, gy: float, cs: float, nx: int, ny: int):
+    """CSR offsets of items binned by their centre, and the order that lists them cell by cell."""
+    cell = (np.clip(((x - gx) / cs).astype(np.int64), 0, nx - 1) * ny
+            + np.clip(((y - gy) / cs).astype(np.int64), 0, ny - 1))  # fmt: skip
+    order = np.argsort(cell, kind="stable")
+    start = np.zeros(nx * ny + 1, np.int64)
+    np.add.at(start, cell + 1, 1)
+    return np.cumsum(start), order
+
+
+def _segment_groups(segments: np.ndarray, ids: np.ndarray, max_r: float):
+    """Runs of consecutive segments among ``ids`` (sorted) in which each starts where the previous ends,
+    with a bounding circle of radius ``<= max_r``: ``(first, end)`` rows, their bounding circles
+    ``(x, y, r)`` and the ids of the segments in no group."""
+    if not len(ids):
+        return np.zeros((0, 2), np.int64), np.zeros((0, 3)), ids
+    s = segments[ids]
+    chained = (ids[1:] == ids[:-1] + 1) & np.all(s[1:, :2] == s[:-1, 2:], axis=1)
+    first = np.flatnonzero(np.concatenate([[True], ~chained]))
+    end = np.append(first[1:], len(ids))
+    lo = np.minimum.reduceat(np.minimum(s[:, :2], s[:, 2:]), first)
+    hi = np.maximum.reduceat(np.maximum(s[:, :2], s[:, 2:]), first)
+    c = 0.5 * (lo + hi)
+    cr = np.repeat(c, end - first, axis=0)
+    d2 = np.maximum(((s[:, :2] - cr) ** 2).sum(1), ((s[:, 2:] - cr) ** 2).sum(1))
+    # every point of a segment is within the largest distance of its ends (a disc is convex)
+    r = np.sqrt(np.maximum.reduceat(d2, first)) * (1.0 + 1e-9) + 1e-12
+    ok = (r <= max_r) & (end - first >= 2)
+    rows = np.column_stack([ids[first[ok]], ids[first[ok]] + (end - first)[ok]]).astype(np.int64)
+    single = np.repeat(~ok, end - first)
+    return rows, np.column_stack([c[ok], r[ok]]), ids[single]
 
 
 def default_cell_size(range_max: float) -> float:
-    """Grid cell side for a lidar of reach ``range_max``: ``range_max / 3`` (at least 0.5 m), so a
-    scan visits about 35 cells whatever the arena. Measured on random arenas at 0.7 objects/m^2 with
-    the vectorised candidate pass (a primitive costs a few ns to reject): 4 m cells 10-15 % faster than
-    2.4 m ones at 1,000-4,000 obstacles, 6 m cells no faster, 1.2 m cells spend more on visiting cells
-    than they save."""
+    """Grid cell side for a lidar of reach ``range_max``: ``range_max / 3`` (at least 0.5 m).
+    Measured on random arenas at 0.7 objects/m^2: see the README's Performance section."""
     return max(0.5, float(range_max) / 3.0)
 
 
@@ -610,15 +651,15 @@ def build_lidar_grid(
     bounds: tuple[float, float, float, float] | None = None,
     cell_size: float | None = None,
 ) -> LidarGrid:
-    """Index the static primitives in a uniform grid for :func:`cast_scan` (built once per world).
+    """Index the static primitives in a loose uniform grid for :func:`cast_scan` (built once per world).
 
     Args:
         circles, segments: the raycaster's primitive arrays ``(C, 3)`` and ``(S, 4)``.
         dynamic_circles, dynamic_segments: indices of the circles / segments that move between scans
-            (binned on every scan instead).
+            (indexed on every scan instead).
         bounds: ``(xmin, ymin, xmax, ymax)`` the grid must cover (e.g. the arena), m; the bounding box
-            of the static primitives is always included. Robots outside the grid are scanned by brute
-            force and moving primitives outside it are tested by every robot: correct, only slower.
+            of the static primitives is always included. Robots and moving primitives outside the grid
+            are handled apart (correct, only slower).
         cell_size: m; default :func:`default_cell_size` of a 12 m lidar.
     """
     circles = np.ascontiguousarray(circles, dtype=np.float64).reshape(-1, 3)
@@ -629,227 +670,451 @@ def build_lidar_grid(
         d = np.unique(np.asarray(dyn, dtype=np.int64).reshape(-1))
         if d.size and (d[0] < 0 or d[-1] >= n):
             raise ValueError(f"build_lidar_grid: {name} must be indices in [0, {n}), got {d.tolist()}")
-        ids += [d.astype(np.int32), np.setdiff1d(np.arange(n), d).astype(np.int32)]
+        ids += [d, np.setdiff1d(np.arange(n), d)]
     dyn_c, static_c, dyn_s, static_s = ids
-    box = _boxes(circles, segments, static_c, static_s)
+    if cell_size is None:
+        cell_size = default_cell_size(12.0)
+    if not (isinstance(cell_size, int | float) and math.isfinite(cell_size) and cell_size > 0):
+        raise ValueError(f"build_lidar_grid: cell_size must be a number > 0 m, got {cell_size!r}")
+    cs = float(cell_size)
+    if not np.all(np.isfinite(circles[static_c])) or not np.all(np.isfinite(segments[static_s])):
+        raise ValueError("build_lidar_grid: primitive coordinates must be finite")
+    # large circles would widen every cell: they are indexed with the moving ones
+    big = circles[static_c, 2] > 0.5 * cs
+    dyn_c = np.union1d(dyn_c, static_c[big]).astype(np.int64)
+    static_c = static_c[~big]
+    group_rows, group_circles, single = _segment_groups(segments, static_s, 0.5 * cs)
+    c = circles[static_c]
+    box = [c[:, :2] - c[:, 2:], c[:, :2] + c[:, 2:]]
+    box = [np.concatenate([box[0], group_circles[:, :2] - group_circles[:, 2:]]),
+           np.concatenate([box[1], group_circles[:, :2] + group_circles[:, 2:]])]  # fmt: skip
+    seg_box = _boxes(circles, segments, np.zeros(0, np.int64), single)
+    lo = np.concatenate([box[0], seg_box[:, :2]])
+    hi = np.concatenate([box[1], seg_box[:, 2:]])
     if bounds is not None:
         b = np.asarray(bounds, dtype=np.float64).reshape(4)
         if not (np.all(np.isfinite(b)) and b[0] < b[2] and b[1] < b[3]):
             raise ValueError(
                 f"build_lidar_grid: bounds must be finite (xmin, ymin, xmax, ymax), got {bounds!r}"
             )
-        box = np.concatenate([box, b[None]])
-    if not len(box):
-        box = np.zeros((1, 4))
-    if not np.all(np.isfinite(box)):
-        raise ValueError("build_lidar_grid: primitive coordinates must be finite")
+        lo, hi = np.concatenate([lo, b[None, :2]]), np.concatenate([hi, b[None, 2:]])
+    if not len(lo):
+        lo = hi = np.zeros((1, 2))
     # a little margin: robots and primitives on the bounds are strictly inside
-    lo, hi = box[:, :2].min(axis=0) - 1e-3, box[:, 2:].max(axis=0) + 1e-3
-    if cell_size is None:
-        cell_size = default_cell_size(12.0)
-    if not (isinstance(cell_size, int | float) and math.isfinite(cell_size) and cell_size > 0):
-        raise ValueError(f"build_lidar_grid: cell_size must be a number > 0 m, got {cell_size!r}")
-    cs = float(cell_size)
+    lo, hi = lo.min(axis=0) - 1e-3, hi.max(axis=0) + 1e-3
     nx, ny = (int(v) for v in np.maximum(1, np.ceil((hi - lo) / cs)))
-    c_start, c_items, _ = _bin(box[: len(static_c)], static_c, lo[0], lo[1], cs, nx, ny, False)
-    s_start, s_items, _ = _bin(box[len(static_c) : len(static_c) + len(static_s)], static_s,
-                               lo[0], lo[1], cs, nx, ny, False)  # fmt: skip
+    gx, gy = float(lo[0]), float(lo[1])
+    c_start, order = _by_centre(c[:, 0], c[:, 1], gx, gy, cs, nx, ny)
+    g_start, g_order = _by_centre(group_circles[:, 0], group_circles[:, 1], gx, gy, cs, nx, ny)
+    rows = group_rows[g_order]
+    seg_ids = np.concatenate([np.arange(a, b) for a, b in rows]) if len(rows) else np.zeros(0)
+    seg_ids = seg_ids.astype(np.int64)
+    s_start, s_items = _bin(seg_box, single, gx, gy, cs, nx, ny)
     return LidarGrid(
-        origin=(float(lo[0]), float(lo[1])),
+        origin=(gx, gy),
         cell_size=cs,
         shape=(nx, ny),
         circle_start=c_start,
-        circle_items=c_items,
+        circles=np.ascontiguousarray(c[order].T),
+        circle_ids=static_c[order].astype(np.int64),
+        circle_pad=float(c[:, 2].max()) if len(c) else 0.0,
+        group_start=g_start,
+        groups=np.ascontiguousarray(group_circles[g_order].T),
+        group_offsets=np.concatenate([[0], np.cumsum(rows[:, 1] - rows[:, 0])]).astype(np.int64),
+        group_segments=np.ascontiguousarray(segments[seg_ids]).reshape(-1, 4),
+        group_segment_ids=seg_ids,
+        group_pad=float(group_circles[:, 2].max()) if len(group_circles) else 0.0,
         segment_start=s_start,
         segment_items=s_items,
         dynamic_circles=dyn_c,
-        dynamic_segments=dyn_s,
+        dynamic_segments=dyn_s.astype(np.int64),
         n_circles=len(circles),
         n_segments=len(segments),
     )
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
-def _gather(circles, segments, cand_c, n_ci, cand_s, n_si, cb, sb):
-    """Copy the candidates' coordinates into the columns ``cb`` / ``sb``."""
-    for k in range(n_ci):
-        c = cand_c[k]
-        cb[0, k] = circles[c, 0]
-        cb[1, k] = circles[c, 1]
-        cb[2, k] = circles[c, 2]
-    for k in range(n_si):
-        s = cand_s[k]
-        sb[0, k] = segments[s, 0]
-        sb[1, k] = segments[s, 1]
-        sb[2, k] = segments[s, 2]
-        sb[3, k] = segments[s, 3]
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _circle_pass(x0, y0, hw, skip, reach, n_beams, inv_res, xs_, ys_, rs_, ids_, a, b, m, kx_, ky_, kr_, kid_,
+                 fb_, fc_, fn_):  # fmt: skip
+    """Pass 1 over the circles ``a..b-1`` of the columns ``xs_``, ``ys_``, ``rs_`` (ids ``ids_``): the
+    reach test and beam interval of :func:`_cast_prims`' circle pass, bit for bit; the circles with beams
+    to test are appended at ``m`` (coordinates, id, first beam, count, nearest distance). Returns the new
+    count. (Separate from :func:`_group_pass`: one function with a flag was no longer vectorised.)"""
+    rc = reach + _TOL
+    xs = xs_[a:b]
+    ys = ys_[a:b]
+    rs = rs_[a:b]
+    ids = ids_[a:b]
+    kx = kx_[m:]
+    ky = ky_[m:]
+    kr = kr_[m:]
+    kid = kid_[m:]
+    fb = fb_[m:]
+    fc = fc_[m:]
+    fn = fn_[m:]
+    for q in range(b - a):
+        dx = xs[q] - x0
+        dy = ys[q] - y0
+        r = rs[q]
+        d2 = dx * dx + dy * dy
+        d = math.sqrt(d2)
+        cc = d2 - r * r
+        ok = (d2 <= (rc + r) * (rc + r)) & (ids[q] != skip) & (d - r <= reach) & (d > r) & (cc > 0.0)
+        sq = math.sqrt(max(cc, 1e-300))
+        z = r / sq
+        half = (z if z < 0.05 else _fast_atan2(r, sq)) + _EPS
+        phi = _fast_atan2(dy, dx) - hw
+        k0 = np.ceil(-(phi + half) * inv_res)
+        k1 = np.floor(-(phi - half) * inv_res)
+        fb[q] = _first_beam(k0, n_beams)
+        fc[q] = k1 - k0 + 1.0 if ok else 0.0
+        fn[q] = d - r - _TOL
+    k = 0
+    for q in range(b - a):
+        kx[k] = xs[q]
+        ky[k] = ys[q]
+        kr[k] = rs[q]
+        kid[k] = ids[q]
+        fb[k] = fb[q]
+        fc[k] = fc[q]
+        fn[k] = fn[q]
+        k += fc[q] > 0.0
+    return m + k
 
 
-@numba.njit(cache=True, nogil=True)
-def _grid_cast_one(
-    x0, y0, h, skip, range_max, circles, segments, cos_tab, sin_tab, best_d, best_p, stamp, tag,
-    cand_c, cand_s, gx, gy, cs, nx, ny, c_start, c_items, s_start, s_items, dc_start, dc_items,
-    ds_start, ds_items, c_over, s_over, ws, cb, sb,
-):  # fmt: skip
-    """One origin's scan through the grid: rings of cells outwards, so near primitives come first and
-    :func:`_cast_prims`' per-beam occlusion test spares most of the far ones. Per ring, the primitives
-    of the cells that pass the distance and occlusion tests are gathered (each once: ``stamp``) and
-    cast in one call; everything per cell is written out here (a call per cell cost more than its
-    work). ``cb`` / ``sb``: the gathered candidates' coordinates as columns (see :func:`_cast_prims`)."""
-    n_beams = best_d.shape[0]
-    res = 2.0 * math.pi / n_beams
-    n_c = circles.shape[0]
-    hw = h - 2.0 * math.pi * math.floor(h / (2.0 * math.pi) + 0.5)  # as in _cast_prims
-    for i in range(n_beams):
-        best_d[i] = range_max
-        best_p[i] = -1
-    far = range_max  # >= every current hit: nothing beyond it can change the scan
-    # the moving primitives outside the grid first (tested by every robot)
-    n_ci = c_over.shape[0]
-    n_si = s_over.shape[0]
-    cand_c[:n_ci] = c_over
-    cand_s[:n_si] = s_over
-    _gather(circles, segments, cand_c, n_ci, cand_s, n_si, cb, sb)
-    _cast_prims(x0, y0, h, skip, far, cb[0], cb[1], cb[2], cand_c, n_ci, sb[0], sb[1], sb[2], sb[3], cand_s,
-                n_si, n_c, cos_tab, sin_tab, best_d, best_p, ws)  # fmt: skip
-    rc = 0.5 * cs * math.sqrt(2.0) * (1.0 + 1e-9)
-    ci = min(int((x0 - gx) / cs), nx - 1)
-    cj = min(int((y0 - gy) / cs), ny - 1)
-    ring = 0
-    while ci - ring >= 0 or cj - ring >= 0 or ci + ring < nx or cj + ring < ny:
-        if ring > 0:
-            inner = min(
-                min(x0 - (gx + (ci - ring + 1) * cs), gx + (ci + ring) * cs - x0),
-                min(y0 - (gy + (cj - ring + 1) * cs), gy + (cj + ring) * cs - y0),
-            )
-            if inner - _TOL > far:
-                break
-        n_ci = np.int64(0)  # not a literal 0, which made numba compile a second, unvectorised _cast_prims
-        n_si = np.int64(0)
-        for side in range(4):
-            if side < 2:
-                j = cj - ring if side == 0 else cj + ring
-                if j < 0 or j >= ny or (side == 1 and ring == 0):
-                    continue
-                a, b = max(ci - ring, 0), min(ci + ring, nx - 1)
-            else:
-                i = ci - ring if side == 2 else ci + ring
-                if ring == 0 or i < 0 or i >= nx:
-                    continue
-                a, b = max(cj - ring + 1, 0), min(cj + ring - 1, ny - 1)
-            for m in range(a, b + 1):
-                if side < 2:
-                    i = m
-                else:
-                    j = m
-                cell = i * ny + j
-                if (c_start[cell + 1] == c_start[cell] and s_start[cell + 1] == s_start[cell]
-                        and dc_start[cell + 1] == dc_start[cell]
-                        and ds_start[cell + 1] == ds_start[cell]):  # fmt: skip
-                    continue
-                cx0 = gx + i * cs
-                cy0 = gy + j * cs
-                dx = max(max(cx0 - x0, 0.0), x0 - cx0 - cs)
-                dy = max(max(cy0 - y0, 0.0), y0 - cy0 - cs)
-                dmin = math.sqrt(dx * dx + dy * dy) - _TOL
-                if dmin > far:
-                    continue
-                if ring > 1:
-                    ex = cx0 + 0.5 * cs - x0
-                    ey = cy0 + 0.5 * cs - y0
-                    half = _fast_atan2(rc, math.sqrt(ex * ex + ey * ey - rc * rc)) + _EPS
-                    phi = _fast_atan2(ey, ex) - hw
-                    k0 = int(math.ceil(-(phi + half) / res))
-                    k1 = int(math.floor(-(phi - half) / res))
-                    bi = k0 + 2 * n_beams - 1
-                    while bi >= n_beams - 1:
-                        bi -= n_beams
-                    shut = True
-                    for _ in range(k1 - k0 + 1):
-                        bi += 1
-                        if bi == n_beams:
-                            bi = 0
-                        if best_d[bi] >= dmin:
-                            shut = False
-                            break
-                    if shut:
-                        continue
-                # a primitive listed in several cells is cast once per scan (``stamp``)
-                for q in range(c_start[cell], c_start[cell + 1]):
-                    c = c_items[q]
-                    if stamp[c] != tag:
-                        stamp[c] = tag
-                        cand_c[n_ci] = c
-                        n_ci += 1
-                for q in range(dc_start[cell], dc_start[cell + 1]):
-                    c = dc_items[q]
-                    if stamp[c] != tag:
-                        stamp[c] = tag
-                        cand_c[n_ci] = c
-                        n_ci += 1
-                for q in range(s_start[cell], s_start[cell + 1]):
-                    s = s_items[q]
-                    if stamp[n_c + s] != tag:
-                        stamp[n_c + s] = tag
-                        cand_s[n_si] = s
-                        n_si += 1
-                for q in range(ds_start[cell], ds_start[cell + 1]):
-                    s = ds_items[q]
-                    if stamp[n_c + s] != tag:
-                        stamp[n_c + s] = tag
-                        cand_s[n_si] = s
-                        n_si += 1
-        if n_ci or n_si:
-            _gather(circles, segments, cand_c, n_ci, cand_s, n_si, cb, sb)
-            _cast_prims(x0, y0, h, skip, far, cb[0], cb[1], cb[2], cand_c, n_ci, sb[0], sb[1], sb[2], sb[3],
-                        cand_s, n_si, n_c, cos_tab, sin_tab, best_d, best_p, ws)  # fmt: skip
-            far = 0.0
-            for i in range(n_beams):
-                far = max(far, best_d[i])
-        ring += 1
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _group_pass(x0, y0, hw, reach, n_beams, inv_res, xs_, ys_, rs_, a, b, m, kg_, fb_, fc_, fn_):
+    """:func:`_circle_pass` for groups' bounding circles: the group index is kept, and a group whose
+    bounding circle holds the origin gets every beam."""
+    rc = reach + _TOL
+    xs = xs_[a:b]
+    ys = ys_[a:b]
+    rs = rs_[a:b]
+    kg = kg_[m:]
+    fb = fb_[m:]
+    fc = fc_[m:]
+    fn = fn_[m:]
+    for q in range(b - a):
+        dx = xs[q] - x0
+        dy = ys[q] - y0
+        r = rs[q]
+        d2 = dx * dx + dy * dy
+        d = math.sqrt(d2)
+        cc = d2 - r * r
+        ok = (d2 <= (rc + r) * (rc + r)) & (d - r <= reach)
+        sq = math.sqrt(max(cc, 1e-300))
+        z = r / sq
+        half = (z if z < 0.05 else _fast_atan2(r, sq)) + _EPS
+        phi = _fast_atan2(dy, dx) - hw
+        k0 = np.ceil(-(phi + half) * inv_res)
+        k1 = np.floor(-(phi - half) * inv_res)
+        full = cc <= 0.0
+        fb[q] = 0.0 if full else _first_beam(k0, n_beams)
+        cnt = float(n_beams) if full else k1 - k0 + 1.0
+        fc[q] = cnt if ok else 0.0
+        fn[q] = d - r - _TOL
+    k = 0
+    for q in range(b - a):
+        kg[k] = a + q
+        fb[k] = fb[q]
+        fc[k] = fc[q]
+        fn[k] = fn[q]
+        k += fc[q] > 0.0
+    return m + k
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _segment_beams(ax, ay, ex, ey, p, near, i, cnt, n_beams, bux, buy, best_d, best_p):
+    """The exact ray-segment test of :func:`_cast_prims` on ``cnt`` beams after beam ``i``."""
+    tn = ax * ey - ay * ex
+    for _ in range(cnt):
+        i += 1
+        if i == n_beams:
+            i = 0
+        u = np.uint64(i)
+        bd = best_d[u]
+        if bd < near:
+            continue  # occluded
+        ux = bux[u]
+        uy = buy[u]
+        den = ux * ey - uy * ex
+        if den == 0.0:
+            continue
+        t = tn / den
+        sp = (ax * uy - ay * ux) / den
+        if t > 0.0 and 0.0 <= sp <= 1.0 and (t < bd or (t == bd and p < best_p[u])):
+            best_d[u] = t
+            best_p[u] = p
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def _scan_kernel_grid(
-    ox, oy, heading, tabs, range_min, range_max, circles, circle_skip, segments, prim_kind,
-    prim_index, gx, gy, cs, nx, ny, c_start, c_items, s_start, s_items, dyn_c, dyn_s, out_ranges,
-    out_true, out_kind, out_index,
+    ox, oy, heading, tabs, range_min, range_max, circles, circle_skip, segments, prim_kind, prim_index,
+    gx, gy, cs, nx, ny, c_start, c_cols, c_ids, c_pad, g_start, g_cols, g_off, g_seg, g_sid, g_pad, s_start,
+    s_items, dyn_c, dyn_s, fs, js, out_ranges, out_true, out_kind, out_index,
 ):  # fmt: skip
+    """The grid's scan of every origin (see "broad phase" above). ``fs`` / ``js``: :func:`grid_scratch`,
+    reused across calls (allocating ~30 arrays per call cost more than a one-robot scan's casting)."""
     n_beams = tabs.shape[1]
     cos_tab = tabs[0]
     sin_tab = tabs[1]
+    inv_res = n_beams / (2.0 * math.pi)
     n_c = circles.shape[0]
-    box = _boxes(circles, segments, dyn_c, dyn_s)
-    dc_start, dc_items, c_over = _bin(box[: dyn_c.shape[0]], dyn_c, gx, gy, cs, nx, ny, True)
-    ds_start, ds_items, s_over = _bin(box[dyn_c.shape[0] :], dyn_s, gx, gy, cs, nx, ny, True)
-    stamp = np.zeros(n_c + segments.shape[0], np.int32)
-    cand_c = np.empty(max(n_c, 1), np.int64)  # int64 like the brute force's ids: one compiled _cast_prims
-    cand_s = np.empty(max(segments.shape[0], 1), np.int64)
-    cb = np.empty((3, n_c))
-    sb = np.empty((4, segments.shape[0]))
-    best_d = np.empty(n_beams)
-    best_p = np.empty(n_beams, dtype=np.int32)
+    reach = range_max
+    # the moving circles, binned by centre for this call; those outside the grid are tested by everyone
+    n_d = dyn_c.shape[0]
+    n_cells = nx * ny
+    d_start = js[6, : n_cells + 1]
+    d_start[:] = 0
+    d_cell = js[4]
     xmax = gx + nx * cs
     ymax = gy + ny * cs
-    outside = 0
-    for n in range(ox.shape[0]):
-        outside += not (ox[n] > gx and ox[n] < xmax and oy[n] > gy and oy[n] < ymax)
-    ws = _work(max(n_c, segments.shape[0]), outside > 0)
-    # the columns of every primitive, for the robots outside the grid only (a copy of the whole world)
-    circ, seg = _columns(circles[: circles.shape[0] if outside else 0],
-                         segments[: segments.shape[0] if outside else 0])  # fmt: skip
+    d_pad = 0.0
+    for k in range(n_d):
+        c = dyn_c[k]
+        x = circles[c, 0]
+        y = circles[c, 1]
+        if x > gx and x < xmax and y > gy and y < ymax:
+            cell = min(int((x - gx) / cs), nx - 1) * ny + min(int((y - gy) / cs), ny - 1)
+            d_cell[k] = cell
+            d_start[cell + 1] += 1
+            d_pad = max(d_pad, circles[c, 2])
+        else:
+            d_cell[k] = -1
+    for c in range(n_cells):
+        d_start[c + 1] += d_start[c]
+    n_in = d_start[n_cells]
+    fill = js[7]
+    fill[:n_cells] = d_start[:n_cells]
+    d_cols = fs[19:22]
+    d_ids = js[5]
+    o = n_in
+    for k in range(n_d):
+        c = dyn_c[k]
+        cell = d_cell[k]
+        if cell >= 0:
+            p = fill[cell]
+            fill[cell] += 1
+        else:
+            p = o
+            o += 1
+        d_cols[0, p] = circles[c, 0]
+        d_cols[1, p] = circles[c, 1]
+        d_cols[2, p] = circles[c, 2]
+        d_ids[p] = c
+    # scratch: candidate circles (k*), groups (g*), long segments (s*)
+    kx, ky, kr, kb, kc, kn = fs[0], fs[1], fs[2], fs[3], fs[4], fs[5]
+    gb, gc, gn = fs[9], fs[10], fs[11]
+    s1, s2, s3, s4, sb, sc, sn = fs[12], fs[13], fs[14], fs[15], fs[16], fs[17], fs[18]
+    best_d, bux, buy = fs[22, :n_beams], fs[23, :n_beams], fs[24, :n_beams]  # (_write_row: n_beams long)
+    kid, gid, order, sid = js[0], js[1], js[2], js[3]
+    bucket, best_p, stamp = js[8], js[9, :n_beams], js[10]
+    # stamp tags stay unique across calls (the scratch is reused): the last one is kept in js[11, 0]
+    tag0 = js[11, 0]
+    js[11, 0] = tag0 + ox.shape[0]
+    to_bucket = _N_BUCKETS / range_max
+    rc = reach + _TOL
+    rc2 = rc * rc
     for n in range(ox.shape[0]):
         x0 = ox[n]
         y0 = oy[n]
-        if not (x0 > gx and x0 < xmax and y0 > gy and y0 < ymax):
-            _cast_one(x0, y0, heading[n], circle_skip[n], range_max, circ, seg, cos_tab, sin_tab,
-                      best_d, best_p, ws)  # fmt: skip
-        else:
-            _grid_cast_one(
-                x0, y0, heading[n], circle_skip[n], range_max, circles, segments, cos_tab, sin_tab,
-                best_d, best_p, stamp, n + 1, cand_c, cand_s, gx, gy, cs, nx, ny, c_start, c_items,
-                s_start, s_items, dc_start, dc_items, ds_start, ds_items, c_over, s_over, ws, cb, sb,
-            )  # fmt: skip
+        h = heading[n]
+        skip = circle_skip[n]
+        ch = math.cos(h)
+        sh = math.sin(h)
+        hw = h - 2.0 * math.pi * math.floor(h / (2.0 * math.pi) + 0.5)  # as in _cast_prims
+        for i in range(n_beams):
+            best_d[i] = range_max
+            best_p[i] = -1
+            # the direction of beam i, by the same rotation as _cast_prims (bit for bit)
+            bux[i] = ch * cos_tab[i] + sh * sin_tab[i]
+            buy[i] = sh * cos_tab[i] - ch * sin_tab[i]
+        # --- pass 1: the column runs of cells within reach (cells widened by the layer's largest radius)
+        mc = 0
+        mg = 0
+        for layer in range(3):
+            if layer == 0:
+                pad = c_pad
+                st = c_start
+            elif layer == 1:
+                pad = d_pad
+                st = d_start
+            else:
+                pad = g_pad
+                st = g_start
+            fi0 = (x0 - pad - reach - gx) / cs
+            fi1 = (x0 + pad + reach - gx) / cs
+            if not (fi1 >= 0.0 and fi0 < nx):
+                continue  # (NaN origins too)
+            for i in range(int(max(fi0, 0.0)), int(min(fi1, nx - 1.0)) + 1):
+                left = gx + i * cs - pad
+                ddx = max(max(left - x0, 0.0), x0 - (left + cs + 2.0 * pad))
+                hy2 = rc2 - ddx * ddx
+                if hy2 < 0.0:
+                    continue
+                hy = math.sqrt(hy2)
+                fj0 = (y0 - hy - pad - gy) / cs
+                fj1 = (y0 + hy + pad - gy) / cs
+                if not (fj1 >= 0.0 and fj0 < ny):
+                    continue
+                a = st[i * ny + int(max(fj0, 0.0))]
+                b = st[i * ny + int(min(fj1, ny - 1.0)) + 1]
+                if a == b:
+                    continue
+                if layer == 0:
+                    mc = _circle_pass(x0, y0, hw, skip, reach, n_beams, inv_res, c_cols[0], c_cols[1],
+                                      c_cols[2], c_ids, a, b, mc, kx, ky, kr, kid, kb, kc, kn)  # fmt: skip
+                elif layer == 1:
+                    mc = _circle_pass(x0, y0, hw, skip, reach, n_beams, inv_res, d_cols[0], d_cols[1],
+                                      d_cols[2], d_ids, a, b, mc, kx, ky, kr, kid, kb, kc, kn)  # fmt: skip
+                else:
+                    mg = _group_pass(x0, y0, hw, reach, n_beams, inv_res, g_cols[0], g_cols[1], g_cols[2],
+                                     a, b, mg, gid, gb, gc, gn)  # fmt: skip
+        if n_in < n_d:
+            mc = _circle_pass(x0, y0, hw, skip, reach, n_beams, inv_res, d_cols[0], d_cols[1], d_cols[2],
+                              d_ids, n_in, n_d, mc, kx, ky, kr, kid, kb, kc, kn)  # fmt: skip
+        # --- long segments of the cells within reach (each once: stamp), and the moving segments
+        ns = 0
+        fi0 = (x0 - reach - gx) / cs
+        fi1 = (x0 + reach - gx) / cs
+        fj0 = (y0 - reach - gy) / cs
+        fj1 = (y0 + reach - gy) / cs
+        if s_items.shape[0] > 0 and fi1 >= 0.0 and fi0 < nx and fj1 >= 0.0 and fj0 < ny:
+            j0 = int(max(fj0, 0.0))
+            j1 = int(min(fj1, ny - 1.0))
+            for i in range(int(max(fi0, 0.0)), int(min(fi1, nx - 1.0)) + 1):
+                for q in range(s_start[i * ny + j0], s_start[i * ny + j1 + 1]):
+                    s = s_items[np.uint64(q)]
+                    if stamp[s] != tag0 + n + 1:
+                        stamp[s] = tag0 + n + 1
+                        sid[ns] = s
+                        ns += 1
+        for q in range(dyn_s.shape[0]):
+            sid[ns] = dyn_s[q]
+            ns += 1
+        # their back-face and reach test, then the beam interval of the survivors (as _cast_prims)
+        m = 0
+        for v in range(ns):
+            s = sid[v]
+            ax = segments[s, 0] - x0
+            ay = segments[s, 1] - y0
+            bx = segments[s, 2] - x0
+            by = segments[s, 3] - y0
+            ex = bx - ax
+            ey = by - ay
+            cr_ = ey * ax - ex * ay
+            ee = ex * ex + ey * ey
+            dot = -(ax * ex + ay * ey)
+            near = (((dot <= 0.0) & (ax * ax + ay * ay <= rc2))
+                    | ((dot >= ee) & (bx * bx + by * by <= rc2))
+                    | ((dot > 0.0) & (dot < ee) & (cr_ * cr_ <= rc2 * ee)))  # fmt: skip
+            sid[m] = s
+            s1[m] = segments[s, 0]
+            s2[m] = segments[s, 1]
+            s3[m] = segments[s, 2]
+            s4[m] = segments[s, 3]
+            m += (cr_ < 0.0) & near
+        for v in range(m):
+            ax = s1[v] - x0
+            ay = s2[v] - y0
+            bx = s3[v] - x0
+            by = s4[v] - y0
+            ex = bx - ax
+            ey = by - ay
+            ee = ex * ex + ey * ey
+            dot = -(ax * ex + ay * ey)
+            u = min(1.0, max(0.0, dot / ee))
+            px = ax + u * ex
+            py = ay + u * ey
+            dm2 = px * px + py * py
+            th_a = _fast_atan2(ay, ax) - hw
+            span = _fast_atan2(ax * by - ay * bx, ax * bx + ay * by)
+            k0 = np.ceil(-(th_a + max(0.0, span) + _EPS) * inv_res)
+            k1 = np.floor(-(th_a + min(0.0, span) - _EPS) * inv_res)
+            sb[v] = _first_beam(k0, n_beams)
+            sc[v] = k1 - k0 + 1.0 if dm2 <= reach * reach else 0.0
+            sn[v] = math.sqrt(dm2) - _TOL
+        # --- pass 2: circles, long segments, then groups front to back
+        for q in range(mc):
+            c = kid[q]
+            dx = kx[q] - x0
+            dy = ky[q] - y0
+            r = kr[q]
+            cc = (dx * dx + dy * dy) - r * r  # as in _cast_prims, bit for bit
+            near = kn[q]
+            i = int(kb[q]) - 1
+            for _ in range(int(kc[q])):
+                i += 1
+                if i == n_beams:
+                    i = 0
+                u = np.uint64(i)
+                bd = best_d[u]
+                if bd < near:
+                    continue  # occluded
+                b = dx * bux[u] + dy * buy[u]
+                disc = b * b - cc
+                if disc < 0.0 or b <= 0.0:
+                    continue
+                t = b - math.sqrt(disc)
+                if t > 0.0 and (t < bd or (t == bd and c < best_p[u])):
+                    best_d[u] = t
+                    best_p[u] = c
+        for v in range(m):
+            if sc[v] > 0.0:
+                ax = s1[v] - x0
+                ay = s2[v] - y0
+                ex = (s3[v] - x0) - ax
+                ey = (s4[v] - y0) - ay
+                _segment_beams(ax, ay, ex, ey, n_c + sid[v], sn[v], int(sb[v]) - 1, int(sc[v]), n_beams, bux,
+                               buy, best_d, best_p)  # fmt: skip
+        for t in range(_N_BUCKETS + 1):
+            bucket[t] = 0
+        for q in range(mg):
+            bucket[int(min(max(gn[q], 0.0) * to_bucket, _N_BUCKETS - 1.0)) + 1] += 1
+        for t in range(_N_BUCKETS):
+            bucket[t + 1] += bucket[t]
+        for q in range(mg):
+            t = int(min(max(gn[q], 0.0) * to_bucket, _N_BUCKETS - 1.0))
+            order[bucket[t]] = q
+            bucket[t] += 1
+        for w in range(mg):
+            q = order[w]
+            near = gn[q]
+            i = int(gb[q]) - 1
+            cnt = int(gc[q])
+            ii = i
+            shut = True
+            for _ in range(cnt):
+                ii += 1
+                if ii == n_beams:
+                    ii = 0
+                if best_d[np.uint64(ii)] >= near:
+                    shut = False
+                    break
+            if shut:
+                continue  # every beam it could reach already hit something nearer
+            g = gid[q]
+            for k_ in range(g_off[g], g_off[g + 1]):
+                k = np.uint64(k_)
+                ax = g_seg[k, 0] - x0
+                ay = g_seg[k, 1] - y0
+                bx = g_seg[k, 2] - x0
+                by = g_seg[k, 3] - y0
+                ex = bx - ax
+                ey = by - ay
+                if not (ey * ax - ex * ay < 0.0):
+                    continue  # back face (the test of _cast_prims)
+                i2 = i
+                cnt2 = cnt
+                if cnt > 12:  # close by: the edge's own interval (as _cast_prims)
+                    th_a = _fast_atan2(ay, ax) - hw
+                    span = _fast_atan2(ax * by - ay * bx, ax * bx + ay * by)
+                    k0 = np.ceil(-(th_a + max(0.0, span) + _EPS) * inv_res)
+                    k1 = np.floor(-(th_a + min(0.0, span) - _EPS) * inv_res)
+                    i2 = int(_first_beam(k0, n_beams)) - 1
+                    cnt2 = int(k1 - k0 + 1.0)
+                _segment_beams(ax, ay, ex, ey, n_c + g_sid[k], near, i2, cnt2, n_beams, bux, buy, best_d,
+                               best_p)
         _write_row(n, best_d, best_p, 0, prim_kind, prim_index, range_min, range_max, out_ranges, out_true,
                    out_kind, out_index)
 
@@ -908,15 +1173,29 @@ def cast_scan(
                 f"cast_scan: the grid indexes {grid.n_circles} circles and {grid.n_segments} segments, "
                 f"got {len(circles)} and {len(segments)}; rebuild it with build_lidar_grid"
             )
-        _scan_kernel_grid(*args, *grid_args(grid), ranges, true, kind, index)
+        _scan_kernel_grid(*args, *grid_args(grid), *grid_scratch(grid, nb), ranges, true, kind, index)
     return ranges, true, kind, index
 
 
 def grid_args(grid: LidarGrid) -> tuple:
     """The grid kernel's arguments for ``grid`` (after the primitive owner tables)."""
     (gx, gy), (nx, ny) = grid.origin, grid.shape
-    return (gx, gy, grid.cell_size, nx, ny, grid.circle_start, grid.circle_items, grid.segment_start,
-            grid.segment_items, grid.dynamic_circles, grid.dynamic_segments)  # fmt: skip
+    return (gx, gy, grid.cell_size, nx, ny, grid.circle_start, grid.circles, grid.circle_ids, grid.circle_pad,
+            grid.group_start, grid.groups, grid.group_offsets, grid.group_segments, grid.group_segment_ids,
+            grid.group_pad, grid.segment_start, grid.segment_items, grid.dynamic_circles,
+            grid.dynamic_segments)  # fmt: skip
+
+
+def grid_scratch(grid: LidarGrid, n_beams: int) -> tuple[np.ndarray, np.ndarray]:
+    """Work arrays of the grid kernel for ``grid`` and ``n_beams`` beams, passed after :func:`grid_args`.
+    A caller that scans often (``World``) keeps one pair; they must not be used by two scans at once."""
+    n_d = len(grid.dynamic_circles)
+    cap = max(len(grid.circle_ids) + n_d, grid.groups.shape[1],
+              len(grid.segment_items) + len(grid.dynamic_segments), n_beams, grid.shape[0] * grid.shape[1],
+              grid.n_segments, _N_BUCKETS) + 1  # fmt: skip
+    # the float rows are always written before they are read; the int rows hold the stamps (and their
+    # last tag), which must start below every tag
+    return np.empty((25, cap)), np.zeros((12, cap), np.int64)
 
 
 def cast_prepared(ox, oy, heading, skip, static: tuple, grid: tuple | None):
@@ -924,7 +1203,8 @@ def cast_prepared(ox, oy, heading, skip, static: tuple, grid: tuple | None):
     the conversions and checks cost more than a one-robot scan's kernel). ``ox``, ``oy``, ``heading``:
     ``(N,)`` contiguous float64; ``skip``: ``(N,)`` int64; ``static``: ``(beam_tables, range_min,
     range_max, circles, segments, prim_kind, prim_index)`` as :func:`cast_scan` converts them; ``grid``:
-    :func:`grid_args` or ``None``. Returns float32 readings as :func:`cast_scan`."""
+    :func:`grid_args` followed by :func:`grid_scratch`, or ``None``. Returns float32 readings as
+    :func:`cast_scan`."""
     tabs, range_min, range_max, circles, segments, prim_kind, prim_index = static
     n, nb = ox.shape[0], tabs.shape[1]
     out = (np.empty((n, nb), np.float32), np.empty((n, nb), np.float32), np.empty((n, nb), np.int8),

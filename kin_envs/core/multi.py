@@ -20,7 +20,7 @@ import pymunk.batch as pmbatch
 from pymunk._chipmunk import lib as _cp
 
 from kin_envs.core.interrupts import atomic
-from kin_envs.core.lidar import _cast_one, _columns, _work, _write_row, beam_tables, cast_scan
+from kin_envs.core.lidar import _cast_one, _columns, _work, _write_row, beam_tables, cast_prepared
 from kin_envs.core.odometry import Odometry
 from kin_envs.core.world import _COMMAND_CAP, Contact, Scan, World, _buffers
 
@@ -378,11 +378,11 @@ class WorldBatch:
         for r in gridded:
             j, rs = on[r], slice(r * m, (r + 1) * m)
             w, c0, s0 = ws[j], self._c_off[j], self._s_off[j]
-            out = cast_scan(
-                origin[rs, :2], origin[rs, 2], self._circles[c0 : c0 + self._c_len[j]],
-                self._segments[s0 : s0 + self._s_len[j]], ix, w._prim_kind, w._prim_index, spec,
-                grid=w._lidar_grid,
-            )  # fmt: skip
+            # through the world's own kernel arguments and work arrays (World.scan's path)
+            static = (w._lidar_static[:3] + (self._circles[c0 : c0 + self._c_len[j]],
+                      self._segments[s0 : s0 + self._s_len[j]]) + w._lidar_static[5:])  # fmt: skip
+            x, y, theta = origin[rs].T.copy()
+            out = cast_prepared(x, y, theta, ix, static, w._lidar_grid_args)
             for a, b in zip((ranges, true, kind, index), out, strict=True):
                 a[rs] = b
         if noise and (spec.noise_sigma > 0 or spec.dropout_prob > 0):

@@ -174,3 +174,39 @@ def test_unbounded_headings():
         same = r[3] == base[3]
         assert same.mean() > 0.998  # beams grazing an edge may flip with the heading's rounding
         np.testing.assert_allclose(r[1][same], base[1][same], atol=1e-6)
+
+
+def test_groups_long_segments_and_large_circles():
+    # boxes and prisms (edges chained into groups), long walls (listed in every cell they touch) and
+    # cylinders larger than half a cell (indexed with the moving circles), seen from far away, from
+    # right next to them and from inside their bounding circles
+    rng = np.random.default_rng(7)
+    polys = []
+    for _ in range(30):
+        c, r, k = rng.uniform(-5, 5, 2), rng.uniform(0.05, 0.4), rng.integers(3, 7)
+        a = np.sort(rng.uniform(0, 2 * math.pi, k))
+        polys.append(np.column_stack([c[0] + r * np.cos(a), c[1] + r * np.sin(a)]))  # CCW
+    walls = np.array([[-4.0, -4.5, 4.0, -4.5], [4.5, -4.0, 4.5, 3.0], [-3.0, 2.0, 3.0, 2.2]])
+    segments = np.concatenate([np.concatenate([v, np.roll(v, -1, axis=0)], axis=1) for v in polys] + [walls])
+    circles = np.column_stack([rng.uniform(-5, 5, (12, 2)), rng.uniform(0.02, 1.5, 12)])
+    near = np.concatenate([v[:1] + rng.normal(0, 0.05, (1, 2)) for v in polys])  # next to / inside
+    origins = np.concatenate([rng.uniform(-5.5, 5.5, (40, 2)), near])
+    for cell in (0.6, 1.5, 4.0):
+        grid = build_lidar_grid(circles, segments, bounds=(-6, -6, 6, 6), cell_size=cell)
+        assert grid.groups.shape[1] > 0 and len(grid.segment_items) >= len(walls)
+        assert len(grid.dynamic_circles) == int(np.sum(circles[:, 2] > cell / 2))
+        _cast_both(origins, rng.uniform(-math.pi, math.pi, len(origins)), circles, segments, grid)
+
+
+def test_world_scratch_reused_across_scans():
+    # the World keeps the grid kernel's work arrays; every scan (all robots, subsets, one robot, after
+    # motion) must still equal the brute force's
+    scene = scenes.random_arena(10, 150, seed=9, size=26.0)
+    grid = World(scene, seed=1, config=WorldConfig(lidar_grid=True))
+    brute = World(scene, seed=1, config=BRUTE)
+    rng = np.random.default_rng(3)
+    for robots in (None, [3], [9, 0, 4], None, [3]):
+        _assert_same(grid.scan(robots=robots), brute.scan(robots=robots))
+        cmd = rng.uniform(-1, 1, (10, 2)) * [0.3, 2.0]
+        grid.step(commands=cmd)
+        brute.step(commands=cmd)

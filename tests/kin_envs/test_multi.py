@@ -111,8 +111,8 @@ def test_worlds_with_a_lidar_grid_scan_through_it():
     batch = WorldBatch([make(s, g) for s, g in enumerate(grids)])
     assert [w._lidar_grid is not None for w in batch.worlds] == grids
     calls = []
-    real = multi.cast_scan
-    multi.cast_scan = lambda *a, **kw: calls.append(kw["grid"]) or real(*a, **kw)
+    real = multi.cast_prepared  # gridded worlds go through their own kernel arguments (grid, work arrays)
+    multi.cast_prepared = lambda *a: calls.append(a[5]) or real(*a)
     try:
         rng = np.random.default_rng(1)
         for t in range(12):
@@ -124,5 +124,5 @@ def test_worlds_with_a_lidar_grid_scan_through_it():
         active = np.array([True, False, False, True, True])
         assert_same(single, batch, None, active=active)
     finally:
-        multi.cast_scan = real
+        multi.cast_prepared = real
     assert len(calls) == 12 * 3 + 2 and all(g is not None for g in calls)
