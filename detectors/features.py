@@ -353,6 +353,21 @@ def _half_width_ij(d_cest, i, j, ang, sweep, n_beams, tan_tab):
 
 
 @numba.njit(cache=True, inline="always")
+def _omegas(d_cest, bmin, f, bl, pb, nb, unbounded, ang, sweep, n_beams, tan_tab):
+    """Eqs. 4-5: ``omega_min`` (the segment's own extent, nearest beam ``bmin`` to its first ``f`` and last
+    ``bl`` beams) and ``omega_max`` (to the outside beams ``pb`` / ``nb``; inf when ``unbounded``), m."""
+    omega_min = _half_width_ij(d_cest, bmin, f, ang, sweep, n_beams, tan_tab) + _half_width_ij(
+        d_cest, bl, bmin, ang, sweep, n_beams, tan_tab
+    )
+    omega_max = math.inf
+    if not unbounded:
+        omega_max = _half_width_ij(d_cest, bmin, pb, ang, sweep, n_beams, tan_tab) + _half_width_ij(
+            d_cest, nb, bmin, ang, sweep, n_beams, tan_tab
+        )
+    return omega_min, omega_max
+
+
+@numba.njit(cache=True, inline="always")
 def _context_value(d_flat, row, idx, n_beams, circular, d_edge, d_max):
     """A context feature: beam ``idx``'s range minus the segment's edge range ``d_edge``, clipped to
     +-_CTX_CLIP; _CTX_CLIP where the beam is outside a partial sweep or has no return."""
@@ -501,14 +516,9 @@ def _features_kernel(
         unb_f = pb < 0 or (occlusion_unbounded and prev_nearer[i])
         unb_l = nb < 0 or (occlusion_unbounded and next_nearer[i])
         bl = _wrap_index(last, n_beams)
-        omega_min = _half_width_ij(d_cest, bmin, f, ang, sweep, n_beams, tan_tab) + _half_width_ij(
-            d_cest, bl, bmin, ang, sweep, n_beams, tan_tab
+        omega_min, omega_max = _omegas(
+            d_cest, bmin, f, bl, pb, nb, unb_f or unb_l, ang, sweep, n_beams, tan_tab
         )
-        omega_max = math.inf
-        if not (unb_f or unb_l):
-            omega_max = _half_width_ij(d_cest, bmin, pb, ang, sweep, n_beams, tan_tab) + _half_width_ij(
-                d_cest, nb, bmin, ang, sweep, n_beams, tan_tab
-            )
         chord = math.hypot(px[n - 1] - px[0], py[n - 1] - py[0])
         # known-radius circle fit (eqs. 6-7): Gauss-Newton from the eq. 7 centre
         grow = 1.0 + r / d_min
@@ -911,14 +921,9 @@ def _cascade_kernel(
         nb = next_beam[i]
         unb_f = pb < 0 or (occlusion_unbounded and prev_nearer[i])
         unb_l = nb < 0 or (occlusion_unbounded and next_nearer[i])
-        omega_min = _half_width_ij(d_cest, bmin, f, ang, sweep, n_beams, tan_tab) + _half_width_ij(
-            d_cest, bl, bmin, ang, sweep, n_beams, tan_tab
+        omega_min, omega_max = _omegas(
+            d_cest, bmin, f, bl, pb, nb, unb_f or unb_l, ang, sweep, n_beams, tan_tab
         )
-        omega_max = math.inf
-        if not (unb_f or unb_l):
-            omega_max = _half_width_ij(d_cest, bmin, pb, ang, sweep, n_beams, tan_tab) + _half_width_ij(
-                d_cest, nb, bmin, ang, sweep, n_beams, tan_tab
-            )
         chord = math.hypot(d_last * cos_a[bl] - d_first * cos_a[f], d_last * sin_a[bl] - d_first * sin_a[f])
         x[o, 0] = np.float32(math.log1p(float(n)))
         x[o, 1] = np.float32(math.log(dmin))
