@@ -33,20 +33,7 @@ class StagedKinTracker(KinTracker):
     def update_batch(
         self, obs, xy, scores, odom_delta, dt: float, points=None, owner=None, noise=None, accepted=None
     ) -> None:
-        """Advance every observer by one frame.
-
-        Args:
-            obs: (k,) observer of each candidate, in [0, n_observers).
-            xy: (k, 2) candidate centres in their observer's current robot frame (x forward, y left), m.
-            scores: (k,) candidate scores in [0, 1] (higher = more kin-like).
-            odom_delta: (n_observers, 3) each observer's odometry increment since the previous frame.
-            dt: s since the previous frame (> 0).
-            points: optional (P, 2) scan points of the candidates, their observer's robot frame, m ...
-            owner: ... (P,) and the candidate each point belongs to.
-            noise: optional (n_observers,) relative range noise of each observer's scan.
-            accepted: optional (k,) bool: the detector accepted the candidate at its operating point
-                (then the score cue uses ``accept_llr`` / ``reject_llr``, see :class:`TrackerParams`).
-        """
+        """:meth:`KinTracker.update_batch` (same arguments), one overridable step after another."""
         pr, N = self.params, self.n_observers
         obs = np.asarray(obs).reshape(-1)
         xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
