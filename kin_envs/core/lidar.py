@@ -848,13 +848,28 @@ def _segment_beams(ax, ay, ex, ey, p, near, i, cnt, n_beams, bux, buy, best_d, b
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _scan_kernel_grid(
+def _scan_kernel_grid(ox, oy, heading, tabs, range_min, range_max, circles, circle_skip, segments, prim_kind,
+                      prim_index, gf, gi, fs, js, out_ranges, out_true, out_kind, out_index):  # fmt: skip
+    """The grid's scan of every origin (see "broad phase" above). ``gf`` / ``gi``: the grid packed by
+    :func:`grid_args`; ``fs`` / ``js``: :func:`grid_scratch`, reused across calls (allocating ~30 arrays
+    per call cost more than a one-robot scan's casting)."""
+    k, g, s = gi[2], gi[3], gi[4]
+    o = gi[5:15]
+    _grid_cast(ox, oy, heading, tabs, range_min, range_max, circles, circle_skip, segments, prim_kind, prim_index,
+               gf[0], gf[1], gf[2], gi[0], gi[1], gi[o[0]:o[1]], gf[5 : 5 + 3 * k].reshape((3, k)), gi[o[1]:o[2]],
+               gf[3], gi[o[2]:o[3]], gf[5 + 3 * k : 5 + 3 * (k + g)].reshape((3, g)), gi[o[3]:o[4]],
+               gf[5 + 3 * (k + g) : 5 + 3 * (k + g) + 4 * s].reshape((s, 4)), gi[o[4]:o[5]], gf[4],
+               gi[o[5]:o[6]], gi[o[6]:o[7]], gi[o[7]:o[8]], gi[o[8]:o[9]], fs, js, out_ranges, out_true,
+               out_kind, out_index)  # fmt: skip
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _grid_cast(
     ox, oy, heading, tabs, range_min, range_max, circles, circle_skip, segments, prim_kind, prim_index,
     gx, gy, cs, nx, ny, c_start, c_cols, c_ids, c_pad, g_start, g_cols, g_off, g_seg, g_sid, g_pad, s_start,
     s_items, dyn_c, dyn_s, fs, js, out_ranges, out_true, out_kind, out_index,
 ):  # fmt: skip
-    """The grid's scan of every origin (see "broad phase" above). ``fs`` / ``js``: :func:`grid_scratch`,
-    reused across calls (allocating ~30 arrays per call cost more than a one-robot scan's casting)."""
+    """:func:`_scan_kernel_grid` with the grid unpacked."""
     n_beams = tabs.shape[1]
     cos_tab = tabs[0]
     sin_tab = tabs[1]
@@ -1177,13 +1192,19 @@ def cast_scan(
     return ranges, true, kind, index
 
 
-def grid_args(grid: LidarGrid) -> tuple:
-    """The grid kernel's arguments for ``grid`` (after the primitive owner tables)."""
+def grid_args(grid: LidarGrid) -> tuple[np.ndarray, np.ndarray]:
+    """The grid kernel's arguments for ``grid`` (after the primitive owner tables): its arrays packed in
+    one float64 and one int64 array (a compiled call costs ~70 ns per array argument: 19 arguments
+    were ~1.5 us of a one-robot scan)."""
     (gx, gy), (nx, ny) = grid.origin, grid.shape
-    return (gx, gy, grid.cell_size, nx, ny, grid.circle_start, grid.circles, grid.circle_ids, grid.circle_pad,
-            grid.group_start, grid.groups, grid.group_offsets, grid.group_segments, grid.group_segment_ids,
-            grid.group_pad, grid.segment_start, grid.segment_items, grid.dynamic_circles,
-            grid.dynamic_segments)  # fmt: skip
+    ints = [grid.circle_start, grid.circle_ids, grid.group_start, grid.group_offsets, grid.group_segment_ids,
+            grid.segment_start, grid.segment_items, grid.dynamic_circles, grid.dynamic_segments]  # fmt: skip
+    ends = np.cumsum([15] + [len(a) for a in ints])  # the header is 15 long
+    head = [nx, ny, grid.circles.shape[1], grid.groups.shape[1], len(grid.group_segments), *ends]
+    gi = np.concatenate([np.asarray(head, np.int64), *ints]).astype(np.int64)
+    gf = np.concatenate([[gx, gy, grid.cell_size, grid.circle_pad, grid.group_pad], grid.circles.ravel(),
+                         grid.groups.ravel(), grid.group_segments.ravel()]).astype(np.float64)  # fmt: skip
+    return gf, gi
 
 
 def grid_scratch(grid: LidarGrid, n_beams: int) -> tuple[np.ndarray, np.ndarray]:
@@ -1215,6 +1236,48 @@ def cast_prepared(ox, oy, heading, skip, static: tuple, grid: tuple | None):
     else:
         _scan_kernel_grid(*args, *grid, *out)
     return out
+
+
+@numba.njit(cache=True, nogil=True)
+def wrap_headings(rows):
+    """Wrap column 2 of ``rows`` (``(n, 3)`` x, y, angle) to (-pi, pi] in place, as
+    ``arctan2(sin, cos)``: the one wrap of ``World.poses``, ``World.scan`` and ``WorldBatch.poses``."""
+    for k in range(rows.shape[0]):
+        a = rows[k, 2]
+        rows[k, 2] = math.atan2(math.sin(a), math.cos(a))
+
+
+@numba.njit(cache=True, nogil=True)
+def _world_scan(rows, idx, n_moved, tabs, range_min, range_max, circles, segments, prim_kind, prim_index, gf, gi,
+                fs, js):  # fmt: skip
+    """``World.scan`` after the pose read, in one compiled call (the Python around a one-robot scan's
+    kernel cost as much as the kernel): wrap the headings of ``rows`` (every robot's raw x, y, angle) in
+    place, move the first ``n_moved`` circles (the housings) to them, cast robots ``idx`` (brute force if
+    ``gi`` is empty, else the grid packed in ``gf`` / ``gi`` with the work arrays ``fs`` / ``js``) and
+    return their poses and the four outputs of :func:`cast_scan` (float32)."""
+    wrap_headings(rows)
+    for k in range(n_moved):
+        circles[k, 0] = rows[k, 0]
+        circles[k, 1] = rows[k, 1]
+    n = idx.shape[0]
+    poses = np.empty((n, 3))
+    o = np.empty((3, n))
+    for m in range(n):
+        for c in range(3):
+            poses[m, c] = rows[idx[m], c]
+            o[c, m] = rows[idx[m], c]
+    nb = tabs.shape[1]
+    ranges = np.empty((n, nb), np.float32)
+    true = np.empty((n, nb), np.float32)
+    kind = np.empty((n, nb), np.int8)
+    index = np.empty((n, nb), np.int32)
+    if gi.shape[0] == 0:
+        _scan_kernel(o[0], o[1], o[2], tabs, range_min, range_max, circles, idx, segments, prim_kind, prim_index,
+                     ranges, true, kind, index)  # fmt: skip
+    else:
+        _scan_kernel_grid(o[0], o[1], o[2], tabs, range_min, range_max, circles, idx, segments, prim_kind,
+                          prim_index, gf, gi, fs, js, ranges, true, kind, index)  # fmt: skip
+    return poses, ranges, true, kind, index
 
 
 def scan_shapes(
