@@ -20,7 +20,15 @@ import pymunk.batch as pmbatch
 from pymunk._chipmunk import lib as _cp
 
 from kin_envs.core.interrupts import atomic
-from kin_envs.core.lidar import _cast_one, _columns, _work, _write_row, beam_tables, cast_prepared, wrap_headings
+from kin_envs.core.lidar import (
+    _cast_one,
+    _columns,
+    _work,
+    _write_row,
+    beam_tables,
+    cast_prepared,
+    wrap_headings,
+)
 from kin_envs.core.odometry import Odometry
 from kin_envs.core.world import _COMMAND_CAP, Contact, Scan, World, _buffers
 

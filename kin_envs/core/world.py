@@ -28,6 +28,7 @@ from kin_envs.core._validate import FieldTypeError, check_number, dataclass_from
 from kin_envs.core.interrupts import atomic
 from kin_envs.core.lidar import (
     HitKind,
+    _world_scan,
     beam_tables,
     build_lidar_grid,
     default_cell_size,
@@ -36,7 +37,6 @@ from kin_envs.core.lidar import (
     polygon_edges,
     wrap_headings,
 )
-from kin_envs.core.lidar import _world_scan
 from kin_envs.core.odometry import Odometry, OdometrySpec
 from kin_envs.core.scenes import Robot, Scene
 
