@@ -157,7 +157,8 @@ def _fast_atan2(y, x):
 def _half_angle(z):
     """An upper bound of ``atan(z)``, ``z >= 0``, without a division (a beam interval only needs a bound):
     the least of atan's tangents at 0, 0.5, 1 and 2 and pi/2 (atan is concave for z >= 0, so its
-    tangents lie above it); at most ~3 % above, exact for the small z of most circles' ``z``."""
+    tangents lie above it); < 4 % above for z <= 2, at most 17 % (z ~ 4: a circle nearly touching the
+    origin), and within 1e-4 relative for the small z of far circles."""
     return min(min(z, 0.4636476090008061 + 0.8 * (z - 0.5)),
                min(min(0.7853981633974483 + 0.5 * (z - 1.0), 1.1071487177940904 + 0.2 * (z - 2.0)),
                    0.5 * math.pi))  # fmt: skip
