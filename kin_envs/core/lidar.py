@@ -859,21 +859,26 @@ def _segment_beams(ax, ay, ex, ey, p, near, i, cnt, n_beams, bux, buy, best_d, b
             best_p[u] = p
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _unpack_grid(gf, gi):
+    """The grid arguments of :func:`_grid_cast` (``gx`` to ``dyn_s``) from :func:`grid_args`' two arrays."""
+    k, g, s = gi[2], gi[3], gi[4]
+    o = gi[5:15]
+    f1 = 5 + 3 * k  # float layout: 5 scalars, circle columns (3, k), group circles (3, g), segments (s, 4)
+    f2 = f1 + 3 * g
+    return (gf[0], gf[1], gf[2], gi[0], gi[1], gi[o[0]:o[1]], gf[5:f1].reshape((3, k)), gi[o[1]:o[2]], gf[3],
+            gi[o[2]:o[3]], gf[f1:f2].reshape((3, g)), gi[o[3]:o[4]], gf[f2 : f2 + 4 * s].reshape((s, 4)),
+            gi[o[4]:o[5]], gf[4], gi[o[5]:o[6]], gi[o[6]:o[7]], gi[o[7]:o[8]], gi[o[8]:o[9]])  # fmt: skip
+
+
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _scan_kernel_grid(ox, oy, heading, tabs, range_min, range_max, circles, circle_skip, segments, prim_kind,
                       prim_index, gf, gi, fs, js, out_ranges, out_true, out_kind, out_index):  # fmt: skip
     """The grid's scan of every origin (see "broad phase" above). ``gf`` / ``gi``: the grid packed by
     :func:`grid_args`; ``fs`` / ``js``: :func:`grid_scratch`, reused across calls (allocating ~30 arrays
     per call cost more than a one-robot scan's casting)."""
-    k, g, s = gi[2], gi[3], gi[4]
-    o = gi[5:15]
-    f1 = 5 + 3 * k  # float layout: 5 scalars, circle columns (3, k), group circles (3, g), segments (s, 4)
-    f2 = f1 + 3 * g
     _grid_cast(ox, oy, heading, tabs, range_min, range_max, circles, circle_skip, segments, prim_kind,
-               prim_index, gf[0], gf[1], gf[2], gi[0], gi[1], gi[o[0]:o[1]], gf[5:f1].reshape((3, k)),
-               gi[o[1]:o[2]], gf[3], gi[o[2]:o[3]], gf[f1:f2].reshape((3, g)), gi[o[3]:o[4]],
-               gf[f2 : f2 + 4 * s].reshape((s, 4)), gi[o[4]:o[5]], gf[4], gi[o[5]:o[6]], gi[o[6]:o[7]],
-               gi[o[7]:o[8]], gi[o[8]:o[9]], fs, js, out_ranges, out_true, out_kind, out_index)  # fmt: skip
+               prim_index, *_unpack_grid(gf, gi), fs, js, out_ranges, out_true, out_kind, out_index)
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -1260,14 +1265,11 @@ def wrap_headings(rows):
         rows[k, 2] = math.atan2(math.sin(a), math.cos(a))
 
 
-@numba.njit(cache=True, nogil=True)
-def _world_scan(rows, idx, n_moved, tabs, range_min, range_max, circles, segments, prim_kind, prim_index,
-                gf, gi, fs, js):  # fmt: skip
-    """``World.scan`` after the pose read, in one compiled call (the Python around a one-robot scan's
-    kernel cost as much as the kernel): wrap the headings of ``rows`` (every robot's raw x, y, angle) in
-    place, move the first ``n_moved`` circles (the housings) to them, cast robots ``idx`` (brute force if
-    ``gi`` is empty, else the grid packed in ``gf`` / ``gi`` with the work arrays ``fs`` / ``js``) and
-    return their poses and the four outputs of :func:`cast_scan` (float32)."""
+@numba.njit(cache=True, nogil=True, inline="always")
+def _world_rows(rows, idx, n_moved, circles, nb):
+    """:func:`_world_scan_brute`'s and :func:`_world_scan_grid`'s common part: wrap the headings of
+    ``rows`` in place, move the first ``n_moved`` circles (the housings) to them, and return the poses of
+    robots ``idx``, their x, y, heading rows and the four output arrays."""
     wrap_headings(rows)
     for k in range(n_moved):
         circles[k, 0] = rows[k, 0]
@@ -1279,17 +1281,31 @@ def _world_scan(rows, idx, n_moved, tabs, range_min, range_max, circles, segment
         for c in range(3):
             poses[m, c] = rows[idx[m], c]
             o[c, m] = rows[idx[m], c]
-    nb = tabs.shape[1]
-    ranges = np.empty((n, nb), np.float32)
-    true = np.empty((n, nb), np.float32)
-    kind = np.empty((n, nb), np.int8)
-    index = np.empty((n, nb), np.int32)
-    if gi.shape[0] == 0:
-        _scan_kernel(o[0], o[1], o[2], tabs, range_min, range_max, circles, idx, segments, prim_kind,
-                     prim_index, ranges, true, kind, index)  # fmt: skip
-    else:
-        _scan_kernel_grid(o[0], o[1], o[2], tabs, range_min, range_max, circles, idx, segments, prim_kind,
-                          prim_index, gf, gi, fs, js, ranges, true, kind, index)  # fmt: skip
+    return (poses, o, np.empty((n, nb), np.float32), np.empty((n, nb), np.float32),
+            np.empty((n, nb), np.int8), np.empty((n, nb), np.int32))  # fmt: skip
+
+
+@numba.njit(cache=True, nogil=True)
+def _world_scan_brute(rows, idx, n_moved, tabs, range_min, range_max, circles, segments, prim_kind,
+                      prim_index):  # fmt: skip
+    """``World.scan`` after the pose read, in one compiled call (the Python around a one-robot scan's
+    kernel cost as much as the kernel): ``rows`` holds every robot's raw x, y, angle; robots ``idx`` are
+    cast by the brute-force kernel. Returns their poses and the four outputs of :func:`cast_scan`
+    (float32). (Two entries, not one with a flag: a fresh install compiles only the kernel it uses.)"""
+    poses, o, ranges, true, kind, index = _world_rows(rows, idx, n_moved, circles, tabs.shape[1])
+    _scan_kernel(o[0], o[1], o[2], tabs, range_min, range_max, circles, idx, segments, prim_kind, prim_index,
+                 ranges, true, kind, index)  # fmt: skip
+    return poses, ranges, true, kind, index
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _world_scan_grid(rows, idx, n_moved, tabs, range_min, range_max, circles, segments, prim_kind, prim_index,
+                     gf, gi, fs, js):  # fmt: skip
+    """:func:`_world_scan_brute` through the grid packed in ``gf`` / ``gi`` with the work arrays ``fs`` /
+    ``js``."""
+    poses, o, ranges, true, kind, index = _world_rows(rows, idx, n_moved, circles, tabs.shape[1])
+    _grid_cast(o[0], o[1], o[2], tabs, range_min, range_max, circles, idx, segments, prim_kind, prim_index,
+               *_unpack_grid(gf, gi), fs, js, ranges, true, kind, index)  # fmt: skip
     return poses, ranges, true, kind, index
 
 

@@ -28,7 +28,8 @@ from kin_envs.core._validate import FieldTypeError, check_number, dataclass_from
 from kin_envs.core.interrupts import atomic
 from kin_envs.core.lidar import (
     HitKind,
-    _world_scan,
+    _world_scan_brute,
+    _world_scan_grid,
     beam_tables,
     build_lidar_grid,
     default_cell_size,
@@ -450,10 +451,9 @@ class World:
                               self._circles, self._segments, self._prim_kind, self._prim_index)  # fmt: skip
         self._lidar_grid_args = None if self._lidar_grid is None else (
             grid_args(self._lidar_grid) + grid_scratch(self._lidar_grid, spec.n_beams))
-        # World.scan's one compiled call (empty grid arrays: the brute-force kernel)
-        self._lidar_call = self._lidar_static + (
-            self._lidar_grid_args or (np.zeros(0), np.zeros(0, np.int64), np.zeros((0, 0)),
-                                      np.zeros((0, 0), np.int64)))  # fmt: skip
+        # World.scan's one compiled call
+        self._lidar_call = (_world_scan_brute, self._lidar_static) if self._lidar_grid is None else (
+            _world_scan_grid, self._lidar_static + self._lidar_grid_args)  # fmt: skip
 
     def _update_lidar_geometry(self, poses: np.ndarray) -> None:
         self._circles[: self.n_robots, :2] = poses[:, :2]
@@ -711,9 +711,9 @@ class World:
         if self._movable:
             self._update_movable()
         # one compiled call: heading wrap, housings moved, the kernel and its output arrays
-        poses, ranges, true_ranges, hit_kind, hit_index = _world_scan(
-            self._robot_rows(), idx, self.n_robots, *self._lidar_call
-        )
+        kernel, args = self._lidar_call
+        poses, ranges, true_ranges, hit_kind, hit_index = kernel(self._robot_rows(), idx, self.n_robots,
+                                                                 *args)  # fmt: skip
         if noise and (spec.noise_sigma > 0 or spec.dropout_prob > 0):
             hit = np.isfinite(true_ranges)
             d = true_ranges[hit].astype(np.float64)
