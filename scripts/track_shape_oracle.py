@@ -54,8 +54,10 @@ def tables(samples: list[dict], frames=(10, 20)) -> list[str]:
 def main(argv: list[str] | None = None) -> dict:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--detector", default="learned", help="detector feeding the tracker (geometric, learned)")
-    p.add_argument("--swarm-episodes", type=int, default=4, help="training swarm episodes")
-    p.add_argument("--lookalike-episodes", type=int, default=24, help="training lookalike episodes")
+    p.add_argument("--swarm-episodes", type=int, default=4,
+                   help="swarm episodes (with --benchmark-seeds: the reduced benchmark's 3)")
+    p.add_argument("--lookalike-episodes", type=int, default=24,
+                   help="lookalike episodes (with --benchmark-seeds: the reduced benchmark's 12)")
     p.add_argument("--first-seed", type=int, default=1000, help="first training seed (not a reserved one)")
     p.add_argument("--noise", type=float, default=0.01, help="relative lidar range noise (0.01 = 1 %%)")
     p.add_argument("--frames", type=int, nargs="+", default=[10, 20],
@@ -63,6 +65,13 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--still", type=float, default=0.02, help="a kin is still if it moved less than this, m")
     p.add_argument("--true-poses", action="store_true",
                    help="ego-motion from the observer's true poses (no odometry drift) instead of odometry")
+    p.add_argument("--per-frame", action="store_true",
+                   help="fit each hypothesis' centre per frame (immune to odometry drift; shape kept)")
+    p.add_argument("--range-only", action="store_true",
+                   help="score only the range residuals, not the beams' silhouette (which beams hit)")
+    p.add_argument("--benchmark-seeds", action="store_true",
+                   help="run the benchmark's reduced episodes (reserved seeds) instead: report the bound "
+                        "once, never choose a cue on them")  # fmt: skip
     p.add_argument("--out", type=Path, default=Path("outputs/track_shape_oracle"), help="output directory")
     p.add_argument("--torch-threads", type=int, default=1, help="torch threads (learned detector)")
     add_logging_args(p)
@@ -93,12 +102,20 @@ def main(argv: list[str] | None = None) -> dict:
     samples = []
     for split, n in (("swarm", args.swarm_episodes), ("lookalike", args.lookalike_episodes)):
         if n:
-            rec = S.record_sequences(det, S.training_split(split, args.first_seed), n, args.noise)
+            if args.benchmark_seeds:  # the reduced benchmark's episodes
+                spec, n = S.SEQUENCE_SPLITS[split], None
+            else:
+                spec = S.training_split(split, args.first_seed)
+            rec = S.record_sequences(det, spec, n, args.noise)
             samples += oracle_samples(rec, frames=args.frames, still=args.still, true_poses=args.true_poses,
-                                      progress=True)  # fmt: skip
+                                      per_frame=args.per_frame, angle_sigma=0.0 if args.range_only else 5e-4,
+                                      progress=True, benchmark_seeds=args.benchmark_seeds)  # fmt: skip
     ego = "true poses (no drift)" if args.true_poses else "odometry"
+    ego += ", one centre per frame" if args.per_frame else ", one centre"
+    ego += ", range residuals only" if args.range_only else ", range residuals + beam silhouettes"
+    seeds = "benchmark seeds (reduced)" if args.benchmark_seeds else f"training seeds from {args.first_seed}"
     lines = [f"# Shape oracle: still kin vs still look-alikes ({args.detector}; noise "
-             f"{100 * args.noise:g} %; ego-motion from {ego}; training seeds from {args.first_seed})", "",
+             f"{100 * args.noise:g} %; ego-motion from {ego}; {seeds})", "",
              "Objects in view >= 2 beams for the given frames, at 0.3-2 m, still (kin moved < "
              f"{args.still:g} m); same-radius cylinders left out.", "",
              *tables(samples, args.frames)]  # fmt: skip
