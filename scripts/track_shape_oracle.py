@@ -11,9 +11,10 @@ look-alikes) bounds what any per-track shape cue can do; the script prints it ne
 classifier's kin probability and the mean detector score on the very same objects.
 
 Writes ``oracle.md`` (tables), ``samples.json`` (one row per object and frame count) and ``run.json``
-to ``--out``. ~2-4 min on 2 shared cores for the default 4 swarm + 24 lookalike episodes::
+to ``--out``. Analysis, not a hot path: on 2 shared cores at load ~6, the default 4 swarm + 24 lookalike
+episodes take ~20 min (one centre), ``--per-frame`` ~30 min; ``--range-only`` is ~2x faster::
 
-    python scripts/track_shape_oracle.py
+    python scripts/track_shape_oracle.py --per-frame
 """
 
 from __future__ import annotations
