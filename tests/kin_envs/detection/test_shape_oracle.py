@@ -43,7 +43,7 @@ def _returns(shape, dist, noise, rng, frames=8):
 @pytest.mark.parametrize("per_frame", [False, True])
 def test_circle_and_hexagon_told_apart_and_the_bad_input_refused(per_frame):
     rng = np.random.default_rng(0)
-    family = lookalike_family(step_deg=10.0)
+    family = lookalike_family(step_deg=20.0)
     llr = {}
     for shape in ("circle", "hexagon"):
         o, u, r, nb, f = _returns(shape, 0.5, 0.002, rng)
