@@ -72,6 +72,9 @@ _NOISE_SCALE = 0.385 * math.sqrt(20.0)  # ... and its value for unit noise: 0.3-
 _CURV_CLIP = 60.0  # 1/m: curvature of circles below 1.7 cm radius; a kin is 28.6
 _GN_MAX_STEP = 0.05  # m: cap on one Gauss-Newton step (keeps 2-point fits from flying off)
 _TWO_PI = 2.0 * math.pi
+#: ``math.log1p(float(n))`` for segment lengths ``n < 64`` (libm's log1p, the function numba calls: the
+#: same bits, ``tests/detectors/test_features.py``); the kernels look it up instead of a log per segment
+_LOG1P_N = np.array([math.log1p(float(n)) for n in range(64)])
 
 
 @dataclass(frozen=True)
@@ -299,6 +302,12 @@ def observer_to_local(frames: np.ndarray, xy: np.ndarray) -> np.ndarray:
 @numba.njit(cache=True, inline="always")
 def _log_err(e):
     return math.log(min(e, _ERR_CLIP) + _ERR_FLOOR)
+
+
+@numba.njit(cache=True, inline="always")
+def _log1p_n(n):
+    # math.log1p(float(n)) for a segment length n >= 0, from _LOG1P_N when it is there
+    return _LOG1P_N[n] if n < _LOG1P_N.shape[0] else math.log1p(float(n))
 
 
 @numba.njit(cache=True, inline="always")
@@ -603,7 +612,7 @@ def _features_kernel(
         line_rms = math.sqrt(max(lam_min, 0.0) / n)
         # the geometric part, in _GEOMETRIC_NAMES order
         g = (
-            math.log1p(float(n)),
+            _log1p_n(n),
             float(min(n, 40)),
             math.log(d_min),
             sd / n,
@@ -939,8 +948,12 @@ def _cascade_kernel(
         omega_min, omega_max = _omegas(
             d_cest, bmin, f, bl, pb, nb, unb_f or unb_l, ang, sweep, n_beams, tan_tab
         )
-        chord = math.hypot(d_last * cos_a[bl] - d_first * cos_a[f], d_last * sin_a[bl] - d_first * sin_a[f])
-        x[o, 0] = np.float32(math.log1p(float(n)))
+        # a one-beam segment (~60 % of a noisy swarm scan's) has chord hypot(0, 0) = 0.0
+        chord = 0.0
+        if n > 1:
+            dx = d_last * cos_a[bl] - d_first * cos_a[f]
+            chord = math.hypot(dx, d_last * sin_a[bl] - d_first * sin_a[f])
+        x[o, 0] = np.float32(_log1p_n(n))
         x[o, 1] = np.float32(math.log(dmin))
         x[o, 2] = np.float32(min(omega_min, _LEN_CLIP))
         x[o, 3] = np.float32(min(omega_max, _LEN_CLIP))

@@ -169,6 +169,19 @@ def test_quantile_selection_is_numbas_np_quantile():
             assert np.array_equal(np.sort(b), np.sort(a))  # only reordered
 
 
+def test_log1p_table_is_numbas_log1p():
+    # the kernels look log1p(n) up in _LOG1P_N: it must be the value numba's math.log1p gives
+    import numba
+
+    from detectors.features import _LOG1P_N, _log1p_n
+
+    ref = numba.njit(lambda n: math.log1p(float(n)))
+    look = numba.njit(lambda n: _log1p_n(n))
+    for n in range(200):
+        assert look(n) == ref(n), n
+    assert _LOG1P_N.shape[0] < 200  # the lengths past the table are computed
+
+
 def _scan_noise_reference(d, d_th, d_max, circular):
     # the kernel's definition beam by beam (plain Python; numpy's quantile on the kept values is
     # compared bitwise to numba's in test_quantile_selection_is_numbas_np_quantile)
