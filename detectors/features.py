@@ -563,10 +563,13 @@ def _features_kernel(
                 det = m11 * m22 - a12 * a12
                 stx = (m22 * g1 - a12 * g2) / det
                 sty = (m11 * g2 - a12 * g1) / det
-                norm = math.hypot(stx, sty)
-                if norm > _GN_MAX_STEP:
-                    stx *= _GN_MAX_STEP / norm
-                    sty *= _GN_MAX_STEP / norm
+                # the step's length only matters past _GN_MAX_STEP: a step with |x| + |y| (>= its
+                # length, here with a 2x margin over rounding) below half that needs no hypot
+                if abs(stx) + abs(sty) > 0.5 * _GN_MAX_STEP:
+                    norm = math.hypot(stx, sty)
+                    if norm > _GN_MAX_STEP:
+                        stx *= _GN_MAX_STEP / norm
+                        sty *= _GN_MAX_STEP / norm
                 cx += stx
                 cy += sty
         F_sum = 0.0
