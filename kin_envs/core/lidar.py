@@ -153,6 +153,17 @@ def _fast_atan2(y, x):
     return -a if y < 0.0 else a
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _half_angle(z):
+    """An upper bound of ``atan(z)``, ``z >= 0``, without a division (a beam interval only needs a bound):
+    the least of atan's tangents at 0, 0.5, 1 and 2 and pi/2 (atan is concave for z >= 0, so its
+    tangents lie above it); < 4 % above for z <= 2, at most 17 % (z ~ 4: a circle nearly touching the
+    origin), and within 1e-4 relative for the small z of far circles."""
+    return min(min(z, 0.4636476090008061 + 0.8 * (z - 0.5)),
+               min(min(0.7853981633974483 + 0.5 * (z - 1.0), 1.1071487177940904 + 0.2 * (z - 2.0)),
+                   0.5 * math.pi))  # fmt: skip
+
+
 def _ccw(v: np.ndarray) -> np.ndarray:
     area2 = np.dot(v[:, 0], np.roll(v[:, 1], -1)) - np.dot(v[:, 1], np.roll(v[:, 0], -1))
     return v if area2 > 0 else v[::-1]
@@ -265,15 +276,13 @@ def _cast_prims(x0, y0, h, skip, reach, cx, cy, cr, cid, n_ci, sx1, sy1, sx2, sy
         dy = cy[q] - y0
         r = cr[q]
         d2 = dx * dx + dy * dy
-        d = math.sqrt(d2)
         cc = d2 - r * r
         # in reach (with a margin), not the robot's own housing, the origin outside the circle
-        ok = (d2 <= (rc + r) * (rc + r)) & (cid[q] != skip) & (d - r <= reach) & (d > r) & (cc > 0.0)
-        # half-angle subtended: asin(r/d) = atan(z), z = r / sqrt(d^2 - r^2); atan(z) <= z, so a small
-        # circle (most of them) takes z itself: a few more candidate beams at most
+        ok = (d2 <= (rc + r) * (rc + r)) & (cid[q] != skip) & (cc > 0.0)
+        # half-angle subtended: asin(r/d) = atan(z), z = r / sqrt(d^2 - r^2), bounded without a
+        # division (the passes are limited by their divisions and square roots)
         sq = math.sqrt(max(cc, 1e-300))
-        z = r / sq
-        half = (z if z < 0.05 else _fast_atan2(r, sq)) + _EPS
+        half = _half_angle(r / sq) + _EPS
         phi = _fast_atan2(dy, dx) - hw  # bearing of the centre relative to the heading
         # beam i points at -i*res: beams within [phi-half, phi+half] have i in
         # [-(phi+half)/res, -(phi-half)/res]
@@ -281,7 +290,8 @@ def _cast_prims(x0, y0, h, skip, reach, cx, cy, cr, cid, n_ci, sx1, sy1, sx2, sy
         k1 = np.floor(-(phi - half) * inv_res)
         f_beam[q] = _first_beam(k0, n_beams)
         f_count[q] = k1 - k0 + 1.0 if ok else 0.0
-        f_near[q] = d - r - _TOL  # no hit on this circle is nearer
+        # no hit on this circle is nearer: d - r >= sqrt(d^2 - r^2) - r (one square root fewer)
+        f_near[q] = sq - r - _TOL
     m = 0
     for q in range(n_ci):
         keep[m] = q
@@ -757,18 +767,16 @@ def _circle_pass(x0, y0, hw, skip, reach, n_beams, inv_res, xs_, ys_, rs_, ids_,
         dy = ys[q] - y0
         r = rs[q]
         d2 = dx * dx + dy * dy
-        d = math.sqrt(d2)
         cc = d2 - r * r
-        ok = (d2 <= (rc + r) * (rc + r)) & (ids[q] != skip) & (d - r <= reach) & (d > r) & (cc > 0.0)
+        ok = (d2 <= (rc + r) * (rc + r)) & (ids[q] != skip) & (cc > 0.0)
         sq = math.sqrt(max(cc, 1e-300))
-        z = r / sq
-        half = (z if z < 0.05 else _fast_atan2(r, sq)) + _EPS
+        half = _half_angle(r / sq) + _EPS
         phi = _fast_atan2(dy, dx) - hw
         k0 = np.ceil(-(phi + half) * inv_res)
         k1 = np.floor(-(phi - half) * inv_res)
         fb[q] = _first_beam(k0, n_beams)
         fc[q] = k1 - k0 + 1.0 if ok else 0.0
-        fn[q] = d - r - _TOL
+        fn[q] = sq - r - _TOL
     k = 0
     for q in range(b - a):
         kx[k] = xs[q]
@@ -799,12 +807,10 @@ def _group_pass(x0, y0, hw, reach, n_beams, inv_res, xs_, ys_, rs_, a, b, m, kg_
         dy = ys[q] - y0
         r = rs[q]
         d2 = dx * dx + dy * dy
-        d = math.sqrt(d2)
         cc = d2 - r * r
-        ok = (d2 <= (rc + r) * (rc + r)) & (d - r <= reach)
+        ok = d2 <= (rc + r) * (rc + r)
         sq = math.sqrt(max(cc, 1e-300))
-        z = r / sq
-        half = (z if z < 0.05 else _fast_atan2(r, sq)) + _EPS
+        half = _half_angle(r / sq) + _EPS
         phi = _fast_atan2(dy, dx) - hw
         k0 = np.ceil(-(phi + half) * inv_res)
         k1 = np.floor(-(phi - half) * inv_res)
@@ -812,7 +818,7 @@ def _group_pass(x0, y0, hw, reach, n_beams, inv_res, xs_, ys_, rs_, a, b, m, kg_
         fb[q] = 0.0 if full else _first_beam(k0, n_beams)
         cnt = float(n_beams) if full else k1 - k0 + 1.0
         fc[q] = cnt if ok else 0.0
-        fn[q] = d - r - _TOL
+        fn[q] = sq - r - _TOL
     k = 0
     for q in range(b - a):
         kg[k] = a + q
@@ -825,7 +831,12 @@ def _group_pass(x0, y0, hw, reach, n_beams, inv_res, xs_, ys_, rs_, a, b, m, kg_
 
 @numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _segment_beams(ax, ay, ex, ey, p, near, i, cnt, n_beams, bux, buy, best_d, best_p):
-    """The exact ray-segment test of :func:`_cast_prims` on ``cnt`` beams after beam ``i``."""
+    """The exact ray-segment test of :func:`_cast_prims` on ``cnt`` beams after beam ``i`` of a front face.
+
+    A hit needs ``den < 0`` (a front face has ``tn < 0``, and ``t = tn / den > 0``), ``s = num / den`` in
+    [0, 1] and ``t < bd``: these are tested on the products first, with a margin far above their
+    rounding, and the divisions (the exact test, as :func:`_cast_prims`) run only for the few beams that
+    pass. (``near``: the caller's occlusion bound; ``t < bd`` covers it.)"""
     tn = ax * ey - ay * ex
     for _ in range(cnt):
         i += 1
@@ -833,28 +844,50 @@ def _segment_beams(ax, ay, ex, ey, p, near, i, cnt, n_beams, bux, buy, best_d, b
             i = 0
         u = np.uint64(i)
         bd = best_d[u]
-        if bd < near:
-            continue  # occluded
         ux = bux[u]
         uy = buy[u]
         den = ux * ey - uy * ex
-        if den == 0.0:
+        num = ax * uy - ay * ux
+        # (num <= -den * 1e-300: a quotient that underflows to -0.0 passes the exact test)
+        if not ((den < 0.0) & (num <= -den * 1e-300) & (num >= den * (1.0 + 1e-9))
+                & (tn >= bd * den * (1.0 + 1e-9))):  # fmt: skip
             continue
         t = tn / den
-        sp = (ax * uy - ay * ux) / den
+        sp = num / den
         if t > 0.0 and 0.0 <= sp <= 1.0 and (t < bd or (t == bd and p < best_p[u])):
             best_d[u] = t
             best_p[u] = p
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _unpack_grid(gf, gi):
+    """The grid arguments of :func:`_grid_cast` (``gx`` to ``dyn_s``) from :func:`grid_args`' two arrays."""
+    k, g, s = gi[2], gi[3], gi[4]
+    o = gi[5:15]
+    f1 = 5 + 3 * k  # float layout: 5 scalars, circle columns (3, k), group circles (3, g), segments (s, 4)
+    f2 = f1 + 3 * g
+    return (gf[0], gf[1], gf[2], gi[0], gi[1], gi[o[0]:o[1]], gf[5:f1].reshape((3, k)), gi[o[1]:o[2]], gf[3],
+            gi[o[2]:o[3]], gf[f1:f2].reshape((3, g)), gi[o[3]:o[4]], gf[f2 : f2 + 4 * s].reshape((s, 4)),
+            gi[o[4]:o[5]], gf[4], gi[o[5]:o[6]], gi[o[6]:o[7]], gi[o[7]:o[8]], gi[o[8]:o[9]])  # fmt: skip
+
+
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _scan_kernel_grid(
+def _scan_kernel_grid(ox, oy, heading, tabs, range_min, range_max, circles, circle_skip, segments, prim_kind,
+                      prim_index, gf, gi, fs, js, out_ranges, out_true, out_kind, out_index):  # fmt: skip
+    """The grid's scan of every origin (see "broad phase" above). ``gf`` / ``gi``: the grid packed by
+    :func:`grid_args`; ``fs`` / ``js``: :func:`grid_scratch`, reused across calls (allocating ~30 arrays
+    per call cost more than a one-robot scan's casting)."""
+    _grid_cast(ox, oy, heading, tabs, range_min, range_max, circles, circle_skip, segments, prim_kind,
+               prim_index, *_unpack_grid(gf, gi), fs, js, out_ranges, out_true, out_kind, out_index)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _grid_cast(
     ox, oy, heading, tabs, range_min, range_max, circles, circle_skip, segments, prim_kind, prim_index,
     gx, gy, cs, nx, ny, c_start, c_cols, c_ids, c_pad, g_start, g_cols, g_off, g_seg, g_sid, g_pad, s_start,
     s_items, dyn_c, dyn_s, fs, js, out_ranges, out_true, out_kind, out_index,
 ):  # fmt: skip
-    """The grid's scan of every origin (see "broad phase" above). ``fs`` / ``js``: :func:`grid_scratch`,
-    reused across calls (allocating ~30 arrays per call cost more than a one-robot scan's casting)."""
+    """:func:`_scan_kernel_grid` with the grid unpacked."""
     n_beams = tabs.shape[1]
     cos_tab = tabs[0]
     sin_tab = tabs[1]
@@ -1177,13 +1210,19 @@ def cast_scan(
     return ranges, true, kind, index
 
 
-def grid_args(grid: LidarGrid) -> tuple:
-    """The grid kernel's arguments for ``grid`` (after the primitive owner tables)."""
+def grid_args(grid: LidarGrid) -> tuple[np.ndarray, np.ndarray]:
+    """The grid kernel's arguments for ``grid`` (after the primitive owner tables): its arrays packed in
+    one float64 and one int64 array (a compiled call costs ~70 ns per array argument: 19 arguments
+    were ~1.5 us of a one-robot scan)."""
     (gx, gy), (nx, ny) = grid.origin, grid.shape
-    return (gx, gy, grid.cell_size, nx, ny, grid.circle_start, grid.circles, grid.circle_ids, grid.circle_pad,
-            grid.group_start, grid.groups, grid.group_offsets, grid.group_segments, grid.group_segment_ids,
-            grid.group_pad, grid.segment_start, grid.segment_items, grid.dynamic_circles,
-            grid.dynamic_segments)  # fmt: skip
+    ints = [grid.circle_start, grid.circle_ids, grid.group_start, grid.group_offsets, grid.group_segment_ids,
+            grid.segment_start, grid.segment_items, grid.dynamic_circles, grid.dynamic_segments]  # fmt: skip
+    ends = np.cumsum([15] + [len(a) for a in ints])  # the header is 15 long
+    head = [nx, ny, grid.circles.shape[1], grid.groups.shape[1], len(grid.group_segments), *ends]
+    gi = np.concatenate([np.asarray(head, np.int64), *ints]).astype(np.int64)
+    gf = np.concatenate([[gx, gy, grid.cell_size, grid.circle_pad, grid.group_pad], grid.circles.ravel(),
+                         grid.groups.ravel(), grid.group_segments.ravel()]).astype(np.float64)  # fmt: skip
+    return gf, gi
 
 
 def grid_scratch(grid: LidarGrid, n_beams: int) -> tuple[np.ndarray, np.ndarray]:
@@ -1215,6 +1254,59 @@ def cast_prepared(ox, oy, heading, skip, static: tuple, grid: tuple | None):
     else:
         _scan_kernel_grid(*args, *grid, *out)
     return out
+
+
+@numba.njit(cache=True, nogil=True)
+def wrap_headings(rows):
+    """Wrap column 2 of ``rows`` (``(n, 3)`` x, y, angle) to (-pi, pi] in place, as
+    ``arctan2(sin, cos)``: the one wrap of ``World.poses``, ``World.scan`` and ``WorldBatch.poses``."""
+    for k in range(rows.shape[0]):
+        a = rows[k, 2]
+        rows[k, 2] = math.atan2(math.sin(a), math.cos(a))
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _world_rows(rows, idx, n_moved, circles, nb):
+    """:func:`_world_scan_brute`'s and :func:`_world_scan_grid`'s common part: wrap the headings of
+    ``rows`` in place, move the first ``n_moved`` circles (the housings) to them, and return the poses of
+    robots ``idx``, their x, y, heading rows and the four output arrays."""
+    wrap_headings(rows)
+    for k in range(n_moved):
+        circles[k, 0] = rows[k, 0]
+        circles[k, 1] = rows[k, 1]
+    n = idx.shape[0]
+    poses = np.empty((n, 3))
+    o = np.empty((3, n))
+    for m in range(n):
+        for c in range(3):
+            poses[m, c] = rows[idx[m], c]
+            o[c, m] = rows[idx[m], c]
+    return (poses, o, np.empty((n, nb), np.float32), np.empty((n, nb), np.float32),
+            np.empty((n, nb), np.int8), np.empty((n, nb), np.int32))  # fmt: skip
+
+
+@numba.njit(cache=True, nogil=True)
+def _world_scan_brute(rows, idx, n_moved, tabs, range_min, range_max, circles, segments, prim_kind,
+                      prim_index):  # fmt: skip
+    """``World.scan`` after the pose read, in one compiled call (the Python around a one-robot scan's
+    kernel cost as much as the kernel): ``rows`` holds every robot's raw x, y, angle; robots ``idx`` are
+    cast by the brute-force kernel. Returns their poses and the four outputs of :func:`cast_scan`
+    (float32). (Two entries, not one with a flag: a fresh install compiles only the kernel it uses.)"""
+    poses, o, ranges, true, kind, index = _world_rows(rows, idx, n_moved, circles, tabs.shape[1])
+    _scan_kernel(o[0], o[1], o[2], tabs, range_min, range_max, circles, idx, segments, prim_kind, prim_index,
+                 ranges, true, kind, index)  # fmt: skip
+    return poses, ranges, true, kind, index
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _world_scan_grid(rows, idx, n_moved, tabs, range_min, range_max, circles, segments, prim_kind, prim_index,
+                     gf, gi, fs, js):  # fmt: skip
+    """:func:`_world_scan_brute` through the grid packed in ``gf`` / ``gi`` with the work arrays ``fs`` /
+    ``js``."""
+    poses, o, ranges, true, kind, index = _world_rows(rows, idx, n_moved, circles, tabs.shape[1])
+    _grid_cast(o[0], o[1], o[2], tabs, range_min, range_max, circles, idx, segments, prim_kind, prim_index,
+               *_unpack_grid(gf, gi), fs, js, ranges, true, kind, index)  # fmt: skip
+    return poses, ranges, true, kind, index
 
 
 def scan_shapes(

@@ -20,7 +20,15 @@ import pymunk.batch as pmbatch
 from pymunk._chipmunk import lib as _cp
 
 from kin_envs.core.interrupts import atomic
-from kin_envs.core.lidar import _cast_one, _columns, _work, _write_row, beam_tables, cast_prepared
+from kin_envs.core.lidar import (
+    _cast_one,
+    _columns,
+    _work,
+    _write_row,
+    beam_tables,
+    cast_prepared,
+    wrap_headings,
+)
 from kin_envs.core.odometry import Odometry
 from kin_envs.core.world import _COMMAND_CAP, Contact, Scan, World, _buffers
 
@@ -284,7 +292,7 @@ class WorldBatch:
             p = get_pos(b)
             rows.append((p.x, p.y, get_angle(b)))
         out = np.array(rows, dtype=np.float64).reshape(-1, 3)
-        out[:, 2] = np.arctan2(np.sin(out[:, 2]), np.cos(out[:, 2]))
+        wrap_headings(out)  # World.poses' wrap, bit for bit
         return out.reshape(len(self._worlds), self.n_robots, 3)
 
     # -- sensing ----------------------------------------------------------------------------------

@@ -28,13 +28,15 @@ from kin_envs.core._validate import FieldTypeError, check_number, dataclass_from
 from kin_envs.core.interrupts import atomic
 from kin_envs.core.lidar import (
     HitKind,
+    _world_scan_brute,
+    _world_scan_grid,
     beam_tables,
     build_lidar_grid,
-    cast_prepared,
     default_cell_size,
     grid_args,
     grid_scratch,
     polygon_edges,
+    wrap_headings,
 )
 from kin_envs.core.odometry import Odometry, OdometrySpec
 from kin_envs.core.scenes import Robot, Scene
@@ -449,11 +451,16 @@ class World:
                               self._circles, self._segments, self._prim_kind, self._prim_index)  # fmt: skip
         self._lidar_grid_args = None if self._lidar_grid is None else (
             grid_args(self._lidar_grid) + grid_scratch(self._lidar_grid, spec.n_beams))
+        # World.scan's one compiled call
+        self._lidar_call = (_world_scan_brute, self._lidar_static) if self._lidar_grid is None else (
+            _world_scan_grid, self._lidar_static + self._lidar_grid_args)  # fmt: skip
 
     def _update_lidar_geometry(self, poses: np.ndarray) -> None:
         self._circles[: self.n_robots, :2] = poses[:, :2]
-        if not self._movable:
-            return
+        self._update_movable()
+
+    def _update_movable(self) -> None:
+        """Move the movable obstacles' primitives to their bodies' poses."""
         for j, kind, local, first, count in self._movable:
             body = self.obstacle_bodies[j]
             p = np.array(body.position)
@@ -503,7 +510,7 @@ class World:
     def poses(self) -> np.ndarray:
         """``(n_robots, 3)`` ``x, y, theta`` (theta wrapped to (-pi, pi]), m and rad."""
         out = self._robot_rows()
-        out[:, 2] = np.arctan2(np.sin(out[:, 2]), np.cos(out[:, 2]))
+        wrap_headings(out)
         return out
 
     @property
@@ -701,13 +708,12 @@ class World:
         """
         spec = self.scene.lidar
         idx = np.arange(self.n_robots) if robots is None else self._check_robots(robots)
-        all_poses = self.poses
-        self._update_lidar_geometry(all_poses)
-        poses = all_poses if robots is None else all_poses[idx]
-        x, y, theta = poses.T.copy()  # one copy: three contiguous rows for the kernel
-        ranges, true_ranges, hit_kind, hit_index = cast_prepared(
-            x, y, theta, idx, self._lidar_static, self._lidar_grid_args
-        )
+        if self._movable:
+            self._update_movable()
+        # one compiled call: heading wrap, housings moved, the kernel and its output arrays
+        kernel, args = self._lidar_call
+        poses, ranges, true_ranges, hit_kind, hit_index = kernel(self._robot_rows(), idx, self.n_robots,
+                                                                 *args)  # fmt: skip
         if noise and (spec.noise_sigma > 0 or spec.dropout_prob > 0):
             hit = np.isfinite(true_ranges)
             d = true_ranges[hit].astype(np.float64)

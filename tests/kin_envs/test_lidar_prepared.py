@@ -81,3 +81,64 @@ def test_kernels_equal_the_pre_vectorised_reference(n_robots, n_obstacles, size)
         for w in worlds:
             w.step(commands=cmd)
         batch.step(np.stack([batch[0].unicycle_to_wheel_speeds(cmd)] * 2))
+
+
+def test_beams_through_segment_ends_and_along_segments():
+    """Segment ends exactly on beam 0 (s = 0 or 1 exactly, where the kernels skip a division only with a
+    margin), segments along it (cross(u, e) = 0) and twins (ties): both kernels give the reference's
+    scans bit for bit."""
+    from kin_envs import LidarSpec
+    from kin_envs.core.lidar import beam_tables, build_lidar_grid
+    from tests.kin_envs.reference_lidar import reference_kernel
+
+    # from origins on the x axis looking along it, beam 0 runs exactly along y = 0
+    segments = np.array([
+        [2.0, 0.0, 2.0, 1.0], [2.0, -1.0, 2.0, 0.0],  # front faces ending / starting on the beam
+        [3.0, 0.0, 3.0, -0.5], [3.0, 0.5, 3.0, 0.0],  # back faces, ends on the beam
+        [4.0, 0.0, 5.0, 0.0], [5.0, 0.0, 4.0, 0.0],  # along the beam, both ways
+        [6.0, -1.0, 6.0, 1.0], [6.0, -1.0, 6.0, 1.0],  # twins: the lower id wins
+        [2.5, 1e-12, 2.5, 2.0], [2.6, -2.0, 2.6, -1e-300],  # ends a hair off the beam
+    ])  # fmt: skip
+    segments = np.concatenate([segments, segments[:, [2, 3, 0, 1]]])  # every face both ways
+    circles = np.array([[7.0, 0.0, 0.2], [7.0, 0.0, 0.2], [1.0, 0.0, 0.05]])
+    origins = np.array([[0.0, 0.0], [1.5, 0.0], [2.2, 0.0], [-3.0, 0.0]])
+    spec = LidarSpec()
+    n, nb, n_prim = len(origins), spec.n_beams, len(circles) + len(segments)
+    kind, index = np.zeros(n_prim + 1, np.int8), np.arange(-1, n_prim, dtype=np.int32)
+    out = (np.empty((n, nb), np.float32), np.empty((n, nb), np.float32), np.empty((n, nb), np.int8),
+           np.empty((n, nb), np.int32))  # fmt: skip
+    reference_kernel(origins[:, 0].copy(), origins[:, 1].copy(), np.zeros(n), beam_tables(nb), spec.range_min,
+                     spec.range_max, circles, np.full(n, -1), segments, kind, index, *out)  # fmt: skip
+    # from x = 1.5, beam 0 ends on two front faces at x = 2 (reversed copies 13, 14) at the same
+    # distance: the lower id (owner table = primitive id); from x = 0 the small circle 2 is nearer
+    assert out[3][1, 0] == 13 and out[1][1, 0] == 0.5 and out[3][0, 0] == 2
+    for grid in (None, *(build_lidar_grid(circles, segments, bounds=(-8, -8, 8, 8), cell_size=c)
+                         for c in (0.5, 4.0))):  # fmt: skip
+        got = cast_scan(origins, np.zeros(n), circles, segments, np.full(n, -1), kind, index, spec, grid=grid)
+        for name, a, b in zip(("ranges", "true_ranges", "hit_kind", "hit_index"), got, out, strict=True):
+            np.testing.assert_array_equal(a, b, err_msg=name)
+
+
+def test_one_heading_wrap_for_poses_scans_and_batches():
+    from kin_envs.core.lidar import _half_angle, wrap_headings
+    from kin_envs.core.multi import WorldBatch
+
+    a = np.concatenate([np.random.default_rng(0).uniform(-50, 50, 2000), [np.pi, -np.pi, 0.0, 3 * np.pi]])
+    rows = np.zeros((len(a), 3))
+    rows[:, 2] = a
+    wrap_headings(rows)
+    np.testing.assert_array_max_ulp(rows[:, 2], np.arctan2(np.sin(a), np.cos(a)), maxulp=2)
+    assert np.all(np.abs(rows[:, 2]) <= np.pi)
+    scene = scenes.random_arena(3, 5, seed=1, size=6.0)
+    w, batch = World(scene, seed=0), WorldBatch([World(scene, seed=0)])
+    cmd = np.tile([0.2, 2.5], (3, 1))
+    for _ in range(30):  # the headings wind past +-pi
+        w.step(commands=cmd)
+        batch.step(batch[0].unicycle_to_wheel_speeds(cmd)[None])
+    np.testing.assert_array_equal(w.scan(robots=[2, 0]).poses, w.poses[[2, 0]])
+    np.testing.assert_array_equal(batch.poses()[0], w.poses)
+    # the candidate passes' half-angle: an upper bound of atan, < 4 % above it for z <= 2 (r < 0.9 d)
+    z = np.concatenate([[0.0], np.logspace(-6, 4, 400)])
+    half, at = np.array([_half_angle(v) for v in z]), np.arctan(z)
+    assert np.all(half >= at) and np.all(half <= 1.18 * at + 1e-15)
+    assert np.all((half <= 1.04 * at + 1e-15)[z <= 2.0])
