@@ -855,6 +855,35 @@ class KinTracker:
         self.update_batch(np.zeros(len(dets), np.int64), xy, scores, delta, dt, pts, owner,
                           None if count[0] < 5 else [float(noise[0])])  # fmt: skip
 
+    def adopt(self, observer: int, other: KinTracker) -> np.ndarray:
+        """Replace observer ``observer``'s tracks and odometry frame by those of the one-observer tracker
+        ``other`` (same params; e.g. a vector env's sub-env that has just reset and run its first frame):
+        its tracks are copied bitwise into free rows, so the next :meth:`update_batch` advances them exactly
+        as ``other.update_batch`` would. The copies get new ids of this tracker (increasing in ``other``'s
+        id order); returns ``other``'s ids of the adopted tracks in that order. ``other.time`` is not
+        copied (read only by the outline cue, ``shape_clamp > 0``)."""
+        if isinstance(observer, bool) or not isinstance(observer, int | np.integer) or not (
+            0 <= observer < self.n_observers
+        ):
+            raise ValueError(f"KinTracker.adopt: observer must be in [0, {self.n_observers}), got {observer!r}")
+        if not isinstance(other, KinTracker) or other.n_observers != 1 or other.params != self.params:
+            raise ValueError("KinTracker.adopt: other must be a one-observer KinTracker with the same params")
+        self._alive[self._alive & (self._obs == observer)] = False
+        src = np.flatnonzero(other._alive)
+        src = src[np.argsort(other._id[src], kind="stable")]
+        if int(self._alive.sum()) + src.size > self._alive.shape[0]:
+            self._grow(int(self._alive.sum()) + src.size)
+        dst = np.flatnonzero(~self._alive)[: src.size]
+        for name in self._FIELDS:
+            getattr(self, name)[dst] = getattr(other, name)[src]
+        self._obs[dst] = observer
+        self._id[dst] = self._next_id + np.arange(src.size)
+        self._next_id += int(src.size)
+        self.poses[observer] = other.poses[0]
+        self.odometer[observer] = other.odometer[0]
+        self._kp_cache = (None, None)
+        return other._id[src].copy()
+
     # -- steps ----------------------------------------------------------------------------------------
     def _grow(self, need: int) -> None:
         cap = self._alive.shape[0]
