@@ -79,9 +79,37 @@ def test_bad_tracker_arguments(kwargs, match):
         gym.make(IDS[0], **kwargs)
 
 
-def test_native_vector_env_refuses_the_tracker_clearly():
-    with pytest.raises(ValueError, match="not supported by the native vector env"):
-        gym.make_vec(IDS[0], num_envs=2, vectorization_mode="vector_entry_point", tracker=True)
+def test_native_vector_env_tracks_like_separate_envs_through_a_partial_reset():
+    """gym.make_vec(..., "vector_entry_point", tracker=True): one KinTracker over the K learners. A sub-env
+    reset by ``reset_mask`` restarts its tracks (ids from 0, adopted from its own reset frame) and leaves
+    the others' untouched; afterwards every sub-env's tracks are those of a lone env with its seed and
+    actions (trajectories across autoresets: tests/kin_envs/envs/test_vector_env.py)."""
+    kw = dict(tracker=True, noise_sigma=0.02, max_steps=200, n_distractors=4, kin_like_cylinders=True)
+    v = gym.make_vec(IDS[0], num_envs=2, vectorization_mode="vector_entry_point", **kw).unwrapped
+    lone = [gym.make(IDS[0], **kw) for _ in range(2)]
+    v.reset(seed=[11, 12])
+    for e, s in zip(lone, [11, 12], strict=True):
+        e.reset(seed=s)
+    rng = np.random.default_rng(0)
+
+    def steps(n):
+        for _ in range(n):
+            a = rng.uniform([0, -1], [1, 1], (2, 2))
+            info = v.step(a)[4]
+            for i, e in enumerate(lone):
+                mine = e.step(a[i])[4]
+                for f, c in mine["kin_tracks"].items():
+                    np.testing.assert_array_equal(info["kin_tracks"][f][i], c, err_msg=f)
+                assert info["kin_tracks_count"][i] == mine["kin_tracks_count"]
+        return info
+
+    info = steps(12)
+    assert info["kin_tracks_count"].sum() > 0  # there is something to compare
+    _, info = v.reset(seed=[None, 21], options={"reset_mask": np.array([False, True])})
+    _, mine = lone[1].reset(seed=21)
+    np.testing.assert_array_equal(info["kin_tracks"]["id"][1], mine["kin_tracks"]["id"])
+    steps(12)
+    v.close()
 
 
 def test_swarm_env_tracks_every_agent_with_fixed_shape_info():
