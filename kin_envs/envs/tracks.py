@@ -7,15 +7,97 @@ import numpy as np
 
 from kin_envs.core.world import Scan
 
-__all__ = ["VectorTracker", "track_info", "track_rows", "track_update"]
+__all__ = ["PermissiveFeed", "VectorTracker", "track_info", "track_rows", "track_update"]
 
 
-def track_update(tracker, scan: Scan, dets, odom_delta: np.ndarray, dt: float) -> None:
+def track_update(tracker, scan: Scan, dets, odom_delta: np.ndarray, dt: float, feed=None) -> None:
     """Advance ``tracker`` (one observer per scan row) by one frame: the detections ``(row, cols)`` of
     :func:`kin_envs.envs.common.detect_rows` (all accepted: the detector's operating point), their
-    segments' scan points, and each observer's odometry increment ``odom_delta`` (rows, 3)."""
+    segments' scan points, and each observer's odometry increment ``odom_delta`` (rows, 3); or, with
+    ``tracker={"feed": "permissive"}``, the candidates ``feed`` of :meth:`PermissiveFeed.detect`."""
+    delta = np.asarray(odom_delta, np.float64).reshape(-1, 3)
+    if feed is not None:
+        _feed_candidates(tracker, feed, None, delta, dt)
+        return
     row, cols = dets if dets is not None else (np.zeros(0, np.int64), None)
-    _feed(tracker, scan, row, cols, row, np.asarray(odom_delta, np.float64).reshape(-1, 3), dt)
+    _feed(tracker, scan, row, cols, row, delta, dt)
+
+
+class _Given:
+    """A detector stand-in whose trusted array call returns a result already computed (so that
+    :func:`kin_envs.envs.common.detect_rows` builds the shipped detections from it, unchanged)."""
+
+    def __init__(self, arrays) -> None:
+        self.arrays = arrays
+
+    def _detect_arrays_trusted(self, ranges, angles):
+        return self.arrays
+
+
+class PermissiveFeed:
+    """``tracker={"feed": "permissive"}``: each step's detector call gives both the shipped detections
+    (``info["kin_detections"]``, bitwise those of the detector alone) and the tracker's input as the
+    sequence benchmark (:mod:`kin_envs.detection.sequences`) gives it, which the track classifier is fitted
+    on: every candidate of the detector at its permissive operating point
+    (:func:`kin_envs.detection.benchmark.permissive`) with its score, whether the detector accepts it at
+    its operating point, and each scan's own noise estimate (:func:`detectors.features.scan_noise`).
+
+    The shipped geometric detector takes **one call**: its batched arrays keep every segment's circle fit
+    (independent of ``F_threshold``), so the permissive candidates are the segments that reached the fit
+    (``F`` < the permissive threshold), scored as the permissive detector scores them. Any other detector
+    runs twice (its own call and its permissive one's; the learned detector's permissive run scores every
+    segment with the network, without the cascade)."""
+
+    def __init__(self, detector, range_noise: float) -> None:
+        from detectors.geometric import GeometricKinDetector
+        from kin_envs.detection.benchmark import PERMISSIVE_F_THRESHOLD, permissive
+
+        self.detector = detector
+        self.range_noise = float(range_noise)
+        self.one_call = type(detector) is GeometricKinDetector and detector.params.F_threshold < PERMISSIVE_F_THRESHOLD
+        self._f_perm = float(PERMISSIVE_F_THRESHOLD)
+        self.permissive = None if self.one_call else permissive(detector)
+
+    def detect(self, ranges, angles, observers, poses, robot_world=None, range_max: float = np.inf):
+        """``(dets, feed)``: the shipped detections ``(row, cols)`` of
+        :func:`kin_envs.envs.common.detect_rows` (trusted: the env's own scans) and the tracker's
+        candidates ``(row, xy, scores, accepted, points, owner, noise)`` (rows of ``ranges``)."""
+        from detectors._kernels import ACCEPTED, SHAPE
+        from detectors.features import scan_noise, segment_batch
+        from detectors.tracking import segment_points
+        from kin_envs.envs.common import detect_rows
+
+        n = angles.shape[0]
+        if self.one_call:
+            b = self.detector._detect_arrays_trusted(ranges, angles)
+            dets = detect_rows(_Given(b), ranges, angles, observers, poses, robot_world, trusted=True)
+            st, F = b.seg_stage, b.seg_values["F"]
+            idx = np.flatnonzero(((st == ACCEPTED) | (st == SHAPE)) & (F < self._f_perm))
+            rc, bearing, f = b.seg_values["r_c"][idx], b.seg_values["theta_c"][idx], F[idx]
+            row, first = b.seg_scan[idx], b.seg_first[idx]
+            last = (first + b.seg_count[idx] - 1) % n
+            xy = np.c_[rc * np.cos(bearing), rc * np.sin(bearing)]
+            scores = self._f_perm / (self._f_perm + f)  # the permissive detector's score
+            accepted = st[idx] == ACCEPTED
+        else:
+            dets = detect_rows(self.detector, ranges, angles, observers, poses, robot_world, trusted=True)
+            p = self.permissive
+            fast = getattr(p, "_detect_arrays_trusted", None) or p.detect_arrays
+            c = fast(ranges, angles)
+            get = c.__getitem__ if isinstance(c, dict) else lambda k: getattr(c, k)
+            row = np.asarray(get("scan"), np.int64)
+            first, last = np.asarray(get("first_beam"), np.int64), np.asarray(get("last_beam"), np.int64)
+            xy = np.c_[get("x"), get("y")].astype(np.float64)
+            scores = np.asarray(get("score"), np.float64)
+            # accepted: the shipped detector has the same segment (scan row, first and last beam)
+            d_row, d_cols = dets
+            key = lambda r, a, z: (r * n + a) * n + z  # noqa: E731
+            accepted = np.isin(key(row, first, last), key(d_row, d_cols["first_beam"], d_cols["last_beam"]))
+        pts, own = segment_points(ranges, angles, row, first, last, range_max)
+        est, count = scan_noise(segment_batch(ranges, angles))
+        est = np.where(count >= 5, est, np.nan)
+        noise = np.where(np.isnan(est), self.range_noise, est)
+        return dets, (row, xy, scores, accepted, pts, own, noise)
 
 
 def track_info(tracker, max_tracks: int) -> tuple[dict[str, np.ndarray], np.ndarray]:
@@ -78,7 +160,8 @@ class VectorTracker:
         self._next_local[observer] = own._next_id
         self._record(np.full(lid.size, observer), first + np.arange(lid.size), lid)
 
-    def update(self, scan: Scan, dets, observers: np.ndarray, odom_delta: np.ndarray, dt: float) -> None:
+    def update(self, scan: Scan, dets, observers: np.ndarray, odom_delta: np.ndarray, dt: float,
+               feed=None) -> None:
         """One frame of the sub-envs ``observers`` (scan row ``r`` and detection row ``r`` are sub-env
         ``observers[r]``'s; every other observer gets no candidate and a zero odometry increment: it is
         about to be replaced by :meth:`adopt`)."""
@@ -86,9 +169,12 @@ class VectorTracker:
         observers = np.asarray(observers, np.int64)
         delta = np.zeros((tr.n_observers, 3))
         delta[observers] = odom_delta
-        row, cols = dets if dets is not None else (np.zeros(0, np.int64), None)
         first = tr._next_id
-        _feed(tr, scan, row, cols, observers[row], delta, dt)
+        if feed is not None:
+            _feed_candidates(tr, feed, observers, delta, dt)
+        else:
+            row, cols = dets if dets is not None else (np.zeros(0, np.int64), None)
+            _feed(tr, scan, row, cols, observers[row], delta, dt)
         if tr._next_id > first:  # births: own ids per observer, in birth (= shared id) order
             rows = np.flatnonzero(tr._alive & (tr._id >= first))
             rows = rows[np.argsort(tr._id[rows], kind="stable")]
@@ -109,6 +195,17 @@ class VectorTracker:
             g = a["tracks"][..., 0][m].astype(np.int64)
             a["tracks"][..., 0][m] = self._lid[np.searchsorted(self._gid, g)]
         return a
+
+
+def _feed_candidates(tracker, feed, observers, delta, dt) -> None:
+    """``feed`` (:meth:`PermissiveFeed.detect`) into ``tracker``; ``observers``: the observer of each scan
+    row (``None``: row ``r`` is observer ``r``; the others get no candidate and the default noise)."""
+    row, xy, scores, accepted, pts, own, noise = feed
+    if observers is not None:
+        full = np.full(tracker.n_observers, tracker.params.range_noise)
+        full[observers] = noise
+        row, noise = observers[row], full
+    tracker.update_batch(row, xy, scores, delta, dt, pts, own, noise, accepted=accepted)
 
 
 def _feed(tracker, scan: Scan, row, cols, obs, delta, dt) -> None:

@@ -106,6 +106,7 @@ class KinVectorEnv(VectorEnv):
             self._tracks = VectorTracker(self.config.make_tracker(n_observers=self.num_envs))
             for i, e in enumerate(self.envs):
                 e._track_rows = functools.partial(self._sub_track_rows, i)
+                e._feeder = first._feeder  # one permissive detector (a learned model loaded once)
         self.single_observation_space = first.observation_space
         self.single_action_space = first.action_space
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
@@ -268,11 +269,15 @@ class KinVectorEnv(VectorEnv):
         world_of_robot = np.repeat(np.arange(k_on), n)
         observers = np.arange(k_on) * n
         angles = combined.angles
-        dets = None
+        dets = feed = None
         if self.detector is not None:
-            row, cols = detect_rows(
-                self.detector, ranges, angles, observers, flat_poses, robot_world=world_of_robot, trusted=True
-            )
+            if first_feeder := self.envs[0]._feeder:
+                (row, cols), feed = first_feeder.detect(ranges, angles, observers, flat_poses, world_of_robot,
+                                                        combined.range_max)  # fmt: skip
+            else:
+                row, cols = detect_rows(
+                    self.detector, ranges, angles, observers, flat_poses, robot_world=world_of_robot, trusted=True
+                )
             ki = cols["kin_index"]
             cols["kin_index"] = np.where(ki >= 0, ki - row * n, -1)
             dets = (row, cols)
@@ -290,7 +295,7 @@ class KinVectorEnv(VectorEnv):
         if self._tracks is not None:
             on_a = np.asarray(on, np.int64)
             deltas = np.stack([self.envs[i].world.odometry_delta[LEARNER] for i in on])
-            self._tracks.update(stacked, dets, on_a, deltas, self.envs[on[0]].world.config.control_dt)
+            self._tracks.update(stacked, dets, on_a, deltas, self.envs[on[0]].world.config.control_dt, feed)
             cols, count = track_info(self._tracks, self.config.max_tracks)
             kin["kin_tracks"] = ({f: c[on_a] for f, c in cols.items()}, count[on_a])
             if self.config.obs_tracks:
