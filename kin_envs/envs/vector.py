@@ -291,7 +291,7 @@ class KinVectorEnv(VectorEnv):
         t_row, t_cols = kin_truth_rows(stacked, flat_poses)
         t_cols["index"] = t_cols["index"] - t_row * n
         kin = {"kin_truth": pad_rows(t_row, t_cols, k_on, self._truth_slots)}
-        feed = dets
+        obs_rows = dets
         if self._tracks is not None:
             on_a = np.asarray(on, np.int64)
             deltas = np.stack([self.envs[i].world.odometry_delta[LEARNER] for i in on])
@@ -303,8 +303,8 @@ class KinVectorEnv(VectorEnv):
                 pos = np.full(self.num_envs, -1, np.int64)
                 pos[on_a] = np.arange(on_a.size)
                 keep = pos[t_row] >= 0
-                feed = (pos[t_row[keep]], {f: c[keep] for f, c in t_c.items()})
-        frames = self.envs[0]._obs.frame(ranges, feed)
+                obs_rows = (pos[t_row[keep]], {f: c[keep] for f, c in t_c.items()})
+        frames = self.envs[0]._obs.frame(ranges, obs_rows)
         if dets is not None:
             kin["kin_detections"] = pad_rows(*dets, k_on, self.config.max_detections)
         # what each sub-env keeps of this step (for the scripted kin and rendering)
