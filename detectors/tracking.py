@@ -865,7 +865,9 @@ class KinTracker:
         if isinstance(observer, bool) or not isinstance(observer, int | np.integer) or not (
             0 <= observer < self.n_observers
         ):
-            raise ValueError(f"KinTracker.adopt: observer must be in [0, {self.n_observers}), got {observer!r}")
+            raise ValueError(
+                f"KinTracker.adopt: observer must be in [0, {self.n_observers}), got {observer!r}"
+            )
         if not isinstance(other, KinTracker) or other.n_observers != 1 or other.params != self.params:
             raise ValueError("KinTracker.adopt: other must be a one-observer KinTracker with the same params")
         self._alive[self._alive & (self._obs == observer)] = False

@@ -320,7 +320,8 @@ class AggregationEnv(ParallelEnv):
         truth = kin_truth_rows(scan, poses)
         dets = feed = None
         if self._feeder is not None:
-            dets, feed = self._feeder.detect(scan.ranges, scan.angles, scan.robots, poses, range_max=scan.range_max)
+            dets, feed = self._feeder.detect(scan.ranges, scan.angles, scan.robots, poses,
+                                             range_max=scan.range_max)  # fmt: skip
         elif self.detector is not None:
             dets = detect_rows(self.detector, scan.ranges, scan.angles, scan.robots, poses, trusted=True)
         self._last_detections = dets

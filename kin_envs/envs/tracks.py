@@ -54,7 +54,8 @@ class PermissiveFeed:
 
         self.detector = detector
         self.range_noise = float(range_noise)
-        self.one_call = type(detector) is GeometricKinDetector and detector.params.F_threshold < PERMISSIVE_F_THRESHOLD
+        self.one_call = (type(detector) is GeometricKinDetector
+                         and detector.params.F_threshold < PERMISSIVE_F_THRESHOLD)  # fmt: skip
         self._f_perm = float(PERMISSIVE_F_THRESHOLD)
         self.permissive = None if self.one_call else permissive(detector)
 

@@ -160,7 +160,7 @@ class KinVectorEnv(VectorEnv):
         return self._observations.copy(), info
 
     def _reset_sub(self, i: int, **kwargs: Any):
-        """Reset sub-env ``i`` (its first frame tracked by its own tracker, then adopted by the shared one)."""
+        """Reset sub-env ``i`` (its first frame tracked by its own tracker, which the shared one adopts)."""
         self._in_reset = True
         try:
             out = self.envs[i].reset(**kwargs)
@@ -275,9 +275,8 @@ class KinVectorEnv(VectorEnv):
                 (row, cols), feed = first_feeder.detect(ranges, angles, observers, flat_poses, world_of_robot,
                                                         combined.range_max)  # fmt: skip
             else:
-                row, cols = detect_rows(
-                    self.detector, ranges, angles, observers, flat_poses, robot_world=world_of_robot, trusted=True
-                )
+                row, cols = detect_rows(self.detector, ranges, angles, observers, flat_poses,
+                                        robot_world=world_of_robot, trusted=True)  # fmt: skip
             ki = cols["kin_index"]
             cols["kin_index"] = np.where(ki >= 0, ki - row * n, -1)
             dets = (row, cols)

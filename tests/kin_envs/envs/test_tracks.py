@@ -266,7 +266,7 @@ def test_permissive_feed_is_the_sequence_benchmarks_tracker(detector):
     _benchmark_feed(ref, u.detector, perm, u._last_scan, 1, np.zeros((1, 3)), dt)
     rng = np.random.default_rng(1)
     rejected = 0
-    for t in range(40):
+    for _ in range(40):
         act = rng.uniform([0, -1], [1, 1])
         ia, ib = a.step(act)[4], b.step(act)[4]
         for f, c in ib["kin_detections"].items():
@@ -274,7 +274,7 @@ def test_permissive_feed_is_the_sequence_benchmarks_tracker(detector):
         rejected += _benchmark_feed(ref, u.detector, perm, u._last_scan, 1, u.world.odometry_delta[:1], dt)
         want = ref.track_arrays(16)["tracks"][0]
         for j, f in enumerate(TRACK_FIELDS):
-            np.testing.assert_array_equal(ia["kin_tracks"][f], want[:, j].astype(np.float64), err_msg=f"{t} {f}")
+            np.testing.assert_array_equal(ia["kin_tracks"][f], want[:, j].astype(np.float64), err_msg=f)
     assert rejected > 0  # candidates the detector rejects did reach the tracker
 
 
