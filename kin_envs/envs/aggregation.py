@@ -163,7 +163,8 @@ class AggregationEnv(ParallelEnv):
       ``obs_top_k``, ``max_detections`` (16 info slots), ``frame_stack``, ``action_type``,
       ``control_dt``, ``tracker`` (None; ``True`` or a dict of ``detectors.TrackerParams`` fields plus
       ``"kin_model"``: the track classifier, ``"learned"`` (default, shipped), ``"hand"`` (the hand-tuned
-      fusion) or a path to a track-classifier JSON; an unknown key or a bad value raises naming it) and
+      fusion) or a path to a track-classifier JSON; ``"feed"``: ``"accepted"`` or ``"permissive"``, see
+      ``kin_envs.envs.common.CommonConfig``; an unknown key or a bad value raises naming it) and
       ``max_tracks`` (16 info slots; ``obs_tracks`` is not supported here yet);
     * rendering: ``render_mode`` (None, ``"rgb_array"``, ``"human"``), ``render_size`` (512 px),
       ``render_beams`` (True) and ``render_agent`` (0: whose beams and detections are drawn).

@@ -8,7 +8,10 @@ frame stacks) but runs the expensive parts of a step once for all of them:
   direct Chipmunk calls, contacts of all worlds at once);
 * the lidars of all K worlds: one call of the raycasting kernel;
 * the detector over all K learners' scans: one ``detect_batch`` call;
-* observations and the fixed-shape info built as (K, ...) arrays, never per-env dicts to stack.
+* observations and the fixed-shape info built as (K, ...) arrays, never per-env dicts to stack;
+* with ``tracker=``, one :class:`detectors.KinTracker` update over the K learners
+  (:class:`kin_envs.envs.tracks.VectorTracker`; a resetting sub-env's first frame runs on its own tracker,
+  which the shared one adopts; track ids per sub-env).
 
 Autoreset is Gymnasium's default ``NEXT_STEP`` (``metadata["autoreset_mode"]``): the step after a
 sub-env terminates or truncates resets it (its action is ignored, reward 0, not done) and returns
