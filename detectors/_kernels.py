@@ -89,9 +89,9 @@ def segment_rows(d, d_th, d_max, circular, scan, first, count, prev, nxt, prev_n
             scan[s] = b
             first[s] = f
             count[s] = c
-            if circular:
-                p = (f - 1) % n
-                q = (k + 1) % n
+            if circular:  # (f - 1) % n and (k + 1) % n for 0 <= f, k < n, without an integer division
+                p = f - 1 if f > 0 else n - 1
+                q = k + 1 if k < n - 1 else 0
             else:
                 p = f - 1
                 q = k + 1 if k < n - 1 else -1

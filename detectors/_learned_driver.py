@@ -26,6 +26,11 @@ are bitwise the same (``tests/detectors/test_learned_driver.py``). A change to a
 feature kernel signature, a cascade stage) must be made in both places; that test fails otherwise.
 
 Every output array is allocated in the call: results handed to a caller are never reused.
+
+numba's on-disk cache of these functions is invalidated only when *this* file changes, not when a
+kernel they compile in (:mod:`detectors.features`, :mod:`detectors._kernels`) does: after editing
+those, delete the ``__pycache__/*.nbi`` / ``*.nbc`` files (or touch this file) before timing, or the
+driver runs the old kernels (the same values, the old speed).
 """
 
 from __future__ import annotations

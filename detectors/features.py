@@ -72,6 +72,9 @@ _NOISE_SCALE = 0.385 * math.sqrt(20.0)  # ... and its value for unit noise: 0.3-
 _CURV_CLIP = 60.0  # 1/m: curvature of circles below 1.7 cm radius; a kin is 28.6
 _GN_MAX_STEP = 0.05  # m: cap on one Gauss-Newton step (keeps 2-point fits from flying off)
 _TWO_PI = 2.0 * math.pi
+#: ``math.log1p(float(n))`` for segment lengths ``n < 64`` (libm's log1p, the function numba calls: the
+#: same bits, ``tests/detectors/test_features.py``); the kernels look it up instead of a log per segment
+_LOG1P_N = np.array([math.log1p(float(n)) for n in range(64)])
 
 
 @dataclass(frozen=True)
@@ -299,6 +302,12 @@ def observer_to_local(frames: np.ndarray, xy: np.ndarray) -> np.ndarray:
 @numba.njit(cache=True, inline="always")
 def _log_err(e):
     return math.log(min(e, _ERR_CLIP) + _ERR_FLOOR)
+
+
+@numba.njit(cache=True, inline="always")
+def _log1p_n(n):
+    # math.log1p(float(n)) for a segment length n >= 0, from _LOG1P_N when it is there
+    return _LOG1P_N[n] if n < _LOG1P_N.shape[0] else math.log1p(float(n))
 
 
 @numba.njit(cache=True, inline="always")
@@ -554,10 +563,13 @@ def _features_kernel(
                 det = m11 * m22 - a12 * a12
                 stx = (m22 * g1 - a12 * g2) / det
                 sty = (m11 * g2 - a12 * g1) / det
-                norm = math.hypot(stx, sty)
-                if norm > _GN_MAX_STEP:
-                    stx *= _GN_MAX_STEP / norm
-                    sty *= _GN_MAX_STEP / norm
+                # the step's length only matters past _GN_MAX_STEP: a step with |x| + |y| (>= its
+                # length, here with a 2x margin over rounding) below half that needs no hypot
+                if abs(stx) + abs(sty) > 0.5 * _GN_MAX_STEP:
+                    norm = math.hypot(stx, sty)
+                    if norm > _GN_MAX_STEP:
+                        stx *= _GN_MAX_STEP / norm
+                        sty *= _GN_MAX_STEP / norm
                 cx += stx
                 cy += sty
         F_sum = 0.0
@@ -603,7 +615,7 @@ def _features_kernel(
         line_rms = math.sqrt(max(lam_min, 0.0) / n)
         # the geometric part, in _GEOMETRIC_NAMES order
         g = (
-            math.log1p(float(n)),
+            _log1p_n(n),
             float(min(n, 40)),
             math.log(d_min),
             sd / n,
@@ -645,18 +657,33 @@ def _scan_noise_kernel(d, d_th, d_max, circular, out, count):
     n_rows, n = d.shape
     buf = np.empty(n)
     for b in range(n_rows):
+        row = d[b]
         k = 0
-        for i in range(n if circular else n - 3):
-            a0 = d[b, i]
-            a1 = d[b, _wrap_index(i + 1, n)]
-            a2 = d[b, _wrap_index(i + 2, n)]
-            a3 = d[b, _wrap_index(i + 3, n)]
-            if max(a0, a1, a2, a3) >= d_max:
-                continue
-            if abs(a1 - a0) > d_th or abs(a2 - a1) > d_th or abs(a3 - a2) > d_th:
-                continue
+        # the windows that do not wrap without a branch: every value is written and the slot kept
+        # only if the window qualifies (~45 % do, unpredictably: ~1.4x faster than skipping, measured;
+        # the kept values and their order are the same)
+        for i in range(n - 3):
+            a0 = row[i]
+            a1 = row[i + 1]
+            a2 = row[i + 2]
+            a3 = row[i + 3]
+            ok = (max(a0, a1, a2, a3) < d_max) & (abs(a1 - a0) <= d_th) & (abs(a2 - a1) <= d_th) & (
+                abs(a3 - a2) <= d_th
+            )
             buf[k] = abs(a3 - 3.0 * a2 + 3.0 * a1 - a0) / (0.5 * (a1 + a2))
-            k += 1
+            k += ok
+        if circular:  # the last three windows wrap past beam 0
+            for i in range(max(n - 3, 0), n):
+                a0 = row[i]
+                a1 = row[(i + 1) % n]
+                a2 = row[(i + 2) % n]
+                a3 = row[(i + 3) % n]
+                if max(a0, a1, a2, a3) >= d_max:
+                    continue
+                if abs(a1 - a0) > d_th or abs(a2 - a1) > d_th or abs(a3 - a2) > d_th:
+                    continue
+                buf[k] = abs(a3 - 3.0 * a2 + 3.0 * a1 - a0) / (0.5 * (a1 + a2))
+                k += 1
         out[b] = _quantile(buf, k, _NOISE_Q) / _NOISE_SCALE if k >= 5 else 0.0
         count[b] = k
 
@@ -924,8 +951,12 @@ def _cascade_kernel(
         omega_min, omega_max = _omegas(
             d_cest, bmin, f, bl, pb, nb, unb_f or unb_l, ang, sweep, n_beams, tan_tab
         )
-        chord = math.hypot(d_last * cos_a[bl] - d_first * cos_a[f], d_last * sin_a[bl] - d_first * sin_a[f])
-        x[o, 0] = np.float32(math.log1p(float(n)))
+        # a one-beam segment (~60 % of a noisy swarm scan's) has chord hypot(0, 0) = 0.0
+        chord = 0.0
+        if n > 1:
+            dx = d_last * cos_a[bl] - d_first * cos_a[f]
+            chord = math.hypot(dx, d_last * sin_a[bl] - d_first * sin_a[f])
+        x[o, 0] = np.float32(_log1p_n(n))
         x[o, 1] = np.float32(math.log(dmin))
         x[o, 2] = np.float32(min(omega_min, _LEN_CLIP))
         x[o, 3] = np.float32(min(omega_max, _LEN_CLIP))

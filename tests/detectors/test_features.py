@@ -169,6 +169,57 @@ def test_quantile_selection_is_numbas_np_quantile():
             assert np.array_equal(np.sort(b), np.sort(a))  # only reordered
 
 
+def test_log1p_table_is_numbas_log1p():
+    # the kernels look log1p(n) up in _LOG1P_N: it must be the value numba's math.log1p gives
+    import numba
+
+    from detectors.features import _LOG1P_N, _log1p_n
+
+    ref = numba.njit(lambda n: math.log1p(float(n)))
+    look = numba.njit(lambda n: _log1p_n(n))
+    for n in range(200):
+        assert look(n) == ref(n), n
+    assert _LOG1P_N.shape[0] < 200  # the lengths past the table are computed
+
+
+def _scan_noise_reference(d, d_th, d_max, circular):
+    # the kernel's definition beam by beam (plain Python; numpy's quantile on the kept values is
+    # compared bitwise to numba's in test_quantile_selection_is_numbas_np_quantile)
+    from detectors.features import _NOISE_Q, _NOISE_SCALE, _quantile
+
+    n = d.shape[1]
+    est, count = [], []
+    for row in d:
+        vals = []
+        for i in range(n if circular else n - 3):
+            a0, a1, a2, a3 = (row[(i + k) % n] for k in range(4))
+            if max(a0, a1, a2, a3) >= d_max or max(abs(a1 - a0), abs(a2 - a1), abs(a3 - a2)) > d_th:
+                continue
+            vals.append(abs(a3 - 3.0 * a2 + 3.0 * a1 - a0) / (0.5 * (a1 + a2)))
+        buf = np.array(vals + [0.0])
+        est.append(_quantile(buf, len(vals), _NOISE_Q) / _NOISE_SCALE if len(vals) >= 5 else 0.0)
+        count.append(len(vals))
+    return np.array(est), np.array(count)
+
+
+@pytest.mark.parametrize("circular", [True, False])
+def test_branch_free_scan_noise_keeps_the_same_windows(circular):
+    # _scan_noise_kernel writes every window and keeps the qualifying ones: the same values as
+    # skipping them, on noisy random-arena scans with no-returns and breaks across beam 0
+    c = FeatureConfig()
+    scan = scan_of(scenes.random_arena(6, 12, seed=7).replace(lidar=LidarSpec(noise_sigma=0.02)))
+    ranges = scan.ranges.copy()
+    ranges[:, :2] = np.inf  # a no-return across the wrap
+    ranges[1, -1] = 0.5  # a break just before beam 0
+    angles = scan.angles if circular else scan.angles[:271].copy()
+    batch = segment_batch(ranges if circular else ranges[:, :271].copy(), angles)
+    assert batch.circular == circular
+    est, count = scan_noise(batch, c)
+    ref_est, ref_count = _scan_noise_reference(batch.ranges, c.d_th, c.d_max, circular)
+    assert np.array_equal(count, ref_count) and (count > 5).all()
+    assert np.array_equal(est, ref_est)
+
+
 @pytest.mark.parametrize("layout", ["full turn", "reversed", "270 degrees"])
 def test_tan_table_gives_the_same_features(layout):
     # the detector's beam_trig(angles, 32) looks eqs. 4-5's tan up; features and cascade inputs must

@@ -44,6 +44,8 @@ def test_compiled_match_is_the_numpy_match():
             tab[0, [0, 2, 3]] = np.nan  # a degenerate centre: sorted last, never matched
         if trial % 10 == 2 and n_robots > 2:
             poses[(obs + 1) % n_robots, :2] = poses[(obs + 2) % n_robots, :2]  # a tie: the first robot
+        if trial % 10 == 3 and n_robots > 1:
+            poses[(obs + 1) % n_robots, 0] = np.nan  # a NaN distance: np.argmin picks it, no match
         _same_cols(_match_one_row(tab, obs, poses), _match_one_row_numpy(tab, obs, poses))
 
 
