@@ -201,6 +201,12 @@ class TrackerParams:
         min_score: candidates scoring below this are dropped before association: a permissive detector
             scores every segment, and those of walls slide along the wall as the observer moves, which
             would read as motion.
+        frame_fit_iterations, frame_fit_warm_start: the per-frame circle fits (whose residuals are the
+            classifier's ``resid_z``): Gauss-Newton steps (6), and where they start: 0 (default) r behind
+            the points' middle, 1 at the candidate's own centre (the geometric detector's is its circle fit
+            of the same points, so 2 steps from there reach a converged fit's residuals to a median relative
+            ~1e-9; measured ~2x less fit time). Changes ``resid_z`` slightly: the shipped classifier was
+            fitted with the defaults (README, "Multi-frame kin tracking", tracking cost).
     """
 
     r: float = 0.035
@@ -241,6 +247,8 @@ class TrackerParams:
     static_penalty: float = 0.0
     kin_threshold: float = 0.5
     min_score: float = 0.1
+    frame_fit_iterations: int = 6
+    frame_fit_warm_start: int = 0
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -262,7 +270,11 @@ class TrackerParams:
                 raise ValueError(f"TrackerParams.{name} must be in (0, 1), got {getattr(self, name)!r}")
         if not self.delete_existence < self.birth_existence <= self.confirm_existence:
             raise ValueError("TrackerParams: need delete_existence < birth_existence <= confirm_existence")
-        for name in ("shape_n_cap", "shape_min_points", "max_points"):
+        if self.frame_fit_warm_start not in (0, 1):
+            raise ValueError(
+                f"TrackerParams.frame_fit_warm_start must be 0 or 1, got {self.frame_fit_warm_start!r}"
+            )
+        for name in ("shape_n_cap", "shape_min_points", "max_points", "frame_fit_iterations"):
             if int(getattr(self, name)) != getattr(self, name) or getattr(self, name) < 1:
                 raise ValueError(
                     f"TrackerParams.{name} must be a positive integer, got {getattr(self, name)!r}"
@@ -854,6 +866,37 @@ class KinTracker:
         delta = np.asarray(odom_delta, np.float64).reshape(1, -1)
         self.update_batch(np.zeros(len(dets), np.int64), xy, scores, delta, dt, pts, owner,
                           None if count[0] < 5 else [float(noise[0])])  # fmt: skip
+
+    def adopt(self, observer: int, other: KinTracker) -> np.ndarray:
+        """Replace observer ``observer``'s tracks and odometry frame by those of the one-observer tracker
+        ``other`` (same params; e.g. a vector env's sub-env that has just reset and run its first frame):
+        its tracks are copied bitwise into free rows, so the next :meth:`update_batch` advances them exactly
+        as ``other.update_batch`` would. The copies get new ids of this tracker (increasing in ``other``'s
+        id order); returns ``other``'s ids of the adopted tracks in that order. ``other.time`` is not
+        copied (read only by the outline cue, ``shape_clamp > 0``)."""
+        if isinstance(observer, bool) or not isinstance(observer, int | np.integer) or not (
+            0 <= observer < self.n_observers
+        ):
+            raise ValueError(
+                f"KinTracker.adopt: observer must be in [0, {self.n_observers}), got {observer!r}"
+            )
+        if not isinstance(other, KinTracker) or other.n_observers != 1 or other.params != self.params:
+            raise ValueError("KinTracker.adopt: other must be a one-observer KinTracker with the same params")
+        self._alive[self._alive & (self._obs == observer)] = False
+        src = np.flatnonzero(other._alive)
+        src = src[np.argsort(other._id[src], kind="stable")]
+        if int(self._alive.sum()) + src.size > self._alive.shape[0]:
+            self._grow(int(self._alive.sum()) + src.size)
+        dst = np.flatnonzero(~self._alive)[: src.size]
+        for name in self._FIELDS:
+            getattr(self, name)[dst] = getattr(other, name)[src]
+        self._obs[dst] = observer
+        self._id[dst] = self._next_id + np.arange(src.size)
+        self._next_id += int(src.size)
+        self.poses[observer] = other.poses[0]
+        self.odometer[observer] = other.odometer[0]
+        self._kp_cache = (None, None)
+        return other._id[src].copy()
 
     # -- steps ----------------------------------------------------------------------------------------
     def _grow(self, need: int) -> None:
@@ -1577,10 +1620,12 @@ def _fit_span2(p, a1, m1, a2, m2, w, r, c, iterations, e):
 @numba.njit(cache=True, nogil=True)
 def _outline_kernel(ti, ci, pts, sig, dist, cstart, obs, odometer, moved, buf, aux, npts, head, fit_c,
                     lo_shape, x, P, now, r, delta2, n_cap, min_points, clamp, head_rate2, pos_rate2, poses,
-                    lo_resid, res_chi2, res_dof, resid_clamp):  # fmt: skip
+                    lo_resid, res_chi2, res_dof, resid_clamp, z, fit_iters, warm):  # fmt: skip
     """Append each updated track's candidate points (odometry frame) to its ring buffer, then refit its
     outline (warm-started at the last fit's centre) and set its shape cue. A track that has moved keeps
-    its last shape cue: its points no longer share one frame, and the motion cue has decided it anyway."""
+    its last shape cue: its points no longer share one frame, and the motion cue has decided it anyway.
+    The per-frame fits run ``fit_iters`` Gauss-Newton steps from r behind the points' middle, or (``warm``)
+    from the candidate's own centre ``z[c]`` (odometry frame; the geometric detector's is its circle fit)."""
     m_max = buf.shape[1]
     e, var, wgt, pp = np.empty(m_max), np.empty(m_max), np.empty(m_max), np.empty((m_max, 2))
     m_frame = 0
@@ -1600,8 +1645,10 @@ def _outline_kernel(ti, ci, pts, sig, dist, cstart, obs, odometer, moved, buf, a
         for lane, jj in ((0, pend), (1, j)):
             o = obs[ti[jj]]
             _frame_fit_start(pts, sig, cstart[ci[jj]], cstart[ci[jj] + 1], poses[o], r, fw, fc, lane)
+            if warm:
+                fc[lane, 0], fc[lane, 1] = z[ci[jj], 0], z[ci[jj], 1]
         a, b, a2, b2 = cstart[ci[pend]], cstart[ci[pend] + 1], cstart[ci[j]], cstart[ci[j] + 1]
-        _fit_span2(pts, a, b - a, a2, b2 - a2, fw, r, fc, 6, fe)
+        _fit_span2(pts, a, b - a, a2, b2 - a2, fw, r, fc, fit_iters, fe)
         for lane, jj in ((0, pend), (1, j)):
             _frame_fit_score(ti[jj], sig, cstart[ci[jj]], cstart[ci[jj] + 1], fe, lane, delta2, resid_clamp,
                              lo_resid, res_chi2, res_dof)  # fmt: skip
@@ -1609,7 +1656,9 @@ def _outline_kernel(ti, ci, pts, sig, dist, cstart, obs, odometer, moved, buf, a
     if pend >= 0:
         a, b = cstart[ci[pend]], cstart[ci[pend] + 1]
         _frame_fit_start(pts, sig, a, b, poses[obs[ti[pend]]], r, fw, fc, 0)
-        _fit_span(pts, a, b - a, fw[0], r, fc[0], 6, fe[0])
+        if warm:
+            fc[0, 0], fc[0, 1] = z[ci[pend], 0], z[ci[pend], 1]
+        _fit_span(pts, a, b - a, fw[0], r, fc[0], fit_iters, fe[0])
         _frame_fit_score(ti[pend], sig, a, b, fe, 0, delta2, resid_clamp, lo_resid, res_chi2, res_dof)
     for j in range(ti.shape[0]):
         t, c = ti[j], ci[j]
@@ -1684,7 +1733,7 @@ def _param_array(pr: TrackerParams) -> np.ndarray:
         pr.shape_sigma**2, pr.shape_delta**2, float(pr.shape_n_cap), float(int(pr.shape_min_points)),
         pr.shape_clamp, pr.odom_heading_rate**2, pr.odom_position_rate**2, pr.resid_clamp, pr.p_detect,
         pr.clutter_ratio, pr.max_range, pr.delete_existence, pr.motion_dist, pr.motion_gain, pr.min_score,
-        0.5 * pr.wheel_base,
+        0.5 * pr.wheel_base, float(int(pr.frame_fit_iterations)), float(pr.frame_fit_warm_start),
     ], np.float64)  # fmt: skip
 
 
@@ -1823,7 +1872,8 @@ def _update_kernel(obs, xy, scores, accepted, delta, dt, pts, owner, has_points,
             cstart[c] = i
         _outline_kernel(tracks, cands, odom, sig, dist, cstart, tobs, odometer, moved, buf, aux, npts, head,
                         fit_c, lo_shape, x, P, now, prm[7], prm[17], prm[18], int(prm[19]), prm[20], prm[21],
-                        prm[22], poses, lo_resid, res_chi2, res_dof, prm[23])  # fmt: skip
+                        prm[22], poses, lo_resid, res_chi2, res_dof, prm[23], z, int(prm[32]),
+                        prm[33] > 0.0)  # fmt: skip
         for j in range(n_t):
             bm[j] = cstart[cands[j] + 1] - cstart[cands[j]]
     _feature_kernel(tracks, n_m, sc, ac, rg, bm, f_lgsum, f_lgsq, f_lgmax, f_lglast, f_accsum, f_acclast,

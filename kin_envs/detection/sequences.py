@@ -1019,6 +1019,7 @@ def tracking_cost(
     repeats: int = 3,
     skip: int = 10,
     kin_model="learned",
+    alt_params: TrackerParams | None = None,
 ) -> dict:
     """Time the tracker against the per-frame detector feeding it, ``n_robots`` observers batched: one
     swarm episode (a training seed, a ``n_robots``-robot arena) is recorded once, then the permissive
@@ -1033,7 +1034,9 @@ def tracking_cost(
     it evaluates ``kin_model``), timed apart (not in the ratio). Each is timed by the wall clock and by the
     process's CPU clock (``*_cpu_*``: a loaded machine's other jobs do not count), and the shipped detector
     itself (its batched array path, ``detect_arrays``, which an env calls) is timed on the same frames
-    (``shipped_*``, ``ratio_shipped_cpu``: the tracker's update against it)."""
+    (``shipped_*``, ``ratio_shipped_cpu``: the tracker's update against it). ``alt_params``: a second tracker
+    with these parameters is timed in the same passes on the same candidates (``alt_*``: e.g. the per-frame
+    fits warm-started, ``TrackerParams(frame_fit_iterations=2, frame_fit_warm_start=1)``)."""
     if isinstance(n_robots, bool) or not isinstance(n_robots, int) or n_robots < 2:
         raise ValueError(f"n_robots must be an integer >= 2, got {n_robots!r}")
     if not 0 <= int(skip) < int(frames):
@@ -1056,7 +1059,7 @@ def tracking_cost(
     shipped = getattr(detector, "detect_arrays", detector.detect_batch)  # the batched array path if any
     shipped(scans[0].ranges, scans[0].angles)
     warm = time.perf_counter() - t0
-    keys = ("det", "trk", "out", "ship")
+    keys = ("det", "trk", "out", "ship", "alt")
     best = {(k, c): math.inf for k in keys for c in ("wall", "cpu")}
     n_cand = 0
 
@@ -1065,6 +1068,8 @@ def tracking_cost(
 
     for _ in range(max(1, int(repeats))):
         tracker = KinTracker(tracker_params, n_observers=w.n_robots, kin_model=kin_model)
+        alt = None if alt_params is None else KinTracker(alt_params, n_observers=w.n_robots,
+                                                         kin_model=kin_model)  # fmt: skip
         tot = dict.fromkeys(best, 0.0)
         n_cand = 0
         for f, (scan, delta) in enumerate(zip(scans, deltas, strict=True)):
@@ -1080,8 +1085,11 @@ def tracking_cost(
             t.append(clocks())
             shipped(scan.ranges, scan.angles)
             t.append(clocks())
+            if alt is not None:
+                alt.update_batch(ob, xy, sc, delta, _FRAME_S, pts, own)
+            t.append(clocks())
             if f >= skip:
-                for key, (a, b) in zip(keys, [(0, 1), (2, 3), (3, 4), (4, 5)], strict=True):
+                for key, (a, b) in zip(keys, [(0, 1), (2, 3), (3, 4), (4, 5), (5, 6)], strict=True):
                     tot[key, "wall"] += t[b][0] - t[a][0]
                     tot[key, "cpu"] += t[b][1] - t[a][1]
         best = {k: min(best[k], tot[k]) for k in best}
@@ -1095,4 +1103,10 @@ def tracking_cost(
             "ratio_cpu": best["trk", "cpu"] / max(best["det", "cpu"], 1e-12),
             "shipped_per_frame": best["ship", "wall"] / n, "shipped_cpu_per_frame": best["ship", "cpu"] / n,
             "ratio_shipped_cpu": best["trk", "cpu"] / max(best["ship", "cpu"], 1e-12),
-            "candidates_per_frame": n_cand / len(scans)}  # fmt: skip
+            "candidates_per_frame": n_cand / len(scans),
+            **({} if alt_params is None else {
+                "alt_params": {k: getattr(alt_params, k)
+                               for k in ("frame_fit_iterations", "frame_fit_warm_start")},
+                "alt_cpu_per_frame": best["alt", "cpu"] / n,
+                "ratio_alt_cpu": best["alt", "cpu"] / max(best["det", "cpu"], 1e-12),
+                "ratio_alt_shipped_cpu": best["alt", "cpu"] / max(best["ship", "cpu"], 1e-12)})}  # fmt: skip

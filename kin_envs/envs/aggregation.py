@@ -163,7 +163,8 @@ class AggregationEnv(ParallelEnv):
       ``obs_top_k``, ``max_detections`` (16 info slots), ``frame_stack``, ``action_type``,
       ``control_dt``, ``tracker`` (None; ``True`` or a dict of ``detectors.TrackerParams`` fields plus
       ``"kin_model"``: the track classifier, ``"learned"`` (default, shipped), ``"hand"`` (the hand-tuned
-      fusion) or a path to a track-classifier JSON; an unknown key or a bad value raises naming it) and
+      fusion) or a path to a track-classifier JSON; ``"feed"``: ``"accepted"`` or ``"permissive"``, see
+      ``kin_envs.envs.common.CommonConfig``; an unknown key or a bad value raises naming it) and
       ``max_tracks`` (16 info slots; ``obs_tracks`` is not supported here yet);
     * rendering: ``render_mode`` (None, ``"rgb_array"``, ``"human"``), ``render_size`` (512 px),
       ``render_beams`` (True) and ``render_agent`` (0: whose beams and detections are drawn).
@@ -195,6 +196,11 @@ class AggregationEnv(ParallelEnv):
         self.render_mode = check_render_mode(render_mode, self.metadata["render_modes"], where)
         self.detector = resolve_detector(cfg.detector, where)
         self.tracker = cfg.make_tracker(n_observers=cfg.n_robots)  # every robot is an observer
+        self._feeder = None  # tracker={"feed": "permissive"}: the detector call that also feeds the tracker
+        if cfg.tracker_feed == "permissive":
+            from kin_envs.envs.tracks import PermissiveFeed
+
+            self._feeder = PermissiveFeed(self.detector, self.tracker.params.range_noise)
         self._lidar = cfg.lidar_spec()
         self._world_config = WorldConfig(control_dt=cfg.control_dt)
         self.layout = ObservationLayout(
@@ -313,8 +319,11 @@ class AggregationEnv(ParallelEnv):
         self._last_scan = scan
         poses, n = scan.poses, scan.ranges.shape[0]
         truth = kin_truth_rows(scan, poses)
-        dets = None
-        if self.detector is not None:
+        dets = feed = None
+        if self._feeder is not None:
+            dets, feed = self._feeder.detect(scan.ranges, scan.angles, scan.robots, poses,
+                                             range_max=scan.range_max)  # fmt: skip
+        elif self.detector is not None:
             dets = detect_rows(self.detector, scan.ranges, scan.angles, scan.robots, poses, trusted=True)
         self._last_detections = dets
         entries = {}
@@ -322,7 +331,7 @@ class AggregationEnv(ParallelEnv):
             from kin_envs.envs.tracks import track_info, track_update
 
             delta = np.zeros((n, 3)) if first else self.world.odometry_delta
-            track_update(self.tracker, scan, dets, delta, self.world.config.control_dt)
+            track_update(self.tracker, scan, dets, delta, self.world.config.control_dt, feed)
             entries["kin_tracks"] = track_info(self.tracker, self.config.max_tracks)
         if self.padded_info:
             entries["kin_truth"] = pad_rows(*truth, n, self.config.max_kin_truth)

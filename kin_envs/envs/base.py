@@ -50,6 +50,12 @@ class SingleRobotEnv(gym.Env):
         self.render_mode = check_render_mode(render_mode, self.metadata["render_modes"], where)
         self.detector = resolve_detector(self.config.detector, where)
         self.tracker = self.config.make_tracker()
+        self._feeder = None  # tracker={"feed": "permissive"}: the detector call that also feeds the tracker
+        if self.config.tracker_feed == "permissive":
+            from kin_envs.envs.tracks import PermissiveFeed
+
+            self._feeder = PermissiveFeed(self.detector, self.tracker.params.range_noise)
+        self._feed = None
         self._lidar = self.config.lidar_spec()
         self._world_config = WorldConfig(control_dt=self.config.control_dt)
         self.layout = ObservationLayout(
@@ -151,14 +157,20 @@ class SingleRobotEnv(gym.Env):
         """The learner's detections as flat ``(row, cols)`` (:func:`detect_rows`), or ``None``."""
         if self.detector is None:
             return None
+        if self._feeder is not None:
+            dets, self._feed = self._feeder.detect(scan.ranges[:1], scan.angles, scan.robots[:1], poses,
+                                                   range_max=scan.range_max)  # fmt: skip
+            return dets
         return detect_rows(self.detector, scan.ranges[:1], scan.angles, scan.robots[:1], poses, trusted=True)
 
     def _track(self, scan: Scan, dets, odom_delta: np.ndarray) -> None:
         """Advance the tracker with this frame's detections (all accepted: the detector's operating
-        point), their segments' scan points and the learner's odometry increment."""
+        point; or the permissive candidates, ``tracker={"feed": "permissive"}``), their segments' scan
+        points and the learner's odometry increment."""
         from kin_envs.envs.tracks import track_update
 
-        track_update(self.tracker, _rows(scan, 1), dets, odom_delta[None, :], self.world.config.control_dt)
+        track_update(self.tracker, _rows(scan, 1), dets, odom_delta[None, :], self.world.config.control_dt,
+                     self._feed)  # fmt: skip
 
     def _track_rows(self):
         """The tracker's confirmed kin tracks as detection rows (for ``obs_tracks``)."""

@@ -144,7 +144,11 @@ class CommonConfig:
             ``False`` (off), ``True`` (default parameters) or a dict of ``detectors.TrackerParams``
             fields plus optionally ``"kin_model"``: the track classifier, ``"learned"`` (default, the
             shipped one), ``"hand"`` (the hand-tuned fusion of the cues) or a path to a track-classifier
-            JSON (``scripts/fit_track_classifier.py``). Adds ``info["kin_tracks"]``. Needs a detector.
+            JSON (``scripts/fit_track_classifier.py``), and optionally ``"feed"``: ``"accepted"`` (default:
+            the detector's operating-point detections, all flagged accepted) or ``"permissive"`` (what the
+            track classifier is fitted on and the sequence benchmark runs: every candidate of the detector at
+            its permissive operating point with its score and accepted flag, and each scan's noise estimate;
+            ``info["kin_detections"]`` unchanged). Adds ``info["kin_tracks"]``. Needs a detector.
         max_tracks: slots of ``info["kin_tracks"]`` (fixed-shape info).
         obs_tracks: fill the observation's detection channel from the tracker's confirmed kin tracks
             (their centre; score = kin probability) instead of the frame's raw detections.
@@ -230,12 +234,22 @@ class CommonConfig:
         params, kin_model = _tracker_options(self.env_id, {} if self.tracker is True else self.tracker)
         return KinTracker(params, n_observers=n_observers, kin_model=kin_model)
 
+    @property
+    def tracker_feed(self) -> str | None:
+        """``tracker["feed"]``: ``"accepted"`` (default) or ``"permissive"``; ``None`` without a tracker."""
+        if self.tracker is None:
+            return None
+        return "accepted" if self.tracker is True else self.tracker.get("feed", "accepted")
+
     def lidar_spec(self) -> LidarSpec:
         return LidarSpec(noise_sigma=float(self.noise_sigma), dropout_prob=float(self.dropout_prob))
 
 
 #: the track classifiers ``tracker={"kin_model": ...}`` names (any other string is a model JSON path)
 TRACKER_KIN_MODELS = ("learned", "hand")
+#: what ``tracker={"feed": ...}`` feeds the tracker (see :class:`CommonConfig`)
+TRACKER_FEEDS = ("accepted", "permissive")
+_TRACKER_KEYS = ("kin_model", "feed")
 
 
 def _tracker_options(where: str, opts: Mapping):
@@ -246,12 +260,15 @@ def _tracker_options(where: str, opts: Mapping):
     from detectors.tracking import TrackerParams, TrackKinModel
 
     names = sorted(f.name for f in dataclasses.fields(TrackerParams))
-    bad = sorted(str(k) for k in opts if k != "kin_model" and k not in names)
+    bad = sorted(str(k) for k in opts if k not in _TRACKER_KEYS and k not in names)
     if bad:
-        raise ValueError(f"{where}: tracker has unknown key(s) {bad}; expected 'kin_model' or "
+        raise ValueError(f"{where}: tracker has unknown key(s) {bad}; expected 'kin_model', 'feed' or "
                          f"detectors.TrackerParams fields {names}")  # fmt: skip
+    feed = opts.get("feed", "accepted")
+    if not (isinstance(feed, str) and feed in TRACKER_FEEDS):
+        raise ValueError(f"{where}: tracker['feed'] must be one of {list(TRACKER_FEEDS)}, got {feed!r}")
     try:
-        params = TrackerParams(**{k: v for k, v in opts.items() if k != "kin_model"})
+        params = TrackerParams(**{k: v for k, v in opts.items() if k not in _TRACKER_KEYS})
     except (TypeError, ValueError) as e:
         raise ValueError(f"{where}: tracker: {e}") from e
     kin_model = opts.get("kin_model", "learned")

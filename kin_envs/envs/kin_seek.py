@@ -172,7 +172,9 @@ class KinSeekEnv(SingleRobotEnv):
 
     Multi-frame tracking (opt-in): ``tracker=True`` or a dict of ``detectors.TrackerParams`` fields and
     ``"kin_model"`` (the track classifier: ``"learned"``, the default shipped one, ``"hand"``, the hand-tuned
-    fusion of the cues, or a path to a track-classifier JSON; a bad key or value raises naming it) adds
+    fusion of the cues, or a path to a track-classifier JSON; ``"feed"``: ``"accepted"``, the default, or
+    ``"permissive"``, the sequence benchmark's feed, see ``CommonConfig``; a bad key or value raises naming
+    it) adds
     ``info["kin_tracks"]`` (``max_tracks`` = 16 padded slots of ``detectors.tracking.TRACK_FIELDS``, robot
     frame) and ``info["kin_tracks_count"]``; ``obs_tracks=True`` fills the observation's detection channel
     from the confirmed kin tracks instead of the raw detections (needs ``obs_detections``).

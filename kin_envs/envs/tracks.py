@@ -7,25 +7,98 @@ import numpy as np
 
 from kin_envs.core.world import Scan
 
-__all__ = ["track_info", "track_rows", "track_update"]
+__all__ = ["PermissiveFeed", "VectorTracker", "track_info", "track_rows", "track_update"]
 
 
-def track_update(tracker, scan: Scan, dets, odom_delta: np.ndarray, dt: float) -> None:
+def track_update(tracker, scan: Scan, dets, odom_delta: np.ndarray, dt: float, feed=None) -> None:
     """Advance ``tracker`` (one observer per scan row) by one frame: the detections ``(row, cols)`` of
     :func:`kin_envs.envs.common.detect_rows` (all accepted: the detector's operating point), their
-    segments' scan points, and each observer's odometry increment ``odom_delta`` (rows, 3)."""
-    from detectors.tracking import segment_points
-
-    row, cols = dets if dets is not None else (np.zeros(0, np.int64), None)
-    xy, pts, own, scores = np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0, np.int64), np.zeros(0)
-    if row.size:
-        xy = np.c_[cols["x"], cols["y"]]
-        pts, own = segment_points(scan.ranges, scan.angles, row, cols["first_beam"], cols["last_beam"],
-                                  scan.range_max)  # fmt: skip
-        scores = cols["score"]
+    segments' scan points, and each observer's odometry increment ``odom_delta`` (rows, 3); or, with
+    ``tracker={"feed": "permissive"}``, the candidates ``feed`` of :meth:`PermissiveFeed.detect`."""
     delta = np.asarray(odom_delta, np.float64).reshape(-1, 3)
-    tracker.update_batch(np.asarray(row, np.int64), xy, scores, delta, dt, pts, own,
-                         accepted=np.ones(row.size, bool))  # fmt: skip
+    if feed is not None:
+        _feed_candidates(tracker, feed, None, delta, dt)
+        return
+    row, cols = dets if dets is not None else (np.zeros(0, np.int64), None)
+    _feed(tracker, scan, row, cols, row, delta, dt)
+
+
+class _Given:
+    """A detector stand-in whose trusted array call returns a result already computed (so that
+    :func:`kin_envs.envs.common.detect_rows` builds the shipped detections from it, unchanged)."""
+
+    def __init__(self, arrays) -> None:
+        self.arrays = arrays
+
+    def _detect_arrays_trusted(self, ranges, angles):
+        return self.arrays
+
+
+class PermissiveFeed:
+    """``tracker={"feed": "permissive"}``: each step's detector call gives both the shipped detections
+    (``info["kin_detections"]``, bitwise those of the detector alone) and the tracker's input as the
+    sequence benchmark (:mod:`kin_envs.detection.sequences`) gives it, which the track classifier is fitted
+    on: every candidate of the detector at its permissive operating point
+    (:func:`kin_envs.detection.benchmark.permissive`) with its score, whether the detector accepts it at
+    its operating point, and each scan's own noise estimate (:func:`detectors.features.scan_noise`).
+
+    The shipped geometric detector takes **one call**: its batched arrays keep every segment's circle fit
+    (independent of ``F_threshold``), so the permissive candidates are the segments that reached the fit
+    (``F`` < the permissive threshold), scored as the permissive detector scores them. Any other detector
+    runs twice (its own call and its permissive one's; the learned detector's permissive run scores every
+    segment with the network, without the cascade)."""
+
+    def __init__(self, detector, range_noise: float) -> None:
+        from detectors.geometric import GeometricKinDetector
+        from kin_envs.detection.benchmark import PERMISSIVE_F_THRESHOLD, permissive
+
+        self.detector = detector
+        self.range_noise = float(range_noise)
+        self.one_call = (type(detector) is GeometricKinDetector
+                         and detector.params.F_threshold < PERMISSIVE_F_THRESHOLD)  # fmt: skip
+        self._f_perm = float(PERMISSIVE_F_THRESHOLD)
+        self.permissive = None if self.one_call else permissive(detector)
+
+    def detect(self, ranges, angles, observers, poses, robot_world=None, range_max: float = np.inf):
+        """``(dets, feed)``: the shipped detections ``(row, cols)`` of
+        :func:`kin_envs.envs.common.detect_rows` (trusted: the env's own scans) and the tracker's
+        candidates ``(row, xy, scores, accepted, points, owner, noise)`` (rows of ``ranges``)."""
+        from detectors._kernels import ACCEPTED, SHAPE
+        from detectors.features import scan_noise, segment_batch
+        from detectors.tracking import segment_points
+        from kin_envs.envs.common import detect_rows
+
+        n = angles.shape[0]
+        if self.one_call:
+            b = self.detector._detect_arrays_trusted(ranges, angles)
+            dets = detect_rows(_Given(b), ranges, angles, observers, poses, robot_world, trusted=True)
+            st, F = b.seg_stage, b.seg_values["F"]
+            idx = np.flatnonzero(((st == ACCEPTED) | (st == SHAPE)) & (F < self._f_perm))
+            rc, bearing, f = b.seg_values["r_c"][idx], b.seg_values["theta_c"][idx], F[idx]
+            row, first = b.seg_scan[idx], b.seg_first[idx]
+            last = (first + b.seg_count[idx] - 1) % n
+            xy = np.c_[rc * np.cos(bearing), rc * np.sin(bearing)]
+            scores = self._f_perm / (self._f_perm + f)  # the permissive detector's score
+            accepted = st[idx] == ACCEPTED
+        else:
+            dets = detect_rows(self.detector, ranges, angles, observers, poses, robot_world, trusted=True)
+            p = self.permissive
+            fast = getattr(p, "_detect_arrays_trusted", None) or p.detect_arrays
+            c = fast(ranges, angles)
+            get = c.__getitem__ if isinstance(c, dict) else lambda k: getattr(c, k)
+            row = np.asarray(get("scan"), np.int64)
+            first, last = np.asarray(get("first_beam"), np.int64), np.asarray(get("last_beam"), np.int64)
+            xy = np.c_[get("x"), get("y")].astype(np.float64)
+            scores = np.asarray(get("score"), np.float64)
+            # accepted: the shipped detector has the same segment (scan row, first and last beam)
+            d_row, d_cols = dets
+            key = lambda r, a, z: (r * n + a) * n + z  # noqa: E731
+            accepted = np.isin(key(row, first, last), key(d_row, d_cols["first_beam"], d_cols["last_beam"]))
+        pts, own = segment_points(ranges, angles, row, first, last, range_max)
+        est, count = scan_noise(segment_batch(ranges, angles))
+        est = np.where(count >= 5, est, np.nan)
+        noise = np.where(np.isnan(est), self.range_noise, est)
+        return dets, (row, xy, scores, accepted, pts, own, noise)
 
 
 def track_info(tracker, max_tracks: int) -> tuple[dict[str, np.ndarray], np.ndarray]:
@@ -56,3 +129,94 @@ def track_rows(tracker, max_tracks: int) -> tuple[np.ndarray, dict[str, np.ndarr
             "last_beam": np.full(m, -1, np.int64), "n_beams": np.zeros(m, np.int64),
             "kin_index": np.full(m, -1, np.int64)}  # fmt: skip
     return o.astype(np.int64), cols
+
+
+class VectorTracker:
+    """One :class:`detectors.KinTracker` over the K sub-envs of a native vector env (observer ``i`` = sub-env
+    ``i``'s learner): one :meth:`update` per step for all stepped sub-envs, and a sub-env that resets runs its
+    first frame on its own one-observer tracker, which :meth:`adopt` copies in (``KinTracker.adopt``).
+
+    Track ids are each sub-env's own (from 0 after its reset, as its own tracker numbers them), so that the
+    tracks are those of K separate envs with the same seeds: the shared tracker's ids are mapped back per
+    observer (both increase in birth order, so the slots' id tie-break keeps its order)."""
+
+    def __init__(self, tracker) -> None:
+        self.tracker = tracker
+        self.params = tracker.params
+        k = tracker.n_observers
+        self._next_local = np.zeros(k, np.int64)  # each observer's next own id
+        self._gid = np.zeros(0, np.int64)  # shared ids (increasing) -> own ids
+        self._lid = np.zeros(0, np.int64)
+
+    def _record(self, obs: np.ndarray, gid: np.ndarray, lid: np.ndarray) -> None:
+        self._gid, self._lid = np.r_[self._gid, gid], np.r_[self._lid, lid]
+        if self._gid.size > 4 * max(int(self.tracker._alive.sum()), 64):  # forget dead tracks' ids
+            keep = np.isin(self._gid, self.tracker._id[self.tracker._alive])
+            self._gid, self._lid = self._gid[keep], self._lid[keep]
+
+    def adopt(self, observer: int, own) -> None:
+        """Sub-env ``observer`` has reset and run its first frame on ``own`` (its one-observer tracker)."""
+        first = self.tracker._next_id
+        lid = self.tracker.adopt(observer, own)
+        self._next_local[observer] = own._next_id
+        self._record(np.full(lid.size, observer), first + np.arange(lid.size), lid)
+
+    def update(self, scan: Scan, dets, observers: np.ndarray, odom_delta: np.ndarray, dt: float,
+               feed=None) -> None:
+        """One frame of the sub-envs ``observers`` (scan row ``r`` and detection row ``r`` are sub-env
+        ``observers[r]``'s; every other observer gets no candidate and a zero odometry increment: it is
+        about to be replaced by :meth:`adopt`)."""
+        tr = self.tracker
+        observers = np.asarray(observers, np.int64)
+        delta = np.zeros((tr.n_observers, 3))
+        delta[observers] = odom_delta
+        first = tr._next_id
+        if feed is not None:
+            _feed_candidates(tr, feed, observers, delta, dt)
+        else:
+            row, cols = dets if dets is not None else (np.zeros(0, np.int64), None)
+            _feed(tr, scan, row, cols, observers[row], delta, dt)
+        if tr._next_id > first:  # births: own ids per observer, in birth (= shared id) order
+            rows = np.flatnonzero(tr._alive & (tr._id >= first))
+            rows = rows[np.argsort(tr._id[rows], kind="stable")]
+            o = tr._obs[rows]
+            order = np.argsort(o, kind="stable")
+            o_s = o[order]
+            start = np.searchsorted(o_s, o_s)  # first index of each observer's group
+            lid = np.empty(rows.size, np.int64)
+            lid[order] = self._next_local[o_s] + np.arange(rows.size) - start
+            np.add.at(self._next_local, o, 1)
+            self._record(o, tr._id[rows], lid)
+
+    def track_arrays(self, max_tracks: int) -> dict[str, np.ndarray]:
+        """:meth:`detectors.KinTracker.track_arrays` with each sub-env's own track ids."""
+        a = self.tracker.track_arrays(max_tracks)
+        m = a["mask"]
+        if m.any():
+            g = a["tracks"][..., 0][m].astype(np.int64)
+            a["tracks"][..., 0][m] = self._lid[np.searchsorted(self._gid, g)]
+        return a
+
+
+def _feed_candidates(tracker, feed, observers, delta, dt) -> None:
+    """``feed`` (:meth:`PermissiveFeed.detect`) into ``tracker``; ``observers``: the observer of each scan
+    row (``None``: row ``r`` is observer ``r``; the others get no candidate and the default noise)."""
+    row, xy, scores, accepted, pts, own, noise = feed
+    if observers is not None:
+        full = np.full(tracker.n_observers, tracker.params.range_noise)
+        full[observers] = noise
+        row, noise = observers[row], full
+    tracker.update_batch(row, xy, scores, delta, dt, pts, own, noise, accepted=accepted)
+
+
+def _feed(tracker, scan: Scan, row, cols, obs, delta, dt) -> None:
+    from detectors.tracking import segment_points
+
+    xy, pts, own, scores = np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0, np.int64), np.zeros(0)
+    if row.size:
+        xy = np.c_[cols["x"], cols["y"]]
+        pts, own = segment_points(scan.ranges, scan.angles, row, cols["first_beam"], cols["last_beam"],
+                                  scan.range_max)  # fmt: skip
+        scores = cols["score"]
+    tracker.update_batch(np.asarray(obs, np.int64), xy, scores, delta, dt, pts, own,
+                         accepted=np.ones(row.size, bool))  # fmt: skip

@@ -8,7 +8,10 @@ frame stacks) but runs the expensive parts of a step once for all of them:
   direct Chipmunk calls, contacts of all worlds at once);
 * the lidars of all K worlds: one call of the raycasting kernel;
 * the detector over all K learners' scans: one ``detect_batch`` call;
-* observations and the fixed-shape info built as (K, ...) arrays, never per-env dicts to stack.
+* observations and the fixed-shape info built as (K, ...) arrays, never per-env dicts to stack;
+* with ``tracker=``, one :class:`detectors.KinTracker` update over the K learners
+  (:class:`kin_envs.envs.tracks.VectorTracker`; a resetting sub-env's first frame runs on its own tracker,
+  which the shared one adopts; track ids per sub-env).
 
 Autoreset is Gymnasium's default ``NEXT_STEP`` (``metadata["autoreset_mode"]``): the step after a
 sub-env terminates or truncates resets it (its action is ignored, reward 0, not done) and returns
@@ -20,6 +23,7 @@ autoresets).
 
 from __future__ import annotations
 
+import functools
 from typing import Any, ClassVar
 
 import numpy as np
@@ -28,15 +32,16 @@ from gymnasium.vector.utils import batch_space
 
 from kin_envs.core.multi import WorldBatch
 from kin_envs.core.world import Scan
-from kin_envs.envs.base import SingleRobotEnv
+from kin_envs.envs.base import LEARNER, SingleRobotEnv
 from kin_envs.envs.common import detect_rows, kin_truth_rows
 from kin_envs.envs.info import DETECTION_FIELDS, INT_FIELDS, KIN_TRUTH_FIELDS, pad_rows
 from kin_envs.envs.kin_follow import KinFollowEnv
 from kin_envs.envs.kin_seek import KinSeekEnv
+from kin_envs.envs.tracks import VectorTracker, track_info, track_rows
 
 __all__ = ["KinFollowVectorEnv", "KinSeekVectorEnv", "KinVectorEnv", "stack_infos"]
 
-_KIN_KEYS = ("kin_truth", "kin_detections")
+_KIN_KEYS = ("kin_truth", "kin_detections", "kin_tracks")
 
 
 def stack_infos(infos: list[dict[str, Any]]) -> dict[str, Any]:
@@ -97,11 +102,14 @@ class KinVectorEnv(VectorEnv):
         self.detector = first.detector
         self.layout = first.layout
         self.config = first.config
+        self._tracks: VectorTracker | None = None
+        self._in_reset = False
         if self.config.tracker is not None:
-            raise ValueError(
-                f"{self.config.env_id}: tracker= is not supported by the native vector env yet; use "
-                "gymnasium.make_vec(..., vectorization_mode='sync') (or 'async') with tracker="
-            )
+            # one tracker over the K learners; each sub-env keeps its own for its reset frame (adopted)
+            self._tracks = VectorTracker(self.config.make_tracker(n_observers=self.num_envs))
+            for i, e in enumerate(self.envs):
+                e._track_rows = functools.partial(self._sub_track_rows, i)
+                e._feeder = first._feeder  # one permissive detector (a learned model loaded once)
         self.single_observation_space = first.observation_space
         self.single_action_space = first.action_space
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
@@ -144,7 +152,7 @@ class KinVectorEnv(VectorEnv):
             raise ValueError("reset: the first reset must reset every sub-env (no reset_mask)")
         infos = []
         for i in ids:
-            obs, info = self.envs[i].reset(seed=seeds[i], options=options or None)
+            obs, info = self._reset_sub(i, seed=seeds[i], options=options or None)
             self._observations[i] = obs
             infos.append(info)
         self._autoreset[ids] = False
@@ -153,6 +161,26 @@ class KinVectorEnv(VectorEnv):
         if len(ids) < k:  # stack_infos fills every listed sub-env; widen to K with masks
             info = _widen(info, ids, k)
         return self._observations.copy(), info
+
+    def _reset_sub(self, i: int, **kwargs: Any):
+        """Reset sub-env ``i`` (its first frame tracked by its own tracker, which the shared one adopts)."""
+        self._in_reset = True
+        try:
+            out = self.envs[i].reset(**kwargs)
+        finally:
+            self._in_reset = False
+        if self._tracks is not None:
+            self._tracks.adopt(i, self.envs[i].tracker)
+        return out
+
+    def _sub_track_rows(self, i: int):
+        """Sub-env ``i``'s confirmed kin tracks as detection rows (its ``_track_rows``: observation and
+        rendering): its own tracker during its reset, the shared one's observer ``i`` otherwise."""
+        if self._in_reset:
+            return SingleRobotEnv._track_rows(self.envs[i])
+        row, cols = track_rows(self._tracks, self.config.max_tracks)
+        sel = row == i
+        return np.zeros(int(sel.sum()), np.int64), {f: c[sel] for f, c in cols.items()}
 
     def _sync_batch(self, ids: list[int]) -> None:
         if self._batch is None or len(ids) == self.num_envs:
@@ -195,7 +223,7 @@ class KinVectorEnv(VectorEnv):
                 rewards[i], terminations[i], truncations[i] = rew, term, trunc
                 per_env[i] = info
         for i in resets:
-            obs, info = envs[i].reset()
+            obs, info = self._reset_sub(i)
             self._observations[i] = obs
             per_env[i] = info
         if resets:
@@ -244,11 +272,14 @@ class KinVectorEnv(VectorEnv):
         world_of_robot = np.repeat(np.arange(k_on), n)
         observers = np.arange(k_on) * n
         angles = combined.angles
-        dets = None
+        dets = feed = None
         if self.detector is not None:
-            row, cols = detect_rows(
-                self.detector, ranges, angles, observers, flat_poses, robot_world=world_of_robot, trusted=True
-            )
+            if first_feeder := self.envs[0]._feeder:
+                (row, cols), feed = first_feeder.detect(ranges, angles, observers, flat_poses, world_of_robot,
+                                                        combined.range_max)  # fmt: skip
+            else:
+                row, cols = detect_rows(self.detector, ranges, angles, observers, flat_poses,
+                                        robot_world=world_of_robot, trusted=True)  # fmt: skip
             ki = cols["kin_index"]
             cols["kin_index"] = np.where(ki >= 0, ki - row * n, -1)
             dets = (row, cols)
@@ -261,8 +292,21 @@ class KinVectorEnv(VectorEnv):
         )  # fmt: skip
         t_row, t_cols = kin_truth_rows(stacked, flat_poses)
         t_cols["index"] = t_cols["index"] - t_row * n
-        frames = self.envs[0]._obs.frame(ranges, dets)
         kin = {"kin_truth": pad_rows(t_row, t_cols, k_on, self._truth_slots)}
+        obs_rows = dets
+        if self._tracks is not None:
+            on_a = np.asarray(on, np.int64)
+            deltas = np.stack([self.envs[i].world.odometry_delta[LEARNER] for i in on])
+            self._tracks.update(stacked, dets, on_a, deltas, self.envs[on[0]].world.config.control_dt, feed)
+            cols, count = track_info(self._tracks, self.config.max_tracks)
+            kin["kin_tracks"] = ({f: c[on_a] for f, c in cols.items()}, count[on_a])
+            if self.config.obs_tracks:
+                t_row, t_c = track_rows(self._tracks, self.config.max_tracks)
+                pos = np.full(self.num_envs, -1, np.int64)
+                pos[on_a] = np.arange(on_a.size)
+                keep = pos[t_row] >= 0
+                obs_rows = (pos[t_row[keep]], {f: c[keep] for f, c in t_c.items()})
+        frames = self.envs[0]._obs.frame(ranges, obs_rows)
         if dets is not None:
             kin["kin_detections"] = pad_rows(*dets, k_on, self.config.max_detections)
         # what each sub-env keeps of this step (for the scripted kin and rendering)
@@ -299,7 +343,7 @@ class KinVectorEnv(VectorEnv):
             {
                 key: v
                 for key, v in d.items()
-                if key not in _KIN_KEYS and key not in ("kin_truth_count", "kin_detections_count")
+                if key not in _KIN_KEYS and key[:-6] not in _KIN_KEYS  # nor their "_count"s
             }
             for d in per_env
         ]
@@ -308,6 +352,10 @@ class KinVectorEnv(VectorEnv):
         layout = [("kin_truth", KIN_TRUTH_FIELDS, self._truth_slots)]
         if self.detector is not None:
             layout.append(("kin_detections", DETECTION_FIELDS, self.config.max_detections))
+        if self._tracks is not None:
+            from detectors.tracking import TRACK_FIELDS
+
+            layout.append(("kin_tracks", TRACK_FIELDS, self.config.max_tracks))
         for key, fields, slots in layout:
             cols = {
                 f: np.empty((k, slots), dtype=np.int64 if f in INT_FIELDS else np.float64) for f in fields

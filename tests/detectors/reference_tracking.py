@@ -187,6 +187,7 @@ class StagedKinTracker(KinTracker):
             pr.r, pr.shape_delta**2, float(pr.shape_n_cap), int(pr.shape_min_points),
             pr.shape_clamp, pr.odom_heading_rate**2, pr.odom_position_rate**2,
             self.poses, self._lo_resid, self._res_chi2, self._res_dof, pr.resid_clamp,
+            np.zeros((k, 2)), 6, False,  # the default per-frame fit (6 steps from the heuristic start)
         )  # fmt: skip
 
 

@@ -9,7 +9,7 @@ import pytest
 
 from detectors.features import scan_noise, segment_batch
 from detectors.geometric import GeometricKinDetector
-from detectors.tracking import KinTracker
+from detectors.tracking import KinTracker, TrackerParams
 from kin_envs.detection.benchmark import permissive
 from kin_envs.detection.sequences import _candidates, episode, training_split
 from tests.detectors.reference_tracking import StagedKinTracker
@@ -38,6 +38,8 @@ def test_fused_update_is_bitwise_the_staged_one_on_sequence_episodes(split, n_ro
     perm = permissive(det)
     n = len(ep.observers)
     fused, staged = KinTracker(n_observers=n), StagedKinTracker(n_observers=n)
+    # the per-frame fits started at the candidate's centre, 2 steps: only their residual sums differ
+    warm = KinTracker(TrackerParams(frame_fit_iterations=2, frame_fit_warm_start=1), n_observers=n)
     n_tracks = 0
     for frame in range(run.frames):
         if frame:
@@ -52,9 +54,20 @@ def test_fused_update_is_bitwise_the_staged_one_on_sequence_episodes(split, n_ro
         kw = {"noise": noise if frame % 2 else None, "accepted": acc if frame % 3 else None}
         fused.update_batch(ob, xy, sc, delta, 0.1, pts, own, **kw)
         staged.update_batch(ob, xy, sc, delta, 0.1, pts, own, **kw)
+        warm.update_batch(ob, xy, sc, delta, 0.1, pts, own, **kw)
+        for name in KinTracker._FIELDS:
+            if name != "_res_chi2":
+                assert np.array_equal(getattr(warm, name), getattr(fused, name)), name
         _assert_same(fused, staged)
         n_tracks = max(n_tracks, len(fused))
     assert n_tracks >= 5  # the episode gave the tracker something to do
+    live = np.flatnonzero(fused._alive & (fused._res_dof > 0))
+    rel = np.abs(warm._res_chi2[live] / fused._res_chi2[live] - 1)
+    assert np.median(rel) < 1e-3 and not np.array_equal(warm._res_chi2, fused._res_chi2)
+    with pytest.raises(ValueError, match="frame_fit_warm_start must be 0 or 1"):
+        TrackerParams(frame_fit_warm_start=2)
+    with pytest.raises(ValueError, match="frame_fit_iterations must be a positive integer"):
+        TrackerParams(frame_fit_iterations=0)
     assert any(t.moved for o in range(n) for t in fused.tracks(o)) or split == "lookalike"
 
 
@@ -64,7 +77,9 @@ def test_tracking_cost_reports_wall_and_cpu_clock_and_the_shipped_detector():
     from kin_envs.detection.sequences import tracking_cost
     from tests.scripts.helpers import load_script
 
-    c = tracking_cost(GeometricKinDetector(reports=False), n_robots=4, frames=4, skip=1, repeats=1)
+    alt = TrackerParams(frame_fit_iterations=2, frame_fit_warm_start=1)
+    c = tracking_cost(GeometricKinDetector(reports=False), n_robots=4, frames=4, skip=1, repeats=1,
+                      alt_params=alt)
     for key in ("detector", "tracker", "outputs", "shipped"):
         assert c[f"{key}_per_frame"] > 0 and c[f"{key}_cpu_per_frame"] > 0, key
     assert c["ratio_cpu"] == pytest.approx(c["tracker_cpu_per_frame"] / c["detector_cpu_per_frame"])
@@ -72,3 +87,4 @@ def test_tracking_cost_reports_wall_and_cpu_clock_and_the_shipped_detector():
     assert c["n_robots"] == 4 and c["frames"] == 3 and c["candidates_per_frame"] > 0
     text = load_script("benchmark_tracking").report([], c)
     assert "Tracking cost at 4 observers" in text and "CPU clock" in text and "detect_arrays" in text
+    assert c["alt_cpu_per_frame"] > 0 and "frame_fit_warm_start=1" in text

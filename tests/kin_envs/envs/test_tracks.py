@@ -79,9 +79,37 @@ def test_bad_tracker_arguments(kwargs, match):
         gym.make(IDS[0], **kwargs)
 
 
-def test_native_vector_env_refuses_the_tracker_clearly():
-    with pytest.raises(ValueError, match="not supported by the native vector env"):
-        gym.make_vec(IDS[0], num_envs=2, vectorization_mode="vector_entry_point", tracker=True)
+def test_native_vector_env_tracks_like_separate_envs_through_a_partial_reset():
+    """gym.make_vec(..., "vector_entry_point", tracker=True): one KinTracker over the K learners. A sub-env
+    reset by ``reset_mask`` restarts its tracks (ids from 0, adopted from its own reset frame) and leaves
+    the others' untouched; afterwards every sub-env's tracks are those of a lone env with its seed and
+    actions (trajectories across autoresets: tests/kin_envs/envs/test_vector_env.py)."""
+    kw = dict(tracker=True, noise_sigma=0.02, max_steps=200, n_distractors=4, kin_like_cylinders=True)
+    v = gym.make_vec(IDS[0], num_envs=2, vectorization_mode="vector_entry_point", **kw).unwrapped
+    lone = [gym.make(IDS[0], **kw) for _ in range(2)]
+    v.reset(seed=[11, 12])
+    for e, s in zip(lone, [11, 12], strict=True):
+        e.reset(seed=s)
+    rng = np.random.default_rng(0)
+
+    def steps(n):
+        for _ in range(n):
+            a = rng.uniform([0, -1], [1, 1], (2, 2))
+            info = v.step(a)[4]
+            for i, e in enumerate(lone):
+                mine = e.step(a[i])[4]
+                for f, c in mine["kin_tracks"].items():
+                    np.testing.assert_array_equal(info["kin_tracks"][f][i], c, err_msg=f)
+                assert info["kin_tracks_count"][i] == mine["kin_tracks_count"]
+        return info
+
+    info = steps(12)
+    assert info["kin_tracks_count"].sum() > 0  # there is something to compare
+    _, info = v.reset(seed=[None, 21], options={"reset_mask": np.array([False, True])})
+    _, mine = lone[1].reset(seed=21)
+    np.testing.assert_array_equal(info["kin_tracks"]["id"][1], mine["kin_tracks"]["id"])
+    steps(12)
+    v.close()
 
 
 def test_swarm_env_tracks_every_agent_with_fixed_shape_info():
@@ -172,6 +200,7 @@ def test_tracker_kin_model_option_selects_the_track_classifier(tmp_path):
     ({"kin_model": 3}, r"tracker\['kin_model'\] must be .* got 3"),
     ({"kin_model": "hand", "bogus": 1}, r"unknown key\(s\) \['bogus'\]"),
     ({"p_detect": 2.0}, "p_detect must be in"),
+    ({"feed": "all"}, r"tracker\['feed'\] must be one of \['accepted', 'permissive'\], got 'all'"),
 ])  # fmt: skip
 def test_bad_tracker_kin_model_or_key_raises_naming_it(tracker, match):
     from kin_envs import aggregation_v1
@@ -199,3 +228,83 @@ def test_swarm_env_tracker_kin_model_option(tmp_path):
     assert probs.size > 0
     np.testing.assert_allclose(probs, 1 / (1 + np.exp(-5.0)), rtol=1e-6)
     assert aggregation_v1.parallel_env(n_robots=4, tracker={"kin_model": "hand"}).tracker.kin_model is None
+
+
+def _benchmark_feed(tracker, det, perm, scan, rows, delta, dt):
+    """One frame fed as the sequence benchmark feeds its tracker (kin_envs.detection.sequences)."""
+    from detectors.features import scan_noise, segment_batch
+    from kin_envs.core.world import Scan
+    from kin_envs.detection.sequences import _candidates
+
+    r = scan.ranges[:rows]
+    s = Scan(ranges=r, angles=scan.angles, hit_kind=None, hit_index=None, true_ranges=None, robots=None,
+             poses=None, range_max=scan.range_max)  # fmt: skip
+    ob, xy, sc, pts, own, acc = _candidates(perm.detect_batch(r, s.angles), s, det.detect_batch(r, s.angles))
+    est, count = scan_noise(segment_batch(r, s.angles))
+    est = np.where(count >= 5, est, np.nan)
+    noise = np.where(np.isnan(est), tracker.params.range_noise, est)
+    tracker.update_batch(ob, xy, sc, delta, dt, pts, own, noise, accepted=acc)
+    return int(ob.size - acc.sum())
+
+
+@pytest.mark.parametrize("detector", ["geometric", "learned"])
+def test_permissive_feed_is_the_sequence_benchmarks_tracker(detector):
+    """tracker={"feed": "permissive"}: info["kin_detections"] bitwise those of the default env, and the tracks
+    bitwise those of a KinTracker fed as the sequence benchmark feeds it (permissive candidates, accepted
+    flags, the scan's noise estimate) — what the track classifier is fitted on."""
+    from detectors.tracking import KinTracker
+    from kin_envs.detection.benchmark import permissive
+
+    kw = dict(detector=detector, noise_sigma=0.01, n_distractors=6, kin_like_cylinders=True, max_steps=200)
+    a, b = gym.make(IDS[0], tracker={"feed": "permissive"}, **kw), gym.make(IDS[0], tracker=True, **kw)
+    a.reset(seed=4)
+    b.reset(seed=4)
+    u = a.unwrapped
+    assert u._feeder.one_call == (detector == "geometric")
+    ref, perm = KinTracker(), permissive(u.detector)
+    dt = u.world.config.control_dt
+    _benchmark_feed(ref, u.detector, perm, u._last_scan, 1, np.zeros((1, 3)), dt)
+    rng = np.random.default_rng(1)
+    rejected = 0
+    for _ in range(40):
+        act = rng.uniform([0, -1], [1, 1])
+        ia, ib = a.step(act)[4], b.step(act)[4]
+        for f, c in ib["kin_detections"].items():
+            np.testing.assert_array_equal(ia["kin_detections"][f], c, err_msg=f)
+        rejected += _benchmark_feed(ref, u.detector, perm, u._last_scan, 1, u.world.odometry_delta[:1], dt)
+        want = ref.track_arrays(16)["tracks"][0]
+        for j, f in enumerate(TRACK_FIELDS):
+            np.testing.assert_array_equal(ia["kin_tracks"][f], want[:, j].astype(np.float64), err_msg=f)
+    assert rejected > 0  # candidates the detector rejects did reach the tracker
+
+
+def test_permissive_feed_in_the_swarm_and_the_native_vector_env():
+    """aggregation_v1 (all robots, one geometric call per step) and the native vector env with
+    tracker={"feed": "permissive"}: the swarm's tracks are the benchmark feed's, its detections unchanged;
+    the vector env's tracks those of K separate envs (across autoresets)."""
+    from detectors.tracking import KinTracker
+    from kin_envs import aggregation_v1
+    from kin_envs.detection.benchmark import permissive
+
+    envs = [aggregation_v1.parallel_env(n_robots=8, tracker=t, noise_sigma=0.01, max_cycles=30)
+            for t in ({"feed": "permissive"}, True)]  # fmt: skip
+    for e in envs:
+        e.reset(seed=2)
+    u = envs[0]
+    ref, perm = KinTracker(n_observers=8), permissive(u.detector)
+    dt = u.world.config.control_dt
+    _benchmark_feed(ref, u.detector, perm, u._last_scan, 8, np.zeros((8, 3)), dt)
+    rng = np.random.default_rng(2)
+    for _ in range(12):
+        acts = {ag: rng.uniform(-1, 1, 2).astype(np.float32) for ag in u.agents}
+        ia, ib = envs[0].step(acts)[4], envs[1].step(acts)[4]
+        _benchmark_feed(ref, u.detector, perm, u._last_scan, 8, u.world.odometry_delta, dt)
+        want = ref.track_arrays(16)["tracks"]
+        for i, ag in enumerate(sorted(ia, key=lambda g: int(g.split("_")[-1]))):
+            for f, c in ib[ag]["kin_detections"].items():
+                np.testing.assert_array_equal(ia[ag]["kin_detections"][f], c, err_msg=f)
+            np.testing.assert_array_equal(ia[ag]["kin_tracks"]["x"], want[i, :, 1].astype(np.float64))
+    from tests.kin_envs.envs.test_vector_env import SEEK, assert_same_as_sync
+
+    assert_same_as_sync(SEEK, 3, 30, tracker={"feed": "permissive"}, noise_sigma=0.02, n_distractors=4,
+                        max_steps=25, kin_like_cylinders=True)  # fmt: skip

@@ -56,8 +56,11 @@ def test_same_trajectories_as_separate_envs_across_autoresets(env_id):
         {"obs_detections": "mask", "action_type": "discrete"},
         {"detector": None},
         {"detector": "learned", "obs_detections": "topk"},
+        # one tracker over the K learners: the same tracks (ids included) as K envs' own trackers
+        {"tracker": True, "noise_sigma": 0.02},
+        {"tracker": {"kin_model": "hand"}, "obs_detections": "topk", "obs_tracks": True, "noise_sigma": 0.02},
     ],
-    ids=["topk-stack", "mask-discrete", "nodet", "learned"],
+    ids=["topk-stack", "mask-discrete", "nodet", "learned", "tracker", "tracker-obs-hand"],
 )
 def test_same_trajectories_variants(kwargs):
     assert_same_as_sync(SEEK, 3, 30, **{**QUICK, **kwargs})
