@@ -67,6 +67,30 @@ def rate(fn: Callable[[], object], min_time: float) -> float:
     return best
 
 
+def rates_interleaved(
+    fns: dict[str, Callable[[], object]], min_time: float, rounds: int = 9
+) -> dict[str, float]:
+    """Calls per second of each of ``fns``, timed round robin in ``rounds`` blocks of at least
+    ``min_time / rounds`` s each; the median block per function. A change in the machine's speed during the
+    run (other jobs, clock) then hits every function alike, so their ratios hold: timing them one after the
+    other, minutes apart, moved the envs' detector-on / off ratios by 10-30 points between runs."""
+    for fn in fns.values():
+        fn()  # warm-up (numba JIT, caches)
+    now = CLOCK["now"]
+    samples: dict[str, list[float]] = {k: [] for k in fns}
+    for _ in range(rounds):
+        for k, fn in fns.items():
+            n, t0 = 0, now()
+            while True:
+                fn()
+                n += 1
+                dt = now() - t0
+                if dt >= min_time / rounds:
+                    break
+            samples[k].append(n / dt)
+    return {k: float(np.median(v)) for k, v in samples.items()}
+
+
 def naive_scan(world: World, robot: int) -> np.ndarray:
     """The baseline: one pymunk ``segment_query_first`` per beam, in a Python loop."""
     import pymunk
@@ -303,7 +327,7 @@ def bench_detector(min_time: float) -> list[dict]:
     return rows
 
 
-def _agg_rate(n: int, detector, min_time: float) -> float:
+def _agg_step(n: int, detector) -> Callable[[], None]:
     from kin_envs import aggregation_v1
 
     penv = aggregation_v1.parallel_env(n_robots=n, detector=detector, noise_sigma=0.01)
@@ -315,14 +339,30 @@ def _agg_rate(n: int, detector, min_time: float) -> float:
         if any(trunc.values()):
             penv.reset()
 
-    return rate(step_agg, min_time)
+    return step_agg
+
+
+def _seek_step(detector) -> Callable[[], None]:
+    import gymnasium as gym
+
+    env = gym.make("kin_envs/KinSeek-v1", detector=detector, noise_sigma=0.01)
+    env.reset(seed=0)
+
+    def step_seek(env=env):
+        _, _, term, trunc, _ = env.step(env.action_space.sample())
+        if term or trunc:
+            env.reset()
+
+    return step_seek
 
 
 def bench_envs(min_time: float, robots=(16, 64, 256)) -> list[dict]:
     """Env steps/s with the detector off / geometric / learned, as a user gets them: no thread
-    settings by the caller (torch left at its default), 1 % range noise."""
+    settings by the caller (torch left at its default), 1 % range noise. The detector settings of one env
+    are timed interleaved (:func:`rates_interleaved`), so each ratio to detector-off is measured in the same
+    stretch of time."""
     try:
-        import gymnasium as gym
+        import gymnasium  # noqa: F401
     except ImportError as e:  # pragma: no cover - before the envs exist
         print(f"  envs: skipped ({e})")
         return []
@@ -333,25 +373,16 @@ def bench_envs(min_time: float, robots=(16, 64, 256)) -> list[dict]:
     except ImportError:
         dets = (None, "geometric")
     rows = []
-    for detector in dets:
-        env = gym.make("kin_envs/KinSeek-v1", detector=detector, noise_sigma=0.01)
-        env.reset(seed=0)
-
-        def step_seek(env=env):
-            _, _, term, trunc, _ = env.step(env.action_space.sample())
-            if term or trunc:
-                env.reset()
-
-        r = rate(step_seek, min_time)
-        rows.append({"env": "KinSeek-v1", "robots": 1, "detector": str(detector), "steps_per_s": r})
-        print(f"  KinSeek-v1 detector={detector!s:9s} {r:8.1f} steps/s", flush=True)
-        for n in robots:
-            r = _agg_rate(n, detector, min_time)
-            rows.append({"env": "aggregation_v1", "robots": n, "detector": str(detector), "steps_per_s": r})
-            print(f"  aggregation_v1 N={n:3d} detector={detector!s:9s} {r:8.1f} steps/s", flush=True)
-    off = {(r["env"], r["robots"]): r["steps_per_s"] for r in rows if r["detector"] == "None"}
-    for r in rows:
-        r["of_detector_off"] = r["steps_per_s"] / off[(r["env"], r["robots"])]
+    for env_id, n in [("KinSeek-v1", 1)] + [("aggregation_v1", n) for n in robots]:
+        steps = {str(d): (_seek_step(d) if env_id == "KinSeek-v1" else _agg_step(n, d)) for d in dets}
+        rates = rates_interleaved(steps, min_time * len(dets))
+        for d in dets:
+            r = rates[str(d)]
+            rows.append({"env": env_id, "robots": n, "detector": str(d), "steps_per_s": r,
+                         "of_detector_off": r / rates["None"]})
+            print(f"  {env_id} N={n:3d} detector={d!s:9s} {r:8.1f} steps/s ({r / rates['None']:.0%} of off)",
+                  flush=True)
+        del steps  # free the 256-robot worlds before the next size
     return rows
 
 
@@ -579,7 +610,8 @@ def to_markdown(results: dict) -> str:
     if results.get("envs"):
         lines += [
             "Env steps/s as a user gets them (no thread settings), 1 % noise, "
-            f"{results.get('config', {}).get('clock', 'wall')} clock:",
+            f"{results.get('config', {}).get('clock', 'wall')} clock; an env's detector settings timed "
+            "interleaved (median of 9 blocks each):",
             "",
             "| env | robots | detector | steps/s | of detector off |",
             "|---|---:|---|---:|---:|",

@@ -45,6 +45,16 @@ def test_cpu_clock(bench, tmp_path):
     assert "cpu clock" in (tmp_path / "benchmark.md").read_text()
 
 
+def test_rates_interleaved_alternates_the_functions(bench):
+    calls = []
+    fns = {k: (lambda k=k: calls.append(k)) for k in ("off", "on")}
+    rates = bench.rates_interleaved(fns, min_time=0.006, rounds=3)
+    assert set(rates) == {"off", "on"} and all(r > 0 for r in rates.values())
+    # one warm-up call each, then three blocks of each in turn: off, on, off, on, off, on
+    blocks = [k for i, k in enumerate(calls[2:]) if i == 0 or calls[2:][i - 1] != k]
+    assert calls[:2] == ["off", "on"] and blocks == ["off", "on"] * 3
+
+
 def test_env_and_memory_sections(bench, tmp_path):
     pytest.importorskip("torch")
     argv = ["--sections", "envs,memory", "--min-time", "0.03", "--env-robots", "4", "--memory-steps", "4"]
