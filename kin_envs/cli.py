@@ -140,6 +140,15 @@ def check_output_dir(path, what: str = "--out") -> Path:
     return p
 
 
+def check_distance_bins(edges, what: str = "--bins") -> list[float]:
+    """Distance bin edges (m): at least two, increasing, the first >= 0; a clear ``ValueError`` naming the
+    option otherwise."""
+    edges = [float(e) for e in edges]
+    if len(edges) < 2 or edges[0] < 0 or any(b <= a for a, b in zip(edges, edges[1:], strict=False)):
+        raise ValueError(f"{what} must be >= 2 increasing distances >= 0, got {edges}")
+    return edges
+
+
 def parse_json_object(text: str | None, what: str) -> dict | None:
     """A CLI value holding a JSON object inline or the path of a JSON file; ``None`` when empty.
 

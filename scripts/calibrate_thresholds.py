@@ -39,7 +39,14 @@ from pathlib import Path
 
 import numpy as np
 
-from kin_envs.cli import add_logging_args, check_output_dir, script_logger, setup_logging, write_run_info
+from kin_envs.cli import (
+    add_logging_args,
+    check_distance_bins,
+    check_output_dir,
+    script_logger,
+    setup_logging,
+    write_run_info,
+)
 from kin_envs.cli import progress as tqdm
 from kin_envs.detection.benchmark import GATE, SPLITS, Condition, _beam_fraction, _frames, _sample
 from kin_envs.detection.seeds import TRAINING_SEEDS, check_training_seeds
@@ -210,8 +217,7 @@ def main(argv=None) -> dict:
     try:
         if args.scenes < 1:
             raise ValueError(f"--scenes must be >= 1, got {args.scenes}")
-        if len(edges) < 2 or any(b <= a for a, b in zip(edges, edges[1:], strict=False)) or edges[0] < 0:
-            raise ValueError(f"--bins must be >= 2 increasing distances >= 0, got {edges}")
+        check_distance_bins(edges)
         if any(b <= a for a, b in zip(bedges, bedges[1:], strict=False)) or bedges[0] <= 0:
             raise ValueError(f"--beam-edges must be increasing and > 0, got {bedges}")
         if not all(0 <= p < 1 for p in args.dropout) or len(set(args.dropout)) != len(args.dropout):

@@ -26,7 +26,14 @@ from pathlib import Path
 import numpy as np
 
 from detectors.fileio import write_json, write_text
-from kin_envs.cli import add_logging_args, check_output_dir, noise_level, setup_logging, write_run_info
+from kin_envs.cli import (
+    add_logging_args,
+    check_distance_bins,
+    check_output_dir,
+    noise_level,
+    setup_logging,
+    write_run_info,
+)
 from kin_envs.cli import progress as tqdm
 from kin_envs.detection.seeds import TRAINING_SEEDS, check_training_seeds
 
@@ -185,8 +192,7 @@ def main(argv=None) -> dict:
             raise ValueError(f"--window-threshold must be in [0, 1], got {args.window_threshold}")
         if not args.depth > 0:
             raise ValueError(f"--depth must be > 0, got {args.depth}")
-        if len(edges) < 2 or any(b <= a for a, b in zip(edges, edges[1:], strict=False)) or edges[0] < 0:
-            raise ValueError(f"--bins must be >= 2 increasing distances >= 0, got {edges}")
+        check_distance_bins(edges)
         check_training_seeds(seeds, "--first-seed/--scenes", within=TRAINING_SEEDS)
         check_output_dir(args.out)
     except ValueError as e:

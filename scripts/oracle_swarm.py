@@ -32,7 +32,14 @@ from pathlib import Path
 import numpy as np
 
 from detectors.fileio import write_json, write_text
-from kin_envs.cli import add_logging_args, check_output_dir, noise_level, setup_logging, write_run_info
+from kin_envs.cli import (
+    add_logging_args,
+    check_distance_bins,
+    check_output_dir,
+    noise_level,
+    setup_logging,
+    write_run_info,
+)
 from kin_envs.cli import progress as tqdm
 from kin_envs.core.lidar import HitKind
 from kin_envs.detection.benchmark import GATE, SPLITS, Condition, _frames, _sample
@@ -127,8 +134,7 @@ def main(argv=None) -> dict:
         if args.scenes < 1 or args.starts < 1 or args.resamples < 0:
             raise ValueError(f"--scenes and --starts must be >= 1 and --resamples >= 0, got {args.scenes}, "
                              f"{args.starts}, {args.resamples}")  # fmt: skip
-        if len(edges) < 2 or edges[0] < 0 or any(b <= a for a, b in zip(edges, edges[1:], strict=False)):
-            raise ValueError(f"--bins must be >= 2 increasing distances >= 0, got {edges}")
+        check_distance_bins(edges)
         check_training_seeds(seeds, "--first-seed/--scenes", within=TRAINING_SEEDS)
         check_output_dir(args.out)
     except ValueError as e:

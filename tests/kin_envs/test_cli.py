@@ -166,3 +166,12 @@ def test_run_main_bad_input_and_other_errors(capsys, no_sigint_handler):
 
     with pytest.raises(RuntimeError, match="a real bug"):
         cli.run_main(broken)
+
+
+@pytest.mark.parametrize("edges", [[1.0], [1.0, 0.5], [0.3, 0.3], [-0.1, 1.0]])
+def test_check_distance_bins_names_the_option(edges):
+    from kin_envs.cli import check_distance_bins
+
+    with pytest.raises(ValueError, match=r"--bins must be >= 2 increasing distances >= 0"):
+        check_distance_bins(edges)
+    assert check_distance_bins([0, 1, 2.5]) == [0.0, 1.0, 2.5]
