@@ -609,3 +609,15 @@ def test_track_arrays_are_fresh_and_follow_updates_and_the_kin_model():
     obs, xy, sc, delta, pts, own = frames[6]
     tr.update_batch(obs, xy, sc, delta, DT, pts, own)
     assert same(tr.track_arrays(16), run(7).track_arrays(16))
+
+
+def test_adopt_refuses_a_bad_observer_or_tracker():
+    tr = KinTracker(n_observers=2)
+    with pytest.raises(ValueError, match=r"observer must be in \[0, 2\), got 2"):
+        tr.adopt(2, KinTracker())
+    with pytest.raises(ValueError, match="observer must be in"):
+        tr.adopt(True, KinTracker())
+    for other in (KinTracker(n_observers=2), KinTracker(TrackerParams(score_prior=0.5)), "tracker"):
+        with pytest.raises(ValueError, match="one-observer KinTracker with the same params"):
+            tr.adopt(0, other)
+    assert tr.adopt(1, KinTracker()).shape == (0,)  # an empty tracker adopts nothing
