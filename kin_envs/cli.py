@@ -78,7 +78,9 @@ def run_main(main: Callable[[], object], bad_input: tuple[type[BaseException], .
     except Exception as e:
         # A library's clean-up can fail while a Ctrl-C unwinds through it (zipfile's "Can't close the ZIP
         # file while there is an open writing handle" during an SB3 save): still an interrupt, not bad input
-        if _raised_by_ctrl_c(e):
+        if _raised_by_ctrl_c(e) or interrupts.was_interrupted():
+            # ... or a C extension replaced the KeyboardInterrupt with its own error (matplotlib's Agg
+            # renderer: "Invalid bounding box"), leaving no trace of it in the exception
             _interrupted()
         if not isinstance(e, bad_input):
             raise

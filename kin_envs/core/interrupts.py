@@ -26,11 +26,21 @@ from pathlib import Path
 
 import pymunk
 
-__all__ = ["atomic", "install"]
+__all__ = ["atomic", "install", "was_interrupted"]
 
 _PYMUNK_DIR = str(Path(pymunk.__file__).resolve().parent)
 _depth = 0
 _pending = False
+#: whether this handler has raised a KeyboardInterrupt in this process (see :func:`was_interrupted`)
+_raised = False
+
+
+def was_interrupted() -> bool:
+    """Whether the handler has raised a ``KeyboardInterrupt`` in this process. A C extension that runs
+    Python code can replace the ``KeyboardInterrupt`` with an error of its own (matplotlib's Agg
+    renderer: ``ValueError: Invalid bounding box``), leaving no trace of the Ctrl-C in the exception:
+    callers ask this instead."""
+    return _raised
 
 
 def _in_pymunk(frame) -> bool:
@@ -42,7 +52,7 @@ def _in_pymunk(frame) -> bool:
 
 
 def _handler(signum, frame) -> None:
-    global _pending
+    global _pending, _raised
     if _depth > 0:
         _pending = True
         return
@@ -51,6 +61,7 @@ def _handler(signum, frame) -> None:
         retry.daemon = True
         retry.start()
         return
+    _raised = True
     raise KeyboardInterrupt
 
 
@@ -71,7 +82,7 @@ def atomic() -> Iterator[None]:
     """A block that Ctrl-C does not interrupt; a Ctrl-C during it raises when it ends.
 
     Signal handlers run in the main thread only, so in other threads this is a no-op."""
-    global _depth, _pending
+    global _depth, _pending, _raised
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -84,4 +95,5 @@ def atomic() -> Iterator[None]:
         _depth -= 1
         if _depth == 0 and _pending:
             _pending = False
+            _raised = True
             raise KeyboardInterrupt

@@ -153,6 +153,37 @@ def test_run_main_treats_an_error_raised_during_ctrl_c_as_the_interrupt(error, c
     assert "interrupted (Ctrl-C)" in capsys.readouterr().err
 
 
+def test_run_main_treats_an_error_after_its_ctrl_c_as_the_interrupt(capsys, monkeypatch, no_sigint_handler):
+    """A C extension can swallow the KeyboardInterrupt and raise its own error with no trace of it
+    (matplotlib's Agg renderer: "Invalid bounding box", seen in CI): after the handler has raised a
+    Ctrl-C, any error ends the script as interrupted."""
+    import signal
+
+    from kin_envs.core import interrupts
+
+    monkeypatch.setattr(interrupts, "_raised", False)
+
+    def main():
+        try:
+            interrupts._handler(signal.SIGINT, None)
+        except KeyboardInterrupt:
+            pass  # swallowed, as the C code does
+        raise ValueError("Invalid bounding box")
+
+    with pytest.raises(SystemExit) as stop:
+        cli.run_main(main)
+    assert stop.value.code == cli.EXIT_INTERRUPTED
+    assert "interrupted (Ctrl-C)" in capsys.readouterr().err
+
+    def no_ctrl_c():
+        raise ValueError("Invalid bounding box")
+
+    monkeypatch.setattr(interrupts, "_raised", False)  # without a Ctrl-C the same error is bad input
+    with pytest.raises(SystemExit) as stop:
+        cli.run_main(no_ctrl_c)
+    assert stop.value.code == 2 and "interrupted" not in capsys.readouterr().err
+
+
 def test_run_main_bad_input_and_other_errors(capsys, no_sigint_handler):
     def bad():
         raise ValueError("--noise must be in [0, 0.2]")
