@@ -40,10 +40,11 @@ run: setup
 
 # The main suite keeps about one core busy: the .venv-ray branch (its set-up, the distributed tests, the
 # env tests under gymnasium 1.2) runs beside it, its log printed once both are done; fails if either fails.
+# It runs in its own session (setsid): a background job ignores Ctrl-C, so the trap stops its whole group.
 test: setup
 	@ray_log=$$(mktemp); \
-	$(MAKE) --no-print-directory test-distributed > "$$ray_log" 2>&1 & ray_pid=$$!; \
-	trap 'kill $$ray_pid 2>/dev/null; rm -f "$$ray_log"' INT TERM; \
+	setsid $(MAKE) --no-print-directory test-distributed > "$$ray_log" 2>&1 & ray_pid=$$!; \
+	trap 'kill -- -$$ray_pid 2>/dev/null; rm -f "$$ray_log"; exit 130' INT TERM; \
 	echo "$(PY) -m pytest -q  (beside it: make test-distributed, log below)"; \
 	$(PY) -m pytest -q; rc=$$?; \
 	wait $$ray_pid; ray_rc=$$?; \
