@@ -27,10 +27,10 @@ feature kernel signature, a cascade stage) must be made in both places; that tes
 
 Every output array is allocated in the call: results handed to a caller are never reused.
 
-numba's on-disk cache of these functions is invalidated only when *this* file changes, not when a
-kernel they compile in (:mod:`detectors.features`, :mod:`detectors._kernels`) does: after editing
-those, delete the ``__pycache__/*.nbi`` / ``*.nbc`` files (or touch this file) before timing, or the
-driver runs the old kernels (the same values, the old speed).
+numba's on-disk cache stamps a function with its own file only; :mod:`detectors._numba_cache` adds
+the digest of every jitted source of the package to the stamp, so an edit to a kernel these functions
+compile in (:mod:`detectors.features`, :mod:`detectors._kernels`) recompiles them instead of reusing
+the old machine code.
 """
 
 from __future__ import annotations

@@ -16,6 +16,14 @@ __kin_envs_package__ = True
 from kin_envs._toplevel import check_all as _check_toplevel  # noqa: E402
 
 _check_toplevel()  # before anything imports detectors: a foreign one would fail later, confusingly
+
+from pathlib import Path as _Path  # noqa: E402
+
+import detectors as _detectors  # noqa: E402
+from detectors._numba_cache import guard_dependencies as _guard  # noqa: E402
+
+# before any kin_envs kernel is decorated: its numba cache goes stale when a jitted source changes
+_guard(_Path(__file__).resolve().parent, also=[_Path(_detectors.__file__).resolve().parent])
 logging.getLogger(__name__).addHandler(logging.NullHandler())
 
 from kin_envs import aggregation_v0, aggregation_v1, scenes  # noqa: E402
