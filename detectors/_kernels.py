@@ -476,15 +476,18 @@ def mlp_forward_rows(x, mean, std, weights_t, biases, sizes, out):
 
 
 @numba.njit(cache=True, nogil=True)
-def housing_max_beams(d, scan, first, count, step, r, slack, margin, out):
+def housing_max_beams(d, scan, first, count, step, r, slack, margin, skip_one, out):
     """Most beams (``step`` rad apart) a circle of radius ``r`` can return, plus ``margin``, for
     every segment, from its nearest reading ``d_min``: the circle's centre is at least ``slack *
     d_min`` away (every visible point is nearer than the centre, and ``slack = 1 / (1 + k sigma)``
     allows each reading to be ``k sigma`` too long), where it spans ``2 asin(r / D)``, so at most
     ``floor(2 asin(r / D) / step) + 1`` beams. Writes ``out[i]`` (float64; a segment with more
-    beams cannot be a housing)."""
+    beams cannot be a housing). ``skip_one``: NaN for one-beam segments (not computed)."""
     n_beams = d.shape[1]
     for i in range(scan.shape[0]):
+        if skip_one and count[i] == 1:
+            out[i] = np.nan
+            continue
         b = scan[i]
         j = first[i]
         dmin = d[b, j]

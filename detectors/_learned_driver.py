@@ -41,7 +41,14 @@ import numba
 import numpy as np
 
 from . import _kernels as _k
-from .features import _cascade_kernel, _cascade_scores, _features_kernel, _scan_columns, _scan_noise_kernel
+from .features import (
+    _cascade_kernel,
+    _cascade_one_beam_filter,
+    _cascade_scores,
+    _features_kernel,
+    _scan_columns,
+    _scan_noise_kernel,
+)
 
 _CAS_CHUNK = 256  # segments per chunk of the cascade's stage 1 in :func:`front`
 
@@ -52,12 +59,19 @@ TABLE_FIELDS = ("range", "bearing", "x", "y", "score", "first_beam", "last_beam"
 @numba.njit(cache=True, nogil=True)
 def front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_ang, cos_a, sin_a, sweep,
           tan_tab, occlusion_unbounded, n_points, n_context, gn_iters, n_feat, cascade, c_w1t, c_b1, c_w2,
-          c_b2, c_threshold):  # fmt: skip
+          c_b2, c_threshold, c_one_beam, lean):  # fmt: skip
     """Stages 1-3 for ``B`` scans ``r`` (B, n) (float32 or float64 readings, not validated here).
 
     ``cascade``: run the cascade's stage 1 (``c_w1t, c_b1, c_w2, c_b2``, the model of
     :func:`detectors.learned.load_cascade`) on the segments the pre-gate keeps; those scoring below
     ``c_threshold`` do not reach the features and the network (as ``LearnedKinDetector._predict``).
+
+    ``lean`` (the env's :func:`fused_table`, which returns only the detections): one-beam segments
+    skip the pre-gate's bound (it always keeps them: ``max_beams >= 1 + margin``; NaN here) and, with
+    the cascade, those whose score :func:`detectors.features._cascade_one_beam_filter` proves below
+    the threshold with the bound table ``c_one_beam`` (:func:`detectors.features.cascade_one_beam_table`)
+    skip stage 1 (score NaN here). Which segments reach the network, and so every detection and
+    stage code, is the same as without ``lean``.
 
     Returns ``(d, scan, first, count, prev, next, prev_nearer, next_nearer, max_beams, rows, x,
     frames, scan_cols, cascade_score)``: the pre-processed ranges, the segments (as
@@ -73,11 +87,13 @@ def front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_a
     s = scan.shape[0]
     max_beams = np.empty(s)
     if pre_gate:
-        _k.housing_max_beams(d, scan, first, count, step, r_kin, slack, margin, max_beams)
+        # (a one-beam segment's bound floor(2 asin(.) / step) + 1 + margin is >= 1 for step > 0, margin >= 0)
+        skip_one = lean and step > 0.0 and margin >= 0.0
+        _k.housing_max_beams(d, scan, first, count, step, r_kin, slack, margin, skip_one, max_beams)
         keep = np.empty(s, dtype=np.int64)
         n_keep = 0
         for i in range(s):
-            if count[i] <= max_beams[i]:
+            if count[i] <= max_beams[i] or (skip_one and count[i] == 1):
                 keep[n_keep] = i
                 n_keep += 1
         rows = keep[:n_keep].copy()
@@ -93,10 +109,15 @@ def front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_a
     if cascade and s > 0:
         # stage 1 on the pre-gate's survivors; only those scoring >= c_threshold go on
         _scan_columns(noise, noise_n, scan_cols)
+        d_flat = d.reshape(-1)
+        if lean:  # the one-beam segments the bound rejects drop out here (the others keep their order)
+            todo = np.empty(rows.shape[0], dtype=np.int64)
+            n_todo = _cascade_one_beam_filter(d_flat, scan, first, count, p_near, n_near, n, circular, d_max,
+                                              scan_cols, c_one_beam, c_threshold, rows, todo)  # fmt: skip
+            rows = todo[:n_todo]
         # in chunks: the inputs stay in cache (a row's score does not depend on its chunk)
         xc = np.empty((_CAS_CHUNK, 12))
         s1 = np.empty(rows.shape[0])
-        d_flat = d.reshape(-1)
         for c0 in range(0, rows.shape[0], _CAS_CHUNK):
             c1 = min(c0 + _CAS_CHUNK, rows.shape[0])
             _cascade_kernel(d_flat, cos_a, sin_a, trig_ang, scan, first, count, prev, nxt, p_near, n_near, n,
@@ -152,7 +173,6 @@ def back(out, d, scan, first, count, max_beams, rows, frames, scan_cols, ang, pr
     (:data:`TABLE_FIELDS`: the centre's range, bearing, ``x``, ``y``, the score and the beams).
     """
     n_seg = scan.shape[0]
-    n_beams = ang.shape[0]
     thr_scan = np.empty(scan_cols.shape[0])
     if n_seg > 0:
         for b in range(scan_cols.shape[0]):
@@ -174,27 +194,63 @@ def back(out, d, scan, first, count, max_beams, rows, frames, scan_cols, ang, pr
         else:
             stage[i] = _k.LEARNED
     det = np.empty(n_det, dtype=np.int64)
+    det_o = np.empty(n_det, dtype=np.int64)
     k = 0
-    for i in range(n_seg):
-        if stage[i] == _k.ACCEPTED:
-            det[k] = i
+    for o in range(rows.shape[0]):
+        if stage[rows[o]] == _k.ACCEPTED:  # (only rows have a p(kin); rows ascend)
+            det[k] = rows[o]
+            det_o[k] = o
             k += 1
+    table = _table(out, d, scan, first, count, det, det_o, p[det], frames, ang, regression, t_mean, t_std,
+                   r_kin, max_iter, xtol, lam0, lam_max)  # fmt: skip
+    return p, thr, stage, det, table
+
+
+@numba.njit(cache=True, nogil=True)
+def back_table(out, d, scan, first, count, rows, frames, scan_cols, ang, fixed_threshold, edges, values,
+               regression, t_mean, t_std, r_kin, max_iter, xtol, lam0, lam_max):  # fmt: skip
+    """:func:`back`'s ``(scan row (D,), table)`` of the detections alone (the env's entry): only the
+    segments ``rows`` that reached the network are looked at, with the same expressions."""
+    thr_scan = np.empty(scan_cols.shape[0])
+    if scan.shape[0] > 0:
+        for b in range(scan_cols.shape[0]):
+            thr_scan[b] = _scan_threshold(scan_cols[b, 0], fixed_threshold, edges, values)
+    det_o = np.empty(rows.shape[0], dtype=np.int64)
+    p_o = np.empty(rows.shape[0])
+    n_det = 0
+    for o in range(rows.shape[0]):
+        p = 1.0 / (1.0 + math.exp(-out[o, 0]))
+        if p >= thr_scan[scan[rows[o]]]:
+            det_o[n_det] = o
+            p_o[n_det] = p
+            n_det += 1
+    det_o = det_o[:n_det]
+    det = rows[det_o]
+    table = _table(out, d, scan, first, count, det, det_o, p_o[:n_det], frames, ang, regression, t_mean,
+                   t_std, r_kin, max_iter, xtol, lam0, lam_max)  # fmt: skip
+    return scan[det], table
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _table(out, d, scan, first, count, det, det_o, p_det, frames, ang, regression, t_mean, t_std, r_kin,
+           max_iter, xtol, lam0, lam_max):  # fmt: skip
+    # the (D, 8) detection table of the accepted segments det (rows det_o of out and frames, p(kin) p_det)
+    n_det = det.shape[0]
+    n_beams = ang.shape[0]
     centres = np.empty((n_det, 2))
     if regression:
-        k = 0
-        for o in range(rows.shape[0]):
-            if k < n_det and rows[o] == det[k]:
-                # t_mean + t_std * out, then detectors.features.local_to_observer, term by term
-                u = t_mean[0] + t_std[0] * out[o, 1]
-                v = t_mean[1] + t_std[1] * out[o, 2]
-                ox, oy, phi, s = frames[o, 0], frames[o, 1], frames[o, 2], frames[o, 3]
-                c = math.cos(phi)
-                sn = math.sin(phi)
-                centres[k, 0] = ox + u * c - s * v * sn
-                centres[k, 1] = oy + u * sn + s * v * c
-                k += 1
+        for k in range(n_det):
+            o = det_o[k]
+            # t_mean + t_std * out, then detectors.features.local_to_observer, term by term
+            u = t_mean[0] + t_std[0] * out[o, 1]
+            v = t_mean[1] + t_std[1] * out[o, 2]
+            ox, oy, phi, s = frames[o, 0], frames[o, 1], frames[o, 2], frames[o, 3]
+            c = math.cos(phi)
+            sn = math.sin(phi)
+            centres[k, 0] = ox + u * c - s * v * sn
+            centres[k, 1] = oy + u * sn + s * v * c
     else:
-        full = np.empty((n_seg, 2))
+        full = np.empty((scan.shape[0], 2))
         _k.fit_centres(d, ang, scan, first, count, det, r_kin, max_iter, xtol, lam0, lam_max, full)
         for k in range(n_det):
             centres[k, 0] = full[det[k], 0]
@@ -208,11 +264,11 @@ def back(out, d, scan, first, count, max_beams, rows, frames, scan_cols, ang, pr
         table[k, 1] = _k.wrap(math.atan2(y, x))
         table[k, 2] = x
         table[k, 3] = y
-        table[k, 4] = p[i]
+        table[k, 4] = p_det[k]
         table[k, 5] = first[i]
         table[k, 6] = (first[i] + count[i] - 1) % n_beams
         table[k, 7] = count[i]
-    return p, thr, stage, det, table
+    return table
 
 
 @numba.njit(cache=True, nogil=True, fastmath=True)
@@ -268,19 +324,8 @@ def mlp_rows4(x, mean, std, weights_t, biases, sizes, out):
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def fused(r, front_args, rows_max, mean, std, weights, weights_t, biases, sizes, back_args):
-    """:func:`front`, the network compiled (:func:`mlp_rows4` below ``rows_max`` rows, else the block
-    kernel :func:`detectors._kernels.mlp_forward`; bitwise the same) and :func:`back` in one
-    dispatch. ``front_args`` / ``back_args``: the other arguments of :func:`front` / :func:`back`
-    after ``r`` / ``scan_cols``.
-
-    Returns ``(front outputs, out (R, 3) float64, back outputs)``. Called from compiled code only
-    (:func:`fused_table`, :func:`fused_packed`): handing the intermediate arrays back to Python cost
-    ~0.9 ms per 64 dense-arena scans (measured; large arrays freed outside the call come back as
-    fresh pages), and as a separate compiled function (not inlined into its callers) ~0.5 ms more
-    (measured, not understood)."""
-    fr = front(r, *front_args)
-    x = fr[10]
+def _network(x, rows_max, mean, std, weights, weights_t, biases, sizes):
+    # the network's (R, 3) outputs as float64: mlp_rows4 below rows_max rows, else the block kernel
     n_sel = x.shape[0]
     out32 = np.empty((n_sel, 3), dtype=np.float32)
     if n_sel > 0:
@@ -288,7 +333,23 @@ def fused(r, front_args, rows_max, mean, std, weights, weights_t, biases, sizes,
             mlp_rows4(x, mean, std, weights_t, biases, sizes, out32)
         else:
             _k.mlp_forward(x, mean, std, weights, biases, sizes, out32)
-    out = out32.astype(np.float64)
+    return out32.astype(np.float64)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def fused(r, front_args, rows_max, mean, std, weights, weights_t, biases, sizes, back_args):
+    """:func:`front`, the network compiled (:func:`mlp_rows4` below ``rows_max`` rows, else the block
+    kernel :func:`detectors._kernels.mlp_forward`; bitwise the same) and :func:`back` in one
+    dispatch. ``front_args`` / ``back_args``: the other arguments of :func:`front` / :func:`back`
+    after ``r`` / ``scan_cols``.
+
+    Returns ``(front outputs, out (R, 3) float64, back outputs)``. Called from compiled code only
+    (:func:`fused_packed`): handing the intermediate arrays back to Python cost ~0.9 ms per 64
+    dense-arena scans (measured; large arrays freed outside the call come back as fresh pages), and
+    as a separate compiled function (not inlined into its callers) ~0.5 ms more (measured, not
+    understood)."""
+    fr = front(r, *front_args, False)
+    out = _network(fr[10], rows_max, mean, std, weights, weights_t, biases, sizes)
     return fr, out, back_rest(out, fr, back_args)
 
 
@@ -300,10 +361,14 @@ def back_rest(out, fr, back_args):
 
 @numba.njit(cache=True, nogil=True)
 def fused_table(r, front_args, rows_max, mean, std, weights, weights_t, biases, sizes, back_args):
-    """:func:`fused` returning only ``(scan row (D,), table (D, 8))`` of the detections: what the
-    envs read (fewer arrays cross back into Python)."""
-    fr, _, bk = fused(r, front_args, rows_max, mean, std, weights, weights_t, biases, sizes, back_args)
-    return fr[1][bk[3]], bk[4]
+    """The detections alone, ``(scan row (D,), table (D, 8))``: what the envs read (fewer arrays
+    cross back into Python). :func:`front` runs ``lean`` (what only the other segments' reported
+    values need is skipped) and :func:`back_table` looks at the network's rows only; the same
+    detections as :func:`fused_packed` (``tests/detectors/test_cascade_bound.py``)."""
+    fr = front(r, *front_args, True)
+    out = _network(fr[10], rows_max, mean, std, weights, weights_t, biases, sizes)
+    # back_args: (ang, pre_gate, fixed_threshold, edges, values, regression, t_mean, t_std, r_kin, ...)
+    return back_table(out, fr[0], fr[1], fr[2], fr[3], fr[9], fr[11], fr[12], back_args[0], *back_args[2:])
 
 
 @numba.njit(cache=True, nogil=True)

@@ -1002,3 +1002,156 @@ def _cascade(batch: SegmentBatch, c: FeatureConfig, which: np.ndarray, trig, noi
     score = np.empty(which.shape[0])
     _cascade_scores(x, *model, score)
     return x, score
+
+
+# ---------------------------------------------------------------- cascade, a bound for one-beam segments
+
+# Most segments of a noisy swarm scan are one beam (1 % noise breaks long-range walls), and stage 1
+# rejects nearly all of them. :func:`_cascade_one_beam_filter` proves most of those rejections from an
+# upper bound on the stage-1 score that costs a table lookup and a six-term dot product, instead of
+# the inputs (a ``log``, the eq. 4-5 widths) and the 16-unit score.
+#
+# Derivation. The score is ``s(x) = b2 + sum_j w2_j relu(a_j(x))``, ``a_j(x) = b1_j + sum_k W_kj x_k``.
+# For a one-beam segment the inputs lie in a box: ``x0 = log1p(1)``, ``x2 = omega_min = 0`` (eqs. 4-5
+# from its only beam to itself: ``d tan(0) = 0``), ``x6 = chord = 0``, ``x3 = min(omega_max, 0.3)`` in
+# ``[0, 0.3]``, the flags ``x4, x5`` exact, ``ctx_prev1`` (``x8``) ``<= 0`` when the previous beam is
+# nearer (``x4 = 1``, the same comparison) and ``>= 0`` otherwise (``x9``/``x5`` alike), the other
+# contexts in ``[-0.5, 0.5]``; the table's cell also fixes a bin of the scan noise ``x7`` and one of
+# the range ``d``, so ``x1 = log d`` in ``[log d_lo, log d_hi]``. Over the box each ``a_j`` lies in
+# ``[L_j, U_j]`` (interval arithmetic), and on ``[L, U]``: ``relu(a) <= U (a - L) / (U - L)`` (the
+# chord of a convex function, ``L < 0 < U``) and ``relu(a) >= lam a`` for ``lam`` in ``{0, 1}``; with
+# ``relu = 0`` for ``U <= 0`` and ``= a`` for ``L >= 0``. Each unit's term gets the upper linear
+# bound where ``w2_j > 0``, the lower one where ``w2_j < 0``: an affine ``s(x) <= c + g . x`` on the
+# box. ``x0`` to ``x6`` are then replaced by the maximum of their terms over the box, leaving
+# ``B = c' + g7 x7 + g8 x8 + g9 x9 + g10 x10 + g11 x11`` on the exact float32 values the stage computes.
+# Rounding: the score and ``B`` are float64 sums of ~30 terms below ~1e3 in size (errors ~1e-12), the
+# box's ``log d`` edges are padded by 1e-6 (libm's and float32's roundings of ``log d`` are ~1e-7),
+# so rejecting only ``B < threshold - 1e-6`` never drops a segment the stage would keep: the outputs
+# that depend on the kept segments stay bitwise the same (``tests/detectors/test_cascade_bound.py``).
+_C1_SHIFT = 49  # float64 bits >> 49: the exponent and 3 mantissa bits, 8 range bins per octave
+_C1_D_LO = 2.0**-4  # m: ranges outside [_C1_D_LO, _C1_D_HI) are scored in full
+_C1_D_HI = 2.0**4
+_C1_K0 = int(np.array(_C1_D_LO).view(np.int64)) >> _C1_SHIFT
+_C1_ND = (int(np.array(_C1_D_HI).view(np.int64)) >> _C1_SHIFT) - _C1_K0
+_C1_X7_LO = -9.5  # log_scan_noise bins of 0.5 (exact in binary) over [-9.5, 3.5); log(1e-4) = -9.2
+_C1_X7_W = 0.5
+_C1_N7 = 26
+_C1_DELTA = 1e-6  # the rounding margin above
+
+
+def cascade_one_beam_table(w1t, b1, w2, b2) -> np.ndarray:
+    """``(_C1_N7, 4, _C1_ND, 6)`` float64: for each scan-noise bin, flag pair ``prev_nearer + 2
+    next_nearer`` and range bin, ``(c', g7, g8, g9, g10, g11)`` of the affine bound above on the
+    stage-1 score ``(w1t, b1, w2, b2)`` (:func:`_cascade_scores`'s model) of a one-beam segment."""
+    w1t, b1, w2 = (np.asarray(a, dtype=np.float64) for a in (w1t, b1, w2))
+    n_in = len(CASCADE_FEATURES)
+    if w1t.ndim != 2 or w1t.shape[0] != n_in or b1.shape != (w1t.shape[1],) or w2.shape != b1.shape:
+        raise ValueError(f"cascade_one_beam_table: not a {n_in} -> H -> 1 model: w1t {w1t.shape}")
+    edges = (np.arange(_C1_K0, _C1_K0 + _C1_ND + 1, dtype=np.int64) << _C1_SHIFT).view(np.float64)
+    x7e = _C1_X7_LO + _C1_X7_W * np.arange(_C1_N7 + 1)
+    key = np.arange(4)
+    prev_n, next_n = (key & 1).astype(float), (key >> 1).astype(float)
+    shape = (_C1_N7, 4, _C1_ND, n_in)
+    lo, hi = np.zeros(shape), np.zeros(shape)
+    lo[..., 0] = hi[..., 0] = np.float32(math.log1p(1.0))
+    lo[..., 1] = np.log(edges[:-1]) - 1e-6
+    hi[..., 1] = np.log(edges[1:]) + 1e-6
+    hi[..., 3] = float(np.float32(_LEN_CLIP)) + 1e-6
+    lo[..., 4] = hi[..., 4] = prev_n[:, None]
+    lo[..., 5] = hi[..., 5] = next_n[:, None]
+    lo[..., 7] = x7e[:-1, None, None]
+    hi[..., 7] = x7e[1:, None, None]
+    for k, flag in ((8, prev_n), (9, next_n)):  # a nearer neighbour: the context difference is <= 0
+        lo[..., k] = np.where(flag > 0, -_CTX_CLIP, 0.0)[:, None]
+        hi[..., k] = np.where(flag > 0, 0.0, _CTX_CLIP)[:, None]
+    lo[..., 10:] = -_CTX_CLIP
+    hi[..., 10:] = _CTX_CLIP
+    wp, wn = np.maximum(w1t, 0.0), np.minimum(w1t, 0.0)
+    low = b1 + lo @ wp + hi @ wn  # (..., H): each unit's pre-activation range over the box
+    up = b1 + hi @ wp + lo @ wn
+    mid = (low < 0.0) & (up > 0.0)
+    span = np.where(mid, up - low, 1.0)
+    # slope of the linear bound of relu: the chord (w2 > 0) or 0 / 1 (w2 < 0), 0 or 1 off the kink
+    slope = np.where(low >= 0.0, 1.0, np.where(mid, np.where(w2 > 0.0, up / span, (up > -low) * 1.0), 0.0))
+    offset = np.where(mid & (w2 > 0.0), -slope * low, 0.0)
+    coef = slope * w2
+    g = coef @ w1t.T
+    c = b2 + coef @ b1 + offset @ w2
+    for k in range(7):  # the fixed (x0, x2, x4-x6) or bounded (x1, x3) inputs at their worst
+        c = c + np.maximum(g[..., k] * lo[..., k], g[..., k] * hi[..., k])
+    return np.ascontiguousarray(np.concatenate([c[..., None], g[..., 7:]], axis=-1))
+
+
+@numba.njit(cache=True, inline="always")
+def _one_beam_bound(d_flat, d_bits, row, f, n_beams, circular, d_max, key, k7, x7, tab):
+    # the bound B of the derivation above for the one-beam segment at beam f of the scan starting at
+    # d_flat[row]; inf when its range or scan noise is outside the table
+    kd = (d_bits[row + f] >> _C1_SHIFT) - _C1_K0
+    if k7 < 0 or kd < 0 or kd >= _C1_ND:
+        return math.inf
+    v = d_flat[row + f]
+    c8 = np.float32(_context_value(d_flat, row, f - 1, n_beams, circular, v, d_max))
+    c9 = np.float32(_context_value(d_flat, row, f + 1, n_beams, circular, v, d_max))
+    c10 = np.float32(_context_value(d_flat, row, f - 2, n_beams, circular, v, d_max))
+    c11 = np.float32(_context_value(d_flat, row, f + 2, n_beams, circular, v, d_max))
+    t = tab[k7, key, kd]
+    return t[0] + t[1] * x7 + t[2] * c8 + t[3] * c9 + t[4] * c10 + t[5] * c11
+
+
+@numba.njit(cache=True, nogil=True)
+def _one_beam_scan_bins(scan_cols, k7, x7):
+    # per scan: its log_scan_noise as the stage sees it (float32) and its bin in the table (-1: none)
+    for b in range(scan_cols.shape[0]):
+        v = float(np.float32(scan_cols[b, 0]))
+        x7[b] = v
+        k7[b] = -1
+        if v >= _C1_X7_LO and v < _C1_X7_LO + _C1_X7_W * _C1_N7:
+            k = int((v - _C1_X7_LO) / _C1_X7_W)
+            # the bin's edges are exact (multiples of 0.5): put v inside them whatever the rounding
+            if k > 0 and v < _C1_X7_LO + _C1_X7_W * k:
+                k -= 1
+            elif k < _C1_N7 - 1 and v >= _C1_X7_LO + _C1_X7_W * (k + 1):
+                k += 1
+            k7[b] = k
+
+
+@numba.njit(cache=True, nogil=True)
+def _cascade_one_beam_filter(d_flat, scan, first, count, prev_nearer, next_nearer, n_beams, circular, d_max,
+                             scan_cols, tab, threshold, rows, out):  # fmt: skip
+    """Copy into ``out`` the segments ``rows`` that stage 1 must score: all but the one-beam segments
+    whose bound (:func:`cascade_one_beam_table`) proves a score below ``threshold``. Returns how many
+    (in the order of ``rows``)."""
+    k7 = np.empty(scan_cols.shape[0], dtype=np.int64)
+    x7 = np.empty(scan_cols.shape[0])
+    _one_beam_scan_bins(scan_cols, k7, x7)
+    d_bits = d_flat.view(np.int64)
+    lim = threshold - _C1_DELTA
+    m = 0
+    for o in range(rows.shape[0]):
+        i = rows[o]
+        if count[i] == 1:
+            b = scan[i]
+            key = (1 if prev_nearer[i] else 0) + (2 if next_nearer[i] else 0)
+            bound = _one_beam_bound(d_flat, d_bits, b * n_beams, first[i], n_beams, circular, d_max, key,
+                                    k7[b], x7[b], tab)  # fmt: skip
+            if bound < lim:
+                continue
+        out[m] = i
+        m += 1
+    return m
+
+
+@numba.njit(cache=True, nogil=True)
+def _cascade_one_beam_bounds(d_flat, scan, first, prev_nearer, next_nearer, n_beams, circular, d_max,
+                             scan_cols, tab, which, out):  # fmt: skip
+    # the bound of each (one-beam) segment of `which` (tests compare it with the stage-1 score)
+    k7 = np.empty(scan_cols.shape[0], dtype=np.int64)
+    x7 = np.empty(scan_cols.shape[0])
+    _one_beam_scan_bins(scan_cols, k7, x7)
+    d_bits = d_flat.view(np.int64)
+    for o in range(which.shape[0]):
+        i = which[o]
+        b = scan[i]
+        key = (1 if prev_nearer[i] else 0) + (2 if next_nearer[i] else 0)
+        out[o] = _one_beam_bound(d_flat, d_bits, b * n_beams, first[i], n_beams, circular, d_max, key, k7[b],
+                                 x7[b], tab)  # fmt: skip

@@ -71,6 +71,7 @@ from .features import (
     _segment_batch,
     _segment_features,
     beam_trig,
+    cascade_one_beam_table,
     feature_names,
     local_to_observer,
     scan_noise,
@@ -874,7 +875,7 @@ class LearnedKinDetector(KinDetector):
         out = np.empty(batch.n_segments)
         _k.housing_max_beams(
             batch.ranges, batch.scan, batch.first, batch.count, self._step, float(self.feature_config.r),
-            PRE_GATE_SLACK, float(PRE_GATE_MARGIN), out,
+            PRE_GATE_SLACK, float(PRE_GATE_MARGIN), False, out,
         )  # fmt: skip
         return out
 
@@ -1089,11 +1090,16 @@ class LearnedKinDetector(KinDetector):
             c.occlusion_unbounded, int(c.n_points), int(c.n_context), int(c.gn_iters), len(feature_names(c)),
         )  # fmt: skip
         # the cascade's model, or empty stand-ins of the same types (one compiled signature)
-        off = (False, np.zeros((0, 0)), np.zeros(0), np.zeros(0), 0.0, 0.0)
+        off = (False, np.zeros((0, 0)), np.zeros(0), np.zeros(0), 0.0, 0.0, np.zeros((0, 4, 0, 6)))
         front_cas = None
         if self._cascade is not None:
             w1t, b1, w2, b2 = self._cascade["model"]
-            front_cas = (*front, True, w1t, b1, w2, float(b2), float(self._cascade["threshold"]))
+            if "one_beam_table" not in self._cascade:  # the bound's table: once per cascade model
+                self._cascade["one_beam_table"] = cascade_one_beam_table(w1t, b1, w2, b2)
+            front_cas = (
+                *front, True, w1t, b1, w2, float(b2), float(self._cascade["threshold"]),
+                self._cascade["one_beam_table"],
+            )  # fmt: skip
         back = (
             ang, self.pre_gate, float(fixed), self._noise_edges, self._noise_thresholds,
             self.positioning == "regression", self._t_mean, self._t_std, float(c.r), 200, _LM_XTOL,
@@ -1136,7 +1142,7 @@ class LearnedKinDetector(KinDetector):
         """The driver's two kernels with the network in between in Python (BLAS or torch
         inference): ``(front outputs, back outputs)`` for :func:`~detectors._learned_driver.pack`."""
         front_args, back_args = self._driver_consts(self._uses_cascade(rb))
-        fr = _drv.front(rb, *front_args)
+        fr = _drv.front(rb, *front_args, False)
         return fr, _drv.back_rest(self._forward(fr[10]), fr, back_args)
 
     def _detect_arrays_staged(self, ranges, angles, trusted: bool = False) -> BatchDetections:
