@@ -9,15 +9,22 @@ the stages run back to back inside compiled code and write the compact result co
   features of the segments that pass (:mod:`detectors.features`' kernels);
 * :func:`back`: from the network's ``(R, 3)`` outputs, ``p(kin)``, the per-noise thresholds, the
   stage codes, the kin centres (regression or circle fit) and the detection columns;
-* :func:`fused` (inlined into its callers): ``front``, the network in a compiled kernel
+* :func:`fused` (inlined into :func:`fused_packed`): ``front``, the network in a compiled kernel
   (:func:`mlp_rows4` below ``rows_max`` rows, else the block kernel
   :func:`~detectors._kernels.mlp_forward`; bitwise the same) and ``back``;
-* :func:`fused_table` / :func:`fused_packed`: ``fused`` handing back only the env's ``(row, table)``
-  or the result columns packed in 7 blocks (:func:`pack`), for one scan or a batch: each array that
-  crosses back into Python costs ~1 us, and the large intermediate ones (ranges, features) ~0.9 ms
-  per 64 dense-arena scans (freed outside the call, their pages come back fresh on the next).
-  With ``inference="blas"`` / ``"torch"`` the detector calls ``front``, runs the network in Python,
-  then ``back_rest``.
+* :func:`fused_packed`: ``fused`` handing back the result columns packed in 7 blocks (:func:`pack`),
+  for one scan or a batch: each array that crosses back into Python costs ~1 us, and the large
+  intermediate ones (ranges, features) ~0.9 ms per 64 dense-arena scans (freed outside the call,
+  their pages come back fresh on the next);
+* :func:`fused_table`: the envs' entry, only the detections ``(row, table)``: ``front`` runs
+  ``lean`` (one-beam segments skip the pre-gate's bound, which always keeps them, and the cascade's
+  stage 1 where a bound proves their score below its threshold:
+  :func:`detectors.features.cascade_one_beam_table`) and :func:`back_table` looks only at the rows
+  that reached the network. The same detections as ``fused_packed``; what differs (``max_beams``
+  and ``cascade_score`` of one-beam segments, NaN) never leaves the call.
+
+With ``inference="blas"`` / ``"torch"`` the detector calls ``front`` (not lean), runs the network in
+Python, then ``back_rest``.
 
 The stage kernels are called with the same arguments as the staged Python pipeline
 (``LearnedKinDetector._predict``, kept as the readable reference) passes them, and every expression

@@ -1083,36 +1083,39 @@ def cascade_one_beam_table(w1t, b1, w2, b2) -> np.ndarray:
 
 
 @numba.njit(cache=True, inline="always")
-def _one_beam_bound(d_flat, d_bits, row, f, n_beams, circular, d_max, key, k7, x7, tab):
+def _one_beam_bound(d_flat, d_bits, row, f, n_beams, circular, d_max, key, base, x7, tab_flat):
     # the bound B of the derivation above for the one-beam segment at beam f of the scan starting at
-    # d_flat[row]; inf when its range or scan noise is outside the table
+    # d_flat[row]; inf when its range or scan noise (base < 0: _one_beam_scan_bins) is outside the table
     kd = (d_bits[row + f] >> _C1_SHIFT) - _C1_K0
-    if k7 < 0 or kd < 0 or kd >= _C1_ND:
+    if base < 0 or kd < 0 or kd >= _C1_ND:
         return math.inf
     v = d_flat[row + f]
     c8 = np.float32(_context_value(d_flat, row, f - 1, n_beams, circular, v, d_max))
     c9 = np.float32(_context_value(d_flat, row, f + 1, n_beams, circular, v, d_max))
     c10 = np.float32(_context_value(d_flat, row, f - 2, n_beams, circular, v, d_max))
     c11 = np.float32(_context_value(d_flat, row, f + 2, n_beams, circular, v, d_max))
-    t = tab[k7, key, kd]
-    return t[0] + t[1] * x7 + t[2] * c8 + t[3] * c9 + t[4] * c10 + t[5] * c11
+    t = base + (key * _C1_ND + kd) * 6  # tab[k7, key, kd, :] in the flat table
+    return (tab_flat[t] + tab_flat[t + 1] * x7 + tab_flat[t + 2] * c8 + tab_flat[t + 3] * c9
+            + tab_flat[t + 4] * c10 + tab_flat[t + 5] * c11)  # fmt: skip
 
 
 @numba.njit(cache=True, nogil=True)
-def _one_beam_scan_bins(scan_cols, k7, x7):
-    # per scan: its log_scan_noise as the stage sees it (float32) and its bin in the table (-1: none)
+def _one_beam_scan_bins(scan_cols, tab, base, x7):
+    # per scan: its log_scan_noise as the stage sees it (float32) and where its bin starts in the flat
+    # table (-1: outside the table, or an empty table)
+    full = tab.shape[0] == _C1_N7 and tab.shape[1] == 4 and tab.shape[2] == _C1_ND and tab.shape[3] == 6
     for b in range(scan_cols.shape[0]):
         v = float(np.float32(scan_cols[b, 0]))
         x7[b] = v
-        k7[b] = -1
-        if v >= _C1_X7_LO and v < _C1_X7_LO + _C1_X7_W * _C1_N7:
+        base[b] = -1
+        if full and v >= _C1_X7_LO and v < _C1_X7_LO + _C1_X7_W * _C1_N7:
             k = int((v - _C1_X7_LO) / _C1_X7_W)
             # the bin's edges are exact (multiples of 0.5): put v inside them whatever the rounding
             if k > 0 and v < _C1_X7_LO + _C1_X7_W * k:
                 k -= 1
             elif k < _C1_N7 - 1 and v >= _C1_X7_LO + _C1_X7_W * (k + 1):
                 k += 1
-            k7[b] = k
+            base[b] = k * (4 * _C1_ND * 6)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -1121,10 +1124,11 @@ def _cascade_one_beam_filter(d_flat, scan, first, count, prev_nearer, next_neare
     """Copy into ``out`` the segments ``rows`` that stage 1 must score: all but the one-beam segments
     whose bound (:func:`cascade_one_beam_table`) proves a score below ``threshold``. Returns how many
     (in the order of ``rows``)."""
-    k7 = np.empty(scan_cols.shape[0], dtype=np.int64)
+    base = np.empty(scan_cols.shape[0], dtype=np.int64)
     x7 = np.empty(scan_cols.shape[0])
-    _one_beam_scan_bins(scan_cols, k7, x7)
+    _one_beam_scan_bins(scan_cols, tab, base, x7)
     d_bits = d_flat.view(np.int64)
+    tab_flat = tab.reshape(-1)
     lim = threshold - _C1_DELTA
     m = 0
     for o in range(rows.shape[0]):
@@ -1133,7 +1137,7 @@ def _cascade_one_beam_filter(d_flat, scan, first, count, prev_nearer, next_neare
             b = scan[i]
             key = (1 if prev_nearer[i] else 0) + (2 if next_nearer[i] else 0)
             bound = _one_beam_bound(d_flat, d_bits, b * n_beams, first[i], n_beams, circular, d_max, key,
-                                    k7[b], x7[b], tab)  # fmt: skip
+                                    base[b], x7[b], tab_flat)  # fmt: skip
             if bound < lim:
                 continue
         out[m] = i
@@ -1145,13 +1149,14 @@ def _cascade_one_beam_filter(d_flat, scan, first, count, prev_nearer, next_neare
 def _cascade_one_beam_bounds(d_flat, scan, first, prev_nearer, next_nearer, n_beams, circular, d_max,
                              scan_cols, tab, which, out):  # fmt: skip
     # the bound of each (one-beam) segment of `which` (tests compare it with the stage-1 score)
-    k7 = np.empty(scan_cols.shape[0], dtype=np.int64)
+    base = np.empty(scan_cols.shape[0], dtype=np.int64)
     x7 = np.empty(scan_cols.shape[0])
-    _one_beam_scan_bins(scan_cols, k7, x7)
+    _one_beam_scan_bins(scan_cols, tab, base, x7)
     d_bits = d_flat.view(np.int64)
+    tab_flat = tab.reshape(-1)
     for o in range(which.shape[0]):
         i = which[o]
         b = scan[i]
         key = (1 if prev_nearer[i] else 0) + (2 if next_nearer[i] else 0)
-        out[o] = _one_beam_bound(d_flat, d_bits, b * n_beams, first[i], n_beams, circular, d_max, key, k7[b],
-                                 x7[b], tab)  # fmt: skip
+        out[o] = _one_beam_bound(d_flat, d_bits, b * n_beams, first[i], n_beams, circular, d_max, key,
+                                 base[b], x7[b], tab_flat)  # fmt: skip

@@ -161,3 +161,19 @@ def test_lean_driver_sends_the_same_segments_to_the_network(positioning):
         assert np.array_equal(table, np.stack(cols, axis=1).astype(np.float64).reshape(-1, 8))
         n_det += ref.n_detections
     assert n_skipped > 1000 and n_det > 0
+
+
+def test_filter_without_a_table_keeps_every_segment():
+    # the stand-in table of a detector without a cascade (or any other shape) settles nothing
+    ranges, angles = arena_scans(5, 0.01, 16, 20)
+    batch = segment_batch(ranges, angles)
+    scan_cols = np.full((ranges.shape[0], 2), -4.5)
+    rows = np.arange(batch.n_segments, dtype=np.int64)
+    for table in (np.zeros((0, 4, 0, 6)), np.full((F._C1_N7, 4, F._C1_ND - 1, 6), -1e9)):
+        out = np.empty_like(rows)
+        m = F._cascade_one_beam_filter(
+            np.ascontiguousarray(batch.ranges).reshape(-1), batch.scan, batch.first, batch.count,
+            batch.prev_nearer, batch.next_nearer, ranges.shape[1], batch.circular, 12.0, scan_cols, table,
+            0.0, rows, out,
+        )  # fmt: skip
+        assert m == rows.shape[0] and np.array_equal(out, rows)
