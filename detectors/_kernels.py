@@ -119,6 +119,22 @@ def segment_arrays(d: np.ndarray, d_th: float, d_max: float, circular: bool) -> 
 
 
 @numba.njit(cache=True, nogil=True)
+def _segment_views(d, d_th, d_max, circular):
+    # _segment_arrays as views of the (B * n) buffers, for callers that drop them within the call
+    # (the learned driver): no copies
+    cap = d.shape[0] * d.shape[1]
+    scan = np.empty(cap, dtype=np.int64)
+    first = np.empty(cap, dtype=np.int64)
+    count = np.empty(cap, dtype=np.int64)
+    prev = np.empty(cap, dtype=np.int64)
+    nxt = np.empty(cap, dtype=np.int64)
+    p_near = np.empty(cap, dtype=np.bool_)
+    n_near = np.empty(cap, dtype=np.bool_)
+    s = segment_rows(d, d_th, d_max, circular, scan, first, count, prev, nxt, p_near, n_near)
+    return scan[:s], first[:s], count[:s], prev[:s], nxt[:s], p_near[:s], n_near[:s]
+
+
+@numba.njit(cache=True, nogil=True)
 def _segment_arrays(d, d_th, d_max, circular):
     # buffers and exact-size copies made inside one compiled call: for one scan, 14 numpy
     # allocations and 7 slices from Python cost more than the segmentation itself

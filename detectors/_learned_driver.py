@@ -90,7 +90,8 @@ def front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_a
     n_rows, n = r.shape
     d = np.empty((n_rows, n))
     _k.preprocess_rows(r, d_max, d_th, circular, False, d)
-    scan, first, count, prev, nxt, p_near, n_near = _k._segment_arrays(d, d_th, d_max, circular)
+    # views of the segmentation buffers (no copies: nothing of them outlives the caller unless copied)
+    scan, first, count, prev, nxt, p_near, n_near = _k._segment_views(d, d_th, d_max, circular)
     s = scan.shape[0]
     max_beams = np.empty(s)
     if pre_gate:
