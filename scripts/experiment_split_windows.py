@@ -10,7 +10,8 @@ kept detection is dropped. Rows:
 
 * ``shipped``: the learned detector (``--checkpoint``, default the shipped one) without windows;
 * ``shipped + r5 windows >= W``: round 5's windows (every local range minimum) scored by the same
-  network, accepted at ``W`` (``--window-threshold``);
+  network, accepted at ``W`` (``--window-threshold``); with ``--shipped-round6`` also ``shipped + r6
+  windows >= W`` (round 6's anchor, the same network);
 * with ``--new-checkpoint`` (a network trained on windows): ``new`` without windows, and ``new +
   windows`` with round 6's noise-robust anchor (``--anchor``, default ``WindowConfig()``) at the
   checkpoint's own calibrated window thresholds.
@@ -273,6 +274,11 @@ def main(argv=None) -> dict:
         help="WindowConfig overrides of the round-6 windows (default: detectors.windows.WindowConfig())",
     )  # fmt: skip
     ap.add_argument(
+        "--shipped-round6", action="store_true",
+        help="also run --checkpoint with round 6's windows at each --window-threshold (the anchor without "
+        "the retraining)",
+    )  # fmt: skip
+    ap.add_argument(
         "--anchor-stats", action="store_true",
         help="also count windows per scan and the merged kin that get a kin window, for round 5's and "
         "round 6's anchors (no detector run)",
@@ -330,6 +336,8 @@ def main(argv=None) -> dict:
     dets = [("shipped", LearnedKinDetector(args.checkpoint, reports=False))]
     for w in args.window_threshold:
         dets.append((f"shipped + r5 windows >= {w:g}", split_detector(args.checkpoint, w, r5)))
+        if args.shipped_round6:
+            dets.append((f"shipped + r6 windows >= {w:g}", split_detector(args.checkpoint, w, r6)))
     if args.new_checkpoint is not None:
         dets += [("new", LearnedKinDetector(args.new_checkpoint, reports=False)),
                  ("new + windows", split_detector(args.new_checkpoint, "calibrated", r6))]  # fmt: skip

@@ -14,13 +14,15 @@ def test_runs_and_counts(tmp_path):
     pytest.importorskip("torch")
     mod = load_script("experiment_split_windows")
     res = mod.main(["--scenes", "1", "--noise", "0.01", "--window-threshold", "0.995", "--out", str(tmp_path),
-                    "--anchor-stats", "--no-progress", "-q"])  # fmt: skip
-    for name in ("shipped", "shipped + r5 windows >= 0.995"):
+                    "--anchor-stats", "--shipped-round6", "--no-progress", "-q"])  # fmt: skip
+    for name in ("shipped", "shipped + r5 windows >= 0.995", "shipped + r6 windows >= 0.995"):
         for r in res[name]["1 %"].values():
             assert r["found"] + r["missed"] == r["counted_kin"]
             assert sum(r["fp_kinds"].values()) == r["fp"]
     c = res["shipped + r5 windows >= 0.995"]["counts"]
     assert c["windows"] > 0 and c["wide"] > 0 and c["accepted"] <= c["windows"]
+    c6 = res["shipped + r6 windows >= 0.995"]["counts"]
+    assert c6["wide"] == c["wide"] and c6["windows"] < c["windows"]
     st = res["anchor_stats"]["1 %"]["configs"]
     assert st["round 6"]["windows_per_scan"] < st["round 5"]["windows_per_scan"]  # the noise-robust anchor
     for cfg in st.values():
