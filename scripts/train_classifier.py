@@ -6,7 +6,10 @@ Steps (all seeded by ``--seed``):
 2. split it **by scene** into training and validation scenes; same-radius cylinders are left out of
    training (one scan cannot tell them from a kin: identical inputs with opposite labels);
 3. train ``detectors.learned.SegmentNet`` (classification + centre regression) with early stopping on
-   the validation loss; one CSV row per epoch (``train_log.csv``);
+   the validation loss; one CSV row per epoch (``train_log.csv``); candidate windows of datasets written
+   with ``make_dataset.py --windows`` train with the segments (kin windows weighted ``--window-kin-weight``)
+   but are left out of the segment thresholds and metrics: their own thresholds are calibrated apart
+   (``window_validation.json``, checkpoint info ``window_thresholds``; README, "Issue 11, round 6");
 4. the checkpoint's threshold: ``--threshold`` (0.5), or with ``--calibrate`` one per estimated
    scan-noise level (``--calib-noise-edges``; :func:`detectors.features.scan_noise`), the one with
    the best segment F1 on the validation scenes' detection scenes; validation metrics from the
