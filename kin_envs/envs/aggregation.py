@@ -23,11 +23,12 @@ from kin_envs.envs.common import (
     check_render_mode,
     config_from_kwargs,
     detect_rows,
+    detect_rows_padded,
     kin_truth_rows,
     resolve_detector,
     split_rows,
 )
-from kin_envs.envs.info import pad_rows
+from kin_envs.envs.info import pad_rows, row_infos
 
 __all__ = [
     "AggregationConfig", "AggregationEnv", "AggregationEnvV0", "env", "env_v0", "parallel_env",
@@ -319,10 +320,14 @@ class AggregationEnv(ParallelEnv):
         self._last_scan = scan
         poses, n = scan.poses, scan.ranges.shape[0]
         truth = kin_truth_rows(scan, poses)
-        dets = feed = None
+        dets = feed = padded = None
         if self._feeder is not None:
             dets, feed = self._feeder.detect(scan.ranges, scan.angles, scan.robots, poses,
                                              range_max=scan.range_max)  # fmt: skip
+        elif self.detector is not None and self.padded_info:
+            # sorted, matched and padded in one compiled call (pad_rows' values)
+            dets, padded = detect_rows_padded(self.detector, scan.ranges, scan.angles, scan.robots, poses,
+                                              self.config.max_detections, trusted=True)  # fmt: skip
         elif self.detector is not None:
             dets = detect_rows(self.detector, scan.ranges, scan.angles, scan.robots, poses, trusted=True)
         self._last_detections = dets
@@ -336,16 +341,11 @@ class AggregationEnv(ParallelEnv):
         if self.padded_info:
             entries["kin_truth"] = pad_rows(*truth, n, self.config.max_kin_truth)
             if dets is not None:
-                entries["kin_detections"] = pad_rows(*dets, n, self.config.max_detections)
-            infos = {a: {} for a in self.possible_agents}
-            for key, (cols, count) in entries.items():
-                # each agent's row views by iterating the (n, slots) columns (views made in C, ~2x
-                # faster than c[i] per field and agent, measured); one shape on every step as before
-                names, key_count = tuple(cols), f"{key}_count"
-                rows = zip(*map(list, cols.values()), strict=True)
-                for info, vals, c in zip(infos.values(), rows, count.tolist(), strict=True):
-                    info[key] = dict(zip(names, vals, strict=True))
-                    info[key_count] = c
+                if padded is None:
+                    padded = pad_rows(*dets, n, self.config.max_detections)
+                entries["kin_detections"] = padded
+            # each agent's entries as row views of the (n, slots) columns; one shape on every step
+            infos = dict(zip(self.possible_agents, row_infos(entries), strict=True))
         else:
             truth_rows = split_rows(*truth, n)
             det_rows = split_rows(*dets, n) if dets is not None else None
