@@ -6,6 +6,7 @@ import math
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
+import numba
 import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
@@ -310,10 +311,8 @@ class AggregationEnv(ParallelEnv):
     def _kin_counts(self) -> tuple[np.ndarray, np.ndarray]:
         """Robots within ``kin_radius`` of each robot: (capped count, raw count)."""
         p = self._last_scan.poses  # the current poses (World.poses loops over bodies in Python)
-        dx = p[:, None, 0] - p[None, :, 0]
-        dy = p[:, None, 1] - p[None, :, 1]
-        n = np.count_nonzero(dx * dx + dy * dy <= self.config.kin_radius**2, axis=1) - 1
-        return np.minimum(n, self.config.max_kin_counted), n
+        return _kin_counts_kernel(np.ascontiguousarray(p, dtype=np.float64), self.config.kin_radius**2,
+                                  self.config.max_kin_counted)  # fmt: skip
 
     def _sense(self, first: bool = False) -> tuple[np.ndarray, dict[str, dict]]:
         scan = self.world.scan()
@@ -406,6 +405,28 @@ class AggregationEnv(ParallelEnv):
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
+
+
+@numba.njit(cache=True, nogil=True)
+def _kin_counts_kernel(p, r2, cap):
+    """``(min(n, cap), n)``, ``n[i]`` the robots ``j != i`` with ``dx * dx + dy * dy <= r2``: the numpy
+    expression ``count_nonzero(d2 <= r2, axis=1) - 1`` over the ``(N, N)`` distance matrix, term by term,
+    without its three ``(N, N)`` temporaries (at 256 robots 1.5 MB a step, fresh pages: ~0.3 ms
+    detector off, ~0.8 ms with a detector's allocations between steps, measured)."""
+    n_rob = p.shape[0]
+    n = np.empty(n_rob, dtype=np.int64)
+    capped = np.empty(n_rob, dtype=np.int64)
+    for i in range(n_rob):
+        xi = p[i, 0]
+        yi = p[i, 1]
+        c = 0
+        for j in range(n_rob):
+            dx = xi - p[j, 0]
+            dy = yi - p[j, 1]
+            c += dx * dx + dy * dy <= r2
+        n[i] = c - 1
+        capped[i] = min(c - 1, cap)
+    return capped, n
 
 
 def parallel_env(**kwargs: Any) -> AggregationEnv:
