@@ -124,6 +124,8 @@ def row_infos(entries: dict[str, tuple[dict[str, np.ndarray], np.ndarray]]) -> l
     int(count[i]), ...}`` in ``entries``' order. The field arrays are row views of the columns, made by
     iterating them (views made in C); the dicts are built by constant-key displays mapped over the
     rows, with no per-row Python loop."""
+    if not entries:
+        raise ValueError("row_infos needs at least one entry (the rows are counted from them)")
     keys, vals = [], []
     for key, (cols, count) in entries.items():
         keys += [key, f"{key}_count"]
