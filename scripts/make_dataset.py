@@ -37,6 +37,7 @@ import numpy as np
 from detectors.features import FEATURE_VERSION, FeatureConfig, feature_names
 from detectors.fileio import atomic_write, sha256_file, write_json
 from detectors.samples import CATEGORIES, DATASET_FORMAT, DATASET_FORMAT_VERSION, concat_records
+from detectors.windows import WindowConfig
 from kin_envs.cli import (
     add_logging_args,
     check_output_dir,
@@ -53,9 +54,9 @@ from kin_envs.distributed import BACKENDS, imap_seeds
 _SHARD = re.compile(r"shard_\d{5}\.npz|\.(shard_\d{5}\.npz|manifest\.json)\..*\.tmp")
 
 
-def scene_unit(seed: int, cfg: DatasetConfig, fcfg: FeatureConfig) -> tuple[dict, dict]:
+def scene_unit(seed: int, cfg: DatasetConfig, fcfg: FeatureConfig, windows=None) -> tuple[dict, dict]:
     """The work unit: one scene's segment and object records (its scan and scene stay behind)."""
-    segs, objs, _ = scene_records(seed, cfg, fcfg)
+    segs, objs, _ = scene_records(seed, cfg, fcfg, windows=windows)
     return segs, objs
 
 
@@ -99,6 +100,10 @@ def main(argv=None) -> dict:
     ap.add_argument("--shard-scenes", type=int, default=500, help="scenes per .npz shard")
     ap.add_argument("--config", default=None, help="DatasetConfig overrides: JSON object or file")
     ap.add_argument("--feature-config", default=None, help="FeatureConfig overrides: JSON object or file")
+    ap.add_argument("--windows", nargs="?", const="{}", default=None, metavar="JSON",
+                    help="also write the candidate windows of segments too wide for the learned detector's "
+                    "pre-gate (detectors.windows; column window = 1), optionally with WindowConfig overrides "
+                    "(JSON object or file)")
     ap.add_argument("--no-progress", action="store_true", help="no progress bar")
     ap.add_argument("--overwrite", action="store_true",
                     help="replace the dataset in a non-empty --out (deletes its manifest, then shards)")
@@ -121,7 +126,10 @@ def main(argv=None) -> dict:
     try:
         cfg = DatasetConfig.from_dict(parse_json_object(args.config, "--config") or {})
         fcfg = FeatureConfig.from_dict(parse_json_object(args.feature_config, "--feature-config") or {})
-    except ValueError as e:
+        wcfg = None
+        if args.windows is not None:
+            wcfg = WindowConfig(**(parse_json_object(args.windows, "--windows") or {}))
+    except (ValueError, TypeError) as e:
         ap.error(str(e))
     problem = prepare_out_dir(args.out, args.overwrite)
     if problem:
@@ -133,6 +141,7 @@ def main(argv=None) -> dict:
     label_counts = np.zeros(2, np.int64)
     cat_counts = np.zeros(len(CATEGORIES), np.int64)
     n_same = n_seg = n_obj = 0
+    n_win = np.zeros(2, np.int64)  # windows: not kin, kin
 
     def flush(first_seed: int, n_scenes: int) -> None:
         nonlocal seg_parts, obj_parts, n_seg, n_obj
@@ -158,7 +167,7 @@ def main(argv=None) -> dict:
     try:  # results stream back in seed order; only a window of scenes is held at a time
         units = imap_seeds(
             scene_unit, range(args.first_seed, args.first_seed + args.scenes), args.backend,
-            args=(cfg, fcfg), address=args.address, num_cpus=args.num_cpus,
+            args=(cfg, fcfg, wcfg), address=args.address, num_cpus=args.num_cpus,
             progress=not args.no_progress, desc="scenes", unit="scene",
         )  # fmt: skip
     except ImportError as e:  # --backend ray without ray installed
@@ -170,6 +179,8 @@ def main(argv=None) -> dict:
         label_counts += np.bincount(segs["label"], minlength=2)
         cat_counts += np.bincount(segs["category"], minlength=len(CATEGORIES))
         n_same += int(segs["same_radius"].sum())
+        if "window" in segs:
+            n_win += np.bincount(segs["label"][segs["window"] == 1], minlength=2)
         if len(seg_parts) == args.shard_scenes or i == args.scenes - 1:
             flush(shard_first, len(seg_parts))
             shard_first = seed + 1
@@ -181,6 +192,7 @@ def main(argv=None) -> dict:
         "feature_config": fcfg.to_dict(),
         "feature_names": feature_names(fcfg),
         "dataset_config": cfg.to_dict(),
+        "windows": None if wcfg is None else wcfg.to_dict(),
         "seeds": {"first": args.first_seed, "count": args.scenes},
         "shards": shards,
         "counts": {
@@ -189,6 +201,8 @@ def main(argv=None) -> dict:
             "kin": int(label_counts[1]),
             "non_kin": int(label_counts[0]),
             "same_radius_cylinder": n_same,
+            "windows": int(n_win.sum()),
+            "kin_windows": int(n_win[1]),
             "per_category": {c: int(k) for c, k in zip(CATEGORIES, cat_counts, strict=True)},
         },
         "seconds": round(seconds, 2),

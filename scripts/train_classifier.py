@@ -6,7 +6,10 @@ Steps (all seeded by ``--seed``):
 2. split it **by scene** into training and validation scenes; same-radius cylinders are left out of
    training (one scan cannot tell them from a kin: identical inputs with opposite labels);
 3. train ``detectors.learned.SegmentNet`` (classification + centre regression) with early stopping on
-   the validation loss; one CSV row per epoch (``train_log.csv``);
+   the validation loss; one CSV row per epoch (``train_log.csv``); candidate windows of datasets written
+   with ``make_dataset.py --windows`` train with the segments (kin windows weighted ``--window-kin-weight``)
+   but are left out of the segment thresholds and metrics: their own thresholds are calibrated apart
+   (``window_validation.json``, checkpoint info ``window_thresholds``; README, "Issue 11, round 6");
 4. the checkpoint's threshold: ``--threshold`` (0.5), or with ``--calibrate`` one per estimated
    scan-noise level (``--calib-noise-edges``; :func:`detectors.features.scan_noise`), the one with
    the best segment F1 on the validation scenes' detection scenes; validation metrics from the
@@ -195,6 +198,35 @@ def calibrate_thresholds(p, y, sigma, edges) -> dict:
         f05 = float(f1[int(np.argmin(np.abs(_CALIB_GRID - 0.5)))])
         info.append({"segments": int(m.sum()), "kin": n_kin, "f1": float(f1[j]), "f1_at_0.5": f05})
     return {"noise_edges": edges, "values": values, "info": info}
+
+
+_WINDOW_GRID = np.round(np.arange(0.2, 0.9951, 0.005), 3)
+_WINDOW_MIN_KIN = 50  # kin windows a noise bin needs for its own threshold (else the pooled one)
+
+
+def calibrate_window_thresholds(p, y, sigma, edges) -> dict:
+    """The candidate windows' own ``p(kin)`` thresholds (issue 11, round 6): per scan-noise bin the grid
+    value with the best window F1 (kin windows found against windows accepted), the pooled one where a
+    bin has fewer than :data:`_WINDOW_MIN_KIN` kin windows. A window is accepted at ``max(segment
+    threshold, window threshold)``."""
+    def best(pk, yk):
+        acc = pk[None, :] >= _WINDOW_GRID[:, None]
+        f1 = 2 * (acc & yk).sum(1) / np.maximum(acc.sum(1) + yk.sum(), 1)
+        j = int(np.argmax(f1))
+        return float(_WINDOW_GRID[j]), float(f1[j])
+
+    edges = [float(e) for e in edges]
+    pooled, f_pooled = best(p, y)
+    b = np.searchsorted(np.asarray(edges), sigma, side="right")
+    values, info = [], []
+    for k in range(len(edges) + 1):
+        m = b == k
+        n_kin = int(y[m].sum())
+        v, f = best(p[m], y[m]) if n_kin >= _WINDOW_MIN_KIN else (pooled, None)
+        values.append(v)
+        info.append({"windows": int(m.sum()), "kin": n_kin, "f1": f})
+    return {"noise_edges": edges, "values": values, "pooled": pooled, "pooled_f1": f_pooled,
+            "windows": int(y.size), "kin": int(y.sum()), "info": info}  # fmt: skip
 
 
 def validation_metrics(segs: dict, objs: dict, p: np.ndarray, xy: np.ndarray, thr) -> dict:
@@ -532,6 +564,12 @@ def main(argv=None) -> dict:
                     help="kin segments with fewer beams are trained as non-kin (2: the benchmark's "
                     "ground-truth rule, a kin counts with >= 2 valid beams: a 1-beam detection is never a "
                     "true positive)")
+    ap.add_argument("--window-kin-weight", type=float, default=1.0,
+                    help="loss weight factor of the kin candidate windows (rows with window = 1, written by "
+                    "make_dataset.py --windows; ~2 %% of the windows are kin); their threshold is calibrated "
+                    "apart from the segments' (checkpoint info window_thresholds)")
+    ap.add_argument("--no-windows", action="store_true",
+                    help="leave the datasets' candidate windows out (segments only, as before round 6)")
     ap.add_argument("--focus-weight", type=float, default=1.0,
                     help="loss weight of every segment (kin and not) with --focus-beams beams whose nearest "
                     "reading is in --focus-range: training capacity spent on the few-beam regime")
@@ -595,6 +633,8 @@ def main(argv=None) -> dict:
         ap.error(f"--val-fraction must be in (0, 1), got {args.val_fraction}")
     if not 0 < args.keep_easy <= 1:
         ap.error(f"--keep-easy must be in (0, 1], got {args.keep_easy}")
+    if not (math.isfinite(args.window_kin_weight) and args.window_kin_weight > 0):
+        ap.error(f"--window-kin-weight must be > 0, got {args.window_kin_weight}")
     if args.min_kin_beams < 1 or not (math.isfinite(args.focus_weight) and args.focus_weight > 0):
         ap.error(f"--min-kin-beams must be >= 1 and --focus-weight > 0, got {args.min_kin_beams}, "
                  f"{args.focus_weight}")
@@ -638,6 +678,9 @@ def main(argv=None) -> dict:
     except (FileNotFoundError, ValueError) as e:
         raise SystemExit(f"train_classifier.py: {e}") from None
     fcfg = _feature_config(manifest)
+    if args.no_windows:
+        segs = {k: v[segs["window"] == 0] for k, v in segs.items()}
+    win = segs["window"] == 1
     rng = np.random.default_rng(args.seed)
     is_val = split_by_scene(segs["seed"], args.val_fraction, rng)
     tgt = targets(segs)
@@ -646,6 +689,7 @@ def main(argv=None) -> dict:
     segs["label"] = few_beam_labels(segs["label"], segs["n_beams"], args.min_kin_beams)
     weight = focus_weights(sample_weights(segs["label"], segs["category"], tcfg), segs["n_beams"],
                            segs["range_min"], args.focus_weight, args.focus_beams, args.focus_range)
+    weight = np.where(win & (segs["label"] == 1), weight * args.window_kin_weight, weight).astype(np.float32)
     if args.keep_easy < 1:  # a share of the easy negatives, up-weighted (validation keeps them all)
         easy = np.isin(segs["category"], [CATEGORIES.index("boundary"), CATEGORIES.index("wall")])
         drop = easy & ~is_val & (rng.random(easy.shape[0]) >= args.keep_easy)
@@ -673,7 +717,8 @@ def main(argv=None) -> dict:
         train_seconds = time.perf_counter() - t0
 
     val_seeds = np.unique(segs["seed"][is_val])
-    vs = {k: v[is_val] for k, v in segs.items()}
+    vw = {k: v[is_val & win] for k, v in segs.items()}  # the validation scenes' windows
+    vs = {k: v[is_val & ~win] for k, v in segs.items()}
     vo = {k: v[np.isin(objs["seed"], val_seeds)] for k, v in objs.items()}
     p, xy = predict(model, vs["x"], vs["frames"])
     sigma = scan_noise_of(vs["x"], fcfg)
@@ -687,6 +732,14 @@ def main(argv=None) -> dict:
         )
     else:
         thresholds = {"noise_edges": [], "values": [args.threshold]}
+    window_thresholds = None
+    if vw["label"].size:
+        pw, _ = predict(model, vw["x"], vw["frames"])
+        cal = np.isin(vw["family"], args.calib_families) & ~vw["same_radius"]
+        window_thresholds = calibrate_window_thresholds(
+            pw[cal], vw["label"][cal] == 1, scan_noise_of(vw["x"][cal], fcfg), sorted(args.calib_noise_edges)
+        )
+        write_json(args.out / "window_validation.json", window_thresholds)
     seg_thr = np.asarray(thresholds["values"])[
         np.searchsorted(np.asarray(thresholds["noise_edges"]), sigma, side="right")
     ]
@@ -722,6 +775,9 @@ def main(argv=None) -> dict:
         "train_seconds": round(train_seconds, 1),
         "validation": val,
         "thresholds": thresholds,
+        "window_kin_weight": args.window_kin_weight,
+        "windows": [m.get("windows") for m in manifests],
+        "window_thresholds": window_thresholds,
     }
     positioning = "regression" if args.positioning == "auto" else args.positioning
     ev = None
@@ -785,6 +841,8 @@ def load_datasets(paths) -> tuple[dict, dict, dict, list[dict]]:
         if s & seen:
             raise ValueError(f"{p}: scene seeds overlap another --data directory's (e.g. {min(s & seen)})")
         seen |= s
+    for segs, _, _ in parts:  # datasets written without --windows: segments only
+        segs.setdefault("window", np.zeros(segs["label"].shape[0], np.int8))
     if len(parts) == 1:
         return parts[0][0], parts[0][1], manifests[0], manifests
     segs = concat_records([s for s, _, _ in parts])

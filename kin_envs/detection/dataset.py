@@ -40,6 +40,7 @@ from detectors.samples import (
     concat_records,
     load_dataset,
 )
+from detectors.windows import WindowConfig, candidate_windows, wide_segments
 
 from .. import scenes
 from ..core.lidar import HitKind, LidarSpec
@@ -56,6 +57,7 @@ __all__ = [
     "category_code",
     "make_scene",
     "label_scan",
+    "window_labels",
     "scene_records",
     "concat_records",
     "load_dataset",
@@ -419,12 +421,22 @@ def label_scan(scan, scene: Scene, batch, poses: np.ndarray) -> tuple[dict, dict
     return segments, objects
 
 
+def window_labels(segments: dict) -> np.ndarray:
+    """The benchmark's ground-truth rule on :func:`label_scan` rows of candidate windows: kin when at
+    least 2 (valid) beams of the window hit one housing and they are most of the window's beams."""
+    n = np.asarray(segments["n_beams"], np.int64)
+    dom = np.rint(np.asarray(segments["dominant_fraction"], np.float64) * n).astype(np.int64)
+    kin = (np.asarray(segments["hit_kind"]) == HitKind.ROBOT) & (dom >= 2) & (2 * dom > n)
+    return kin.astype(np.int8)
+
+
 def scene_records(
     seed: int,
     config: DatasetConfig | None = None,
     feature_config: FeatureConfig | None = None,
     noise: float | None = None,
     observers=None,
+    windows: WindowConfig | None = None,
 ):
     """Scan, segment, featurise and label one scene.
 
@@ -434,6 +446,11 @@ def scene_records(
     scene without boundary wall, 3 swarm scene, 4 / 5 the benchmark's swarm / lookalike generators);
     ``info`` as :func:`make_scene` plus ``scan``, ``scene`` and
     ``batch``. ``observers`` overrides the scanned robots.
+
+    With ``windows`` (issue 11, round 6) the candidate windows of every segment too wide for the
+    learned detector's pre-gate (:func:`detectors.windows.candidate_windows`, the function the
+    detector-side experiment calls) follow the segments as extra rows, column ``window`` 1 (0 for
+    segments), labelled by :func:`window_labels`; ``info["windows"]`` holds them.
     """
     fc = feature_config or FeatureConfig()
     scene, rng, info = make_scene(seed, config, noise)
@@ -455,6 +472,20 @@ def scene_records(
     segs["x"] = feats.x
     segs["frames"] = feats.frames.astype(np.float32)
     segs["fit_centre"] = feats.fit_centre.astype(np.float32)
+    if windows is not None:
+        step = 2 * math.pi / scan.angles.shape[0]  # the lidar's full turn (LidarSpec)
+        win = candidate_windows(batch, wide_segments(batch, step, fc.r), step, fc.r, windows, fc)
+        wsegs, _ = label_scan(scan, scene, win.batch, world.poses)
+        wsegs["label"] = window_labels(wsegs)
+        wsegs["centre"][wsegs["label"] == 0] = np.nan
+        wf = segment_features(win.batch, fc)
+        wsegs["x"] = wf.x
+        wsegs["frames"] = wf.frames.astype(np.float32)
+        wsegs["fit_centre"] = wf.fit_centre.astype(np.float32)
+        segs["window"] = np.zeros(segs["label"].shape[0], np.int8)
+        wsegs["window"] = np.ones(wsegs["label"].shape[0], np.int8)
+        segs = concat_records([segs, wsegs])
+        info["windows"] = win
     for table in (segs, objs):
         m = table["row"].shape[0]
         table["observer"] = scan.robots[table["row"]].astype(np.int16)

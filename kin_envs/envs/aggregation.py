@@ -6,6 +6,7 @@ import math
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
+import numba
 import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
@@ -23,11 +24,12 @@ from kin_envs.envs.common import (
     check_render_mode,
     config_from_kwargs,
     detect_rows,
+    detect_rows_padded,
     kin_truth_rows,
     resolve_detector,
     split_rows,
 )
-from kin_envs.envs.info import pad_rows
+from kin_envs.envs.info import pad_rows, row_infos
 
 __all__ = [
     "AggregationConfig", "AggregationEnv", "AggregationEnvV0", "env", "env_v0", "parallel_env",
@@ -309,20 +311,22 @@ class AggregationEnv(ParallelEnv):
     def _kin_counts(self) -> tuple[np.ndarray, np.ndarray]:
         """Robots within ``kin_radius`` of each robot: (capped count, raw count)."""
         p = self._last_scan.poses  # the current poses (World.poses loops over bodies in Python)
-        dx = p[:, None, 0] - p[None, :, 0]
-        dy = p[:, None, 1] - p[None, :, 1]
-        n = np.count_nonzero(dx * dx + dy * dy <= self.config.kin_radius**2, axis=1) - 1
-        return np.minimum(n, self.config.max_kin_counted), n
+        return _kin_counts_kernel(np.ascontiguousarray(p, dtype=np.float64), self.config.kin_radius**2,
+                                  self.config.max_kin_counted)  # fmt: skip
 
     def _sense(self, first: bool = False) -> tuple[np.ndarray, dict[str, dict]]:
         scan = self.world.scan()
         self._last_scan = scan
         poses, n = scan.poses, scan.ranges.shape[0]
         truth = kin_truth_rows(scan, poses)
-        dets = feed = None
+        dets = feed = padded = None
         if self._feeder is not None:
             dets, feed = self._feeder.detect(scan.ranges, scan.angles, scan.robots, poses,
                                              range_max=scan.range_max)  # fmt: skip
+        elif self.detector is not None and self.padded_info:
+            # sorted, matched and padded in one compiled call (pad_rows' values)
+            dets, padded = detect_rows_padded(self.detector, scan.ranges, scan.angles, scan.robots, poses,
+                                              self.config.max_detections, trusted=True)  # fmt: skip
         elif self.detector is not None:
             dets = detect_rows(self.detector, scan.ranges, scan.angles, scan.robots, poses, trusted=True)
         self._last_detections = dets
@@ -336,16 +340,11 @@ class AggregationEnv(ParallelEnv):
         if self.padded_info:
             entries["kin_truth"] = pad_rows(*truth, n, self.config.max_kin_truth)
             if dets is not None:
-                entries["kin_detections"] = pad_rows(*dets, n, self.config.max_detections)
-            infos = {a: {} for a in self.possible_agents}
-            for key, (cols, count) in entries.items():
-                # each agent's row views by iterating the (n, slots) columns (views made in C, ~2x
-                # faster than c[i] per field and agent, measured); one shape on every step as before
-                names, key_count = tuple(cols), f"{key}_count"
-                rows = zip(*map(list, cols.values()), strict=True)
-                for info, vals, c in zip(infos.values(), rows, count.tolist(), strict=True):
-                    info[key] = dict(zip(names, vals, strict=True))
-                    info[key_count] = c
+                if padded is None:
+                    padded = pad_rows(*dets, n, self.config.max_detections)
+                entries["kin_detections"] = padded
+            # each agent's entries as row views of the (n, slots) columns; one shape on every step
+            infos = dict(zip(self.possible_agents, row_infos(entries), strict=True))
         else:
             truth_rows = split_rows(*truth, n)
             det_rows = split_rows(*dets, n) if dets is not None else None
@@ -406,6 +405,28 @@ class AggregationEnv(ParallelEnv):
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
+
+
+@numba.njit(cache=True, nogil=True)
+def _kin_counts_kernel(p, r2, cap):
+    """``(min(n, cap), n)``, ``n[i]`` the robots ``j != i`` with ``dx * dx + dy * dy <= r2``: the numpy
+    expression ``count_nonzero(d2 <= r2, axis=1) - 1`` over the ``(N, N)`` distance matrix, term by term,
+    without its three ``(N, N)`` temporaries (at 256 robots 1.5 MB a step, fresh pages: ~0.3 ms
+    detector off, ~0.8 ms with a detector's allocations between steps, measured)."""
+    n_rob = p.shape[0]
+    n = np.empty(n_rob, dtype=np.int64)
+    capped = np.empty(n_rob, dtype=np.int64)
+    for i in range(n_rob):
+        xi = p[i, 0]
+        yi = p[i, 1]
+        c = 0
+        for j in range(n_rob):
+            dx = xi - p[j, 0]
+            dy = yi - p[j, 1]
+            c += dx * dx + dy * dy <= r2
+        n[i] = c - 1
+        capped[i] = min(c - 1, cap)
+    return capped, n
 
 
 def parallel_env(**kwargs: Any) -> AggregationEnv:

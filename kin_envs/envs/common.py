@@ -50,6 +50,7 @@ __all__ = [
     "UnknownArgumentError",
     "config_from_kwargs",
     "detect_rows",
+    "detect_rows_padded",
     "detection_arrays",
     "kin_truth",
     "kin_truth_rows",
@@ -463,6 +464,182 @@ def _match_rows_kernel(tab, owner, observers, poses, tol2):
         ints[:, i:e] = k
         i = e
     return flo, ints
+
+
+def detect_rows_padded(
+    detector,
+    ranges: np.ndarray,
+    angles: np.ndarray,
+    observers: np.ndarray,
+    poses: np.ndarray,
+    slots: int,
+    trusted: bool = False,
+) -> tuple[tuple[np.ndarray, dict[str, np.ndarray]], tuple[dict[str, np.ndarray], np.ndarray]]:
+    """:func:`detect_rows` and its padded info columns in one: ``((row, cols), (padded, count))``, the
+    same values as ``detect_rows(...)`` followed by :func:`kin_envs.envs.info.pad_rows` ``(row, cols,
+    len(ranges), slots)`` (one world; ``tests/kin_envs/envs/test_detection_glue.py``).
+
+    A swarm step's sorting, ground-truth matching and padding run in one compiled call
+    (:func:`_match_pad_kernel`) instead of a matching call, ~20 numpy calls of padding and a dict of
+    fresh arrays per field. The padded ``(len(ranges), slots)`` columns are rows of two fresh blocks
+    (floats, ints), the flat columns rows of two more: every array is new on every call."""
+    owner, tab = detection_arrays(detector, ranges, angles, trusted)
+    n_rows = len(ranges)
+    row, flo, ints, pf, pi, count = _match_pad_kernel(
+        np.ascontiguousarray(tab, dtype=np.float64), np.ascontiguousarray(owner, dtype=np.int64),
+        np.ascontiguousarray(observers, dtype=np.int64), np.ascontiguousarray(poses, dtype=np.float64),
+        KIN_MATCH_TOLERANCE**2, n_rows, slots,
+    )  # fmt: skip
+    return (row, _detection_cols(flo, ints)), (_detection_cols(pf, pi), count)
+
+
+def _detection_cols(flo: np.ndarray, ints: np.ndarray) -> dict[str, np.ndarray]:
+    """:data:`DETECTION_FIELDS` as rows of a float block (range .. score) and an int block."""
+    return {
+        "range": flo[0], "bearing": flo[1], "x": flo[2], "y": flo[3], "score": flo[4],
+        "first_beam": ints[0], "last_beam": ints[1], "n_beams": ints[2], "kin_index": ints[3],
+    }  # fmt: skip
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _nearest_kin_brute(wx, wy, obs, poses, tol2):
+    """:func:`_match_one_row_kernel`'s match of one detection centre ``(wx, wy)``: the nearest robot
+    other than ``obs`` (the first of equals) within ``sqrt(tol2)``, -1 if none or a distance is NaN."""
+    best = -1
+    best_d2 = math.inf
+    nan_first = -1
+    for q in range(poses.shape[0]):
+        dx = wx - poses[q, 0]
+        dy = wy - poses[q, 1]
+        d2 = dx * dx + dy * dy
+        if q == obs:
+            d2 = math.inf
+        if math.isnan(d2):
+            if nan_first < 0:
+                nan_first = q
+        elif best < 0 or d2 < best_d2:
+            best = q
+            best_d2 = d2
+    return best if (nan_first < 0 and best >= 0 and best_d2 <= tol2) else -1
+
+
+@numba.njit(cache=True, nogil=True)
+def _match_pad_kernel(tab, owner, observers, poses, tol2, n_rows, slots):
+    """:func:`detect_rows_padded`'s work: ``(row (D,), floats (5, D), ints (4, D), padded floats (5,
+    n_rows, slots), padded ints (4, n_rows, slots), count (n_rows,))``.
+
+    Detections grouped by ``owner`` (a stable counting sort: any order of rows is accepted), each row's
+    sorted by range as :func:`_match_one_row_kernel` sorts them (stable, NaN last) and matched as it
+    matches them; the padded blocks hold each row's first ``slots`` (``pad_rows``' pad values
+    elsewhere). The match looks only at robots whose x lies within the tolerance (robots sorted by x,
+    a binary search per detection: ~2 candidates instead of every robot), keeping the smallest
+    (distance, index): the brute force's nearest-first-of-equals whenever it is within the tolerance,
+    the same arithmetic per candidate. Poses with a non-finite x or y take the brute force."""
+    n_det = tab.shape[0]
+    n_rob = poses.shape[0]
+    for i in range(n_det):
+        if owner[i] < 0 or owner[i] >= n_rows:
+            raise ValueError("detection rows must be scan rows in [0, len(ranges))")
+    # stable counting sort by row
+    start = np.zeros(n_rows + 1, dtype=np.int64)
+    for i in range(n_det):
+        start[owner[i] + 1] += 1
+    for r in range(n_rows):
+        start[r + 1] += start[r]
+    fill = start[:-1].copy()
+    order = np.empty(n_det, dtype=np.int64)
+    for i in range(n_det):
+        r = owner[i]
+        order[fill[r]] = i
+        fill[r] += 1
+    # robots sorted by x for the windowed match (all poses finite), else the brute force
+    finite = True
+    for q in range(n_rob):
+        if not (math.isfinite(poses[q, 0]) and math.isfinite(poses[q, 1])):
+            finite = False
+    xs_order = np.argsort(poses[:, 0]) if finite else np.arange(n_rob)
+    xs = np.empty(n_rob)
+    for j in range(n_rob):
+        xs[j] = poses[xs_order[j], 0]
+    # a candidate's x is within the tolerance (with a margin for the rounding of dx, d2)
+    reach = math.sqrt(tol2) * 1.000001 + 1e-9
+
+    row = np.empty(n_det, dtype=np.int64)
+    flo = np.empty((5, n_det))
+    ints = np.empty((4, n_det), dtype=np.int64)
+    pf = np.zeros((5, n_rows, slots))
+    pi = np.empty((4, n_rows, slots), dtype=np.int64)
+    pi[0] = -1
+    pi[1] = -1
+    pi[2] = 0
+    pi[3] = -1
+    count = np.empty(n_rows, dtype=np.int64)
+    for r in range(n_rows):
+        lo, hi = start[r], start[r + 1]
+        count[r] = min(hi - lo, slots)
+        # stable insertion sort of the row's detections by range, NaN last (a row holds a few dozen)
+        for i in range(lo + 1, hi):
+            oi = order[i]
+            key = tab[oi, 0]
+            j = i
+            while j > lo:
+                prev = tab[order[j - 1], 0]
+                if prev > key or (math.isnan(prev) and not math.isnan(key)):
+                    order[j] = order[j - 1]
+                    j -= 1
+                else:
+                    break
+            order[j] = oi
+        if hi == lo:
+            continue
+        obs = observers[r]
+        th = poses[obs, 2]
+        c = math.cos(th)
+        s = math.sin(th)
+        for k in range(lo, hi):
+            t = order[k]
+            row[k] = r
+            for f in range(5):
+                flo[f, k] = tab[t, f]
+            for f in range(3):
+                ints[f, k] = np.int64(tab[t, 5 + f])
+            wx = poses[obs, 0] + c * tab[t, 2] - s * tab[t, 3]
+            wy = poses[obs, 1] + s * tab[t, 2] + c * tab[t, 3]
+            if not finite:
+                best = _nearest_kin_brute(wx, wy, obs, poses, tol2)
+            elif not (math.isfinite(wx) and math.isfinite(wy)):
+                best = -1  # every distance NaN or inf: the brute force matches nothing
+            else:
+                best = -1
+                best_d2 = math.inf
+                a, b = 0, n_rob  # first robot with x >= wx - reach
+                x_lo = wx - reach
+                while a < b:
+                    m = (a + b) >> 1
+                    if xs[m] < x_lo:
+                        a = m + 1
+                    else:
+                        b = m
+                x_hi = wx + reach
+                while a < n_rob and xs[a] <= x_hi:
+                    q = xs_order[a]
+                    a += 1
+                    if q == obs:
+                        continue
+                    dx = wx - poses[q, 0]
+                    dy = wy - poses[q, 1]
+                    d2 = dx * dx + dy * dy
+                    if d2 <= tol2 and (d2 < best_d2 or (d2 == best_d2 and q < best)):
+                        best = q
+                        best_d2 = d2
+            ints[3, k] = best
+            slot = k - lo
+            if slot < slots:
+                for f in range(5):
+                    pf[f, r, slot] = flo[f, k]
+                for f in range(4):
+                    pi[f, r, slot] = ints[f, k]
+    return row, flo, ints, pf, pi, count
 
 
 def _match_rows_numpy(tab, owner_a, observers, poses, robot_world, one_row=False) -> dict[str, np.ndarray]:

@@ -27,6 +27,7 @@ __all__ = [
     "KIN_TRUTH_FIELDS",
     "PAD_VALUES",
     "pad_rows",
+    "row_infos",
     "unpad",
     "unpad_detections",
     "unpad_kin_truth",
@@ -106,6 +107,30 @@ def pad_rows(
         out[name] = a.reshape(n_rows, slots)
     count = np.minimum(np.diff(bounds), slots)
     return out, count
+
+
+@functools.lru_cache(maxsize=64)
+def _dict_maker(keys: tuple[str, ...]):
+    """``f(v0, v1, ...) -> {keys[0]: v0, keys[1]: v1, ...}``: a dict display with constant keys, ~2x faster
+    than ``dict(zip(keys, values))`` for the per-agent info dicts of a swarm step (measured)."""
+    args = ", ".join(f"v{i}" for i in range(len(keys)))
+    body = ", ".join(f"{k!r}: v{i}" for i, k in enumerate(keys))
+    return eval(f"lambda {args}: {{{body}}}")  # keys enter as repr() string literals
+
+
+def row_infos(entries: dict[str, tuple[dict[str, np.ndarray], np.ndarray]]) -> list[dict[str, Any]]:
+    """One info dict per row from padded ``{key: (cols, count)}`` (:func:`pad_rows`' output, every
+    ``cols`` field ``(n_rows, slots)``): row ``i``'s is ``{key: {field: cols[field][i]}, f"{key}_count":
+    int(count[i]), ...}`` in ``entries``' order. The field arrays are row views of the columns, made by
+    iterating them (views made in C); the dicts are built by constant-key displays mapped over the
+    rows, with no per-row Python loop."""
+    if not entries:
+        raise ValueError("row_infos needs at least one entry (the rows are counted from them)")
+    keys, vals = [], []
+    for key, (cols, count) in entries.items():
+        keys += [key, f"{key}_count"]
+        vals += [map(_dict_maker(tuple(cols)), *map(list, cols.values())), count.tolist()]
+    return list(map(_dict_maker(tuple(keys)), *vals))
 
 
 def unpad(info: dict[str, Any], key: str) -> dict[str, np.ndarray] | list[dict[str, np.ndarray]] | None:

@@ -1,4 +1,5 @@
-"""detectors._learned_driver: the fused one-dispatch driver gives the staged pipeline's outputs, bit for bit.
+"""detectors._learned_driver: the fused one-dispatch driver gives the staged pipeline's outputs, bit for bit
+(within a few ULP on CPUs where numpy's float64 math is SIMD code: tests/numerics.py).
 
 (The cascade, which the driver does not run, is off here: tests/detectors/test_learned_cascade.py.)
 
@@ -19,6 +20,7 @@ from detectors import _learned_driver as _drv  # noqa: E402
 from detectors.base import wrap_angle  # noqa: E402
 from detectors.learned import LearnedKinDetector  # noqa: E402
 from kin_envs import LidarSpec, World, scenes  # noqa: E402
+from tests.numerics import assert_same_values, same_values  # noqa: E402
 
 FIELDS = (
     "scan", "range", "bearing", "x", "y", "score", "first_beam", "last_beam", "n_beams_on", "segment",
@@ -32,11 +34,11 @@ def assert_same(got, ref):
     for f in FIELDS:
         a, b = getattr(got, f), getattr(ref, f)
         assert a.dtype == b.dtype and a.shape == b.shape, f
-        assert np.array_equal(a, b, equal_nan=True), f
+        assert_same_values(a, b, f)
     assert got.seg_values.keys() == ref.seg_values.keys()
     for k, v in ref.seg_values.items():
         assert got.seg_values[k].dtype == v.dtype
-        assert np.array_equal(got.seg_values[k], v, equal_nan=True), k
+        assert_same_values(got.seg_values[k], v, k)
 
 
 def arena(seed, noise, n_robots=16, n_obstacles=20):
@@ -116,7 +118,7 @@ def test_repeated_calls_with_different_scans_keep_earlier_results():
             [ref.range, ref.bearing, ref.x, ref.y, ref.score, ref.first_beam, ref.last_beam, ref.n_beams_on],
             axis=1,
         ).astype(np.float64)
-        assert np.array_equal(tab, expected) and np.array_equal(row, ref.scan)
+        assert same_values(tab, expected) and np.array_equal(row, ref.scan)
     assert not np.shares_memory(tables[0], tables[1])
 
 
@@ -125,7 +127,7 @@ def test_driver_bearing_expression_matches_numpy():
     rng = np.random.default_rng(0)
     x, y = rng.normal(size=(2, 2000)) * 3.0
     x[:4], y[:4] = (-1.0, 0.0, 0.0, -0.0), (-0.0, 1.0, -1.0, 0.0)
-    assert np.array_equal(_drv_wrap_atan2(y, x), wrap_angle(np.arctan2(y, x)))
+    assert_same_values(_drv_wrap_atan2(y, x), wrap_angle(np.arctan2(y, x)), "bearing")
 
 
 def _drv_wrap_atan2(y, x):
@@ -158,7 +160,7 @@ def test_table_entry_equals_the_staged_detections(inference):
         row, tab = det._detect_table_trusted(r, s.angles)
         ref_row, ref_tab = _staged_table(det, r, s.angles)
         assert row.dtype == np.int64 and tab.dtype == np.float64
-        assert np.array_equal(row, ref_row) and np.array_equal(tab, ref_tab)
+        assert np.array_equal(row, ref_row) and same_values(tab, ref_tab)
     assert det.detect_arrays(comb, s.angles).n_segments == n
 
 
@@ -200,7 +202,7 @@ def test_batched_fused_driver_with_cascade_is_bitwise_the_staged_pipeline(cascad
             assert_same(det.detect_arrays(r, angles), ref)
             row, tab = det._detect_table_trusted(r, angles)
             ref_row, ref_tab = _staged_table(det, r, angles)
-            assert np.array_equal(row, ref_row) and np.array_equal(tab, ref_tab)
+            assert np.array_equal(row, ref_row) and same_values(tab, ref_tab)
             if cascade:
                 p, score = ref.seg_values["p_kin"], ref.seg_values["cascade_score"]
                 n_dropped += int((np.isfinite(score) & np.isnan(p)).sum())

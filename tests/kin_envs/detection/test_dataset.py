@@ -170,3 +170,57 @@ def test_benchmark_generator_families():
         DatasetConfig(bench_swarm_prob=0.7, lookalike_prob=0.5)
     with pytest.raises(ValueError, match="lookalike_prob"):
         DatasetConfig(lookalike_prob=1.5)
+
+
+# --- candidate windows (issue 11, round 6) -------------------------------------------------------------
+
+
+def test_window_labels_rule():
+    """Kin when >= 2 beams of the window hit one housing and they are most of its beams."""
+    from kin_envs.detection.dataset import window_labels
+
+    rows = {  # (hit_kind of the plurality, its beams, the window's beams) -> label
+        (HitKind.ROBOT, 2, 2): 1, (HitKind.ROBOT, 2, 3): 1, (HitKind.ROBOT, 4, 7): 1,
+        (HitKind.ROBOT, 2, 4): 0, (HitKind.ROBOT, 1, 1): 0, (HitKind.ROBOT, 1, 2): 0,
+        (HitKind.ROBOT, 3, 6): 0, (HitKind.WALL, 5, 5): 0, (HitKind.PRISM, 3, 4): 0,
+    }  # fmt: skip
+    keys = list(rows)
+    segs = {
+        "hit_kind": np.array([k for k, _, _ in keys], np.int8),
+        "n_beams": np.array([n for _, _, n in keys], np.int16),
+        "dominant_fraction": np.array([d / n for _, d, n in keys], np.float32),
+    }
+    assert window_labels(segs).tolist() == list(rows.values())
+
+
+def test_scene_records_windows_are_labelled_by_their_beams():
+    """``windows=WindowConfig()`` appends the candidate windows of the too-wide segments as rows with
+    ``window`` 1: each one's label is the benchmark's rule counted beam by beam from the scan's ground
+    truth (a loop), its features are those of the window batch, kin windows carry the kin's centre; the
+    segment rows are unchanged."""
+    from detectors.features import segment_features
+    from detectors.windows import WindowConfig
+
+    cfg = DatasetConfig(bench_swarm_prob=1.0, noise=(0.0, 0.0), zero_noise_prob=1.0, max_observers=8)
+    plain, objs0, _ = scene_records(110_003, cfg)
+    segs, objs, info = scene_records(110_003, cfg, windows=WindowConfig())
+    win = info["windows"]
+    w = segs["window"] == 1
+    assert w.sum() == win.n_windows > 0 and (segs["window"][~w] == 0).all()
+    for k in plain:  # the segments first, as without windows
+        np.testing.assert_array_equal(segs[k][~w], plain[k])
+    for k in objs0:
+        np.testing.assert_array_equal(objs[k], objs0[k])
+    scan, n = info["scan"], info["scan"].ranges.shape[1]
+    labels = []
+    for i in range(win.n_windows):
+        r = int(win.batch.scan[i])
+        beams = (int(win.batch.first[i]) + np.arange(int(win.batch.count[i]))) % n
+        robots = scan.hit_index[r, beams][scan.hit_kind[r, beams] == HitKind.ROBOT].tolist()
+        best = max((robots.count(x) for x in set(robots)), default=0)
+        labels.append(int(best >= 2 and 2 * best > beams.size))
+    assert segs["label"][w].tolist() == labels and sum(labels) > 0
+    np.testing.assert_array_equal(segs["x"][w], segment_features(win.batch, FeatureConfig()).x)
+    kin = w & (segs["label"] == 1)
+    assert np.isfinite(segs["centre"][kin]).all() and np.isnan(segs["centre"][w & (segs["label"] == 0)]).all()
+    assert (segs["category"][kin] == CAT["kin"]).all()

@@ -117,3 +117,128 @@ def test_swarm_matching_in_one_compiled_call_is_the_numpy_path():
         n_det += len(tab)
         n_matched += int((ref["kin_index"] >= 0).sum())
     assert n_det > 20 and n_matched > 10
+
+
+def _oracle_padded(tab, owner, observers, poses, n_rows, slots):
+    """The previous path as the oracle: the (D, N) distance-matrix match (np.lexsort by row then range,
+    np.argmin over every robot) and pad_rows."""
+    from kin_envs.envs.common import _match_rows_numpy
+    from kin_envs.envs.info import pad_rows
+
+    cols = _match_rows_numpy(tab, owner, observers, poses, None)
+    row = np.sort(owner, kind="stable")
+    return (row, cols), pad_rows(row, cols, n_rows, slots)
+
+
+def _same_padded(got, ref):
+    (row, cols), (padded, count) = got
+    (row_r, cols_r), (padded_r, count_r) = ref
+    assert row.dtype == row_r.dtype and np.array_equal(row, row_r)
+    _same_cols(cols, cols_r)
+    _same_cols(padded, padded_r)
+    assert count.dtype == count_r.dtype and np.array_equal(count, count_r)
+
+
+def _random_glue_case(rng, trial):
+    """Detections of a random swarm step, built to reach the match's edges: centres near robots (some
+    exactly at the tolerance), robots sharing an x or a whole position, NaN / inf centres and ranges,
+    rows out of order, empty and overfull rows."""
+    from kin_envs.envs.common import KIN_MATCH_TOLERANCE as tol
+
+    n_rob = int(rng.integers(2, 80))
+    n_rows = int(rng.integers(1, n_rob + 1))
+    side = float(rng.uniform(0.5, 12.0))
+    poses = np.column_stack([rng.uniform(-side, side, (n_rob, 2)), rng.uniform(-4, 4, n_rob)])
+    if trial % 5 == 0:
+        poses[1:4, 0] = poses[0, 0]  # equal x (ties in the sort by x)
+    if trial % 7 == 0:
+        poses[2, :2] = poses[1, :2]  # equal distances: the first robot wins
+    if trial % 9 == 0:
+        poses[:, :2] = np.round(poses[:, :2], 1)  # centres on a 0.1 m lattice: distances exactly 0.1
+    observers = rng.permutation(n_rob)[:n_rows]
+    n_det = int(rng.integers(0, 30 * n_rows + 1)) if trial % 13 else 0
+    owner = np.sort(rng.integers(n_rows, size=n_det)) if trial % 3 else rng.integers(n_rows, size=n_det)
+    obs = observers[owner]
+    target = rng.integers(n_rob, size=n_det)
+    # world centres at a distance around the tolerance from a robot, some exactly on the x or y axis
+    ang = np.where(rng.uniform(size=n_det) < 0.3, rng.integers(4, size=n_det) * np.pi / 2,
+                   rng.uniform(-np.pi, np.pi, n_det))
+    near = [rng.uniform(0, 2, n_det), np.ones(n_det), np.full(n_det, 1 + 1e-15), np.full(n_det, 1 - 1e-15)]
+    dist = tol * np.choose(rng.integers(4, size=n_det), near)
+    wx = poses[target, 0] + dist * np.cos(ang)
+    wy = poses[target, 1] + dist * np.sin(ang)
+    c, s = np.cos(poses[obs, 2]), np.sin(poses[obs, 2])
+    dx, dy = wx - poses[obs, 0], wy - poses[obs, 1]
+    tab = np.empty((n_det, 8))
+    tab[:, 2], tab[:, 3] = c * dx + s * dy, c * dy - s * dx
+    tab[:, 0] = np.round(np.hypot(tab[:, 2], tab[:, 3]), 1 if trial % 4 == 0 else 12)  # equal ranges
+    tab[:, 1] = np.arctan2(tab[:, 3], tab[:, 2])
+    tab[:, 4] = rng.uniform(size=n_det)
+    tab[:, 5] = rng.integers(360, size=n_det)
+    tab[:, 6] = rng.integers(360, size=n_det)
+    tab[:, 7] = rng.integers(1, 9, size=n_det)
+    if n_det > 3 and trial % 6 == 1:
+        tab[0, [0, 2]] = np.nan  # NaN range sorted last; NaN centre never matched
+        tab[1, 3] = np.inf
+        tab[2, 2] = -np.inf
+    slots = int(rng.integers(1, 21))
+    return tab, owner, observers, poses, n_rows, slots
+
+
+def test_match_and_pad_in_one_call_is_the_distance_matrix_and_pad_rows():
+    # _match_pad_kernel (x-sorted candidate window, counting sort by row, padding) against the previous
+    # distance-matrix match and pad_rows, bit for bit, on random steps that reach the match's edges
+    from kin_envs.envs.common import KIN_MATCH_TOLERANCE, _detection_cols, _match_pad_kernel
+
+    rng = np.random.default_rng(1)
+    n_matched = 0
+    for trial in range(400):
+        tab, owner, observers, poses, n_rows, slots = _random_glue_case(rng, trial)
+        if trial % 11 == 5:
+            poses[int(rng.integers(len(poses))), int(rng.integers(2))] = [np.nan, np.inf, -np.inf][trial % 3]
+        row, flo, ints, pf, pi, count = _match_pad_kernel(tab, owner, observers, poses,
+                                                          KIN_MATCH_TOLERANCE**2, n_rows, slots)
+        got = (row, _detection_cols(flo, ints)), (_detection_cols(pf, pi), count)
+        with np.errstate(invalid="ignore"):  # inf - inf in the distance matrix of non-finite poses
+            ref = _oracle_padded(tab, owner, observers, poses, n_rows, slots)
+        _same_padded(got, ref)
+        k = ref[0][1]["kin_index"]
+        n_matched += int((k >= 0).sum())
+    assert n_matched > 2000  # the cases do match (and miss) robots
+
+
+def test_match_and_pad_refuses_rows_outside_the_scan():
+    from kin_envs.envs.common import _match_pad_kernel
+
+    tab = np.zeros((1, 8))
+    poses = np.zeros((3, 3))
+    with pytest.raises(ValueError, match="scan rows"):
+        _match_pad_kernel(tab, np.array([2]), np.array([0, 1]), poses, 0.01, 2, 4)
+    with pytest.raises(ValueError, match="scan rows"):
+        _match_pad_kernel(tab, np.array([-1]), np.array([0, 1]), poses, 0.01, 2, 4)
+
+
+@pytest.mark.parametrize("detector", ["geometric", "learned"])
+def test_detect_rows_padded_is_detect_rows_then_pad_rows(detector):
+    if detector == "learned":
+        pytest.importorskip("torch")
+    from kin_envs import LidarSpec, World, scenes
+    from kin_envs.envs.common import detect_rows_padded, resolve_detector
+    from kin_envs.envs.info import pad_rows
+
+    det = resolve_detector(detector)
+    n_det = 0
+    for seed, n in enumerate((2, 16, 64)):
+        scene = scenes.random_arena(n, n // 4, seed=seed).replace(lidar=LidarSpec(noise_sigma=0.01))
+        w = World(scene, seed=seed)
+        scan = w.scan()
+        for slots in (1, 16):
+            args = (det, scan.ranges, scan.angles, scan.robots, w.poses)
+            row, cols = detect_rows(*args, trusted=True)
+            got = detect_rows_padded(*args, slots, trusted=True)
+            _same_padded(got, ((row, cols), pad_rows(row, cols, n, slots)))
+            again = detect_rows_padded(*args, slots, trusted=True)  # fresh arrays on every call
+            for a, b in zip(got[1][0].values(), again[1][0].values(), strict=True):
+                assert not np.shares_memory(a, b)
+            n_det += row.size
+    assert n_det > 50
