@@ -492,13 +492,19 @@ def mlp_forward_rows(x, mean, std, weights_t, biases, sizes, out):
 
 
 @numba.njit(cache=True, nogil=True)
-def housing_max_beams(d, scan, first, count, step, r, slack, margin, skip_one, out):
+def housing_max_beams(d, scan, first, count, step, r, slack, margin, out):
     """Most beams (``step`` rad apart) a circle of radius ``r`` can return, plus ``margin``, for
     every segment, from its nearest reading ``d_min``: the circle's centre is at least ``slack *
     d_min`` away (every visible point is nearer than the centre, and ``slack = 1 / (1 + k sigma)``
     allows each reading to be ``k sigma`` too long), where it spans ``2 asin(r / D)``, so at most
     ``floor(2 asin(r / D) / step) + 1`` beams. Writes ``out[i]`` (float64; a segment with more
-    beams cannot be a housing). ``skip_one``: NaN for one-beam segments (not computed)."""
+    beams cannot be a housing)."""
+    _housing_max_beams(d, scan, first, count, step, r, slack, margin, False, out)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _housing_max_beams(d, scan, first, count, step, r, slack, margin, skip_one, out):
+    # housing_max_beams; skip_one: NaN for one-beam segments (not computed: the learned driver's lean path)
     n_beams = d.shape[1]
     for i in range(scan.shape[0]):
         if skip_one and count[i] == 1:

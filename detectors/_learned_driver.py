@@ -97,7 +97,7 @@ def front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_a
     if pre_gate:
         # (a one-beam segment's bound floor(2 asin(.) / step) + 1 + margin is >= 1 for step > 0, margin >= 0)
         skip_one = lean and step > 0.0 and margin >= 0.0
-        _k.housing_max_beams(d, scan, first, count, step, r_kin, slack, margin, skip_one, max_beams)
+        _k._housing_max_beams(d, scan, first, count, step, r_kin, slack, margin, skip_one, max_beams)
         keep = np.empty(s, dtype=np.int64)
         n_keep = 0
         for i in range(s):

@@ -875,7 +875,7 @@ class LearnedKinDetector(KinDetector):
         out = np.empty(batch.n_segments)
         _k.housing_max_beams(
             batch.ranges, batch.scan, batch.first, batch.count, self._step, float(self.feature_config.r),
-            PRE_GATE_SLACK, float(PRE_GATE_MARGIN), False, out,
+            PRE_GATE_SLACK, float(PRE_GATE_MARGIN), out,
         )  # fmt: skip
         return out
 
