@@ -507,11 +507,15 @@ def _scan_kernel(
 # polygon), each binned by the centre of its bounding circle (a loose grid: a cell's extent is widened by
 # the largest item radius, so an item is listed once and never cast twice). Per robot, pass 1 runs over
 # the column runs of cells within reach (contiguous in the cell-major lists, so the per-item tests are
-# vectorised as in :func:`_cast_prims`) and keeps each item's beam interval; long segments (the arena
-# boundary, walls, large polygons) are listed in every cell they touch and gathered once. Pass 2 casts
-# the circles, the long segments, and then the groups front to back (a bucket sort on their nearest
-# distance): a group whose whole beam interval already hit something nearer is skipped without touching
-# its edges. Every exact test is the brute force's arithmetic, and a hit replaces the current one when it
+# vectorised as in :func:`_cast_prims`): each circle's reach test and beam interval, and the back-face and
+# reach test of every edge of the groups listed there (their edges are stored cell by cell too), which
+# keeps the front faces within reach; long segments (the arena boundary, long walls, large polygons) are
+# listed in every cell they touch, gathered once and tested alike. Then every kept segment's beam
+# interval (vectorised), and pass 2 casts the circles and the segments with beams to test, those with
+# exactly one beam (most far ones) without a branch. (A per-group bounding-circle test, a front-to-back
+# order and skipping hidden groups or segments were measured slower: branches mispredicted per group, per
+# edge and per beam cost more than the vectorised per-edge tests they saved.) Every exact test is the
+# brute force's arithmetic, and a hit replaces the current one when it
 # is nearer *or equally near with a lower primitive id*: the result is the minimum of (distance, id) over
 # the primitives, which is what the brute force's in-order strict ``<`` computes, so both kernels return
 # bit-identical scans whatever order the items come in.
@@ -519,10 +523,6 @@ def _scan_kernel(
 # Indices into arrays are taken as slices from 0 or as unsigned integers where they could not be proved
 # non-negative: numba's negative-index wraparound otherwise stops LLVM vectorising the candidate passes
 # (measured 2.5x slower).
-
-#: buckets of the front-to-back sort of groups over ``[0, range_max]``
-_N_BUCKETS = 48
-
 
 @dataclass(frozen=True, eq=False)
 class LidarGrid:
@@ -791,41 +791,44 @@ def _circle_pass(x0, y0, hw, skip, reach, n_beams, inv_res, xs_, ys_, rs_, ids_,
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _group_pass(x0, y0, hw, reach, n_beams, inv_res, xs_, ys_, rs_, a, b, m, kg_, fb_, fc_, fn_):
-    """:func:`_circle_pass` for groups' bounding circles: the group index is kept, and a group whose
-    bounding circle holds the origin gets every beam."""
-    rc = reach + _TOL
-    xs = xs_[a:b]
-    ys = ys_[a:b]
-    rs = rs_[a:b]
-    kg = kg_[m:]
-    fb = fb_[m:]
-    fc = fc_[m:]
-    fn = fn_[m:]
+def _edge_pass(x0, y0, rc2, e1_, e2_, e3_, e4_, eid_, a, b, m, s1_, s2_, s3_, s4_, sid_, flag_):
+    """The back-face and reach test of :func:`_cast_prims`' segments over the edges ``a..b-1`` of the
+    columns ``e1_`` .. ``e4_`` (ids ``eid_``); the front faces within reach are appended at ``m`` to the
+    columns ``s1_`` .. ``s4_`` / ``sid_``. Returns the new count. (Flags first, in a pass the compiler
+    vectorises, then the copy.)"""
+    e1 = e1_[a:b]
+    e2 = e2_[a:b]
+    e3 = e3_[a:b]
+    e4 = e4_[a:b]
+    eid = eid_[a:b]
+    flag = flag_[: b - a]
     for q in range(b - a):
-        dx = xs[q] - x0
-        dy = ys[q] - y0
-        r = rs[q]
-        d2 = dx * dx + dy * dy
-        cc = d2 - r * r
-        ok = d2 <= (rc + r) * (rc + r)
-        sq = math.sqrt(max(cc, 1e-300))
-        half = _half_angle(r / sq) + _EPS
-        phi = _fast_atan2(dy, dx) - hw
-        k0 = np.ceil(-(phi + half) * inv_res)
-        k1 = np.floor(-(phi - half) * inv_res)
-        full = cc <= 0.0
-        fb[q] = 0.0 if full else _first_beam(k0, n_beams)
-        cnt = float(n_beams) if full else k1 - k0 + 1.0
-        fc[q] = cnt if ok else 0.0
-        fn[q] = sq - r - _TOL
+        ax = e1[q] - x0
+        ay = e2[q] - y0
+        bx = e3[q] - x0
+        by = e4[q] - y0
+        ex = bx - ax
+        ey = by - ay
+        cr_ = ey * ax - ex * ay
+        ee = ex * ex + ey * ey
+        dot = -(ax * ex + ay * ey)
+        near = (((dot <= 0.0) & (ax * ax + ay * ay <= rc2))
+                | ((dot >= ee) & (bx * bx + by * by <= rc2))
+                | ((dot > 0.0) & (dot < ee) & (cr_ * cr_ <= rc2 * ee)))  # fmt: skip
+        flag[q] = 1.0 if (cr_ < 0.0) & near else 0.0
+    s1 = s1_[m:]
+    s2 = s2_[m:]
+    s3 = s3_[m:]
+    s4 = s4_[m:]
+    sid = sid_[m:]
     k = 0
     for q in range(b - a):
-        kg[k] = a + q
-        fb[k] = fb[q]
-        fc[k] = fc[q]
-        fn[k] = fn[q]
-        k += fc[q] > 0.0
+        s1[k] = e1[q]
+        s2[k] = e2[q]
+        s3[k] = e3[q]
+        s4[k] = e4[q]
+        sid[k] = eid[q]
+        k += flag[q] > 0.0
     return m + k
 
 
@@ -859,6 +862,23 @@ def _segment_beams(ax, ay, ex, ey, p, near, i, cnt, n_beams, bux, buy, best_d, b
             best_p[u] = p
 
 
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _segment_beam(ax, ay, ex, ey, p, u, bux, buy, best_d, best_p):
+    """:func:`_segment_beams` for the one beam ``u``, without a branch: the exact test of :func:`_cast_prims`
+    (a hit on a front face has ``den < 0``; a zero ``den`` is no hit, as there) and the update as
+    selects. (Branches on these tests were mispredicted often: far segments hit or miss at random.)"""
+    bd = best_d[u]
+    bp = best_p[u]
+    ux = bux[u]
+    uy = buy[u]
+    den = ux * ey - uy * ex
+    t = (ax * ey - ay * ex) / den
+    sp = (ax * uy - ay * ux) / den
+    hit = (den < 0.0) & (t > 0.0) & (sp >= 0.0) & (sp <= 1.0) & ((t < bd) | ((t == bd) & (p < bp)))
+    best_d[u] = t if hit else bd
+    best_p[u] = p if hit else bp
+
+
 @numba.njit(cache=True, nogil=True, inline="always")
 def _unpack_grid(gf, gi):
     """The grid arguments of :func:`_grid_cast` (``gx`` to ``dyn_s``) from :func:`grid_args`' two arrays."""
@@ -867,7 +887,7 @@ def _unpack_grid(gf, gi):
     f1 = 5 + 3 * k  # float layout: 5 scalars, circle columns (3, k), group circles (3, g), segments (s, 4)
     f2 = f1 + 3 * g
     return (gf[0], gf[1], gf[2], gi[0], gi[1], gi[o[0]:o[1]], gf[5:f1].reshape((3, k)), gi[o[1]:o[2]], gf[3],
-            gi[o[2]:o[3]], gf[f1:f2].reshape((3, g)), gi[o[3]:o[4]], gf[f2 : f2 + 4 * s].reshape((s, 4)),
+            gi[o[2]:o[3]], gf[f1:f2].reshape((3, g)), gi[o[3]:o[4]], gf[f2 : f2 + 4 * s].reshape((4, s)),
             gi[o[4]:o[5]], gf[4], gi[o[5]:o[6]], gi[o[6]:o[7]], gi[o[7]:o[8]], gi[o[8]:o[9]])  # fmt: skip
 
 
@@ -935,17 +955,16 @@ def _grid_cast(
         d_cols[1, p] = circles[c, 1]
         d_cols[2, p] = circles[c, 2]
         d_ids[p] = c
-    # scratch: candidate circles (k*), groups (g*), long segments (s*)
+    # scratch: candidate circles (k*), segments (s*), the segment pass's flags
     kx, ky, kr, kb, kc, kn = fs[0], fs[1], fs[2], fs[3], fs[4], fs[5]
-    gb, gc, gn = fs[9], fs[10], fs[11]
+    flags = fs[9]
     s1, s2, s3, s4, sb, sc, sn = fs[12], fs[13], fs[14], fs[15], fs[16], fs[17], fs[18]
     best_d, bux, buy = fs[22, :n_beams], fs[23, :n_beams], fs[24, :n_beams]  # (_write_row: n_beams long)
-    kid, gid, order, sid = js[0], js[1], js[2], js[3]
-    bucket, best_p, stamp = js[8], js[9, :n_beams], js[10]
+    kid, order, one, sid = js[0], js[1], js[2], js[3]
+    best_p, stamp = js[9, :n_beams], js[10]
     # stamp tags stay unique across calls (the scratch is reused): the last one is kept in js[11, 0]
     tag0 = js[11, 0]
     js[11, 0] = tag0 + ox.shape[0]
-    to_bucket = _N_BUCKETS / range_max
     rc = reach + _TOL
     rc2 = rc * rc
     for n in range(ox.shape[0]):
@@ -964,7 +983,7 @@ def _grid_cast(
             buy[i] = sh * cos_tab[i] - ch * sin_tab[i]
         # --- pass 1: the column runs of cells within reach (cells widened by the layer's largest radius)
         mc = 0
-        mg = 0
+        ms = 0
         for layer in range(3):
             if layer == 0:
                 pad = c_pad
@@ -1000,9 +1019,9 @@ def _grid_cast(
                 elif layer == 1:
                     mc = _circle_pass(x0, y0, hw, skip, reach, n_beams, inv_res, d_cols[0], d_cols[1],
                                       d_cols[2], d_ids, a, b, mc, kx, ky, kr, kid, kb, kc, kn)  # fmt: skip
-                else:
-                    mg = _group_pass(x0, y0, hw, reach, n_beams, inv_res, g_cols[0], g_cols[1], g_cols[2],
-                                     a, b, mg, gid, gb, gc, gn)  # fmt: skip
+                else:  # the edges of the groups listed in these cells (contiguous too)
+                    ms = _edge_pass(x0, y0, rc2, g_seg[0], g_seg[1], g_seg[2], g_seg[3], g_sid, g_off[a],
+                                    g_off[b], ms, s1, s2, s3, s4, sid, flags)  # fmt: skip
         if n_in < n_d:
             mc = _circle_pass(x0, y0, hw, skip, reach, n_beams, inv_res, d_cols[0], d_cols[1], d_cols[2],
                               d_ids, n_in, n_d, mc, kx, ky, kr, kid, kb, kc, kn)  # fmt: skip
@@ -1020,15 +1039,15 @@ def _grid_cast(
                     s = s_items[np.uint64(q)]
                     if stamp[s] != tag0 + n + 1:
                         stamp[s] = tag0 + n + 1
-                        sid[ns] = s
+                        order[ns] = s
                         ns += 1
         for q in range(dyn_s.shape[0]):
-            sid[ns] = dyn_s[q]
+            order[ns] = dyn_s[q]
             ns += 1
-        # their back-face and reach test, then the beam interval of the survivors (as _cast_prims)
-        m = 0
+        # their back-face and reach test (as _cast_prims), appended to the groups' front faces
+        m = ms
         for v in range(ns):
-            s = sid[v]
+            s = order[v]
             ax = segments[s, 0] - x0
             ay = segments[s, 1] - y0
             bx = segments[s, 2] - x0
@@ -1047,6 +1066,7 @@ def _grid_cast(
             s3[m] = segments[s, 2]
             s4[m] = segments[s, 3]
             m += (cr_ < 0.0) & near
+        # the beam interval of every front face (as _cast_prims)
         for v in range(m):
             ax = s1[v] - x0
             ay = s2[v] - y0
@@ -1067,7 +1087,15 @@ def _grid_cast(
             sb[v] = _first_beam(k0, n_beams)
             sc[v] = k1 - k0 + 1.0 if dm2 <= reach * reach else 0.0
             sn[v] = math.sqrt(dm2) - _TOL
-        # --- pass 2: circles, long segments, then groups front to back
+        # those with beams to test (without a branch: a third of them fall between two beams)
+        me = 0
+        m1 = 0
+        for v in range(m):
+            order[me] = v
+            one[m1] = v
+            me += sc[v] > 1.0
+            m1 += sc[v] == 1.0
+        # --- pass 2: circles, then segments
         for q in range(mc):
             c = kid[q]
             dx = kx[q] - x0
@@ -1092,62 +1120,22 @@ def _grid_cast(
                 if t > 0.0 and (t < bd or (t == bd and c < best_p[u])):
                     best_d[u] = t
                     best_p[u] = c
-        for v in range(m):
-            if sc[v] > 0.0:
-                ax = s1[v] - x0
-                ay = s2[v] - y0
-                ex = (s3[v] - x0) - ax
-                ey = (s4[v] - y0) - ay
-                _segment_beams(ax, ay, ex, ey, n_c + sid[v], sn[v], int(sb[v]) - 1, int(sc[v]), n_beams, bux,
-                               buy, best_d, best_p)  # fmt: skip
-        for t in range(_N_BUCKETS + 1):
-            bucket[t] = 0
-        for q in range(mg):
-            bucket[int(min(max(gn[q], 0.0) * to_bucket, _N_BUCKETS - 1.0)) + 1] += 1
-        for t in range(_N_BUCKETS):
-            bucket[t + 1] += bucket[t]
-        for q in range(mg):
-            t = int(min(max(gn[q], 0.0) * to_bucket, _N_BUCKETS - 1.0))
-            order[bucket[t]] = q
-            bucket[t] += 1
-        for w in range(mg):
-            q = order[w]
-            near = gn[q]
-            i = int(gb[q]) - 1
-            cnt = int(gc[q])
-            ii = i
-            shut = True
-            for _ in range(cnt):
-                ii += 1
-                if ii == n_beams:
-                    ii = 0
-                if best_d[np.uint64(ii)] >= near:
-                    shut = False
-                    break
-            if shut:
-                continue  # every beam it could reach already hit something nearer
-            g = gid[q]
-            for k_ in range(g_off[g], g_off[g + 1]):
-                k = np.uint64(k_)
-                ax = g_seg[k, 0] - x0
-                ay = g_seg[k, 1] - y0
-                bx = g_seg[k, 2] - x0
-                by = g_seg[k, 3] - y0
-                ex = bx - ax
-                ey = by - ay
-                if not (ey * ax - ex * ay < 0.0):
-                    continue  # back face (the test of _cast_prims)
-                i2 = i
-                cnt2 = cnt
-                if cnt > 12:  # close by: the edge's own interval (as _cast_prims)
-                    th_a = _fast_atan2(ay, ax) - hw
-                    span = _fast_atan2(ax * by - ay * bx, ax * bx + ay * by)
-                    k0 = np.ceil(-(th_a + max(0.0, span) + _EPS) * inv_res)
-                    k1 = np.floor(-(th_a + min(0.0, span) - _EPS) * inv_res)
-                    i2 = int(_first_beam(k0, n_beams)) - 1
-                    cnt2 = int(k1 - k0 + 1.0)
-                _segment_beams(ax, ay, ex, ey, n_c + g_sid[k], near, i2, cnt2, n_beams, bux, buy, best_d,
-                               best_p)
+        for w in range(me):
+            v = np.uint64(order[w])
+            ax = s1[v] - x0
+            ay = s2[v] - y0
+            ex = (s3[v] - x0) - ax
+            ey = (s4[v] - y0) - ay
+            _segment_beams(ax, ay, ex, ey, n_c + sid[v], sn[v], int(sb[v]) - 1, int(sc[v]), n_beams, bux,
+                           buy, best_d, best_p)  # fmt: skip
+        # segments with one beam to test (most of the far ones): that beam without a branch
+        for w in range(m1):
+            v = np.uint64(one[w])
+            ax = s1[v] - x0
+            ay = s2[v] - y0
+            ex = (s3[v] - x0) - ax
+            ey = (s4[v] - y0) - ay
+            _segment_beam(ax, ay, ex, ey, n_c + sid[v], np.uint64(sb[v]), bux, buy, best_d, best_p)
         _write_row(n, best_d, best_p, 0, prim_kind, prim_index, range_min, range_max, out_ranges, out_true,
                    out_kind, out_index)
 
@@ -1221,7 +1209,7 @@ def grid_args(grid: LidarGrid) -> tuple[np.ndarray, np.ndarray]:
     head = [nx, ny, grid.circles.shape[1], grid.groups.shape[1], len(grid.group_segments), *ends]
     gi = np.concatenate([np.asarray(head, np.int64), *ints]).astype(np.int64)
     gf = np.concatenate([[gx, gy, grid.cell_size, grid.circle_pad, grid.group_pad], grid.circles.ravel(),
-                         grid.groups.ravel(), grid.group_segments.ravel()]).astype(np.float64)  # fmt: skip
+                         grid.groups.ravel(), grid.group_segments.T.ravel()]).astype(np.float64)  # fmt: skip
     return gf, gi
 
 
@@ -1231,7 +1219,7 @@ def grid_scratch(grid: LidarGrid, n_beams: int) -> tuple[np.ndarray, np.ndarray]
     n_d = len(grid.dynamic_circles)
     cap = max(len(grid.circle_ids) + n_d, grid.groups.shape[1],
               len(grid.segment_items) + len(grid.dynamic_segments), n_beams, grid.shape[0] * grid.shape[1],
-              grid.n_segments, _N_BUCKETS) + 1  # fmt: skip
+              grid.n_segments) + 1  # fmt: skip
     # the float rows are always written before they are read; the int rows hold the stamps (and their
     # last tag), which must start below every tag
     return np.empty((25, cap)), np.zeros((12, cap), np.int64)
