@@ -212,10 +212,11 @@ def _work(k, ids=True):
     """Scratch of :func:`_cast_prims` for up to ``k`` candidates of each kind, allocated once per kernel
     call: ``ints[0]`` = ``arange(k)`` (every primitive as a candidate; filled only with ``ids``: the grid
     kernel rarely needs it, and writing it touches every page of a large world's scratch), ``ints[1]``
-    the candidates kept by the first pass, ``floats[0:3]`` each candidate's first beam, beam count and
-    occlusion distance, ``floats[3:7]`` the coordinates of the segments that pass the cheap test."""
+    the candidates kept by the first pass (``ints[2]``: those with one beam), ``floats[0:3]`` each
+    candidate's first beam, beam count and occlusion distance, ``floats[3:7]`` the coordinates of the
+    segments that pass the cheap test."""
     k = max(k, 1)
-    ints = np.empty((2, k), np.int64)
+    ints = np.empty((3, k), np.int64)
     for q in range(k if ids else 0):
         ints[0, q] = q
     return ints, np.empty((7, k))
@@ -230,6 +231,22 @@ def _first_beam(k0, n_beams):
     s = s - n_beams if s >= n_beams else s
     s = s - n_beams if s >= n_beams else s
     return s - n_beams if s >= n_beams else s
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _circle_beam(dx, dy, cc, c, near, u, ux, uy, best_d, best_p):
+    """The exact ray-circle test of :func:`_cast_prims` on the one beam ``u`` (direction ``ux, uy``) of a
+    circle ``c`` at ``dx, dy`` from the origin (``cc = d^2 - r^2``), without a branch: the tests as one
+    condition and the update as selects (far circles span one beam, and branches on whether it hits were
+    mispredicted about as often as not)."""
+    bd = best_d[u]
+    bp = best_p[u]
+    b = dx * ux + dy * uy
+    disc = b * b - cc
+    t = b - math.sqrt(max(disc, 0.0))  # (the same t where disc >= 0, the only case kept)
+    hit = (bd >= near) & (disc >= 0.0) & (b > 0.0) & (t > 0.0) & ((t < bd) | ((t == bd) & (c < bp)))
+    best_d[u] = t if hit else bd
+    best_p[u] = c if hit else bp
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -268,6 +285,7 @@ def _cast_prims(x0, y0, h, skip, reach, cx, cy, cr, cid, n_ci, sx1, sy1, sx2, sy
     rc = reach + _TOL
     rc2 = rc * rc
     keep = ws[0][1]
+    one = ws[0][2]
     f_beam = ws[1][0]
     f_count = ws[1][1]
     f_near = ws[1][2]
@@ -292,10 +310,23 @@ def _cast_prims(x0, y0, h, skip, reach, cx, cy, cr, cid, n_ci, sx1, sy1, sx2, sy
         f_count[q] = k1 - k0 + 1.0 if ok else 0.0
         # no hit on this circle is nearer: d - r >= sqrt(d^2 - r^2) - r (one square root fewer)
         f_near[q] = sq - r - _TOL
+    # the circles with one beam to test (far ones: most of a swarm's housings) apart, cast without a branch
     m = 0
+    m1 = 0
     for q in range(n_ci):
         keep[m] = q
-        m += f_count[q] > 0.0
+        one[m1] = q
+        m += f_count[q] > 1.0
+        m1 += f_count[q] == 1.0
+    for v in range(m1):
+        q = np.uint64(one[v])
+        dx = cx[q] - x0
+        dy = cy[q] - y0
+        r = cr[q]
+        w = np.uint64(f_beam[q])
+        ux = ch * cos_tab[w] + sh * sin_tab[w]
+        uy = sh * cos_tab[w] - ch * sin_tab[w]
+        _circle_beam(dx, dy, (dx * dx + dy * dy) - r * r, cid[q], f_near[q], w, ux, uy, best_d, best_p)
     # indices as unsigned integers: numba's negative-index wraparound costs ~20 % in these loops
     for u in range(m):
         q = np.uint64(keep[u])
@@ -485,13 +516,52 @@ def _scan_kernel(
     ``prim_kind`` / ``prim_index`` are owner tables indexed by primitive id + 1 (slot 0 = no hit).
     ``tabs``: :func:`beam_tables`.
     """
+    bf, bi = _brute_scratch(circles.shape[0], segments.shape[0], tabs.shape[1])
+    _scan_kernel_into(ox, oy, heading, tabs, range_min, range_max, circles, circle_skip, segments, prim_kind,
+                      prim_index, bf, bi, out_ranges, out_true, out_kind, out_index)  # fmt: skip
+
+
+@numba.njit(cache=True, nogil=True)
+def _brute_scratch(n_circles, n_segments, n_beams):
+    """Work arrays of :func:`_scan_kernel_into` (``World`` keeps one pair: allocating them, with the
+    primitives' columns, cost ~1 us of a one-robot scan): floats for the columns of :func:`_columns`,
+    :func:`_work`'s floats and ``best_d``; ints for :func:`_work`'s ints (``ints[0]`` filled) and
+    ``best_p``."""
+    k = max(n_circles, n_segments, 1)
+    bf = np.empty(3 * n_circles + 4 * n_segments + 7 * k + n_beams)
+    bi = np.empty(3 * k + n_beams, np.int64)
+    for q in range(k):
+        bi[q] = q
+    return bf, bi
+
+
+@numba.njit(cache=True, nogil=True)
+def _scan_kernel_into(ox, oy, heading, tabs, range_min, range_max, circles, circle_skip, segments, prim_kind,
+                      prim_index, bf, bi, out_ranges, out_true, out_kind, out_index):  # fmt: skip
+    """:func:`_scan_kernel` with its work arrays ``bf`` / ``bi`` (:func:`_brute_scratch`)."""
     n_beams = tabs.shape[1]
+    n_c = circles.shape[0]
+    n_s = segments.shape[0]
+    k = max(n_c, n_s, 1)
+    c = bf[: 3 * n_c].reshape((3, n_c))
+    sg = bf[3 * n_c : 3 * n_c + 4 * n_s].reshape((4, n_s))
+    for q in range(n_c):  # the columns of _columns, refreshed (the housings moved)
+        c[0, q] = circles[q, 0]
+        c[1, q] = circles[q, 1]
+        c[2, q] = circles[q, 2]
+    for q in range(n_s):
+        sg[0, q] = segments[q, 0]
+        sg[1, q] = segments[q, 1]
+        sg[2, q] = segments[q, 2]
+        sg[3, q] = segments[q, 3]
+    f0 = 3 * n_c + 4 * n_s
+    ws = (bi[: 3 * k].reshape((3, k)), bf[f0 : f0 + 7 * k].reshape((7, k)))
+    best_d = bf[f0 + 7 * k : f0 + 7 * k + n_beams]
+    best_p = bi[3 * k : 3 * k + n_beams]
+    circ = (c[0], c[1], c[2])
+    seg = (sg[0], sg[1], sg[2], sg[3])
     cos_tab = tabs[0]
     sin_tab = tabs[1]
-    best_d = np.empty(n_beams)
-    best_p = np.empty(n_beams, dtype=np.int32)
-    ws = _work(max(circles.shape[0], segments.shape[0]))
-    circ, seg = _columns(circles, segments)
     for n in range(ox.shape[0]):
         _cast_one(ox[n], oy[n], heading[n], circle_skip[n], range_max, circ, seg, cos_tab, sin_tab,
                   best_d, best_p, ws)  # fmt: skip
@@ -551,6 +621,7 @@ class LidarGrid:
     group_segments: np.ndarray  #: (sum, 4) float64 the groups' segments, group by group
     group_segment_ids: np.ndarray  #: (sum,) int64 their segment indices
     group_pad: float  #: m, the largest group radius
+    group_boxes: np.ndarray  #: (4, nx*ny) float64 box (xmin, ymin, xmax, ymax) of each cell's group edges
     segment_start: np.ndarray  #: (nx*ny + 1,) int64 CSR offsets into ``segment_items``
     segment_items: np.ndarray  #: int64 long static segments, listed in every cell they touch
     dynamic_circles: np.ndarray  #: int64 circles indexed on every scan
@@ -720,6 +791,13 @@ def build_lidar_grid(
     seg_ids = np.concatenate([np.arange(a, b) for a, b in rows]) if len(rows) else np.zeros(0)
     seg_ids = seg_ids.astype(np.int64)
     s_start, s_items = _bin(seg_box, single, gx, gy, cs, nx, ny)
+    # each cell's box around the edges of its groups (the kernel visits a cell only if its box is in reach)
+    e_cell = np.repeat(np.repeat(np.arange(nx * ny), np.diff(g_start)), rows[:, 1] - rows[:, 0])
+    e_seg = segments[seg_ids].reshape(-1, 4)
+    g_box = np.empty((4, nx * ny))
+    g_box[:2], g_box[2:] = np.inf, -np.inf
+    for k, (f, a) in enumerate(((np.minimum, 0), (np.minimum, 1), (np.maximum, 0), (np.maximum, 1))):
+        f.at(g_box[k], e_cell, f(e_seg[:, a], e_seg[:, a + 2]))
     return LidarGrid(
         origin=(gx, gy),
         cell_size=cs,
@@ -734,6 +812,7 @@ def build_lidar_grid(
         group_segments=np.ascontiguousarray(segments[seg_ids]).reshape(-1, 4),
         group_segment_ids=seg_ids,
         group_pad=float(group_circles[:, 2].max()) if len(group_circles) else 0.0,
+        group_boxes=g_box,
         segment_start=s_start,
         segment_items=s_items,
         dynamic_circles=dyn_c,
@@ -882,12 +961,14 @@ def _segment_beam(ax, ay, ex, ey, p, u, bux, buy, best_d, best_p):
 @numba.njit(cache=True, nogil=True, inline="always")
 def _unpack_grid(gf, gi):
     """The grid arguments of :func:`_grid_cast` (``gx`` to ``dyn_s``) from :func:`grid_args`' two arrays."""
-    k, g, s = gi[2], gi[3], gi[4]
+    k, s = gi[2], gi[4]
+    n_cells = gi[0] * gi[1]
     o = gi[5:15]
-    f1 = 5 + 3 * k  # float layout: 5 scalars, circle columns (3, k), group circles (3, g), segments (s, 4)
-    f2 = f1 + 3 * g
+    f1 = 5 + 3 * k  # float layout: 5 scalars, circle columns (3, k), cell boxes (4, cells), edges (4, s)
+    f2 = f1 + 4 * n_cells
     return (gf[0], gf[1], gf[2], gi[0], gi[1], gi[o[0]:o[1]], gf[5:f1].reshape((3, k)), gi[o[1]:o[2]], gf[3],
-            gi[o[2]:o[3]], gf[f1:f2].reshape((3, g)), gi[o[3]:o[4]], gf[f2 : f2 + 4 * s].reshape((4, s)),
+            gi[o[2]:o[3]], gf[f1:f2].reshape((4, n_cells)), gi[o[3]:o[4]],
+            gf[f2 : f2 + 4 * s].reshape((4, s)),
             gi[o[4]:o[5]], gf[4], gi[o[5]:o[6]], gi[o[6]:o[7]], gi[o[7]:o[8]], gi[o[8]:o[9]])  # fmt: skip
 
 
@@ -904,7 +985,7 @@ def _scan_kernel_grid(ox, oy, heading, tabs, range_min, range_max, circles, circ
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _grid_cast(
     ox, oy, heading, tabs, range_min, range_max, circles, circle_skip, segments, prim_kind, prim_index,
-    gx, gy, cs, nx, ny, c_start, c_cols, c_ids, c_pad, g_start, g_cols, g_off, g_seg, g_sid, g_pad, s_start,
+    gx, gy, cs, nx, ny, c_start, c_cols, c_ids, c_pad, g_start, g_box, g_off, g_seg, g_sid, g_pad, s_start,
     s_items, dyn_c, dyn_s, fs, js, out_ranges, out_true, out_kind, out_index,
 ):  # fmt: skip
     """:func:`_scan_kernel_grid` with the grid unpacked."""
@@ -962,6 +1043,7 @@ def _grid_cast(
     best_d, bux, buy = fs[22, :n_beams], fs[23, :n_beams], fs[24, :n_beams]  # (_write_row: n_beams long)
     kid, order, one, sid = js[0], js[1], js[2], js[3]
     best_p, stamp = js[9, :n_beams], js[10]
+    cmany, cone = js[8], js[12]  # the circles with several beams to test, with one
     # stamp tags stay unique across calls (the scratch is reused): the last one is kept in js[11, 0]
     tag0 = js[11, 0]
     js[11, 0] = tag0 + ox.shape[0]
@@ -1009,6 +1091,24 @@ def _grid_cast(
                 fj1 = (y0 + hy + pad - gy) / cs
                 if not (fj1 >= 0.0 and fj0 < ny):
                     continue
+                if layer == 2:
+                    # the groups' edges, by runs of the cells whose box of edges is within reach
+                    c0 = i * ny + int(max(fj0, 0.0))
+                    c1 = i * ny + int(min(fj1, ny - 1.0)) + 1
+                    ra = c1
+                    for cc in range(c0, c1 + 1):
+                        ok = False
+                        if cc < c1:
+                            bdx = max(max(g_box[0, cc] - x0, 0.0), x0 - g_box[2, cc])
+                            bdy = max(max(g_box[1, cc] - y0, 0.0), y0 - g_box[3, cc])
+                            ok = bdx * bdx + bdy * bdy <= rc2
+                        if ok and ra == c1:
+                            ra = cc
+                        elif not ok and ra < c1:
+                            ms = _edge_pass(x0, y0, rc2, g_seg[0], g_seg[1], g_seg[2], g_seg[3], g_sid,
+                                            g_off[st[ra]], g_off[st[cc]], ms, s1, s2, s3, s4, sid, flags)
+                            ra = c1
+                    continue
                 a = st[i * ny + int(max(fj0, 0.0))]
                 b = st[i * ny + int(min(fj1, ny - 1.0)) + 1]
                 if a == b:
@@ -1016,12 +1116,9 @@ def _grid_cast(
                 if layer == 0:
                     mc = _circle_pass(x0, y0, hw, skip, reach, n_beams, inv_res, c_cols[0], c_cols[1],
                                       c_cols[2], c_ids, a, b, mc, kx, ky, kr, kid, kb, kc, kn)  # fmt: skip
-                elif layer == 1:
+                else:
                     mc = _circle_pass(x0, y0, hw, skip, reach, n_beams, inv_res, d_cols[0], d_cols[1],
                                       d_cols[2], d_ids, a, b, mc, kx, ky, kr, kid, kb, kc, kn)  # fmt: skip
-                else:  # the edges of the groups listed in these cells (contiguous too)
-                    ms = _edge_pass(x0, y0, rc2, g_seg[0], g_seg[1], g_seg[2], g_seg[3], g_sid, g_off[a],
-                                    g_off[b], ms, s1, s2, s3, s4, sid, flags)  # fmt: skip
         if n_in < n_d:
             mc = _circle_pass(x0, y0, hw, skip, reach, n_beams, inv_res, d_cols[0], d_cols[1], d_cols[2],
                               d_ids, n_in, n_d, mc, kx, ky, kr, kid, kb, kc, kn)  # fmt: skip
@@ -1095,8 +1192,24 @@ def _grid_cast(
             one[m1] = v
             me += sc[v] > 1.0
             m1 += sc[v] == 1.0
-        # --- pass 2: circles, then segments
+        # --- pass 2: circles (those with one beam apart, without a branch), then segments
+        cm = 0
+        c1 = 0
         for q in range(mc):
+            cmany[cm] = q
+            cone[c1] = q
+            cm += kc[q] > 1.0
+            c1 += kc[q] == 1.0
+        for w in range(c1):
+            q = np.uint64(cone[w])
+            dx = kx[q] - x0
+            dy = ky[q] - y0
+            r = kr[q]
+            u = np.uint64(kb[q])
+            _circle_beam(dx, dy, (dx * dx + dy * dy) - r * r, kid[q], kn[q], u, bux[u], buy[u], best_d,
+                         best_p)
+        for w in range(cm):
+            q = np.uint64(cmany[w])
             c = kid[q]
             dx = kx[q] - x0
             dy = ky[q] - y0
@@ -1209,7 +1322,8 @@ def grid_args(grid: LidarGrid) -> tuple[np.ndarray, np.ndarray]:
     head = [nx, ny, grid.circles.shape[1], grid.groups.shape[1], len(grid.group_segments), *ends]
     gi = np.concatenate([np.asarray(head, np.int64), *ints]).astype(np.int64)
     gf = np.concatenate([[gx, gy, grid.cell_size, grid.circle_pad, grid.group_pad], grid.circles.ravel(),
-                         grid.groups.ravel(), grid.group_segments.T.ravel()]).astype(np.float64)  # fmt: skip
+                         grid.group_boxes.ravel(), grid.group_segments.T.ravel()])  # fmt: skip
+    gf = gf.astype(np.float64)
     return gf, gi
 
 
@@ -1222,7 +1336,7 @@ def grid_scratch(grid: LidarGrid, n_beams: int) -> tuple[np.ndarray, np.ndarray]
               grid.n_segments) + 1  # fmt: skip
     # the float rows are always written before they are read; the int rows hold the stamps (and their
     # last tag), which must start below every tag
-    return np.empty((25, cap)), np.zeros((12, cap), np.int64)
+    return np.empty((25, cap)), np.zeros((13, cap), np.int64)
 
 
 def cast_prepared(ox, oy, heading, skip, static: tuple, grid: tuple | None):
@@ -1254,47 +1368,45 @@ def wrap_headings(rows):
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _world_rows(rows, idx, n_moved, circles, nb):
+def _world_rows(rows, idx, n_moved, circles, poses):
     """:func:`_world_scan_brute`'s and :func:`_world_scan_grid`'s common part: wrap the headings of
-    ``rows`` in place, move the first ``n_moved`` circles (the housings) to them, and return the poses of
-    robots ``idx``, their x, y, heading rows and the four output arrays."""
+    ``rows`` in place, move the first ``n_moved`` circles (the housings) to them, write the poses of
+    robots ``idx`` into ``poses`` and return their x, y, heading rows."""
     wrap_headings(rows)
     for k in range(n_moved):
         circles[k, 0] = rows[k, 0]
         circles[k, 1] = rows[k, 1]
     n = idx.shape[0]
-    poses = np.empty((n, 3))
     o = np.empty((3, n))
     for m in range(n):
         for c in range(3):
             poses[m, c] = rows[idx[m], c]
             o[c, m] = rows[idx[m], c]
-    return (poses, o, np.empty((n, nb), np.float32), np.empty((n, nb), np.float32),
-            np.empty((n, nb), np.int8), np.empty((n, nb), np.int32))  # fmt: skip
+    return o
 
 
 @numba.njit(cache=True, nogil=True)
 def _world_scan_brute(rows, idx, n_moved, tabs, range_min, range_max, circles, segments, prim_kind,
-                      prim_index):  # fmt: skip
+                      prim_index, bf, bi, poses, ranges, true, kind, index):  # fmt: skip
     """``World.scan`` after the pose read, in one compiled call (the Python around a one-robot scan's
     kernel cost as much as the kernel): ``rows`` holds every robot's raw x, y, angle; robots ``idx`` are
-    cast by the brute-force kernel. Returns their poses and the four outputs of :func:`cast_scan`
-    (float32). (Two entries, not one with a flag: a fresh install compiles only the kernel it uses.)"""
-    poses, o, ranges, true, kind, index = _world_rows(rows, idx, n_moved, circles, tabs.shape[1])
-    _scan_kernel(o[0], o[1], o[2], tabs, range_min, range_max, circles, idx, segments, prim_kind, prim_index,
-                 ranges, true, kind, index)  # fmt: skip
-    return poses, ranges, true, kind, index
+    cast by the brute-force kernel with the work arrays ``bf`` / ``bi`` (:func:`_brute_scratch`). Writes
+    their poses and the four outputs of :func:`cast_scan` (float32) into the last five arrays (allocated
+    by the caller: returning five arrays from a compiled call cost ~1.8 us, allocating them in Python
+    ~0.9). (Two entries, not one with a flag: a fresh install compiles only the kernel it uses.)"""
+    o = _world_rows(rows, idx, n_moved, circles, poses)
+    _scan_kernel_into(o[0], o[1], o[2], tabs, range_min, range_max, circles, idx, segments, prim_kind,
+                      prim_index, bf, bi, ranges, true, kind, index)  # fmt: skip
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _world_scan_grid(rows, idx, n_moved, tabs, range_min, range_max, circles, segments, prim_kind, prim_index,
-                     gf, gi, fs, js):  # fmt: skip
+                     gf, gi, fs, js, poses, ranges, true, kind, index):  # fmt: skip
     """:func:`_world_scan_brute` through the grid packed in ``gf`` / ``gi`` with the work arrays ``fs`` /
     ``js``."""
-    poses, o, ranges, true, kind, index = _world_rows(rows, idx, n_moved, circles, tabs.shape[1])
+    o = _world_rows(rows, idx, n_moved, circles, poses)
     _grid_cast(o[0], o[1], o[2], tabs, range_min, range_max, circles, idx, segments, prim_kind, prim_index,
                *_unpack_grid(gf, gi), fs, js, ranges, true, kind, index)  # fmt: skip
-    return poses, ranges, true, kind, index
 
 
 def scan_shapes(
