@@ -912,13 +912,13 @@ def _edge_pass(x0, y0, rc2, e1_, e2_, e3_, e4_, eid_, a, b, m, s1_, s2_, s3_, s4
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _segment_beams(ax, ay, ex, ey, p, near, i, cnt, n_beams, bux, buy, best_d, best_p):
+def _segment_beams(ax, ay, ex, ey, p, i, cnt, n_beams, bux, buy, best_d, best_p):
     """The exact ray-segment test of :func:`_cast_prims` on ``cnt`` beams after beam ``i`` of a front face.
 
     A hit needs ``den < 0`` (a front face has ``tn < 0``, and ``t = tn / den > 0``), ``s = num / den`` in
     [0, 1] and ``t < bd``: these are tested on the products first, with a margin far above their
     rounding, and the divisions (the exact test, as :func:`_cast_prims`) run only for the few beams that
-    pass. (``near``: the caller's occlusion bound; ``t < bd`` covers it.)"""
+    pass."""
     tn = ax * ey - ay * ex
     for _ in range(cnt):
         i += 1
@@ -1039,7 +1039,7 @@ def _grid_cast(
     # scratch: candidate circles (k*), segments (s*), the segment pass's flags
     kx, ky, kr, kb, kc, kn = fs[0], fs[1], fs[2], fs[3], fs[4], fs[5]
     flags = fs[9]
-    s1, s2, s3, s4, sb, sc, sn = fs[12], fs[13], fs[14], fs[15], fs[16], fs[17], fs[18]
+    s1, s2, s3, s4, sb, sc = fs[12], fs[13], fs[14], fs[15], fs[16], fs[17]
     best_d, bux, buy = fs[22, :n_beams], fs[23, :n_beams], fs[24, :n_beams]  # (_write_row: n_beams long)
     kid, order, one, sid = js[0], js[1], js[2], js[3]
     best_p, stamp = js[9, :n_beams], js[10]
@@ -1163,27 +1163,19 @@ def _grid_cast(
             s3[m] = segments[s, 2]
             s4[m] = segments[s, 3]
             m += (cr_ < 0.0) & near
-        # the beam interval of every front face (as _cast_prims)
+        # the beam interval of every front face (as _cast_prims; their reach was tested above, with a margin
+        # of _TOL: a segment farther than range_max cannot beat a beam's initial range_max)
         for v in range(m):
             ax = s1[v] - x0
             ay = s2[v] - y0
             bx = s3[v] - x0
             by = s4[v] - y0
-            ex = bx - ax
-            ey = by - ay
-            ee = ex * ex + ey * ey
-            dot = -(ax * ex + ay * ey)
-            u = min(1.0, max(0.0, dot / ee))
-            px = ax + u * ex
-            py = ay + u * ey
-            dm2 = px * px + py * py
             th_a = _fast_atan2(ay, ax) - hw
             span = _fast_atan2(ax * by - ay * bx, ax * bx + ay * by)
             k0 = np.ceil(-(th_a + max(0.0, span) + _EPS) * inv_res)
             k1 = np.floor(-(th_a + min(0.0, span) - _EPS) * inv_res)
             sb[v] = _first_beam(k0, n_beams)
-            sc[v] = k1 - k0 + 1.0 if dm2 <= reach * reach else 0.0
-            sn[v] = math.sqrt(dm2) - _TOL
+            sc[v] = k1 - k0 + 1.0
         # those with beams to test (without a branch: a third of them fall between two beams)
         me = 0
         m1 = 0
@@ -1239,7 +1231,7 @@ def _grid_cast(
             ay = s2[v] - y0
             ex = (s3[v] - x0) - ax
             ey = (s4[v] - y0) - ay
-            _segment_beams(ax, ay, ex, ey, n_c + sid[v], sn[v], int(sb[v]) - 1, int(sc[v]), n_beams, bux,
+            _segment_beams(ax, ay, ex, ey, n_c + sid[v], int(sb[v]) - 1, int(sc[v]), n_beams, bux,
                            buy, best_d, best_p)  # fmt: skip
         # segments with one beam to test (most of the far ones): that beam without a branch
         for w in range(m1):
