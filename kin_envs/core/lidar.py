@@ -828,7 +828,7 @@ def _circle_pass(x0, y0, hw, skip, reach, n_beams, inv_res, xs_, ys_, rs_, ids_,
     """Pass 1 over the circles ``a..b-1`` of the columns ``xs_``, ``ys_``, ``rs_`` (ids ``ids_``): the
     reach test and beam interval of :func:`_cast_prims`' circle pass, bit for bit; the circles with beams
     to test are appended at ``m`` (coordinates, id, first beam, count, nearest distance). Returns the new
-    count. (Separate from :func:`_group_pass`: one function with a flag was no longer vectorised.)"""
+    count."""
     rc = reach + _TOL
     xs = xs_[a:b]
     ys = ys_[a:b]
