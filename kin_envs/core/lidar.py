@@ -212,10 +212,11 @@ def _work(k, ids=True):
     """Scratch of :func:`_cast_prims` for up to ``k`` candidates of each kind, allocated once per kernel
     call: ``ints[0]`` = ``arange(k)`` (every primitive as a candidate; filled only with ``ids``: the grid
     kernel rarely needs it, and writing it touches every page of a large world's scratch), ``ints[1]``
-    the candidates kept by the first pass, ``floats[0:3]`` each candidate's first beam, beam count and
-    occlusion distance, ``floats[3:7]`` the coordinates of the segments that pass the cheap test."""
+    the candidates kept by the first pass (``ints[2]``: those with one beam), ``floats[0:3]`` each
+    candidate's first beam, beam count and occlusion distance, ``floats[3:7]`` the coordinates of the
+    segments that pass the cheap test."""
     k = max(k, 1)
-    ints = np.empty((2, k), np.int64)
+    ints = np.empty((3, k), np.int64)
     for q in range(k if ids else 0):
         ints[0, q] = q
     return ints, np.empty((7, k))
@@ -230,6 +231,22 @@ def _first_beam(k0, n_beams):
     s = s - n_beams if s >= n_beams else s
     s = s - n_beams if s >= n_beams else s
     return s - n_beams if s >= n_beams else s
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _circle_beam(dx, dy, cc, c, near, u, ux, uy, best_d, best_p):
+    """The exact ray-circle test of :func:`_cast_prims` on the one beam ``u`` (direction ``ux, uy``) of a
+    circle ``c`` at ``dx, dy`` from the origin (``cc = d^2 - r^2``), without a branch: the tests as one
+    condition and the update as selects (far circles span one beam, and branches on whether it hits were
+    mispredicted about as often as not)."""
+    bd = best_d[u]
+    bp = best_p[u]
+    b = dx * ux + dy * uy
+    disc = b * b - cc
+    t = b - math.sqrt(max(disc, 0.0))  # (the same t where disc >= 0, the only case kept)
+    hit = (bd >= near) & (disc >= 0.0) & (b > 0.0) & (t > 0.0) & ((t < bd) | ((t == bd) & (c < bp)))
+    best_d[u] = t if hit else bd
+    best_p[u] = c if hit else bp
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -268,6 +285,7 @@ def _cast_prims(x0, y0, h, skip, reach, cx, cy, cr, cid, n_ci, sx1, sy1, sx2, sy
     rc = reach + _TOL
     rc2 = rc * rc
     keep = ws[0][1]
+    one = ws[0][2]
     f_beam = ws[1][0]
     f_count = ws[1][1]
     f_near = ws[1][2]
@@ -292,10 +310,23 @@ def _cast_prims(x0, y0, h, skip, reach, cx, cy, cr, cid, n_ci, sx1, sy1, sx2, sy
         f_count[q] = k1 - k0 + 1.0 if ok else 0.0
         # no hit on this circle is nearer: d - r >= sqrt(d^2 - r^2) - r (one square root fewer)
         f_near[q] = sq - r - _TOL
+    # the circles with one beam to test (far ones: most of a swarm's housings) apart, cast without a branch
     m = 0
+    m1 = 0
     for q in range(n_ci):
         keep[m] = q
-        m += f_count[q] > 0.0
+        one[m1] = q
+        m += f_count[q] > 1.0
+        m1 += f_count[q] == 1.0
+    for v in range(m1):
+        q = np.uint64(one[v])
+        dx = cx[q] - x0
+        dy = cy[q] - y0
+        r = cr[q]
+        w = np.uint64(f_beam[q])
+        ux = ch * cos_tab[w] + sh * sin_tab[w]
+        uy = sh * cos_tab[w] - ch * sin_tab[w]
+        _circle_beam(dx, dy, (dx * dx + dy * dy) - r * r, cid[q], f_near[q], w, ux, uy, best_d, best_p)
     # indices as unsigned integers: numba's negative-index wraparound costs ~20 % in these loops
     for u in range(m):
         q = np.uint64(keep[u])
@@ -485,13 +516,52 @@ def _scan_kernel(
     ``prim_kind`` / ``prim_index`` are owner tables indexed by primitive id + 1 (slot 0 = no hit).
     ``tabs``: :func:`beam_tables`.
     """
+    bf, bi = _brute_scratch(circles.shape[0], segments.shape[0], tabs.shape[1])
+    _scan_kernel_into(ox, oy, heading, tabs, range_min, range_max, circles, circle_skip, segments, prim_kind,
+                      prim_index, bf, bi, out_ranges, out_true, out_kind, out_index)  # fmt: skip
+
+
+@numba.njit(cache=True, nogil=True)
+def _brute_scratch(n_circles, n_segments, n_beams):
+    """Work arrays of :func:`_scan_kernel_into` (``World`` keeps one pair: allocating them, with the
+    primitives' columns, cost ~1 us of a one-robot scan): floats for the columns of :func:`_columns`,
+    :func:`_work`'s floats and ``best_d``; ints for :func:`_work`'s ints (``ints[0]`` filled) and
+    ``best_p``."""
+    k = max(n_circles, n_segments, 1)
+    bf = np.empty(3 * n_circles + 4 * n_segments + 7 * k + n_beams)
+    bi = np.empty(3 * k + n_beams, np.int64)
+    for q in range(k):
+        bi[q] = q
+    return bf, bi
+
+
+@numba.njit(cache=True, nogil=True)
+def _scan_kernel_into(ox, oy, heading, tabs, range_min, range_max, circles, circle_skip, segments, prim_kind,
+                      prim_index, bf, bi, out_ranges, out_true, out_kind, out_index):  # fmt: skip
+    """:func:`_scan_kernel` with its work arrays ``bf`` / ``bi`` (:func:`_brute_scratch`)."""
     n_beams = tabs.shape[1]
+    n_c = circles.shape[0]
+    n_s = segments.shape[0]
+    k = max(n_c, n_s, 1)
+    c = bf[: 3 * n_c].reshape((3, n_c))
+    sg = bf[3 * n_c : 3 * n_c + 4 * n_s].reshape((4, n_s))
+    for q in range(n_c):  # the columns of _columns, refreshed (the housings moved)
+        c[0, q] = circles[q, 0]
+        c[1, q] = circles[q, 1]
+        c[2, q] = circles[q, 2]
+    for q in range(n_s):
+        sg[0, q] = segments[q, 0]
+        sg[1, q] = segments[q, 1]
+        sg[2, q] = segments[q, 2]
+        sg[3, q] = segments[q, 3]
+    f0 = 3 * n_c + 4 * n_s
+    ws = (bi[: 3 * k].reshape((3, k)), bf[f0 : f0 + 7 * k].reshape((7, k)))
+    best_d = bf[f0 + 7 * k : f0 + 7 * k + n_beams]
+    best_p = bi[3 * k : 3 * k + n_beams]
+    circ = (c[0], c[1], c[2])
+    seg = (sg[0], sg[1], sg[2], sg[3])
     cos_tab = tabs[0]
     sin_tab = tabs[1]
-    best_d = np.empty(n_beams)
-    best_p = np.empty(n_beams, dtype=np.int32)
-    ws = _work(max(circles.shape[0], segments.shape[0]))
-    circ, seg = _columns(circles, segments)
     for n in range(ox.shape[0]):
         _cast_one(ox[n], oy[n], heading[n], circle_skip[n], range_max, circ, seg, cos_tab, sin_tab,
                   best_d, best_p, ws)  # fmt: skip
@@ -507,11 +577,15 @@ def _scan_kernel(
 # polygon), each binned by the centre of its bounding circle (a loose grid: a cell's extent is widened by
 # the largest item radius, so an item is listed once and never cast twice). Per robot, pass 1 runs over
 # the column runs of cells within reach (contiguous in the cell-major lists, so the per-item tests are
-# vectorised as in :func:`_cast_prims`) and keeps each item's beam interval; long segments (the arena
-# boundary, walls, large polygons) are listed in every cell they touch and gathered once. Pass 2 casts
-# the circles, the long segments, and then the groups front to back (a bucket sort on their nearest
-# distance): a group whose whole beam interval already hit something nearer is skipped without touching
-# its edges. Every exact test is the brute force's arithmetic, and a hit replaces the current one when it
+# vectorised as in :func:`_cast_prims`): each circle's reach test and beam interval, and the back-face and
+# reach test of every edge of the groups listed there (their edges are stored cell by cell too), which
+# keeps the front faces within reach; long segments (the arena boundary, long walls, large polygons) are
+# listed in every cell they touch, gathered once and tested alike. Then every kept segment's beam
+# interval (vectorised), and pass 2 casts the circles and the segments with beams to test, those with
+# exactly one beam (most far ones) without a branch. (A per-group bounding-circle test, a front-to-back
+# order and skipping hidden groups or segments were measured slower: branches mispredicted per group, per
+# edge and per beam cost more than the vectorised per-edge tests they saved.) Every exact test is the
+# brute force's arithmetic, and a hit replaces the current one when it
 # is nearer *or equally near with a lower primitive id*: the result is the minimum of (distance, id) over
 # the primitives, which is what the brute force's in-order strict ``<`` computes, so both kernels return
 # bit-identical scans whatever order the items come in.
@@ -519,10 +593,6 @@ def _scan_kernel(
 # Indices into arrays are taken as slices from 0 or as unsigned integers where they could not be proved
 # non-negative: numba's negative-index wraparound otherwise stops LLVM vectorising the candidate passes
 # (measured 2.5x slower).
-
-#: buckets of the front-to-back sort of groups over ``[0, range_max]``
-_N_BUCKETS = 48
-
 
 @dataclass(frozen=True, eq=False)
 class LidarGrid:
@@ -551,6 +621,7 @@ class LidarGrid:
     group_segments: np.ndarray  #: (sum, 4) float64 the groups' segments, group by group
     group_segment_ids: np.ndarray  #: (sum,) int64 their segment indices
     group_pad: float  #: m, the largest group radius
+    group_boxes: np.ndarray  #: (4, nx*ny) float64 box (xmin, ymin, xmax, ymax) of each cell's group edges
     segment_start: np.ndarray  #: (nx*ny + 1,) int64 CSR offsets into ``segment_items``
     segment_items: np.ndarray  #: int64 long static segments, listed in every cell they touch
     dynamic_circles: np.ndarray  #: int64 circles indexed on every scan
@@ -720,6 +791,13 @@ def build_lidar_grid(
     seg_ids = np.concatenate([np.arange(a, b) for a, b in rows]) if len(rows) else np.zeros(0)
     seg_ids = seg_ids.astype(np.int64)
     s_start, s_items = _bin(seg_box, single, gx, gy, cs, nx, ny)
+    # each cell's box around the edges of its groups (the kernel visits a cell only if its box is in reach)
+    e_cell = np.repeat(np.repeat(np.arange(nx * ny), np.diff(g_start)), rows[:, 1] - rows[:, 0])
+    e_seg = segments[seg_ids].reshape(-1, 4)
+    g_box = np.empty((4, nx * ny))
+    g_box[:2], g_box[2:] = np.inf, -np.inf
+    for k, (f, a) in enumerate(((np.minimum, 0), (np.minimum, 1), (np.maximum, 0), (np.maximum, 1))):
+        f.at(g_box[k], e_cell, f(e_seg[:, a], e_seg[:, a + 2]))
     return LidarGrid(
         origin=(gx, gy),
         cell_size=cs,
@@ -734,6 +812,7 @@ def build_lidar_grid(
         group_segments=np.ascontiguousarray(segments[seg_ids]).reshape(-1, 4),
         group_segment_ids=seg_ids,
         group_pad=float(group_circles[:, 2].max()) if len(group_circles) else 0.0,
+        group_boxes=g_box,
         segment_start=s_start,
         segment_items=s_items,
         dynamic_circles=dyn_c,
@@ -749,7 +828,7 @@ def _circle_pass(x0, y0, hw, skip, reach, n_beams, inv_res, xs_, ys_, rs_, ids_,
     """Pass 1 over the circles ``a..b-1`` of the columns ``xs_``, ``ys_``, ``rs_`` (ids ``ids_``): the
     reach test and beam interval of :func:`_cast_prims`' circle pass, bit for bit; the circles with beams
     to test are appended at ``m`` (coordinates, id, first beam, count, nearest distance). Returns the new
-    count. (Separate from :func:`_group_pass`: one function with a flag was no longer vectorised.)"""
+    count."""
     rc = reach + _TOL
     xs = xs_[a:b]
     ys = ys_[a:b]
@@ -791,52 +870,55 @@ def _circle_pass(x0, y0, hw, skip, reach, n_beams, inv_res, xs_, ys_, rs_, ids_,
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _group_pass(x0, y0, hw, reach, n_beams, inv_res, xs_, ys_, rs_, a, b, m, kg_, fb_, fc_, fn_):
-    """:func:`_circle_pass` for groups' bounding circles: the group index is kept, and a group whose
-    bounding circle holds the origin gets every beam."""
-    rc = reach + _TOL
-    xs = xs_[a:b]
-    ys = ys_[a:b]
-    rs = rs_[a:b]
-    kg = kg_[m:]
-    fb = fb_[m:]
-    fc = fc_[m:]
-    fn = fn_[m:]
+def _edge_pass(x0, y0, rc2, e1_, e2_, e3_, e4_, eid_, a, b, m, s1_, s2_, s3_, s4_, sid_, flag_):
+    """The back-face and reach test of :func:`_cast_prims`' segments over the edges ``a..b-1`` of the
+    columns ``e1_`` .. ``e4_`` (ids ``eid_``); the front faces within reach are appended at ``m`` to the
+    columns ``s1_`` .. ``s4_`` / ``sid_``. Returns the new count. (Flags first, in a pass the compiler
+    vectorises, then the copy.)"""
+    e1 = e1_[a:b]
+    e2 = e2_[a:b]
+    e3 = e3_[a:b]
+    e4 = e4_[a:b]
+    eid = eid_[a:b]
+    flag = flag_[: b - a]
     for q in range(b - a):
-        dx = xs[q] - x0
-        dy = ys[q] - y0
-        r = rs[q]
-        d2 = dx * dx + dy * dy
-        cc = d2 - r * r
-        ok = d2 <= (rc + r) * (rc + r)
-        sq = math.sqrt(max(cc, 1e-300))
-        half = _half_angle(r / sq) + _EPS
-        phi = _fast_atan2(dy, dx) - hw
-        k0 = np.ceil(-(phi + half) * inv_res)
-        k1 = np.floor(-(phi - half) * inv_res)
-        full = cc <= 0.0
-        fb[q] = 0.0 if full else _first_beam(k0, n_beams)
-        cnt = float(n_beams) if full else k1 - k0 + 1.0
-        fc[q] = cnt if ok else 0.0
-        fn[q] = sq - r - _TOL
+        ax = e1[q] - x0
+        ay = e2[q] - y0
+        bx = e3[q] - x0
+        by = e4[q] - y0
+        ex = bx - ax
+        ey = by - ay
+        cr_ = ey * ax - ex * ay
+        ee = ex * ex + ey * ey
+        dot = -(ax * ex + ay * ey)
+        near = (((dot <= 0.0) & (ax * ax + ay * ay <= rc2))
+                | ((dot >= ee) & (bx * bx + by * by <= rc2))
+                | ((dot > 0.0) & (dot < ee) & (cr_ * cr_ <= rc2 * ee)))  # fmt: skip
+        flag[q] = 1.0 if (cr_ < 0.0) & near else 0.0
+    s1 = s1_[m:]
+    s2 = s2_[m:]
+    s3 = s3_[m:]
+    s4 = s4_[m:]
+    sid = sid_[m:]
     k = 0
     for q in range(b - a):
-        kg[k] = a + q
-        fb[k] = fb[q]
-        fc[k] = fc[q]
-        fn[k] = fn[q]
-        k += fc[q] > 0.0
+        s1[k] = e1[q]
+        s2[k] = e2[q]
+        s3[k] = e3[q]
+        s4[k] = e4[q]
+        sid[k] = eid[q]
+        k += flag[q] > 0.0
     return m + k
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _segment_beams(ax, ay, ex, ey, p, near, i, cnt, n_beams, bux, buy, best_d, best_p):
+def _segment_beams(ax, ay, ex, ey, p, i, cnt, n_beams, bux, buy, best_d, best_p):
     """The exact ray-segment test of :func:`_cast_prims` on ``cnt`` beams after beam ``i`` of a front face.
 
     A hit needs ``den < 0`` (a front face has ``tn < 0``, and ``t = tn / den > 0``), ``s = num / den`` in
     [0, 1] and ``t < bd``: these are tested on the products first, with a margin far above their
     rounding, and the divisions (the exact test, as :func:`_cast_prims`) run only for the few beams that
-    pass. (``near``: the caller's occlusion bound; ``t < bd`` covers it.)"""
+    pass."""
     tn = ax * ey - ay * ex
     for _ in range(cnt):
         i += 1
@@ -859,15 +941,34 @@ def _segment_beams(ax, ay, ex, ey, p, near, i, cnt, n_beams, bux, buy, best_d, b
             best_p[u] = p
 
 
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _segment_beam(ax, ay, ex, ey, p, u, bux, buy, best_d, best_p):
+    """:func:`_segment_beams` for the one beam ``u``, without a branch: the exact test of :func:`_cast_prims`
+    (a hit on a front face has ``den < 0``; a zero ``den`` is no hit, as there) and the update as
+    selects. (Branches on these tests were mispredicted often: far segments hit or miss at random.)"""
+    bd = best_d[u]
+    bp = best_p[u]
+    ux = bux[u]
+    uy = buy[u]
+    den = ux * ey - uy * ex
+    t = (ax * ey - ay * ex) / den
+    sp = (ax * uy - ay * ux) / den
+    hit = (den < 0.0) & (t > 0.0) & (sp >= 0.0) & (sp <= 1.0) & ((t < bd) | ((t == bd) & (p < bp)))
+    best_d[u] = t if hit else bd
+    best_p[u] = p if hit else bp
+
+
 @numba.njit(cache=True, nogil=True, inline="always")
 def _unpack_grid(gf, gi):
     """The grid arguments of :func:`_grid_cast` (``gx`` to ``dyn_s``) from :func:`grid_args`' two arrays."""
-    k, g, s = gi[2], gi[3], gi[4]
+    k, s = gi[2], gi[4]
+    n_cells = gi[0] * gi[1]
     o = gi[5:15]
-    f1 = 5 + 3 * k  # float layout: 5 scalars, circle columns (3, k), group circles (3, g), segments (s, 4)
-    f2 = f1 + 3 * g
+    f1 = 5 + 3 * k  # float layout: 5 scalars, circle columns (3, k), cell boxes (4, cells), edges (4, s)
+    f2 = f1 + 4 * n_cells
     return (gf[0], gf[1], gf[2], gi[0], gi[1], gi[o[0]:o[1]], gf[5:f1].reshape((3, k)), gi[o[1]:o[2]], gf[3],
-            gi[o[2]:o[3]], gf[f1:f2].reshape((3, g)), gi[o[3]:o[4]], gf[f2 : f2 + 4 * s].reshape((s, 4)),
+            gi[o[2]:o[3]], gf[f1:f2].reshape((4, n_cells)), gi[o[3]:o[4]],
+            gf[f2 : f2 + 4 * s].reshape((4, s)),
             gi[o[4]:o[5]], gf[4], gi[o[5]:o[6]], gi[o[6]:o[7]], gi[o[7]:o[8]], gi[o[8]:o[9]])  # fmt: skip
 
 
@@ -884,7 +985,7 @@ def _scan_kernel_grid(ox, oy, heading, tabs, range_min, range_max, circles, circ
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _grid_cast(
     ox, oy, heading, tabs, range_min, range_max, circles, circle_skip, segments, prim_kind, prim_index,
-    gx, gy, cs, nx, ny, c_start, c_cols, c_ids, c_pad, g_start, g_cols, g_off, g_seg, g_sid, g_pad, s_start,
+    gx, gy, cs, nx, ny, c_start, c_cols, c_ids, c_pad, g_start, g_box, g_off, g_seg, g_sid, g_pad, s_start,
     s_items, dyn_c, dyn_s, fs, js, out_ranges, out_true, out_kind, out_index,
 ):  # fmt: skip
     """:func:`_scan_kernel_grid` with the grid unpacked."""
@@ -935,17 +1036,17 @@ def _grid_cast(
         d_cols[1, p] = circles[c, 1]
         d_cols[2, p] = circles[c, 2]
         d_ids[p] = c
-    # scratch: candidate circles (k*), groups (g*), long segments (s*)
+    # scratch: candidate circles (k*), segments (s*), the segment pass's flags
     kx, ky, kr, kb, kc, kn = fs[0], fs[1], fs[2], fs[3], fs[4], fs[5]
-    gb, gc, gn = fs[9], fs[10], fs[11]
-    s1, s2, s3, s4, sb, sc, sn = fs[12], fs[13], fs[14], fs[15], fs[16], fs[17], fs[18]
+    flags = fs[9]
+    s1, s2, s3, s4, sb, sc = fs[12], fs[13], fs[14], fs[15], fs[16], fs[17]
     best_d, bux, buy = fs[22, :n_beams], fs[23, :n_beams], fs[24, :n_beams]  # (_write_row: n_beams long)
-    kid, gid, order, sid = js[0], js[1], js[2], js[3]
-    bucket, best_p, stamp = js[8], js[9, :n_beams], js[10]
+    kid, order, one, sid = js[0], js[1], js[2], js[3]
+    best_p, stamp = js[9, :n_beams], js[10]
+    cmany, cone = js[8], js[12]  # the circles with several beams to test, with one
     # stamp tags stay unique across calls (the scratch is reused): the last one is kept in js[11, 0]
     tag0 = js[11, 0]
     js[11, 0] = tag0 + ox.shape[0]
-    to_bucket = _N_BUCKETS / range_max
     rc = reach + _TOL
     rc2 = rc * rc
     for n in range(ox.shape[0]):
@@ -964,7 +1065,7 @@ def _grid_cast(
             buy[i] = sh * cos_tab[i] - ch * sin_tab[i]
         # --- pass 1: the column runs of cells within reach (cells widened by the layer's largest radius)
         mc = 0
-        mg = 0
+        ms = 0
         for layer in range(3):
             if layer == 0:
                 pad = c_pad
@@ -990,6 +1091,24 @@ def _grid_cast(
                 fj1 = (y0 + hy + pad - gy) / cs
                 if not (fj1 >= 0.0 and fj0 < ny):
                     continue
+                if layer == 2:
+                    # the groups' edges, by runs of the cells whose box of edges is within reach
+                    c0 = i * ny + int(max(fj0, 0.0))
+                    c1 = i * ny + int(min(fj1, ny - 1.0)) + 1
+                    ra = c1
+                    for cc in range(c0, c1 + 1):
+                        ok = False
+                        if cc < c1:
+                            bdx = max(max(g_box[0, cc] - x0, 0.0), x0 - g_box[2, cc])
+                            bdy = max(max(g_box[1, cc] - y0, 0.0), y0 - g_box[3, cc])
+                            ok = bdx * bdx + bdy * bdy <= rc2
+                        if ok and ra == c1:
+                            ra = cc
+                        elif not ok and ra < c1:
+                            ms = _edge_pass(x0, y0, rc2, g_seg[0], g_seg[1], g_seg[2], g_seg[3], g_sid,
+                                            g_off[st[ra]], g_off[st[cc]], ms, s1, s2, s3, s4, sid, flags)
+                            ra = c1
+                    continue
                 a = st[i * ny + int(max(fj0, 0.0))]
                 b = st[i * ny + int(min(fj1, ny - 1.0)) + 1]
                 if a == b:
@@ -997,12 +1116,9 @@ def _grid_cast(
                 if layer == 0:
                     mc = _circle_pass(x0, y0, hw, skip, reach, n_beams, inv_res, c_cols[0], c_cols[1],
                                       c_cols[2], c_ids, a, b, mc, kx, ky, kr, kid, kb, kc, kn)  # fmt: skip
-                elif layer == 1:
+                else:
                     mc = _circle_pass(x0, y0, hw, skip, reach, n_beams, inv_res, d_cols[0], d_cols[1],
                                       d_cols[2], d_ids, a, b, mc, kx, ky, kr, kid, kb, kc, kn)  # fmt: skip
-                else:
-                    mg = _group_pass(x0, y0, hw, reach, n_beams, inv_res, g_cols[0], g_cols[1], g_cols[2],
-                                     a, b, mg, gid, gb, gc, gn)  # fmt: skip
         if n_in < n_d:
             mc = _circle_pass(x0, y0, hw, skip, reach, n_beams, inv_res, d_cols[0], d_cols[1], d_cols[2],
                               d_ids, n_in, n_d, mc, kx, ky, kr, kid, kb, kc, kn)  # fmt: skip
@@ -1020,15 +1136,15 @@ def _grid_cast(
                     s = s_items[np.uint64(q)]
                     if stamp[s] != tag0 + n + 1:
                         stamp[s] = tag0 + n + 1
-                        sid[ns] = s
+                        order[ns] = s
                         ns += 1
         for q in range(dyn_s.shape[0]):
-            sid[ns] = dyn_s[q]
+            order[ns] = dyn_s[q]
             ns += 1
-        # their back-face and reach test, then the beam interval of the survivors (as _cast_prims)
-        m = 0
+        # their back-face and reach test (as _cast_prims), appended to the groups' front faces
+        m = ms
         for v in range(ns):
-            s = sid[v]
+            s = order[v]
             ax = segments[s, 0] - x0
             ay = segments[s, 1] - y0
             bx = segments[s, 2] - x0
@@ -1047,28 +1163,45 @@ def _grid_cast(
             s3[m] = segments[s, 2]
             s4[m] = segments[s, 3]
             m += (cr_ < 0.0) & near
+        # the beam interval of every front face (as _cast_prims; their reach was tested above, with a margin
+        # of _TOL: a segment farther than range_max cannot beat a beam's initial range_max)
         for v in range(m):
             ax = s1[v] - x0
             ay = s2[v] - y0
             bx = s3[v] - x0
             by = s4[v] - y0
-            ex = bx - ax
-            ey = by - ay
-            ee = ex * ex + ey * ey
-            dot = -(ax * ex + ay * ey)
-            u = min(1.0, max(0.0, dot / ee))
-            px = ax + u * ex
-            py = ay + u * ey
-            dm2 = px * px + py * py
             th_a = _fast_atan2(ay, ax) - hw
             span = _fast_atan2(ax * by - ay * bx, ax * bx + ay * by)
             k0 = np.ceil(-(th_a + max(0.0, span) + _EPS) * inv_res)
             k1 = np.floor(-(th_a + min(0.0, span) - _EPS) * inv_res)
             sb[v] = _first_beam(k0, n_beams)
-            sc[v] = k1 - k0 + 1.0 if dm2 <= reach * reach else 0.0
-            sn[v] = math.sqrt(dm2) - _TOL
-        # --- pass 2: circles, long segments, then groups front to back
+            sc[v] = k1 - k0 + 1.0
+        # those with beams to test (without a branch: a third of them fall between two beams)
+        me = 0
+        m1 = 0
+        for v in range(m):
+            order[me] = v
+            one[m1] = v
+            me += sc[v] > 1.0
+            m1 += sc[v] == 1.0
+        # --- pass 2: circles (those with one beam apart, without a branch), then segments
+        cm = 0
+        c1 = 0
         for q in range(mc):
+            cmany[cm] = q
+            cone[c1] = q
+            cm += kc[q] > 1.0
+            c1 += kc[q] == 1.0
+        for w in range(c1):
+            q = np.uint64(cone[w])
+            dx = kx[q] - x0
+            dy = ky[q] - y0
+            r = kr[q]
+            u = np.uint64(kb[q])
+            _circle_beam(dx, dy, (dx * dx + dy * dy) - r * r, kid[q], kn[q], u, bux[u], buy[u], best_d,
+                         best_p)
+        for w in range(cm):
+            q = np.uint64(cmany[w])
             c = kid[q]
             dx = kx[q] - x0
             dy = ky[q] - y0
@@ -1092,62 +1225,22 @@ def _grid_cast(
                 if t > 0.0 and (t < bd or (t == bd and c < best_p[u])):
                     best_d[u] = t
                     best_p[u] = c
-        for v in range(m):
-            if sc[v] > 0.0:
-                ax = s1[v] - x0
-                ay = s2[v] - y0
-                ex = (s3[v] - x0) - ax
-                ey = (s4[v] - y0) - ay
-                _segment_beams(ax, ay, ex, ey, n_c + sid[v], sn[v], int(sb[v]) - 1, int(sc[v]), n_beams, bux,
-                               buy, best_d, best_p)  # fmt: skip
-        for t in range(_N_BUCKETS + 1):
-            bucket[t] = 0
-        for q in range(mg):
-            bucket[int(min(max(gn[q], 0.0) * to_bucket, _N_BUCKETS - 1.0)) + 1] += 1
-        for t in range(_N_BUCKETS):
-            bucket[t + 1] += bucket[t]
-        for q in range(mg):
-            t = int(min(max(gn[q], 0.0) * to_bucket, _N_BUCKETS - 1.0))
-            order[bucket[t]] = q
-            bucket[t] += 1
-        for w in range(mg):
-            q = order[w]
-            near = gn[q]
-            i = int(gb[q]) - 1
-            cnt = int(gc[q])
-            ii = i
-            shut = True
-            for _ in range(cnt):
-                ii += 1
-                if ii == n_beams:
-                    ii = 0
-                if best_d[np.uint64(ii)] >= near:
-                    shut = False
-                    break
-            if shut:
-                continue  # every beam it could reach already hit something nearer
-            g = gid[q]
-            for k_ in range(g_off[g], g_off[g + 1]):
-                k = np.uint64(k_)
-                ax = g_seg[k, 0] - x0
-                ay = g_seg[k, 1] - y0
-                bx = g_seg[k, 2] - x0
-                by = g_seg[k, 3] - y0
-                ex = bx - ax
-                ey = by - ay
-                if not (ey * ax - ex * ay < 0.0):
-                    continue  # back face (the test of _cast_prims)
-                i2 = i
-                cnt2 = cnt
-                if cnt > 12:  # close by: the edge's own interval (as _cast_prims)
-                    th_a = _fast_atan2(ay, ax) - hw
-                    span = _fast_atan2(ax * by - ay * bx, ax * bx + ay * by)
-                    k0 = np.ceil(-(th_a + max(0.0, span) + _EPS) * inv_res)
-                    k1 = np.floor(-(th_a + min(0.0, span) - _EPS) * inv_res)
-                    i2 = int(_first_beam(k0, n_beams)) - 1
-                    cnt2 = int(k1 - k0 + 1.0)
-                _segment_beams(ax, ay, ex, ey, n_c + g_sid[k], near, i2, cnt2, n_beams, bux, buy, best_d,
-                               best_p)
+        for w in range(me):
+            v = np.uint64(order[w])
+            ax = s1[v] - x0
+            ay = s2[v] - y0
+            ex = (s3[v] - x0) - ax
+            ey = (s4[v] - y0) - ay
+            _segment_beams(ax, ay, ex, ey, n_c + sid[v], int(sb[v]) - 1, int(sc[v]), n_beams, bux,
+                           buy, best_d, best_p)  # fmt: skip
+        # segments with one beam to test (most of the far ones): that beam without a branch
+        for w in range(m1):
+            v = np.uint64(one[w])
+            ax = s1[v] - x0
+            ay = s2[v] - y0
+            ex = (s3[v] - x0) - ax
+            ey = (s4[v] - y0) - ay
+            _segment_beam(ax, ay, ex, ey, n_c + sid[v], np.uint64(sb[v]), bux, buy, best_d, best_p)
         _write_row(n, best_d, best_p, 0, prim_kind, prim_index, range_min, range_max, out_ranges, out_true,
                    out_kind, out_index)
 
@@ -1221,7 +1314,8 @@ def grid_args(grid: LidarGrid) -> tuple[np.ndarray, np.ndarray]:
     head = [nx, ny, grid.circles.shape[1], grid.groups.shape[1], len(grid.group_segments), *ends]
     gi = np.concatenate([np.asarray(head, np.int64), *ints]).astype(np.int64)
     gf = np.concatenate([[gx, gy, grid.cell_size, grid.circle_pad, grid.group_pad], grid.circles.ravel(),
-                         grid.groups.ravel(), grid.group_segments.ravel()]).astype(np.float64)  # fmt: skip
+                         grid.group_boxes.ravel(), grid.group_segments.T.ravel()])  # fmt: skip
+    gf = gf.astype(np.float64)
     return gf, gi
 
 
@@ -1231,10 +1325,10 @@ def grid_scratch(grid: LidarGrid, n_beams: int) -> tuple[np.ndarray, np.ndarray]
     n_d = len(grid.dynamic_circles)
     cap = max(len(grid.circle_ids) + n_d, grid.groups.shape[1],
               len(grid.segment_items) + len(grid.dynamic_segments), n_beams, grid.shape[0] * grid.shape[1],
-              grid.n_segments, _N_BUCKETS) + 1  # fmt: skip
+              grid.n_segments) + 1  # fmt: skip
     # the float rows are always written before they are read; the int rows hold the stamps (and their
     # last tag), which must start below every tag
-    return np.empty((25, cap)), np.zeros((12, cap), np.int64)
+    return np.empty((25, cap)), np.zeros((13, cap), np.int64)
 
 
 def cast_prepared(ox, oy, heading, skip, static: tuple, grid: tuple | None):
@@ -1266,47 +1360,45 @@ def wrap_headings(rows):
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _world_rows(rows, idx, n_moved, circles, nb):
+def _world_rows(rows, idx, n_moved, circles, poses):
     """:func:`_world_scan_brute`'s and :func:`_world_scan_grid`'s common part: wrap the headings of
-    ``rows`` in place, move the first ``n_moved`` circles (the housings) to them, and return the poses of
-    robots ``idx``, their x, y, heading rows and the four output arrays."""
+    ``rows`` in place, move the first ``n_moved`` circles (the housings) to them, write the poses of
+    robots ``idx`` into ``poses`` and return their x, y, heading rows."""
     wrap_headings(rows)
     for k in range(n_moved):
         circles[k, 0] = rows[k, 0]
         circles[k, 1] = rows[k, 1]
     n = idx.shape[0]
-    poses = np.empty((n, 3))
     o = np.empty((3, n))
     for m in range(n):
         for c in range(3):
             poses[m, c] = rows[idx[m], c]
             o[c, m] = rows[idx[m], c]
-    return (poses, o, np.empty((n, nb), np.float32), np.empty((n, nb), np.float32),
-            np.empty((n, nb), np.int8), np.empty((n, nb), np.int32))  # fmt: skip
+    return o
 
 
 @numba.njit(cache=True, nogil=True)
 def _world_scan_brute(rows, idx, n_moved, tabs, range_min, range_max, circles, segments, prim_kind,
-                      prim_index):  # fmt: skip
+                      prim_index, bf, bi, poses, ranges, true, kind, index):  # fmt: skip
     """``World.scan`` after the pose read, in one compiled call (the Python around a one-robot scan's
     kernel cost as much as the kernel): ``rows`` holds every robot's raw x, y, angle; robots ``idx`` are
-    cast by the brute-force kernel. Returns their poses and the four outputs of :func:`cast_scan`
-    (float32). (Two entries, not one with a flag: a fresh install compiles only the kernel it uses.)"""
-    poses, o, ranges, true, kind, index = _world_rows(rows, idx, n_moved, circles, tabs.shape[1])
-    _scan_kernel(o[0], o[1], o[2], tabs, range_min, range_max, circles, idx, segments, prim_kind, prim_index,
-                 ranges, true, kind, index)  # fmt: skip
-    return poses, ranges, true, kind, index
+    cast by the brute-force kernel with the work arrays ``bf`` / ``bi`` (:func:`_brute_scratch`). Writes
+    their poses and the four outputs of :func:`cast_scan` (float32) into the last five arrays (allocated
+    by the caller: returning five arrays from a compiled call cost ~1.8 us, allocating them in Python
+    ~0.9). (Two entries, not one with a flag: a fresh install compiles only the kernel it uses.)"""
+    o = _world_rows(rows, idx, n_moved, circles, poses)
+    _scan_kernel_into(o[0], o[1], o[2], tabs, range_min, range_max, circles, idx, segments, prim_kind,
+                      prim_index, bf, bi, ranges, true, kind, index)  # fmt: skip
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _world_scan_grid(rows, idx, n_moved, tabs, range_min, range_max, circles, segments, prim_kind, prim_index,
-                     gf, gi, fs, js):  # fmt: skip
+                     gf, gi, fs, js, poses, ranges, true, kind, index):  # fmt: skip
     """:func:`_world_scan_brute` through the grid packed in ``gf`` / ``gi`` with the work arrays ``fs`` /
     ``js``."""
-    poses, o, ranges, true, kind, index = _world_rows(rows, idx, n_moved, circles, tabs.shape[1])
+    o = _world_rows(rows, idx, n_moved, circles, poses)
     _grid_cast(o[0], o[1], o[2], tabs, range_min, range_max, circles, idx, segments, prim_kind, prim_index,
                *_unpack_grid(gf, gi), fs, js, ranges, true, kind, index)  # fmt: skip
-    return poses, ranges, true, kind, index
 
 
 def scan_shapes(

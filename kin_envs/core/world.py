@@ -28,6 +28,7 @@ from kin_envs.core._validate import FieldTypeError, check_number, dataclass_from
 from kin_envs.core.interrupts import atomic
 from kin_envs.core.lidar import (
     HitKind,
+    _brute_scratch,
     _world_scan_brute,
     _world_scan_grid,
     beam_tables,
@@ -452,8 +453,11 @@ class World:
         self._lidar_grid_args = None if self._lidar_grid is None else (
             grid_args(self._lidar_grid) + grid_scratch(self._lidar_grid, spec.n_beams))
         # World.scan's one compiled call
-        self._lidar_call = (_world_scan_brute, self._lidar_static) if self._lidar_grid is None else (
-            _world_scan_grid, self._lidar_static + self._lidar_grid_args)  # fmt: skip
+        self._lidar_call = (
+            (_world_scan_brute, self._lidar_static + _brute_scratch(len(self._circles), len(self._segments),
+                                                                    spec.n_beams))
+            if self._lidar_grid is None else (_world_scan_grid, self._lidar_static + self._lidar_grid_args)
+        )  # fmt: skip
 
     def _update_lidar_geometry(self, poses: np.ndarray) -> None:
         self._circles[: self.n_robots, :2] = poses[:, :2]
@@ -710,10 +714,13 @@ class World:
         idx = np.arange(self.n_robots) if robots is None else self._check_robots(robots)
         if self._movable:
             self._update_movable()
-        # one compiled call: heading wrap, housings moved, the kernel and its output arrays
+        # one compiled call: heading wrap, housings moved, the kernel (into output arrays made here)
         kernel, args = self._lidar_call
-        poses, ranges, true_ranges, hit_kind, hit_index = kernel(self._robot_rows(), idx, self.n_robots,
-                                                                 *args)  # fmt: skip
+        n, nb = idx.shape[0], spec.n_beams
+        poses, ranges = np.empty((n, 3)), np.empty((n, nb), np.float32)
+        true_ranges = np.empty((n, nb), np.float32)
+        hit_kind, hit_index = np.empty((n, nb), np.int8), np.empty((n, nb), np.int32)
+        kernel(self._robot_rows(), idx, self.n_robots, *args, poses, ranges, true_ranges, hit_kind, hit_index)
         if noise and (spec.noise_sigma > 0 or spec.dropout_prob > 0):
             hit = np.isfinite(true_ranges)
             d = true_ranges[hit].astype(np.float64)
