@@ -138,19 +138,8 @@ def _segment_views(d, d_th, d_max, circular):
 def _segment_arrays(d, d_th, d_max, circular):
     # buffers and exact-size copies made inside one compiled call: for one scan, 14 numpy
     # allocations and 7 slices from Python cost more than the segmentation itself
-    cap = d.shape[0] * d.shape[1]
-    scan = np.empty(cap, dtype=np.int64)
-    first = np.empty(cap, dtype=np.int64)
-    count = np.empty(cap, dtype=np.int64)
-    prev = np.empty(cap, dtype=np.int64)
-    nxt = np.empty(cap, dtype=np.int64)
-    p_near = np.empty(cap, dtype=np.bool_)
-    n_near = np.empty(cap, dtype=np.bool_)
-    s = segment_rows(d, d_th, d_max, circular, scan, first, count, prev, nxt, p_near, n_near)
-    return (
-        scan[:s].copy(), first[:s].copy(), count[:s].copy(), prev[:s].copy(), nxt[:s].copy(),
-        p_near[:s].copy(), n_near[:s].copy(),
-    )  # fmt: skip
+    scan, first, count, prev, nxt, p_near, n_near = _segment_views(d, d_th, d_max, circular)
+    return scan.copy(), first.copy(), count.copy(), prev.copy(), nxt.copy(), p_near.copy(), n_near.copy()
 
 
 @numba.njit(cache=True, inline="always")

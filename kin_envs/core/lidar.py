@@ -234,6 +234,23 @@ def _first_beam(k0, n_beams):
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _front_in_reach(ax, ay, bx, by, rc2):
+    """1.0 if the segment A -> B (relative to the lidar) faces it and has a point within ``sqrt(rc2)``,
+    else 0.0, without a branch (the candidate passes vectorise it). A back face has the origin on the
+    left of A -> B or on its line; the nearest point is A, B or the foot of the perpendicular (at
+    distance^2 ``cr^2 / ee``)."""
+    ex = bx - ax
+    ey = by - ay
+    cr_ = ey * ax - ex * ay
+    ee = ex * ex + ey * ey
+    dot = -(ax * ex + ay * ey)
+    near = (((dot <= 0.0) & (ax * ax + ay * ay <= rc2))
+            | ((dot >= ee) & (bx * bx + by * by <= rc2))
+            | ((dot > 0.0) & (dot < ee) & (cr_ * cr_ <= rc2 * ee)))  # fmt: skip
+    return 1.0 if (cr_ < 0.0) & near else 0.0
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _circle_beam(dx, dy, cc, c, near, u, ux, uy, best_d, best_p):
     """The exact ray-circle test of :func:`_cast_prims` on the one beam ``u`` (direction ``ux, uy``) of a
     circle ``c`` at ``dx, dy`` from the origin (``cc = d^2 - r^2``), without a branch: the tests as one
@@ -357,21 +374,7 @@ def _cast_prims(x0, y0, h, skip, reach, cx, cy, cr, cid, n_ci, sx1, sy1, sx2, sy
                 best_d[w] = t
                 best_p[w] = c
     for q in range(n_si):
-        ax = sx1[q] - x0
-        ay = sy1[q] - y0
-        bx = sx2[q] - x0
-        by = sy2[q] - y0
-        ex = bx - ax
-        ey = by - ay
-        # back face (the origin on the left of A->B or on its line) or out of reach: the nearest point
-        # is A, B or the foot of the perpendicular (at distance^2 cr^2 / ee)
-        cr_ = ey * ax - ex * ay
-        ee = ex * ex + ey * ey
-        dot = -(ax * ex + ay * ey)
-        near = (((dot <= 0.0) & (ax * ax + ay * ay <= rc2))
-                | ((dot >= ee) & (bx * bx + by * by <= rc2))
-                | ((dot > 0.0) & (dot < ee) & (cr_ * cr_ <= rc2 * ee)))  # fmt: skip
-        f_count[q] = 1.0 if (cr_ < 0.0) & near else 0.0
+        f_count[q] = _front_in_reach(sx1[q] - x0, sy1[q] - y0, sx2[q] - x0, sy2[q] - y0, rc2)
     # segments take one more, cheap pass first: half of them face away and in a large arena many are out
     # of reach, while their beam interval costs two atan2 and a division; the survivors are copied into
     # contiguous columns so that the interval pass stays vectorised
@@ -882,19 +885,7 @@ def _edge_pass(x0, y0, rc2, e1_, e2_, e3_, e4_, eid_, a, b, m, s1_, s2_, s3_, s4
     eid = eid_[a:b]
     flag = flag_[: b - a]
     for q in range(b - a):
-        ax = e1[q] - x0
-        ay = e2[q] - y0
-        bx = e3[q] - x0
-        by = e4[q] - y0
-        ex = bx - ax
-        ey = by - ay
-        cr_ = ey * ax - ex * ay
-        ee = ex * ex + ey * ey
-        dot = -(ax * ex + ay * ey)
-        near = (((dot <= 0.0) & (ax * ax + ay * ay <= rc2))
-                | ((dot >= ee) & (bx * bx + by * by <= rc2))
-                | ((dot > 0.0) & (dot < ee) & (cr_ * cr_ <= rc2 * ee)))  # fmt: skip
-        flag[q] = 1.0 if (cr_ < 0.0) & near else 0.0
+        flag[q] = _front_in_reach(e1[q] - x0, e2[q] - y0, e3[q] - x0, e4[q] - y0, rc2)
     s1 = s1_[m:]
     s2 = s2_[m:]
     s3 = s3_[m:]

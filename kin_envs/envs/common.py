@@ -503,8 +503,9 @@ def _detection_cols(flo: np.ndarray, ints: np.ndarray) -> dict[str, np.ndarray]:
 
 @numba.njit(cache=True, nogil=True, inline="always")
 def _nearest_kin_brute(wx, wy, obs, poses, tol2):
-    """:func:`_match_one_row_kernel`'s match of one detection centre ``(wx, wy)``: the nearest robot
-    other than ``obs`` (the first of equals) within ``sqrt(tol2)``, -1 if none or a distance is NaN."""
+    """The match of one detection centre ``(wx, wy)`` (:func:`_match_one_row_kernel`'s, and
+    :func:`_match_pad_kernel`'s where a pose is not finite): the nearest robot other than ``obs`` (the
+    first of equals) within ``sqrt(tol2)``, -1 if none or a distance is NaN."""
     best = -1
     best_d2 = math.inf
     nan_first = -1
@@ -725,23 +726,7 @@ def _match_one_row_kernel(tab, obs, poses, tol2):
             ints[f, k] = np.int64(tab[t, 5 + f])
         wx = poses[obs, 0] + c * tab[t, 2] - s * tab[t, 3]
         wy = poses[obs, 1] + s * tab[t, 2] + c * tab[t, 3]
-        best = -1
-        best_d2 = math.inf
-        nan_first = -1
-        for q in range(poses.shape[0]):
-            dx = wx - poses[q, 0]
-            dy = wy - poses[q, 1]
-            d2 = dx * dx + dy * dy
-            if q == obs:
-                d2 = math.inf  # never match the observer itself
-            if math.isnan(d2):
-                if nan_first < 0:
-                    nan_first = q
-            elif best < 0 or d2 < best_d2:
-                best = q
-                best_d2 = d2
-        ok = nan_first < 0 and best >= 0 and best_d2 <= tol2
-        ints[3, k] = best if ok else -1
+        ints[3, k] = _nearest_kin_brute(wx, wy, obs, poses, tol2)
     return flo, ints
 
 
