@@ -502,6 +502,24 @@ def _detection_cols(flo: np.ndarray, ints: np.ndarray) -> dict[str, np.ndarray]:
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
+def _sort_by_range(tab, order, lo, hi):
+    """Stable insertion sort of ``order[lo:hi]`` by the detections' range ``tab[order, 0]``, NaN last (as
+    ``np.argsort(kind="stable")``): rows hold a handful to a few dozen detections."""
+    for i in range(lo + 1, hi):
+        oi = order[i]
+        key = tab[oi, 0]
+        j = i
+        while j > lo:
+            prev = tab[order[j - 1], 0]
+            if prev > key or (math.isnan(prev) and not math.isnan(key)):
+                order[j] = order[j - 1]
+                j -= 1
+            else:
+                break
+        order[j] = oi
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
 def _nearest_kin_brute(wx, wy, obs, poses, tol2):
     """The match of one detection centre ``(wx, wy)`` (:func:`_match_one_row_kernel`'s, and
     :func:`_match_pad_kernel`'s where a pose is not finite): the nearest robot other than ``obs`` (the
@@ -578,19 +596,7 @@ def _match_pad_kernel(tab, owner, observers, poses, tol2, n_rows, slots):
     for r in range(n_rows):
         lo, hi = start[r], start[r + 1]
         count[r] = min(hi - lo, slots)
-        # stable insertion sort of the row's detections by range, NaN last (a row holds a few dozen)
-        for i in range(lo + 1, hi):
-            oi = order[i]
-            key = tab[oi, 0]
-            j = i
-            while j > lo:
-                prev = tab[order[j - 1], 0]
-                if prev > key or (math.isnan(prev) and not math.isnan(key)):
-                    order[j] = order[j - 1]
-                    j -= 1
-                else:
-                    break
-            order[j] = oi
+        _sort_by_range(tab, order, lo, hi)  # a row holds a few dozen detections
         if hi == lo:
             continue
         obs = observers[r]
@@ -701,18 +707,7 @@ def _match_one_row_kernel(tab, obs, poses, tol2):
     as ``np.argmin``) within ``sqrt(tol2)``. Fresh arrays on every call."""
     n_det = tab.shape[0]
     order = np.arange(n_det)
-    for i in range(1, n_det):  # insertion sort: a handful of detections
-        j = i
-        key = tab[order[i], 0]
-        oi = order[i]
-        while j > 0:
-            prev = tab[order[j - 1], 0]
-            if prev > key or (math.isnan(prev) and not math.isnan(key)):
-                order[j] = order[j - 1]
-                j -= 1
-            else:
-                break
-        order[j] = oi
+    _sort_by_range(tab, order, 0, n_det)  # a handful of detections
     flo = np.empty((5, n_det))
     ints = np.empty((4, n_det), dtype=np.int64)
     th = poses[obs, 2]
