@@ -33,7 +33,7 @@ import numpy as np
 from gymnasium import spaces
 
 from kin_envs.core.lidar import HitKind, LidarSpec
-from kin_envs.envs.info import DETECTION_FIELDS, KIN_TRUTH_FIELDS
+from kin_envs.envs.info import DETECTION_FIELDS, KIN_TRUTH_FIELDS, PAD_VALUES
 
 __all__ = [
     "ACTION_TYPES",
@@ -441,10 +441,7 @@ def _match_rows(tab: np.ndarray, owner: np.ndarray, observers, poses: np.ndarray
         np.ascontiguousarray(observers, dtype=np.int64), np.ascontiguousarray(poses, dtype=np.float64),
         KIN_MATCH_TOLERANCE**2,
     )  # fmt: skip
-    return {
-        "range": flo[0], "bearing": flo[1], "x": flo[2], "y": flo[3], "score": flo[4],
-        "first_beam": ints[0], "last_beam": ints[1], "n_beams": ints[2], "kin_index": ints[3],
-    }  # fmt: skip
+    return _detection_cols(flo, ints)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -464,6 +461,10 @@ def _match_rows_kernel(tab, owner, observers, poses, tol2):
         ints[:, i:e] = k
         i = e
     return flo, ints
+
+
+#: pad values of the int detection fields (first_beam, last_beam, n_beams, kin_index): _match_pad_kernel
+_INT_PADS = np.array([PAD_VALUES[f] for f in DETECTION_FIELDS[5:]], dtype=np.int64)
 
 
 def detect_rows_padded(
@@ -488,17 +489,14 @@ def detect_rows_padded(
     row, flo, ints, pf, pi, count = _match_pad_kernel(
         np.ascontiguousarray(tab, dtype=np.float64), np.ascontiguousarray(owner, dtype=np.int64),
         np.ascontiguousarray(observers, dtype=np.int64), np.ascontiguousarray(poses, dtype=np.float64),
-        KIN_MATCH_TOLERANCE**2, n_rows, slots,
+        KIN_MATCH_TOLERANCE**2, n_rows, slots, _INT_PADS,
     )  # fmt: skip
     return (row, _detection_cols(flo, ints)), (_detection_cols(pf, pi), count)
 
 
 def _detection_cols(flo: np.ndarray, ints: np.ndarray) -> dict[str, np.ndarray]:
     """:data:`DETECTION_FIELDS` as rows of a float block (range .. score) and an int block."""
-    return {
-        "range": flo[0], "bearing": flo[1], "x": flo[2], "y": flo[3], "score": flo[4],
-        "first_beam": ints[0], "last_beam": ints[1], "n_beams": ints[2], "kin_index": ints[3],
-    }  # fmt: skip
+    return dict(zip(DETECTION_FIELDS, (*flo, *ints), strict=True))
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -517,6 +515,18 @@ def _sort_by_range(tab, order, lo, hi):
             else:
                 break
         order[j] = oi
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _take_detection(tab, t, k, flo, ints, ox, oy, c, s):
+    """Column ``k`` of ``flo`` (range .. score) and ``ints[:3]`` (beams) from table row ``t``; returns the
+    detection's centre in the world from the observer at ``(ox, oy)`` with heading cos/sin ``c, s`` (the
+    numpy path's expressions, term by term)."""
+    for f in range(5):
+        flo[f, k] = tab[t, f]
+    for f in range(3):
+        ints[f, k] = np.int64(tab[t, 5 + f])
+    return ox + c * tab[t, 2] - s * tab[t, 3], oy + s * tab[t, 2] + c * tab[t, 3]
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -543,7 +553,7 @@ def _nearest_kin_brute(wx, wy, obs, poses, tol2):
 
 
 @numba.njit(cache=True, nogil=True)
-def _match_pad_kernel(tab, owner, observers, poses, tol2, n_rows, slots):
+def _match_pad_kernel(tab, owner, observers, poses, tol2, n_rows, slots, int_pads):
     """:func:`detect_rows_padded`'s work: ``(row (D,), floats (5, D), ints (4, D), padded floats (5,
     n_rows, slots), padded ints (4, n_rows, slots), count (n_rows,))``.
 
@@ -588,10 +598,8 @@ def _match_pad_kernel(tab, owner, observers, poses, tol2, n_rows, slots):
     ints = np.empty((4, n_det), dtype=np.int64)
     pf = np.zeros((5, n_rows, slots))
     pi = np.empty((4, n_rows, slots), dtype=np.int64)
-    pi[0] = -1
-    pi[1] = -1
-    pi[2] = 0
-    pi[3] = -1
+    for f in range(4):
+        pi[f] = int_pads[f]  # pad_rows' values (PAD_VALUES); the floats' pad is 0
     count = np.empty(n_rows, dtype=np.int64)
     for r in range(n_rows):
         lo, hi = start[r], start[r + 1]
@@ -604,14 +612,8 @@ def _match_pad_kernel(tab, owner, observers, poses, tol2, n_rows, slots):
         c = math.cos(th)
         s = math.sin(th)
         for k in range(lo, hi):
-            t = order[k]
             row[k] = r
-            for f in range(5):
-                flo[f, k] = tab[t, f]
-            for f in range(3):
-                ints[f, k] = np.int64(tab[t, 5 + f])
-            wx = poses[obs, 0] + c * tab[t, 2] - s * tab[t, 3]
-            wy = poses[obs, 1] + s * tab[t, 2] + c * tab[t, 3]
+            wx, wy = _take_detection(tab, order[k], k, flo, ints, poses[obs, 0], poses[obs, 1], c, s)
             if not finite:
                 best = _nearest_kin_brute(wx, wy, obs, poses, tol2)
             elif not (math.isfinite(wx) and math.isfinite(wy)):
@@ -685,17 +687,7 @@ def _match_one_row(tab: np.ndarray, obs: int, poses: np.ndarray) -> dict[str, np
         np.ascontiguousarray(tab, dtype=np.float64), obs, np.ascontiguousarray(poses, dtype=np.float64),
         KIN_MATCH_TOLERANCE**2,
     )  # fmt: skip
-    return {
-        "range": flo[0],
-        "bearing": flo[1],
-        "x": flo[2],
-        "y": flo[3],
-        "score": flo[4],
-        "first_beam": ints[0],
-        "last_beam": ints[1],
-        "n_beams": ints[2],
-        "kin_index": ints[3],
-    }
+    return _detection_cols(flo, ints)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -714,13 +706,7 @@ def _match_one_row_kernel(tab, obs, poses, tol2):
     c = math.cos(th)
     s = math.sin(th)
     for k in range(n_det):
-        t = order[k]
-        for f in range(5):
-            flo[f, k] = tab[t, f]
-        for f in range(3):
-            ints[f, k] = np.int64(tab[t, 5 + f])
-        wx = poses[obs, 0] + c * tab[t, 2] - s * tab[t, 3]
-        wy = poses[obs, 1] + s * tab[t, 2] + c * tab[t, 3]
+        wx, wy = _take_detection(tab, order[k], k, flo, ints, poses[obs, 0], poses[obs, 1], c, s)
         ints[3, k] = _nearest_kin_brute(wx, wy, obs, poses, tol2)
     return flo, ints
 

@@ -188,7 +188,7 @@ def _random_glue_case(rng, trial):
 def test_match_and_pad_in_one_call_is_the_distance_matrix_and_pad_rows():
     # _match_pad_kernel (x-sorted candidate window, counting sort by row, padding) against the previous
     # distance-matrix match and pad_rows, bit for bit, on random steps that reach the match's edges
-    from kin_envs.envs.common import KIN_MATCH_TOLERANCE, _detection_cols, _match_pad_kernel
+    from kin_envs.envs.common import _INT_PADS, KIN_MATCH_TOLERANCE, _detection_cols, _match_pad_kernel
 
     rng = np.random.default_rng(1)
     n_matched = 0
@@ -197,7 +197,7 @@ def test_match_and_pad_in_one_call_is_the_distance_matrix_and_pad_rows():
         if trial % 11 == 5:
             poses[int(rng.integers(len(poses))), int(rng.integers(2))] = [np.nan, np.inf, -np.inf][trial % 3]
         row, flo, ints, pf, pi, count = _match_pad_kernel(tab, owner, observers, poses,
-                                                          KIN_MATCH_TOLERANCE**2, n_rows, slots)
+                                                          KIN_MATCH_TOLERANCE**2, n_rows, slots, _INT_PADS)
         got = (row, _detection_cols(flo, ints)), (_detection_cols(pf, pi), count)
         with np.errstate(invalid="ignore"):  # inf - inf in the distance matrix of non-finite poses
             ref = _oracle_padded(tab, owner, observers, poses, n_rows, slots)
@@ -208,14 +208,14 @@ def test_match_and_pad_in_one_call_is_the_distance_matrix_and_pad_rows():
 
 
 def test_match_and_pad_refuses_rows_outside_the_scan():
-    from kin_envs.envs.common import _match_pad_kernel
+    from kin_envs.envs.common import _INT_PADS, _match_pad_kernel
 
     tab = np.zeros((1, 8))
     poses = np.zeros((3, 3))
     with pytest.raises(ValueError, match="scan rows"):
-        _match_pad_kernel(tab, np.array([2]), np.array([0, 1]), poses, 0.01, 2, 4)
+        _match_pad_kernel(tab, np.array([2]), np.array([0, 1]), poses, 0.01, 2, 4, _INT_PADS)
     with pytest.raises(ValueError, match="scan rows"):
-        _match_pad_kernel(tab, np.array([-1]), np.array([0, 1]), poses, 0.01, 2, 4)
+        _match_pad_kernel(tab, np.array([-1]), np.array([0, 1]), poses, 0.01, 2, 4, _INT_PADS)
 
 
 @pytest.mark.parametrize("detector", ["geometric", "learned"])
