@@ -170,6 +170,16 @@ def _scan_threshold(log_noise, fixed, edges, values):
     return values[k]
 
 
+@numba.njit(cache=True, inline="always")
+def _scan_thresholds(scan_cols, n_seg, fixed, edges, values):
+    # each scan's threshold (:func:`_scan_threshold` of its log noise); not read without segments
+    thr_scan = np.empty(scan_cols.shape[0])
+    if n_seg > 0:
+        for b in range(scan_cols.shape[0]):
+            thr_scan[b] = _scan_threshold(scan_cols[b, 0], fixed, edges, values)
+    return thr_scan
+
+
 @numba.njit(cache=True, nogil=True)
 def back(out, d, scan, first, count, max_beams, rows, frames, scan_cols, ang, pre_gate, fixed_threshold,
          edges, values, regression, t_mean, t_std, r_kin, max_iter, xtol, lam0, lam_max):  # fmt: skip
@@ -181,10 +191,7 @@ def back(out, d, scan, first, count, max_beams, rows, frames, scan_cols, ang, pr
     (:data:`TABLE_FIELDS`: the centre's range, bearing, ``x``, ``y``, the score and the beams).
     """
     n_seg = scan.shape[0]
-    thr_scan = np.empty(scan_cols.shape[0])
-    if n_seg > 0:
-        for b in range(scan_cols.shape[0]):
-            thr_scan[b] = _scan_threshold(scan_cols[b, 0], fixed_threshold, edges, values)
+    thr_scan = _scan_thresholds(scan_cols, n_seg, fixed_threshold, edges, values)
     thr = np.empty(n_seg)
     p = np.full(n_seg, np.nan)
     for i in range(n_seg):
@@ -219,10 +226,7 @@ def back_table(out, d, scan, first, count, rows, frames, scan_cols, ang, fixed_t
                regression, t_mean, t_std, r_kin, max_iter, xtol, lam0, lam_max):  # fmt: skip
     """:func:`back`'s ``(scan row (D,), table)`` of the detections alone (the env's entry): only the
     segments ``rows`` that reached the network are looked at, with the same expressions."""
-    thr_scan = np.empty(scan_cols.shape[0])
-    if scan.shape[0] > 0:
-        for b in range(scan_cols.shape[0]):
-            thr_scan[b] = _scan_threshold(scan_cols[b, 0], fixed_threshold, edges, values)
+    thr_scan = _scan_thresholds(scan_cols, scan.shape[0], fixed_threshold, edges, values)
     det_o = np.empty(rows.shape[0], dtype=np.int64)
     p_o = np.empty(rows.shape[0])
     n_det = 0

@@ -1119,10 +1119,22 @@ def _one_beam_bound(d_flat, d_bits, row, f, n_beams, circular, d_max, key, base,
             + tab_flat[t + 4] * c10 + tab_flat[t + 5] * c11)  # fmt: skip
 
 
+@numba.njit(cache=True, inline="always")
+def _segment_bound(i, d_flat, d_bits, scan, first, prev_nearer, next_nearer, n_beams, circular, d_max,
+                   base, x7, tab_flat):  # fmt: skip
+    # _one_beam_bound of one-beam segment i (its scan's bins from _one_beam_scan_bins)
+    b = scan[i]
+    key = (1 if prev_nearer[i] else 0) + (2 if next_nearer[i] else 0)
+    return _one_beam_bound(d_flat, d_bits, b * n_beams, first[i], n_beams, circular, d_max, key, base[b],
+                           x7[b], tab_flat)  # fmt: skip
+
+
 @numba.njit(cache=True, nogil=True)
-def _one_beam_scan_bins(scan_cols, tab, base, x7):
-    # per scan: its log_scan_noise as the stage sees it (float32) and where its bin starts in the flat
-    # table (-1: outside the table, or an empty table)
+def _one_beam_scan_bins(scan_cols, tab):
+    # per scan: where its bin starts in the flat table (-1: outside the table, or an empty table) and its
+    # log_scan_noise as the stage sees it (float32)
+    base = np.empty(scan_cols.shape[0], dtype=np.int64)
+    x7 = np.empty(scan_cols.shape[0])
     full = tab.shape[0] == _C1_N7 and tab.shape[1] == 4 and tab.shape[2] == _C1_ND and tab.shape[3] == 6
     for b in range(scan_cols.shape[0]):
         v = float(np.float32(scan_cols[b, 0]))
@@ -1136,6 +1148,7 @@ def _one_beam_scan_bins(scan_cols, tab, base, x7):
             elif k < _C1_N7 - 1 and v >= _C1_X7_LO + _C1_X7_W * (k + 1):
                 k += 1
             base[b] = k * (4 * _C1_ND * 6)
+    return base, x7
 
 
 @numba.njit(cache=True, nogil=True)
@@ -1144,22 +1157,16 @@ def _cascade_one_beam_filter(d_flat, scan, first, count, prev_nearer, next_neare
     """Copy into ``out`` the segments ``rows`` that stage 1 must score: all but the one-beam segments
     whose bound (:func:`cascade_one_beam_table`) proves a score below ``threshold``. Returns how many
     (in the order of ``rows``)."""
-    base = np.empty(scan_cols.shape[0], dtype=np.int64)
-    x7 = np.empty(scan_cols.shape[0])
-    _one_beam_scan_bins(scan_cols, tab, base, x7)
+    base, x7 = _one_beam_scan_bins(scan_cols, tab)
     d_bits = d_flat.view(np.int64)
     tab_flat = tab.reshape(-1)
     lim = threshold - _C1_DELTA
     m = 0
     for o in range(rows.shape[0]):
         i = rows[o]
-        if count[i] == 1:
-            b = scan[i]
-            key = (1 if prev_nearer[i] else 0) + (2 if next_nearer[i] else 0)
-            bound = _one_beam_bound(d_flat, d_bits, b * n_beams, first[i], n_beams, circular, d_max, key,
-                                    base[b], x7[b], tab_flat)  # fmt: skip
-            if bound < lim:
-                continue
+        if count[i] == 1 and _segment_bound(i, d_flat, d_bits, scan, first, prev_nearer, next_nearer, n_beams,
+                                            circular, d_max, base, x7, tab_flat) < lim:  # fmt: skip
+            continue
         out[m] = i
         m += 1
     return m
@@ -1169,14 +1176,9 @@ def _cascade_one_beam_filter(d_flat, scan, first, count, prev_nearer, next_neare
 def _cascade_one_beam_bounds(d_flat, scan, first, prev_nearer, next_nearer, n_beams, circular, d_max,
                              scan_cols, tab, which, out):  # fmt: skip
     # the bound of each (one-beam) segment of `which` (tests compare it with the stage-1 score)
-    base = np.empty(scan_cols.shape[0], dtype=np.int64)
-    x7 = np.empty(scan_cols.shape[0])
-    _one_beam_scan_bins(scan_cols, tab, base, x7)
+    base, x7 = _one_beam_scan_bins(scan_cols, tab)
     d_bits = d_flat.view(np.int64)
     tab_flat = tab.reshape(-1)
     for o in range(which.shape[0]):
-        i = which[o]
-        b = scan[i]
-        key = (1 if prev_nearer[i] else 0) + (2 if next_nearer[i] else 0)
-        out[o] = _one_beam_bound(d_flat, d_bits, b * n_beams, first[i], n_beams, circular, d_max, key,
-                                 base[b], x7[b], tab_flat)  # fmt: skip
+        out[o] = _segment_bound(which[o], d_flat, d_bits, scan, first, prev_nearer, next_nearer, n_beams,
+                                circular, d_max, base, x7, tab_flat)  # fmt: skip
