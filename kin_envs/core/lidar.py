@@ -234,6 +234,22 @@ def _first_beam(k0, n_beams):
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _split_by_count(cnt, n, many, one):
+    """The indices ``q < n`` with ``cnt[q] > 1`` into ``many`` and those with ``cnt[q] == 1`` into ``one``
+    (each at least ``n`` long), without a branch: both stores always happen, the counts advance by the
+    comparisons (whether a primitive spans one beam was mispredicted about as often as not). Returns
+    ``(len(many), len(one))``."""
+    m = 0
+    m1 = 0
+    for q in range(n):
+        many[m] = q
+        one[m1] = q
+        m += cnt[q] > 1.0
+        m1 += cnt[q] == 1.0
+    return m, m1
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _front_in_reach(ax, ay, bx, by, rc2):
     """1.0 if the segment A -> B (relative to the lidar) faces it and has a point within ``sqrt(rc2)``,
     else 0.0, without a branch (the candidate passes vectorise it). A back face has the origin on the
@@ -328,13 +344,7 @@ def _cast_prims(x0, y0, h, skip, reach, cx, cy, cr, cid, n_ci, sx1, sy1, sx2, sy
         # no hit on this circle is nearer: d - r >= sqrt(d^2 - r^2) - r (one square root fewer)
         f_near[q] = sq - r - _TOL
     # the circles with one beam to test (far ones: most of a swarm's housings) apart, cast without a branch
-    m = 0
-    m1 = 0
-    for q in range(n_ci):
-        keep[m] = q
-        one[m1] = q
-        m += f_count[q] > 1.0
-        m1 += f_count[q] == 1.0
+    m, m1 = _split_by_count(f_count, n_ci, keep, one)
     for v in range(m1):
         q = np.uint64(one[v])
         dx = cx[q] - x0
@@ -1168,21 +1178,9 @@ def _grid_cast(
             sb[v] = _first_beam(k0, n_beams)
             sc[v] = k1 - k0 + 1.0
         # those with beams to test (without a branch: a third of them fall between two beams)
-        me = 0
-        m1 = 0
-        for v in range(m):
-            order[me] = v
-            one[m1] = v
-            me += sc[v] > 1.0
-            m1 += sc[v] == 1.0
+        me, m1 = _split_by_count(sc, m, order, one)
         # --- pass 2: circles (those with one beam apart, without a branch), then segments
-        cm = 0
-        c1 = 0
-        for q in range(mc):
-            cmany[cm] = q
-            cone[c1] = q
-            cm += kc[q] > 1.0
-            c1 += kc[q] == 1.0
+        cm, c1 = _split_by_count(kc, mc, cmany, cone)
         for w in range(c1):
             q = np.uint64(cone[w])
             dx = kx[q] - x0
