@@ -122,13 +122,19 @@ class FeatureConfig:
 
     @classmethod
     def from_dict(cls, d) -> FeatureConfig:
-        if not isinstance(d, dict):
-            raise ValueError(f"FeatureConfig: expected a dict, got {type(d).__name__}")
-        names = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(d) - names)
-        if unknown:
-            raise ValueError(f"FeatureConfig: unknown key(s) {unknown}; expected a subset of {sorted(names)}")
-        return cls(**d)
+        return config_from_dict(cls, d)
+
+
+def config_from_dict(cls, d):
+    """``cls(**d)`` for a config dataclass, refusing a non-dict or unknown keys with a message naming
+    the class and the keys it takes."""
+    if not isinstance(d, dict):
+        raise ValueError(f"{cls.__name__}: expected a dict, got {type(d).__name__}")
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(d) - names)
+    if unknown:
+        raise ValueError(f"{cls.__name__}: unknown key(s) {unknown}; expected a subset of {sorted(names)}")
+    return cls(**d)
 
 
 _GEOMETRIC_NAMES = (

@@ -45,7 +45,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import _kernels as _k
-from .features import FeatureConfig, SegmentBatch, scan_noise
+from .features import FeatureConfig, SegmentBatch, config_from_dict, scan_noise
 
 __all__ = ["ANCHORS", "WindowConfig", "Windows", "candidate_windows", "wide_segments"]
 
@@ -61,10 +61,11 @@ class WindowConfig:
     """How windows are cut (see the module docstring).
 
     Attributes:
-        anchor: ``"span"`` (noise-robust, round 6) or ``"local"`` (every local minimum, round 5).
+        anchor: ``"local"`` (every local range minimum: the default, and round 5's anchors) or
+            ``"span"`` (the minimum over a housing's beam span either side; tried in round 6, not kept).
         depth: a window holds the beams within ``depth * r`` of its anchor's range.
-        sag: least bulge of the anchor in front of the window's outer chord, in housing radii
-            (``"span"`` only).
+        sag: least bulge of the anchor in front of the window's outer chord, in housing radii (the
+            bulge test, with either anchor; ``sag = sag_noise = 0`` turns it off: round 5's windows).
         sag_noise: ... and at least this many times the scan's noise (``sigma * d_m``).
     """
 
@@ -82,6 +83,11 @@ class WindowConfig:
                 raise ValueError(f"WindowConfig.{name} must be a finite number >= 0, got {v!r}")
         if self.depth <= 0:
             raise ValueError(f"WindowConfig.depth must be > 0, got {self.depth!r}")
+
+    @classmethod
+    def from_dict(cls, d) -> WindowConfig:
+        """From a JSON object; unknown keys raise (a ``ValueError`` naming them)."""
+        return config_from_dict(cls, d)
 
     def to_dict(self) -> dict:
         return {"anchor": self.anchor, "depth": self.depth, "sag": self.sag, "sag_noise": self.sag_noise}

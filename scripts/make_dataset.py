@@ -128,8 +128,8 @@ def main(argv=None) -> dict:
         fcfg = FeatureConfig.from_dict(parse_json_object(args.feature_config, "--feature-config") or {})
         wcfg = None
         if args.windows is not None:
-            wcfg = WindowConfig(**(parse_json_object(args.windows, "--windows") or {}))
-    except (ValueError, TypeError) as e:
+            wcfg = WindowConfig.from_dict(parse_json_object(args.windows, "--windows") or {})
+    except ValueError as e:
         ap.error(str(e))
     problem = prepare_out_dir(args.out, args.overwrite)
     if problem:

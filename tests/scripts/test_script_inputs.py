@@ -51,6 +51,30 @@ def test_train_classifier_noise_edges_out_of_range(tmp_path, capsys):
     assert "--calib-noise-edges" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("windows, message", [
+    ('{"bogus": 1}', "unknown key(s) ['bogus']"),
+    ('{"anchor": "everywhere"}', "WindowConfig.anchor"),
+    ('{"sag": -1}', "WindowConfig.sag"),
+    ("[1, 2]", "--windows"),
+])  # fmt: skip
+def test_make_dataset_bad_windows_config(windows, message, tmp_path, capsys, monkeypatch):
+    mod = load_script("make_dataset")
+    monkeypatch.setattr(mod, "imap_seeds", _computing)
+    with pytest.raises(SystemExit) as e:
+        mod.main(["--out", str(tmp_path / "o"), "--scenes", "2", "--no-progress", "--windows", windows])
+    assert e.value.code == 2
+    assert message in capsys.readouterr().err
+
+
+def test_train_classifier_window_kin_weight_must_be_positive(tmp_path, capsys):
+    pytest.importorskip("torch")
+    mod = load_script("train_classifier")
+    for bad in ("0", "-1", "nan"):
+        with pytest.raises(SystemExit):
+            mod.main(["--data", str(tmp_path), "--out", str(tmp_path / "o"), "--window-kin-weight", bad])
+        assert "--window-kin-weight" in capsys.readouterr().err
+
+
 def test_sane_noise_levels_are_accepted():
     from kin_envs.cli import MAX_NOISE, noise_level
 
