@@ -31,6 +31,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numba
@@ -125,16 +126,17 @@ class FeatureConfig:
         return config_from_dict(cls, d)
 
 
-def config_from_dict(cls, d):
-    """``cls(**d)`` for a config dataclass, refusing a non-dict or unknown keys with a message naming
-    the class and the keys it takes."""
-    if not isinstance(d, dict):
+def config_from_dict(cls, d, lists_as_tuples: bool = False):
+    """``cls(**d)`` for a config dataclass, refusing a non-mapping or unknown keys with a message naming
+    the class and the keys it takes; ``lists_as_tuples``: JSON lists become the tuples a frozen config
+    holds."""
+    if not isinstance(d, Mapping):
         raise ValueError(f"{cls.__name__}: expected a dict, got {type(d).__name__}")
     names = {f.name for f in dataclasses.fields(cls)}
     unknown = sorted(set(d) - names)
     if unknown:
         raise ValueError(f"{cls.__name__}: unknown key(s) {unknown}; expected a subset of {sorted(names)}")
-    return cls(**d)
+    return cls(**{k: tuple(v) if lists_as_tuples and isinstance(v, list) else v for k, v in d.items()})
 
 
 _GEOMETRIC_NAMES = (

@@ -72,6 +72,7 @@ from .features import (
     _segment_features,
     beam_trig,
     cascade_one_beam_table,
+    config_from_dict,
     feature_names,
     local_to_observer,
     scan_noise,
@@ -1463,13 +1464,7 @@ class TrainConfig:
 
     @classmethod
     def from_dict(cls, d) -> TrainConfig:
-        if not isinstance(d, dict):
-            raise ValueError(f"TrainConfig: expected a dict, got {type(d).__name__}")
-        names = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(d) - names)
-        if unknown:
-            raise ValueError(f"TrainConfig: unknown key(s) {unknown}; expected a subset of {sorted(names)}")
-        return cls(**d)
+        return config_from_dict(cls, d)
 
 
 #: negatives weighted by TrainConfig.hard_weight (detectors.samples.CATEGORIES names)

@@ -1146,24 +1146,14 @@ def _grid_cast(
         m = ms
         for v in range(ns):
             s = order[v]
-            ax = segments[s, 0] - x0
-            ay = segments[s, 1] - y0
-            bx = segments[s, 2] - x0
-            by = segments[s, 3] - y0
-            ex = bx - ax
-            ey = by - ay
-            cr_ = ey * ax - ex * ay
-            ee = ex * ex + ey * ey
-            dot = -(ax * ex + ay * ey)
-            near = (((dot <= 0.0) & (ax * ax + ay * ay <= rc2))
-                    | ((dot >= ee) & (bx * bx + by * by <= rc2))
-                    | ((dot > 0.0) & (dot < ee) & (cr_ * cr_ <= rc2 * ee)))  # fmt: skip
+            front = _front_in_reach(segments[s, 0] - x0, segments[s, 1] - y0, segments[s, 2] - x0,
+                                    segments[s, 3] - y0, rc2)  # fmt: skip
             sid[m] = s
             s1[m] = segments[s, 0]
             s2[m] = segments[s, 1]
             s3[m] = segments[s, 2]
             s4[m] = segments[s, 3]
-            m += (cr_ < 0.0) & near
+            m += front > 0.0
         # the beam interval of every front face (as _cast_prims; their reach was tested above, with a margin
         # of _TOL: a segment farther than range_max cannot beat a beam's initial range_max)
         for v in range(m):

@@ -53,6 +53,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from detectors.base import KinDetector
+from detectors.features import config_from_dict
 from detectors.metrics import increments, match, pr_from_increments
 
 from .. import scenes
@@ -120,13 +121,7 @@ def _pair(owner: str, name: str, v, cast, lo):
 
 
 def _from_dict(cls, d):
-    if not isinstance(d, Mapping):
-        raise ValueError(f"{cls.__name__}: expected a dict, got {type(d).__name__}")
-    names = {f.name for f in dataclasses.fields(cls)}
-    unknown = sorted(set(d) - names)
-    if unknown:
-        raise ValueError(f"{cls.__name__}: unknown key(s) {unknown}; expected a subset of {sorted(names)}")
-    return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
+    return config_from_dict(cls, d, lists_as_tuples=True)
 
 
 def _to_dict(obj) -> dict:

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from detectors.features import FeatureConfig, segment_batch, segment_features
+from detectors.features import FeatureConfig, config_from_dict, segment_batch, segment_features
 from detectors.samples import (
     CATEGORIES,
     DATASET_FORMAT,
@@ -167,13 +167,7 @@ class DatasetConfig:
 
     @classmethod
     def from_dict(cls, d) -> DatasetConfig:
-        if not isinstance(d, dict):
-            raise ValueError(f"DatasetConfig: expected a dict, got {type(d).__name__}")
-        names = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(d) - names)
-        if unknown:
-            raise ValueError(f"DatasetConfig: unknown key(s) {unknown}; expected a subset of {sorted(names)}")
-        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
+        return config_from_dict(cls, d, lists_as_tuples=True)
 
 
 def make_scene(seed: int, config: DatasetConfig | None = None, noise: float | None = None):
