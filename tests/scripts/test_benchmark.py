@@ -69,6 +69,10 @@ def test_env_and_memory_sections(bench, tmp_path):
     assert rows[("aggregation_v1", 4, "None")]["of_detector_off"] == 1.0
     (mem,) = res["memory"]
     assert mem["steps"] == 4 and mem["peak_rss_mb"] > 0 and mem["rss_end_mb"] > 0
+    # growth is the second half's (half-time to end), settling the first half's (warm to half-time)
+    assert mem["growth_mb"] == mem["rss_end_mb"] - mem["rss_half_mb"]
+    assert mem["settle_mb"] == mem["rss_half_mb"] - mem["rss_warm_mb"]
+    assert "growth, second half" in (tmp_path / "benchmark.md").read_text()
     assert "of detector off" in (tmp_path / "benchmark.md").read_text()
 
 
