@@ -16,9 +16,8 @@ from collections.abc import Sequence
 
 import numba
 import numpy as np
-import pymunk.batch as pmbatch
-from pymunk._chipmunk import lib as _cp
 
+from kin_envs.core._chipmunk_calls import ChipmunkCalls, address
 from kin_envs.core.interrupts import atomic
 from kin_envs.core.lidar import (
     _cast_one,
@@ -30,7 +29,7 @@ from kin_envs.core.lidar import (
     wrap_headings,
 )
 from kin_envs.core.odometry import Odometry
-from kin_envs.core.world import _COMMAND_CAP, Contact, Scan, World, _buffers
+from kin_envs.core.world import _COMMAND_CAP, Contact, Scan, World
 
 __all__ = ["WorldBatch"]
 
@@ -95,6 +94,7 @@ class WorldBatch:
         if not self._worlds:
             raise ValueError("WorldBatch: needs at least one world")
         self._layout_ok = False
+        self._phys: dict | None = None
 
     def __len__(self) -> int:
         return len(self._worlds)
@@ -107,6 +107,7 @@ class WorldBatch:
             raise TypeError(f"WorldBatch: expected a World, got {type(world).__name__}")
         self._worlds[k] = world
         self._layout_ok = False
+        self._phys = None
 
     @property
     def worlds(self) -> tuple[World, ...]:
@@ -125,9 +126,6 @@ class WorldBatch:
                     "spec or timestep; a batch needs them equal"
                 )
         self.n_robots = ws[0].n_robots
-        self._bodies = [b._body for w in ws for b in w.robot_bodies]
-        self._controls = [c._body for w in ws for c in w._controls]
-        self._spaces = [w.space._space for w in ws]
         n = self.n_robots
         # contacts: one owner table of all worlds (pymunk body ids are unique across spaces)
         ids = np.concatenate([w._owner_ids for w in ws])
@@ -189,66 +187,68 @@ class WorldBatch:
         with atomic():  # as World.step: Ctrl-C takes effect between steps, never inside one
             self._advance(commands, on, sel)
 
+    def _physics(self) -> dict:
+        """The addresses of every world's bodies and spaces for the compiled Chipmunk loops (rebuilt
+        when a world was replaced)."""
+        if self._phys is None:
+            ws = self._worlds
+            self._phys = {
+                "bodies": np.array([address(b._body) for w in ws for b in w.robot_bodies], np.uintp),
+                "controls": np.array([address(c._body) for w in ws for c in w._controls], np.uintp),
+                "spaces": np.array([address(w.space._space) for w in ws], np.uintp),
+            }
+        return self._phys
+
     def _advance(self, commands: np.ndarray, on, sel) -> None:
         """World._advance of the worlds ``on`` with their ``(K * n, 2)`` rows of ``commands``."""
         ws, n, w0 = self._worlds, self.n_robots, self._worlds[0]
+        per_world = commands.reshape(len(ws), n, 2)  # a fresh array, never written: views are safe
         for j in on:
-            applied = commands[j * n : (j + 1) * n].copy()
+            applied = per_world[j]
             ws[j]._commands = applied
             ws[j]._record(applied)  # World copies replay it (run-length encoded)
-        bodies, controls, spaces = self._bodies, self._controls, self._spaces
+        phys, calls = self._physics(), ChipmunkCalls.here()
+        bodies, controls, spaces = phys["bodies"], phys["controls"], phys["spaces"]
         if sel is not None:
             rows = np.repeat(sel, n)
-            commands = commands[rows]
-            bodies = [b for b, r in zip(bodies, rows.tolist(), strict=True) if r]
-            controls = [c for c, r in zip(controls, rows.tolist(), strict=True) if r]
-            spaces = [spaces[j] for j in on]
+            commands, bodies, controls, spaces = commands[rows], bodies[rows], controls[rows], spaces[sel]
         v, omega = commands[:, 0], commands[:, 1]
         dt, substeps = w0.config.physics_dt, w0.config.substeps
-        get_angle, set_vel, set_avel, space_step = (
-            _cp.cpBodyGetAngle, _cp.cpBodySetVelocity, _cp.cpBodySetAngularVelocity, _cp.cpSpaceStep
-        )
         # The yaw rate is constant over a control step: set it once (World.step rewrites the same
         # value every substep, a no-op for a kinematic body). A robot commanded to stand still
         # (v = 0) gets its zero velocity once too.
-        for c, om in zip(controls, omega.tolist(), strict=True):
-            set_avel(c, om)
-        moving = np.flatnonzero(v != 0.0).tolist()
-        still = [controls[i] for i in np.flatnonzero(v == 0.0).tolist()]
-        m_controls = [controls[i] for i in moving]
-        m_v = v[moving]
+        calls.set_angular_velocities(controls, np.ascontiguousarray(omega))
+        moving = v != 0.0
+        still = controls[~moving]
+        if still.size:
+            zero = np.zeros(still.size)
+            calls.set_velocities(still, zero, zero)
+        m_controls, m_v = controls[moving], v[moving]
         # wheel odometry of every world's robots in one Odometry (World.step: begin, integrate the
         # achieved motion each substep before the drive update, end)
         odo = _stacked_odometry([ws[j]._odometry for j in on])
         if odo.spec.noise_k > 0:  # Odometry.integrate draws normal(0, 1, (robots, 2)) per substep
             odo.rng.prefetch(substeps, (len(bodies), 2))
         odo.begin_step()
-        get_vel, get_avel = _cp.cpBodyGetVelocity, _cp.cpBodyGetAngularVelocity
-        for sub in range(substeps):
-            if sub == 0:
-                for c in still:
-                    set_vel(c, (0.0, 0.0))
-            heading = np.array([get_angle(b) for b in bodies])
-            vel = np.array([(q.x, q.y) for q in map(get_vel, bodies)])
-            w = np.array([get_avel(b) for b in bodies])
-            odo.integrate(vel[:, 0] * np.cos(heading) + vel[:, 1] * np.sin(heading), w, dt)
+        state = np.empty((len(bodies), 4))  # angle, vx, vy, omega: World._advance's rows
+        for _ in range(substeps):
+            calls.read_bodies(bodies, state)
+            heading = state[:, 0]
+            odo.integrate(state[:, 1] * np.cos(heading) + state[:, 2] * np.sin(heading), state[:, 3], dt)
             h = heading[moving]
-            cx = (m_v * np.cos(h)).tolist()
-            cy = (m_v * np.sin(h)).tolist()
-            for c, x, y in zip(m_controls, cx, cy, strict=True):
-                set_vel(c, (x, y))
-            for s in spaces:
-                space_step(s, dt)
+            calls.set_and_step(m_controls, m_v * np.cos(h), m_v * np.sin(h), spaces, dt)
         odo.end_step()
         if odo.rng._ahead:
             raise RuntimeError("WorldBatch: odometry noise draws out of step with Odometry.integrate")
+        # each world's rows as views (Odometry replaces its arrays, never writes into them)
+        pose, start, delta = (a.reshape(-1, n, 3) for a in (odo.pose, odo._step_start, odo.delta))
+        elapsed = substeps * dt
         for r, j in enumerate(on):
-            o, sl = ws[j]._odometry, slice(r * n, (r + 1) * n)
-            o.pose, o._step_start = odo.pose[sl].copy(), odo._step_start[sl].copy()
-            o.delta = odo.delta[sl].copy()
-        for j in on:
-            ws[j].time += substeps * dt
-        self._update_contacts(on)
+            w = ws[j]
+            o = w._odometry
+            o.pose, o._step_start, o.delta = pose[r], start[r], delta[r]
+            w.time += elapsed
+        self._update_contacts(on, spaces)
 
     def _select(self, active) -> np.ndarray | None:
         if active is None:
@@ -258,16 +258,10 @@ class WorldBatch:
             raise ValueError(f"WorldBatch: active must have shape ({len(self._worlds)},), got {sel.shape}")
         return None if sel.all() else sel
 
-    def _update_contacts(self, on) -> None:
-        """``World._update_contacts`` of the worlds ``on``: arbiters read per world, resolved at once."""
-        pairs = []
-        fields = pmbatch.ArbiterFields.BODY_A_ID | pmbatch.ArbiterFields.BODY_B_ID
-        buf = _buffers()[2]  # the thread's arbiter buffer, shared by all worlds: copy each read
-        for w in (self._worlds[j] for j in on):
-            buf.clear()
-            pmbatch.get_space_arbiters(w.space, fields, buf)
-            pairs.append(np.frombuffer(buf.int_buf(), dtype=np.uintp).copy())
-        pairs_a = np.concatenate(pairs).reshape(-1, 2)
+    def _update_contacts(self, on, spaces: np.ndarray) -> None:
+        """``World._update_contacts`` of the worlds ``on`` (their ``spaces``): arbiters of all read in
+        one compiled loop, resolved at once."""
+        pairs_a, _ = ChipmunkCalls.here().arbiter_pairs(spaces)
         n = self.n_robots
         contacts = np.zeros(len(self._worlds) * n, dtype=np.int8)
         if len(pairs_a):
@@ -279,19 +273,16 @@ class WorldBatch:
             for me, other in ((0, 1), (1, 0)):
                 m = robot[:, me] >= 0
                 np.bitwise_or.at(contacts, robot[m, me], flag[m, other])
+        per_world = contacts.reshape(-1, n)  # fresh each step: views are safe
         for j in on:
-            self._worlds[j].contacts = contacts[j * n : (j + 1) * n].copy()
+            self._worlds[j].contacts = per_world[j]
 
     # -- state ------------------------------------------------------------------------------------
     def poses(self) -> np.ndarray:
         """``(K, n_robots, 3)``: ``worlds[k].poses`` for every ``k`` (theta wrapped), read at once."""
         self._layout()
-        get_pos, get_angle = _cp.cpBodyGetPosition, _cp.cpBodyGetAngle
-        rows = []
-        for b in self._bodies:
-            p = get_pos(b)
-            rows.append((p.x, p.y, get_angle(b)))
-        out = np.array(rows, dtype=np.float64).reshape(-1, 3)
+        bodies = self._physics()["bodies"]
+        out = ChipmunkCalls.here().read_poses(bodies, np.empty((bodies.size, 3)))
         wrap_headings(out)  # World.poses' wrap, bit for bit
         return out.reshape(len(self._worlds), self.n_robots, 3)
 
