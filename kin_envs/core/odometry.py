@@ -95,6 +95,12 @@ class Odometry:
         rng: the stream the drift and noise are drawn from.
     """
 
+    #: Standard normals already drawn from ``rng`` (rows of ``(n, 2)``, next first, from ``ahead_pos``):
+    #: :meth:`integrate` takes them before drawing again, so the stream is the same whoever drew them (the
+    #: native vector env draws many steps' worth per call, :meth:`take_ahead`; a copy keeps them).
+    ahead: np.ndarray | None = None
+    ahead_pos: int = 0
+
     def __init__(self, start: np.ndarray, wheel_base: float, spec: OdometrySpec, rng: np.random.Generator):
         self.spec = spec
         self.rng = rng
@@ -117,7 +123,7 @@ class Odometry:
         ds, dth = v_forward * dt, omega * dt
         wheels = np.stack([ds - dth * half_b, ds + dth * half_b], axis=1) * self.scale  # left, right travel
         if self.spec.noise_k > 0:
-            wheels += self.rng.normal(0.0, 1.0, wheels.shape) * (self.spec.noise_k * np.sqrt(np.abs(wheels)))
+            wheels += self._normals(wheels.shape) * (self.spec.noise_k * np.sqrt(np.abs(wheels)))
         ds_m = 0.5 * (wheels[:, 0] + wheels[:, 1])
         dth_m = (wheels[:, 1] - wheels[:, 0]) / self.wheel_base
         # forward along the heading at the substep's start, then turn: the physics' own (symplectic
@@ -126,3 +132,26 @@ class Odometry:
 
     def end_step(self) -> None:
         self.delta = relative(self._step_start, self.pose)
+
+    def _normals(self, shape: tuple[int, ...]) -> np.ndarray:
+        """``rng.normal(0, 1, shape)``: the next row drawn ahead if any, else a fresh draw."""
+        a = self.ahead
+        if a is not None and self.ahead_pos < a.shape[0]:
+            if a.shape[1:] != tuple(shape):
+                raise RuntimeError(f"Odometry: normals drawn ahead are {a.shape[1:]}, asked for {shape}")
+            self.ahead_pos += 1
+            return a[self.ahead_pos - 1]
+        return self.rng.normal(0.0, 1.0, shape)
+
+    def take_ahead(self, count: int, refill: int) -> np.ndarray:
+        """``(count, n, 2)``: the normals of the next ``count`` calls of :meth:`integrate`, taken out of
+        the stream now (whoever integrates them must use exactly these). When fewer than ``count`` are
+        drawn ahead, ``max(count, refill)`` are drawn in one call (the rows left first: the same stream)."""
+        a, p, n = self.ahead, self.ahead_pos, self.pose.shape[0]
+        if a is None or a.shape[0] - p < count:
+            left = a[p:] if a is not None else np.zeros((0, n, 2))
+            fresh = self.rng.normal(0.0, 1.0, (max(count, refill) - left.shape[0], n, 2))
+            a = self.ahead = np.concatenate([left, fresh]) if left.shape[0] else fresh
+            p = 0
+        self.ahead_pos = p + count
+        return a[p : p + count]
