@@ -217,9 +217,9 @@ class WorldBatch:
         for _ in range(substeps):
             calls.read_bodies(bodies, state)
             heading = state[:, 0]
-            odo.integrate(state[:, 1] * np.cos(heading) + state[:, 2] * np.sin(heading), state[:, 3], dt)
-            h = heading[moving]
-            calls.set_and_step(m_controls, m_v * np.cos(h), m_v * np.sin(h), spaces, dt)
+            cos_h, sin_h = np.cos(heading), np.sin(heading)
+            odo.integrate_state(state, cos_h, sin_h, dt)
+            calls.set_and_step(m_controls, m_v * cos_h[moving], m_v * sin_h[moving], spaces, dt)
         odo.end_step()
         if odo.ahead is not None and odo.ahead_pos != substeps:
             raise RuntimeError("WorldBatch: odometry noise draws out of step with Odometry.integrate")

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from kin_envs.core._validate import check_finite
@@ -130,6 +131,21 @@ class Odometry:
         # Euler) integration, so exact odometry of a robot that does not slip reproduces its pose
         self.pose = compose(self.pose, np.stack([ds_m, np.zeros_like(ds_m), dth_m], axis=1))
 
+    def integrate_state(self, state: np.ndarray, cos_h: np.ndarray, sin_h: np.ndarray, dt: float) -> None:
+        """:meth:`integrate` of bodies' ``(n, 4)`` ``angle, vx, vy, omega`` rows (forward speed
+        ``vx cos + vy sin`` of the heading; ``cos_h``, ``sin_h``: numpy's of ``angle``), bit for bit, in
+        one compiled loop for the arithmetic (the transcendental functions stay numpy's, whose results
+        a compiled ``cos`` need not match): the native vector env's 128-robot substep in ~1/4 the time."""
+        z = self._normals((state.shape[0], 2)) if self.spec.noise_k > 0 else np.zeros((0, 2))
+        p = self.pose
+        th = p[:, 2]
+        out = np.empty_like(p)
+        _integrate_kernel(p, np.cos(th), np.sin(th), state, cos_h, sin_h, float(dt), 0.5 * self.wheel_base,
+                          self.wheel_base, self.scale, z, float(self.spec.noise_k), out)  # fmt: skip
+        th = out[:, 2]
+        out[:, 2] = np.arctan2(np.sin(th), np.cos(th))  # compose's wrap
+        self.pose = out
+
     def end_step(self) -> None:
         self.delta = relative(self._step_start, self.pose)
 
@@ -155,3 +171,25 @@ class Odometry:
             p = 0
         self.ahead_pos = p + count
         return a[p : p + count]
+
+
+@numba.njit(cache=True)
+def _integrate_kernel(pose, c, s, state, cos_h, sin_h, dt, half_b, wheel_base, scale, z, noise_k, out):
+    """:meth:`Odometry.integrate`'s arithmetic, operation for operation in numpy's order (no fast-math,
+    so no fused multiply-adds: every result rounds as numpy's does); ``out[:, 2]`` gets the unwrapped
+    heading."""
+    for i in range(pose.shape[0]):
+        v = state[i, 1] * cos_h[i] + state[i, 2] * sin_h[i]
+        ds = v * dt
+        dth = state[i, 3] * dt
+        left = (ds - dth * half_b) * scale[i, 0]
+        right = (ds + dth * half_b) * scale[i, 1]
+        if noise_k > 0:
+            left += z[i, 0] * (noise_k * np.sqrt(np.abs(left)))
+            right += z[i, 1] * (noise_k * np.sqrt(np.abs(right)))
+        ds_m = 0.5 * (left + right)
+        dth_m = (right - left) / wheel_base
+        # compose(pose, (ds_m, 0, dth_m)), the zero lateral term included (it decides signed zeros)
+        out[i, 0] = pose[i, 0] + c[i] * ds_m - s[i] * 0.0
+        out[i, 1] = pose[i, 1] + s[i] * ds_m + c[i] * 0.0
+        out[i, 2] = pose[i, 2] + dth_m
