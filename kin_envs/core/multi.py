@@ -44,13 +44,13 @@ def _key(w: World) -> tuple:
 _ODOMETRY_AHEAD = 200
 
 
-def _stacked_odometry(odos: list[Odometry], scale: np.ndarray) -> Odometry:
-    """One :class:`Odometry` whose robots are all of ``odos``' robots, in order (``scale``: theirs,
-    stacked). ``begin_step`` sets its step start and ``end_step`` its delta."""
+def _stacked_odometry(first: Odometry, pose: np.ndarray, scale: np.ndarray) -> Odometry:
+    """One :class:`Odometry` of several worlds' robots (``pose``, ``scale``: theirs, stacked; the spec
+    and wheel base of ``first``, the same for all). ``begin_step`` sets its step start and ``end_step``
+    its delta."""
     o = Odometry.__new__(Odometry)
-    o.spec, o.wheel_base, o.rng = odos[0].spec, odos[0].wheel_base, None
-    o.pose = np.concatenate([x.pose for x in odos])
-    o.scale = scale
+    o.spec, o.wheel_base, o.rng = first.spec, first.wheel_base, None
+    o.pose, o.scale = pose, scale
     return o
 
 
@@ -183,18 +183,27 @@ class WorldBatch:
     def _advance(self, commands: np.ndarray, on, sel) -> None:
         """World._advance of the worlds ``on`` with their ``(K * n, 2)`` rows of ``commands``."""
         ws, n, w0 = self._worlds, self.n_robots, self._worlds[0]
+        dt, substeps = w0.config.physics_dt, w0.config.substeps
+        noisy = w0.config.odometry.noise_k > 0
         per_world = commands.reshape(len(ws), n, 2)  # a fresh array, never written: views are safe
+        # one pass over the worlds before the physics: commands recorded, odometry gathered
+        odos, odo_poses, noise = [], [], []
         for j in on:
+            w = ws[j]
             applied = per_world[j]
-            ws[j]._commands = applied
-            ws[j]._record(applied)  # World copies replay it (run-length encoded)
+            w._commands = applied
+            w._record(applied)  # World copies replay it (run-length encoded)
+            o = w._odometry
+            odos.append(o)
+            odo_poses.append(o.pose)
+            if noisy:  # Odometry.integrate draws normal(0, 1, (robots, 2)) per substep
+                noise.append(o.take_ahead(substeps, _ODOMETRY_AHEAD))
         phys, calls = self._physics(), ChipmunkCalls.here()
         bodies, controls, spaces = phys["bodies"], phys["controls"], phys["spaces"]
         if sel is not None:
             rows = np.repeat(sel, n)
             commands, bodies, controls, spaces = commands[rows], bodies[rows], controls[rows], spaces[sel]
         v, omega = commands[:, 0], commands[:, 1]
-        dt, substeps = w0.config.physics_dt, w0.config.substeps
         # The yaw rate is constant over a control step: set it once (World.step rewrites the same
         # value every substep, a no-op for a kinematic body). A robot commanded to stand still
         # (v = 0) gets its zero velocity once too.
@@ -207,11 +216,10 @@ class WorldBatch:
         m_controls, m_v = controls[moving], v[moving]
         # wheel odometry of every world's robots in one Odometry (World.step: begin, integrate the
         # achieved motion each substep before the drive update, end)
-        odos = [ws[j]._odometry for j in on]
         scale = phys["odometry_scale"] if sel is None else phys["odometry_scale"][rows]
-        odo = _stacked_odometry(odos, scale)
-        if odo.spec.noise_k > 0:  # Odometry.integrate draws normal(0, 1, (robots, 2)) per substep
-            odo.ahead = np.concatenate([o.take_ahead(substeps, _ODOMETRY_AHEAD) for o in odos], axis=1)
+        odo = _stacked_odometry(odos[0], np.concatenate(odo_poses), scale)
+        if noisy:
+            odo.ahead = np.concatenate(noise, axis=1)
         odo.begin_step()
         state = np.empty((len(bodies), 4))  # angle, vx, vy, omega: World._advance's rows
         for _ in range(substeps):
@@ -225,13 +233,15 @@ class WorldBatch:
             raise RuntimeError("WorldBatch: odometry noise draws out of step with Odometry.integrate")
         # each world's rows as views (Odometry replaces its arrays, never writes into them)
         pose, start, delta = (a.reshape(-1, n, 3) for a in (odo.pose, odo._step_start, odo.delta))
+        contacts = self._contacts(spaces)
+        # the last step's contacts of the stepped worlds, in order (the vector env's task reads them)
+        self.stepped_contacts = contacts if sel is None else contacts[sel]
         elapsed = substeps * dt
-        for r, j in enumerate(on):
+        for r, (j, o) in enumerate(zip(on, odos, strict=True)):
             w = ws[j]
-            o = w._odometry
             o.pose, o._step_start, o.delta = pose[r], start[r], delta[r]
             w.time += elapsed
-        self._update_contacts(on, spaces)
+            w.contacts = contacts[j]
 
     def _select(self, active) -> np.ndarray | None:
         if active is None:
@@ -241,9 +251,10 @@ class WorldBatch:
             raise ValueError(f"WorldBatch: active must have shape ({len(self._worlds)},), got {sel.shape}")
         return None if sel.all() else sel
 
-    def _update_contacts(self, on, spaces: np.ndarray) -> None:
-        """``World._update_contacts`` of the worlds ``on`` (their ``spaces``): arbiters of all read in
-        one compiled loop, resolved at once."""
+    def _contacts(self, spaces: np.ndarray) -> np.ndarray:
+        """``(K, n_robots)``: ``World._update_contacts``' result for the worlds of ``spaces`` (rows of the
+        others zero), their arbiters read in one compiled loop and resolved at once (a fresh array: rows
+        can be handed out as views)."""
         pairs_a, _ = ChipmunkCalls.here().arbiter_pairs(spaces)
         n = self.n_robots
         contacts = np.zeros(len(self._worlds) * n, dtype=np.int8)
@@ -256,9 +267,7 @@ class WorldBatch:
             for me, other in ((0, 1), (1, 0)):
                 m = robot[:, me] >= 0
                 np.bitwise_or.at(contacts, robot[m, me], flag[m, other])
-        per_world = self.contacts = contacts.reshape(-1, n)  # fresh each step: views are safe
-        for j in on:
-            self._worlds[j].contacts = per_world[j]
+        return contacts.reshape(-1, n)
 
     # -- state ------------------------------------------------------------------------------------
     def poses(self) -> np.ndarray:

@@ -241,7 +241,7 @@ class KinVectorEnv(VectorEnv):
         columns over ``on`` (``None``: no batched task, step them one by one)."""
         envs = [self.envs[i] for i in on]
         task_batch = type(envs[0])._task_batch
-        out = None if task_batch is None else task_batch(envs, poses[on], self._batch.contacts[on])
+        out = None if task_batch is None else task_batch(envs, poses[on], self._batch.stepped_contacts)
         if out is None:
             return None
         terms, terminated, info = out
