@@ -3,9 +3,10 @@
 :class:`WorldBatch` ``.step`` and ``.scan`` do exactly what ``World.step`` and ``World.scan`` do
 for each of its worlds (same arithmetic, same RNG draws in the same order, so results are bit-identical),
 but pay Python's per-call overhead once per batch instead of once per world: the drive update of
-all worlds is one set of numpy operations per physics substep, the pymunk calls go straight to
-Chipmunk, contacts are resolved for all worlds at once, and every robot of every world is scanned
-in one call of the raycasting kernel (each robot against its own world's primitives only).
+all worlds is one set of numpy operations per physics substep, Chipmunk is called from compiled
+loops over all worlds' bodies and spaces (:mod:`kin_envs.core._chipmunk_calls`), the odometry's
+arithmetic is compiled, contacts are resolved for all worlds at once, and every robot of every world
+is scanned in one call of the raycasting kernel (each robot against its own world's primitives only).
 
 Worlds stay independent objects: any of them can be reset (replaced) between calls.
 """
