@@ -164,3 +164,19 @@ def test_compiled_chipmunk_calls_match_pymunk():
         assert np.array_equal(counts, [len(e) for e in expected])
         assert np.array_equal(pairs, np.concatenate(expected))
     assert counts.sum() > 0  # the crowded arenas have contacts
+
+
+def test_replaced_worlds_update_the_compiled_loops_tables():
+    # a world replaced (an autoreset) rewrites its rows of the body / space tables in place: the
+    # same tables as a batch built over the new worlds
+    batch = WorldBatch(worlds(4))
+    batch.step(np.zeros((4, 3, 2)))
+    batch[1] = worlds(1, 50)[0]
+    batch[-1] = worlds(1, 60)[0]
+    fresh = WorldBatch(batch.worlds)._physics()
+    for key, table in batch._physics().items():
+        assert np.array_equal(table, fresh[key]), key
+    batch[2] = World(scenes.random_arena(2, 3, seed=0))  # fewer robots: tables dropped, batch refused
+    assert batch._phys is None
+    with pytest.raises(ValueError, match="world 2 differs"):
+        batch.step(np.zeros((4, 3, 2)))
