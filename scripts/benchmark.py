@@ -447,21 +447,26 @@ def bench_memory(min_time: float, steps: int = 2000, n_robots: int = 256) -> lis
 
 def bench_vecenv(min_time: float, num_envs: int = 64, detectors=("none", "geometric")) -> list[dict]:
     """Native vector env vs SyncVectorEnv, K sub-envs each, constant random actions, autoresets
-    included; env-steps/s = K x vector steps/s."""
+    included; env-steps/s = K x vector steps/s. The two are timed round robin (:func:`rates_interleaved`,
+    the median block of each): timed one after the other on a shared machine, their ratio moved by 2x
+    between runs."""
     import gymnasium as gym
 
     import kin_envs  # noqa: F401  (registers the ids)
 
     rows = []
     for det in detectors:
-        rates = {}
+        envs, fns = [], {}
         for mode in ("vector_entry_point", "sync"):
             env = gym.make_vec("kin_envs/KinSeek-v1", num_envs=num_envs, vectorization_mode=mode,
                                detector=None if det == "none" else det)
             env.reset(seed=0)
             env.action_space.seed(0)
+            envs.append(env)
             actions = env.action_space.sample()
-            rates[mode] = rate(lambda env=env, a=actions: env.step(a), min_time) * num_envs
+            fns[mode] = lambda env=env, a=actions: env.step(a)
+        rates = {k: v * num_envs for k, v in rates_interleaved(fns, 2 * min_time).items()}
+        for env in envs:
             env.close()
         row = {"env": "KinSeek-v1", "num_envs": num_envs, "detector": det,
                "native_env_steps_per_s": rates["vector_entry_point"],

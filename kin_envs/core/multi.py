@@ -3,9 +3,10 @@
 :class:`WorldBatch` ``.step`` and ``.scan`` do exactly what ``World.step`` and ``World.scan`` do
 for each of its worlds (same arithmetic, same RNG draws in the same order, so results are bit-identical),
 but pay Python's per-call overhead once per batch instead of once per world: the drive update of
-all worlds is one set of numpy operations per physics substep, the pymunk calls go straight to
-Chipmunk, contacts are resolved for all worlds at once, and every robot of every world is scanned
-in one call of the raycasting kernel (each robot against its own world's primitives only).
+all worlds is one set of numpy operations per physics substep, Chipmunk is called from compiled
+loops over all worlds' bodies and spaces (:mod:`kin_envs.core._chipmunk_calls`), the odometry's
+arithmetic is compiled, contacts are resolved for all worlds at once, and every robot of every world
+is scanned in one call of the raycasting kernel (each robot against its own world's primitives only).
 
 Worlds stay independent objects: any of them can be reset (replaced) between calls.
 """
@@ -16,9 +17,8 @@ from collections.abc import Sequence
 
 import numba
 import numpy as np
-import pymunk.batch as pmbatch
-from pymunk._chipmunk import lib as _cp
 
+from kin_envs.core._chipmunk_calls import ChipmunkCalls, address
 from kin_envs.core.interrupts import atomic
 from kin_envs.core.lidar import (
     _cast_one,
@@ -30,7 +30,7 @@ from kin_envs.core.lidar import (
     wrap_headings,
 )
 from kin_envs.core.odometry import Odometry
-from kin_envs.core.world import _COMMAND_CAP, Contact, Scan, World, _buffers
+from kin_envs.core.world import _COMMAND_CAP, Contact, Scan, World
 
 __all__ = ["WorldBatch"]
 
@@ -40,39 +40,18 @@ def _key(w: World) -> tuple:
             w.config.odometry)
 
 
-class _StackedRNG:
-    """Draws ``normal(loc, scale, (K * n, ...))`` as the concatenation of K worlds' own draws of
-    ``(n, ...)``, so that one :class:`Odometry` over all worlds' robots consumes every world's
-    stream exactly as that world's own odometry would."""
-
-    def __init__(self, rngs: list[np.random.Generator]) -> None:
-        self.rngs = rngs
-        self._ahead: list[np.ndarray] = []
-
-    def prefetch(self, calls: int, size: tuple[int, ...]) -> None:
-        """Draw the standard normals of the next ``calls`` calls of ``normal(0, 1, size)`` now, one
-        draw per world (a generator fills a larger request with the same stream, in order)."""
-        per = (size[0] // len(self.rngs), *size[1:])
-        blocks = [r.normal(0.0, 1.0, (calls, *per)) for r in self.rngs]
-        stacked = np.concatenate(blocks, axis=1)
-        self._ahead = [stacked[c] for c in range(calls)][::-1]
-
-    def normal(self, loc: float, scale: float, size: tuple[int, ...]) -> np.ndarray:
-        if self._ahead and (loc, scale) == (0.0, 1.0) and self._ahead[-1].shape == tuple(size):
-            return self._ahead.pop()
-        per = (size[0] // len(self.rngs), *size[1:])
-        return np.concatenate([r.normal(loc, scale, per) for r in self.rngs])
+#: Odometry normals each world draws ahead at a time (Odometry.take_ahead): one RNG call per world every
+#: 40 steps instead of every step (a call costs ~3 µs whatever its size).
+_ODOMETRY_AHEAD = 200
 
 
-def _stacked_odometry(odos: list[Odometry]) -> Odometry:
-    """One :class:`Odometry` whose robots are all of ``odos``' robots, in order."""
+def _stacked_odometry(first: Odometry, pose: np.ndarray, scale: np.ndarray) -> Odometry:
+    """One :class:`Odometry` of several worlds' robots (``pose``, ``scale``: theirs, stacked; the spec
+    and wheel base of ``first``, the same for all). ``begin_step`` sets its step start and ``end_step``
+    its delta."""
     o = Odometry.__new__(Odometry)
-    o.spec, o.wheel_base = odos[0].spec, odos[0].wheel_base
-    o.rng = _StackedRNG([x.rng for x in odos])
-    o.pose = np.concatenate([x.pose for x in odos])
-    o.scale = np.concatenate([x.scale for x in odos])
-    o._step_start = np.concatenate([x._step_start for x in odos])
-    o.delta = np.concatenate([x.delta for x in odos])
+    o.spec, o.wheel_base, o.rng = first.spec, first.wheel_base, None
+    o.pose, o.scale = pose, scale
     return o
 
 
@@ -95,6 +74,7 @@ class WorldBatch:
         if not self._worlds:
             raise ValueError("WorldBatch: needs at least one world")
         self._layout_ok = False
+        self._phys: dict | None = None
 
     def __len__(self) -> int:
         return len(self._worlds)
@@ -107,6 +87,7 @@ class WorldBatch:
             raise TypeError(f"WorldBatch: expected a World, got {type(world).__name__}")
         self._worlds[k] = world
         self._layout_ok = False
+        self._replace_physics(k, world)
 
     @property
     def worlds(self) -> tuple[World, ...]:
@@ -125,9 +106,6 @@ class WorldBatch:
                     "spec or timestep; a batch needs them equal"
                 )
         self.n_robots = ws[0].n_robots
-        self._bodies = [b._body for w in ws for b in w.robot_bodies]
-        self._controls = [c._body for w in ws for c in w._controls]
-        self._spaces = [w.space._space for w in ws]
         n = self.n_robots
         # contacts: one owner table of all worlds (pymunk body ids are unique across spaces)
         ids = np.concatenate([w._owner_ids for w in ws])
@@ -189,66 +167,99 @@ class WorldBatch:
         with atomic():  # as World.step: Ctrl-C takes effect between steps, never inside one
             self._advance(commands, on, sel)
 
+    def _physics(self) -> dict:
+        """The addresses of every world's bodies and spaces for the compiled Chipmunk loops (rebuilt
+        when a world was replaced)."""
+        if self._phys is None:
+            ws = self._worlds
+            self._phys = {
+                "bodies": np.array([address(b._body) for w in ws for b in w.robot_bodies], np.uintp),
+                "controls": np.array([address(c._body) for w in ws for c in w._controls], np.uintp),
+                "spaces": np.array([address(w.space._space) for w in ws], np.uintp),
+                # fixed for a world's life (drawn when it is built)
+                "odometry_scale": np.concatenate([w._odometry.scale for w in ws]),
+            }
+        return self._phys
+
+    def _replace_physics(self, k: int, world: World) -> None:
+        """World ``k``'s rows of :meth:`_physics`' tables, in place (a vector env replaces a world at
+        every autoreset; rebuilding the tables of 64 worlds costs ~0.25 ms)."""
+        phys = self._phys
+        if phys is None:
+            return
+        k = range(len(self._worlds))[k]
+        n = phys["bodies"].size // len(self._worlds)
+        if world.n_robots != n:  # _layout refuses the batch; rebuild from scratch after a fix
+            self._phys = None
+            return
+        rows = slice(k * n, (k + 1) * n)
+        phys["bodies"][rows] = [address(b._body) for b in world.robot_bodies]
+        phys["controls"][rows] = [address(c._body) for c in world._controls]
+        phys["spaces"][k] = address(world.space._space)
+        phys["odometry_scale"][rows] = world._odometry.scale
+
     def _advance(self, commands: np.ndarray, on, sel) -> None:
         """World._advance of the worlds ``on`` with their ``(K * n, 2)`` rows of ``commands``."""
         ws, n, w0 = self._worlds, self.n_robots, self._worlds[0]
+        dt, substeps = w0.config.physics_dt, w0.config.substeps
+        noisy = w0.config.odometry.noise_k > 0
+        per_world = commands.reshape(len(ws), n, 2)  # a fresh array, never written: views are safe
+        # one pass over the worlds before the physics: commands recorded, odometry gathered
+        odos, odo_poses, noise = [], [], []
         for j in on:
-            applied = commands[j * n : (j + 1) * n].copy()
-            ws[j]._commands = applied
-            ws[j]._record(applied)  # World copies replay it (run-length encoded)
-        bodies, controls, spaces = self._bodies, self._controls, self._spaces
+            w = ws[j]
+            applied = per_world[j]
+            w._commands = applied
+            w._record(applied)  # World copies replay it (run-length encoded)
+            o = w._odometry
+            odos.append(o)
+            odo_poses.append(o.pose)
+            if noisy:  # Odometry.integrate draws normal(0, 1, (robots, 2)) per substep
+                noise.append(o.take_ahead(substeps, _ODOMETRY_AHEAD))
+        phys, calls = self._physics(), ChipmunkCalls.here()
+        bodies, controls, spaces = phys["bodies"], phys["controls"], phys["spaces"]
         if sel is not None:
             rows = np.repeat(sel, n)
-            commands = commands[rows]
-            bodies = [b for b, r in zip(bodies, rows.tolist(), strict=True) if r]
-            controls = [c for c, r in zip(controls, rows.tolist(), strict=True) if r]
-            spaces = [spaces[j] for j in on]
+            commands, bodies, controls, spaces = commands[rows], bodies[rows], controls[rows], spaces[sel]
         v, omega = commands[:, 0], commands[:, 1]
-        dt, substeps = w0.config.physics_dt, w0.config.substeps
-        get_angle, set_vel, set_avel, space_step = (
-            _cp.cpBodyGetAngle, _cp.cpBodySetVelocity, _cp.cpBodySetAngularVelocity, _cp.cpSpaceStep
-        )
         # The yaw rate is constant over a control step: set it once (World.step rewrites the same
         # value every substep, a no-op for a kinematic body). A robot commanded to stand still
         # (v = 0) gets its zero velocity once too.
-        for c, om in zip(controls, omega.tolist(), strict=True):
-            set_avel(c, om)
-        moving = np.flatnonzero(v != 0.0).tolist()
-        still = [controls[i] for i in np.flatnonzero(v == 0.0).tolist()]
-        m_controls = [controls[i] for i in moving]
-        m_v = v[moving]
+        calls.set_angular_velocities(controls, np.ascontiguousarray(omega))
+        moving = v != 0.0
+        still = controls[~moving]
+        if still.size:
+            zero = np.zeros(still.size)
+            calls.set_velocities(still, zero, zero)
+        m_controls, m_v = controls[moving], v[moving]
         # wheel odometry of every world's robots in one Odometry (World.step: begin, integrate the
         # achieved motion each substep before the drive update, end)
-        odo = _stacked_odometry([ws[j]._odometry for j in on])
-        if odo.spec.noise_k > 0:  # Odometry.integrate draws normal(0, 1, (robots, 2)) per substep
-            odo.rng.prefetch(substeps, (len(bodies), 2))
+        scale = phys["odometry_scale"] if sel is None else phys["odometry_scale"][rows]
+        odo = _stacked_odometry(odos[0], np.concatenate(odo_poses), scale)
+        if noisy:
+            odo.ahead = np.concatenate(noise, axis=1)
         odo.begin_step()
-        get_vel, get_avel = _cp.cpBodyGetVelocity, _cp.cpBodyGetAngularVelocity
-        for sub in range(substeps):
-            if sub == 0:
-                for c in still:
-                    set_vel(c, (0.0, 0.0))
-            heading = np.array([get_angle(b) for b in bodies])
-            vel = np.array([(q.x, q.y) for q in map(get_vel, bodies)])
-            w = np.array([get_avel(b) for b in bodies])
-            odo.integrate(vel[:, 0] * np.cos(heading) + vel[:, 1] * np.sin(heading), w, dt)
-            h = heading[moving]
-            cx = (m_v * np.cos(h)).tolist()
-            cy = (m_v * np.sin(h)).tolist()
-            for c, x, y in zip(m_controls, cx, cy, strict=True):
-                set_vel(c, (x, y))
-            for s in spaces:
-                space_step(s, dt)
+        state = np.empty((len(bodies), 4))  # angle, vx, vy, omega: World._advance's rows
+        for _ in range(substeps):
+            calls.read_bodies(bodies, state)
+            heading = state[:, 0]
+            cos_h, sin_h = np.cos(heading), np.sin(heading)
+            odo.integrate_state(state, cos_h, sin_h, dt)
+            calls.set_and_step(m_controls, m_v * cos_h[moving], m_v * sin_h[moving], spaces, dt)
         odo.end_step()
-        if odo.rng._ahead:
+        if odo.ahead is not None and odo.ahead_pos != substeps:
             raise RuntimeError("WorldBatch: odometry noise draws out of step with Odometry.integrate")
-        for r, j in enumerate(on):
-            o, sl = ws[j]._odometry, slice(r * n, (r + 1) * n)
-            o.pose, o._step_start = odo.pose[sl].copy(), odo._step_start[sl].copy()
-            o.delta = odo.delta[sl].copy()
-        for j in on:
-            ws[j].time += substeps * dt
-        self._update_contacts(on)
+        # each world's rows as views (Odometry replaces its arrays, never writes into them)
+        pose, start, delta = (a.reshape(-1, n, 3) for a in (odo.pose, odo._step_start, odo.delta))
+        contacts = self._contacts(spaces)
+        # the last step's contacts of the stepped worlds, in order (the vector env's task reads them)
+        self.stepped_contacts = contacts if sel is None else contacts[sel]
+        elapsed = substeps * dt
+        for r, (j, o) in enumerate(zip(on, odos, strict=True)):
+            w = ws[j]
+            o.pose, o._step_start, o.delta = pose[r], start[r], delta[r]
+            w.time += elapsed
+            w.contacts = contacts[j]
 
     def _select(self, active) -> np.ndarray | None:
         if active is None:
@@ -258,16 +269,11 @@ class WorldBatch:
             raise ValueError(f"WorldBatch: active must have shape ({len(self._worlds)},), got {sel.shape}")
         return None if sel.all() else sel
 
-    def _update_contacts(self, on) -> None:
-        """``World._update_contacts`` of the worlds ``on``: arbiters read per world, resolved at once."""
-        pairs = []
-        fields = pmbatch.ArbiterFields.BODY_A_ID | pmbatch.ArbiterFields.BODY_B_ID
-        buf = _buffers()[2]  # the thread's arbiter buffer, shared by all worlds: copy each read
-        for w in (self._worlds[j] for j in on):
-            buf.clear()
-            pmbatch.get_space_arbiters(w.space, fields, buf)
-            pairs.append(np.frombuffer(buf.int_buf(), dtype=np.uintp).copy())
-        pairs_a = np.concatenate(pairs).reshape(-1, 2)
+    def _contacts(self, spaces: np.ndarray) -> np.ndarray:
+        """``(K, n_robots)``: ``World._update_contacts``' result for the worlds of ``spaces`` (rows of the
+        others zero), their arbiters read in one compiled loop and resolved at once (a fresh array: rows
+        can be handed out as views)."""
+        pairs_a, _ = ChipmunkCalls.here().arbiter_pairs(spaces)
         n = self.n_robots
         contacts = np.zeros(len(self._worlds) * n, dtype=np.int8)
         if len(pairs_a):
@@ -279,19 +285,14 @@ class WorldBatch:
             for me, other in ((0, 1), (1, 0)):
                 m = robot[:, me] >= 0
                 np.bitwise_or.at(contacts, robot[m, me], flag[m, other])
-        for j in on:
-            self._worlds[j].contacts = contacts[j * n : (j + 1) * n].copy()
+        return contacts.reshape(-1, n)
 
     # -- state ------------------------------------------------------------------------------------
     def poses(self) -> np.ndarray:
         """``(K, n_robots, 3)``: ``worlds[k].poses`` for every ``k`` (theta wrapped), read at once."""
         self._layout()
-        get_pos, get_angle = _cp.cpBodyGetPosition, _cp.cpBodyGetAngle
-        rows = []
-        for b in self._bodies:
-            p = get_pos(b)
-            rows.append((p.x, p.y, get_angle(b)))
-        out = np.array(rows, dtype=np.float64).reshape(-1, 3)
+        bodies = self._physics()["bodies"]
+        out = ChipmunkCalls.here().read_poses(bodies, np.empty((bodies.size, 3)))
         wrap_headings(out)  # World.poses' wrap, bit for bit
         return out.reshape(len(self._worlds), self.n_robots, 3)
 

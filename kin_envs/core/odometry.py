@@ -27,6 +27,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from kin_envs.core._validate import check_finite
@@ -95,6 +96,12 @@ class Odometry:
         rng: the stream the drift and noise are drawn from.
     """
 
+    #: Standard normals already drawn from ``rng`` (rows of ``(n, 2)``, next first, from ``ahead_pos``):
+    #: :meth:`integrate` takes them before drawing again, so the stream is the same whoever drew them (the
+    #: native vector env draws many steps' worth per call, :meth:`take_ahead`; a copy keeps them).
+    ahead: np.ndarray | None = None
+    ahead_pos: int = 0
+
     def __init__(self, start: np.ndarray, wheel_base: float, spec: OdometrySpec, rng: np.random.Generator):
         self.spec = spec
         self.rng = rng
@@ -117,12 +124,72 @@ class Odometry:
         ds, dth = v_forward * dt, omega * dt
         wheels = np.stack([ds - dth * half_b, ds + dth * half_b], axis=1) * self.scale  # left, right travel
         if self.spec.noise_k > 0:
-            wheels += self.rng.normal(0.0, 1.0, wheels.shape) * (self.spec.noise_k * np.sqrt(np.abs(wheels)))
+            wheels += self._normals(wheels.shape) * (self.spec.noise_k * np.sqrt(np.abs(wheels)))
         ds_m = 0.5 * (wheels[:, 0] + wheels[:, 1])
         dth_m = (wheels[:, 1] - wheels[:, 0]) / self.wheel_base
         # forward along the heading at the substep's start, then turn: the physics' own (symplectic
         # Euler) integration, so exact odometry of a robot that does not slip reproduces its pose
         self.pose = compose(self.pose, np.stack([ds_m, np.zeros_like(ds_m), dth_m], axis=1))
 
+    def integrate_state(self, state: np.ndarray, cos_h: np.ndarray, sin_h: np.ndarray, dt: float) -> None:
+        """:meth:`integrate` of bodies' ``(n, 4)`` ``angle, vx, vy, omega`` rows (forward speed
+        ``vx cos + vy sin`` of the heading; ``cos_h``, ``sin_h``: numpy's of ``angle``), bit for bit, in
+        one compiled loop for the arithmetic (the transcendental functions stay numpy's, whose results
+        a compiled ``cos`` need not match): the native vector env's 128-robot substep in ~1/4 the time."""
+        z = self._normals((state.shape[0], 2)) if self.spec.noise_k > 0 else np.zeros((0, 2))
+        p = self.pose
+        th = p[:, 2]
+        out = np.empty_like(p)
+        _integrate_kernel(p, np.cos(th), np.sin(th), state, cos_h, sin_h, float(dt), 0.5 * self.wheel_base,
+                          self.wheel_base, self.scale, z, float(self.spec.noise_k), out)  # fmt: skip
+        th = out[:, 2]
+        out[:, 2] = np.arctan2(np.sin(th), np.cos(th))  # compose's wrap
+        self.pose = out
+
     def end_step(self) -> None:
         self.delta = relative(self._step_start, self.pose)
+
+    def _normals(self, shape: tuple[int, ...]) -> np.ndarray:
+        """``rng.normal(0, 1, shape)``: the next row drawn ahead if any, else a fresh draw."""
+        a = self.ahead
+        if a is not None and self.ahead_pos < a.shape[0]:
+            if a.shape[1:] != tuple(shape):
+                raise RuntimeError(f"Odometry: normals drawn ahead are {a.shape[1:]}, asked for {shape}")
+            self.ahead_pos += 1
+            return a[self.ahead_pos - 1]
+        return self.rng.normal(0.0, 1.0, shape)
+
+    def take_ahead(self, count: int, refill: int) -> np.ndarray:
+        """``(count, n, 2)``: the normals of the next ``count`` calls of :meth:`integrate`, taken out of
+        the stream now (whoever integrates them must use exactly these). When fewer than ``count`` are
+        drawn ahead, ``max(count, refill)`` are drawn in one call (the rows left first: the same stream)."""
+        a, p, n = self.ahead, self.ahead_pos, self.pose.shape[0]
+        if a is None or a.shape[0] - p < count:
+            left = a[p:] if a is not None else np.zeros((0, n, 2))
+            fresh = self.rng.normal(0.0, 1.0, (max(count, refill) - left.shape[0], n, 2))
+            a = self.ahead = np.concatenate([left, fresh]) if left.shape[0] else fresh
+            p = 0
+        self.ahead_pos = p + count
+        return a[p : p + count]
+
+
+@numba.njit(cache=True)
+def _integrate_kernel(pose, c, s, state, cos_h, sin_h, dt, half_b, wheel_base, scale, z, noise_k, out):
+    """:meth:`Odometry.integrate`'s arithmetic, operation for operation in numpy's order (no fast-math,
+    so no fused multiply-adds: every result rounds as numpy's does); ``out[:, 2]`` gets the unwrapped
+    heading."""
+    for i in range(pose.shape[0]):
+        v = state[i, 1] * cos_h[i] + state[i, 2] * sin_h[i]
+        ds = v * dt
+        dth = state[i, 3] * dt
+        left = (ds - dth * half_b) * scale[i, 0]
+        right = (ds + dth * half_b) * scale[i, 1]
+        if noise_k > 0:
+            left += z[i, 0] * (noise_k * np.sqrt(np.abs(left)))
+            right += z[i, 1] * (noise_k * np.sqrt(np.abs(right)))
+        ds_m = 0.5 * (left + right)
+        dth_m = (right - left) / wheel_base
+        # compose(pose, (ds_m, 0, dth_m)), the zero lateral term included (it decides signed zeros)
+        out[i, 0] = pose[i, 0] + c[i] * ds_m - s[i] * 0.0
+        out[i, 1] = pose[i, 1] + s[i] * ds_m + c[i] * 0.0
+        out[i, 2] = pose[i, 2] + dth_m

@@ -104,6 +104,12 @@ class SingleRobotEnv(gym.Env):
     def _zero_terms(self) -> dict[str, float]:
         raise NotImplementedError
 
+    #: ``_task`` of several sub-envs at once, for the native vector env: a classmethod
+    #: ``(envs, poses, contacts) -> (terms, terminated, info)`` of columns over ``envs`` (poses
+    #: ``(k, n_robots, 3)`` and contacts ``(k, n_robots)`` of this step) that updates each env's task
+    #: state as its ``_task`` would and gives bit-identical values; ``None``: ``_task`` per sub-env.
+    _task_batch = None
+
     # -- Gymnasium API ------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         """Start an episode; ``options`` is accepted and ignored."""

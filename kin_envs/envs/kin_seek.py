@@ -30,6 +30,7 @@ DISTRACTORS = RandomArenaConfig(
 #: scene valid: a smaller circle cannot overlap anything the larger one did not).
 _SMALL_CYLINDER_RADIUS = (0.015, 0.025)
 _MAX_LAYOUT_TRIES = 200
+_WEIGHTS = ("progress_weight", "success_bonus", "collision_penalty", "time_penalty")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -236,6 +237,27 @@ class KinSeekEnv(SingleRobotEnv):
             "time": -cfg.time_penalty,
         }
         self._prev_distance = d
+        return terms, success, {"is_success": success, "kin_distance": d, "collision": collision}
+
+    @classmethod
+    def _task_batch(cls, envs, poses: np.ndarray, contacts: np.ndarray):
+        """:meth:`_task` of ``envs`` as columns (see ``SingleRobotEnv._task_batch``)."""
+        cfg = envs[0].config
+        if any(type(getattr(cfg, f)) is not float for f in _WEIGHTS):
+            return None  # an int weight makes an int term in _task's info: per sub-env then
+        rel = (poses[:, 1, :2] - poses[:, 0, :2]).tolist()
+        d = np.array([math.hypot(x, y) for x, y in rel])  # math.hypot, as _kin_distance (not np.hypot)
+        prev = np.array([e._prev_distance for e in envs])
+        for e, x in zip(envs, d.tolist(), strict=True):
+            e._prev_distance = x
+        success = d <= cfg.success_distance
+        collision = contacts[:, 0] != 0
+        terms = {
+            "progress": cfg.progress_weight * (prev - d),
+            "success": np.where(success, cfg.success_bonus, 0.0),
+            "collision": np.where(collision, -cfg.collision_penalty, 0.0),
+            "time": np.full(len(envs), -cfg.time_penalty),
+        }
         return terms, success, {"is_success": success, "kin_distance": d, "collision": collision}
 
 

@@ -211,26 +211,58 @@ class KinVectorEnv(VectorEnv):
         truncations = np.zeros(k, dtype=np.bool_)
         per_env: list[dict[str, Any] | None] = [None] * k
         kin: dict[str, tuple[dict[str, np.ndarray], np.ndarray]] = {}
+        task: dict[str, Any] | None = None
         if on:
             self._batch.step(wheels, active=None if not resets else active)
             combined, poses, _ = self._batch.scan_combined(
                 envs[0]._scan_robots(), active=None if not resets else active
             )
             frames, kin = self._sense(on, combined, poses)
-            for r, i in enumerate(on):
-                obs, rew, term, trunc, info = envs[i]._finish_step(frames[r : r + 1])
-                self._observations[i] = obs
-                rewards[i], terminations[i], truncations[i] = rew, term, trunc
-                per_env[i] = info
+            task = self._finish_batch(on, frames, poses, rewards, terminations, truncations)
+            if task is None:
+                for r, i in enumerate(on):
+                    obs, rew, term, trunc, info = envs[i]._finish_step(frames[r : r + 1])
+                    self._observations[i] = obs
+                    rewards[i], terminations[i], truncations[i] = rew, term, trunc
+                    per_env[i] = info
         for i in resets:
             obs, info = self._reset_sub(i)
             self._observations[i] = obs
             per_env[i] = info
         if resets:
             self._sync_batch(resets)
-        info = self._assemble_info(per_env, on, resets, kin)
+        info = self._assemble_info(per_env, on, resets, kin, task)
         self._autoreset = terminations | truncations
         return self._observations.copy(), rewards, terminations, truncations, info
+
+    def _finish_batch(self, on, frames, poses, rewards, terminations, truncations) -> dict[str, Any] | None:
+        """``_finish_step`` of the stepped sub-envs at once when their class has a ``_task_batch``:
+        observations, rewards and ends written into the given arrays; returns the task's info as
+        columns over ``on`` (``None``: no batched task, step them one by one)."""
+        envs = [self.envs[i] for i in on]
+        task_batch = type(envs[0])._task_batch
+        out = None if task_batch is None else task_batch(envs, poses[on], self._batch.stepped_contacts)
+        if out is None:
+            return None
+        terms, terminated, info = out
+        steps = np.empty(len(on), np.int64)
+        for r, e in enumerate(envs):
+            e._steps += 1
+            steps[r] = e._steps
+        if self.layout.frame_stack == 1:
+            self._observations[on] = frames  # what ObservationBuilder.push returns then
+        else:
+            for r, e in enumerate(envs):
+                self._observations[on[r]] = e._obs.push(frames[r : r + 1])[0]
+        reward = np.zeros(len(on))
+        for v in terms.values():  # float(sum(terms.values())): the same additions in the same order
+            reward = reward + v
+        rewards[on] = reward
+        terminated = np.asarray(terminated, dtype=np.bool_)
+        terminations[on] = terminated
+        truncations[on] = (steps >= self.config.max_steps) & ~terminated
+        info["reward_terms"] = terms
+        return info
 
     def _wheel_speeds(self, acts: np.ndarray, on: list[int]) -> np.ndarray:
         """``(K, n_robots, 2)`` wheel speeds, rad/s (rows of resetting sub-envs zero): what each
@@ -335,19 +367,27 @@ class KinVectorEnv(VectorEnv):
                 env._last_detections = None
         return frames, kin
 
-    def _assemble_info(self, per_env, on, resets, kin) -> dict[str, Any]:
+    def _assemble_info(self, per_env, on, resets, kin, task=None) -> dict[str, Any]:
         """The stacked info, equal to ``SyncVectorEnv``'s: kin entries written as (K, slots)
-        arrays, the few scalar task entries stacked per key."""
+        arrays, the task entries from ``task``'s columns (the stepped sub-envs) and the reset
+        sub-envs' infos, or stacked per key."""
         k = self.num_envs
-        rest = [
-            {
-                key: v
-                for key, v in d.items()
-                if key not in _KIN_KEYS and key[:-6] not in _KIN_KEYS  # nor their "_count"s
-            }
-            for d in per_env
-        ]
-        info = stack_infos(rest)
+
+        def rest(d):
+            # nor the kin entries' "_count"s
+            return {key: v for key, v in d.items() if key not in _KIN_KEYS and key[:-6] not in _KIN_KEYS}
+
+        if task is None:
+            info = stack_infos([rest(d) for d in per_env])
+        else:
+            reset_infos = [rest(per_env[i]) for i in resets]
+            for d in reset_infos:
+                if d.keys() != task.keys():
+                    raise RuntimeError(
+                        f"{self.config.env_id} vector env: a reset's info keys {sorted(d)} differ from a "
+                        f"step's {sorted(task)}; _task_batch must give the keys _task gives"
+                    )
+            info = _merge_columns(task, on, resets, reset_infos, k)
         ones = np.ones(k, dtype=np.bool_)
         layout = [("kin_truth", KIN_TRUTH_FIELDS, self._truth_slots)]
         if self.detector is not None:
@@ -386,6 +426,25 @@ class KinVectorEnv(VectorEnv):
     def close_extras(self, **kwargs: Any) -> None:
         for e in self.envs:
             e.close()
+
+
+def _merge_columns(cols: dict[str, Any], on: list[int], resets: list[int], reset_infos: list[dict],
+                   k: int) -> dict[str, Any]:  # fmt: skip
+    """What :func:`stack_infos` gives for K infos when the rows ``on`` are given as columns (arrays of
+    the dtype ``stack_infos`` makes, nested dicts alike) and the rows ``resets`` as per-env infos."""
+    out: dict[str, Any] = {}
+    for key, col in cols.items():
+        vals = [d[key] for d in reset_infos]
+        if isinstance(col, dict):
+            out[key] = _merge_columns(col, on, resets, vals, k)
+        else:
+            arr = np.empty(k, dtype=col.dtype)
+            arr[on] = col
+            if resets:
+                arr[resets] = vals
+            out[key] = arr
+        out[f"_{key}"] = np.ones(k, dtype=np.bool_)
+    return out
 
 
 def _widen(info: dict[str, Any], ids: list[int], k: int) -> dict[str, Any]:

@@ -126,3 +126,57 @@ def test_worlds_with_a_lidar_grid_scan_through_it():
     finally:
         multi.cast_prepared = real
     assert len(calls) == 12 * 3 + 2 and all(g is not None for g in calls)
+
+
+def test_compiled_chipmunk_calls_match_pymunk():
+    """The compiled loops WorldBatch steps with read and write what pymunk's own API does: body state
+    (batch rows and attributes), control velocities, every space's arbiters in pymunk's order."""
+    import pymunk.batch as pmbatch
+
+    from kin_envs.core._chipmunk_calls import ChipmunkCalls, address
+
+    calls = ChipmunkCalls.here()
+    ws = worlds(5, 20)
+    bodies = np.array([address(b._body) for w in ws for b in w.robot_bodies], np.uintp)
+    controls = [c for w in ws for c in w._controls]
+    ctrl = np.array([address(c._body) for c in controls], np.uintp)
+    spaces = np.array([address(w.space._space) for w in ws], np.uintp)
+    rng = np.random.default_rng(0)
+    for _ in range(40):
+        vx, vy, om = rng.normal(0, 0.4, (3, ctrl.size))
+        calls.set_angular_velocities(ctrl, om)
+        calls.set_velocities(ctrl, vx, vy)
+        for c, x, y, o in zip(controls, vx, vy, om, strict=True):
+            assert tuple(c.velocity) == (x, y) and c.angular_velocity == o
+        calls.set_and_step(ctrl, vx, vy, spaces, 0.02)
+        state = calls.read_bodies(bodies, np.empty((bodies.size, 4)))
+        poses = calls.read_poses(bodies, np.empty((bodies.size, 3)))
+        ref = [(b.angle, *b.velocity, b.angular_velocity, *b.position) for w in ws for b in w.robot_bodies]
+        ref = np.array(ref)
+        assert np.array_equal(state, ref[:, :4]) and np.array_equal(poses, ref[:, [4, 5, 0]])
+        pairs, counts = calls.arbiter_pairs(spaces)
+        buf, fields = pmbatch.Buffer(), pmbatch.ArbiterFields.BODY_A_ID | pmbatch.ArbiterFields.BODY_B_ID
+        expected = []
+        for w in ws:
+            buf.clear()
+            pmbatch.get_space_arbiters(w.space, fields, buf)
+            expected.append(np.frombuffer(buf.int_buf(), np.uintp).reshape(-1, 2).copy())
+        assert np.array_equal(counts, [len(e) for e in expected])
+        assert np.array_equal(pairs, np.concatenate(expected))
+    assert counts.sum() > 0  # the crowded arenas have contacts
+
+
+def test_replaced_worlds_update_the_compiled_loops_tables():
+    # a world replaced (an autoreset) rewrites its rows of the body / space tables in place: the
+    # same tables as a batch built over the new worlds
+    batch = WorldBatch(worlds(4))
+    batch.step(np.zeros((4, 3, 2)))
+    batch[1] = worlds(1, 50)[0]
+    batch[-1] = worlds(1, 60)[0]
+    fresh = WorldBatch(batch.worlds)._physics()
+    for key, table in batch._physics().items():
+        assert np.array_equal(table, fresh[key]), key
+    batch[2] = World(scenes.random_arena(2, 3, seed=0))  # fewer robots: tables dropped, batch refused
+    assert batch._phys is None
+    with pytest.raises(ValueError, match="world 2 differs"):
+        batch.step(np.zeros((4, 3, 2)))

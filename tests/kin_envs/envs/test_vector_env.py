@@ -213,3 +213,10 @@ def test_detection_glue_reads_a_compact_array_result():
     for stub in (ArrayDetector(), DictDetector()):
         row_b, tab_b = detection_arrays(stub, scan.ranges, scan.angles)
         assert len(row_a) > 5 and np.array_equal(row_a, row_b) and np.array_equal(tab_a, tab_b)
+
+
+def test_same_trajectories_with_integer_reward_weights():
+    # an int weight makes int reward terms in _task's info (stacked as int64 when sub-env 0's is):
+    # the vector env then finishes its sub-envs one by one instead of KinSeek's _task_batch columns
+    assert_same_as_sync(SEEK, 3, 40, **{**QUICK, "success_bonus": 10, "collision_penalty": 1,
+                                        "success_distance": 1.0, "min_start_distance": 1.05})  # fmt: skip
