@@ -445,28 +445,42 @@ def bench_memory(min_time: float, steps: int = 2000, n_robots: int = 256) -> lis
     return [row]
 
 
-def bench_vecenv(min_time: float, num_envs: int = 64, detectors=("none", "geometric")) -> list[dict]:
-    """Native vector env vs SyncVectorEnv, K sub-envs each, constant random actions, autoresets
-    included; env-steps/s = K x vector steps/s. The two are timed round robin (:func:`rates_interleaved`,
-    the median block of each): timed one after the other on a shared machine, their ratio moved by 2x
-    between runs."""
+def bench_vecenv(min_time: float, num_envs: int = 64, detectors=("none", "geometric"),
+                 steps: int = 300, chunk: int = 25) -> list[dict]:
+    """Native vector env vs SyncVectorEnv, K sub-envs each, constant random actions; env-steps/s = K x
+    vector steps/s over ``steps`` vector steps each (300 = KinSeek's episode: every sub-env that runs to
+    its time limit autoresets once inside the window, so resets are counted as a user pays them). The
+    two are stepped round robin, ``chunk`` steps at a time: timed one after the other on a shared
+    machine, their ratio moved by 2x between runs. (``min_time`` is unused: the window is in steps.)"""
     import gymnasium as gym
 
     import kin_envs  # noqa: F401  (registers the ids)
 
+    now = CLOCK["now"]
     rows = []
     for det in detectors:
-        envs, fns = [], {}
+        envs, fns = {}, {}
         for mode in ("vector_entry_point", "sync"):
             env = gym.make_vec("kin_envs/KinSeek-v1", num_envs=num_envs, vectorization_mode=mode,
                                detector=None if det == "none" else det)
             env.reset(seed=0)
             env.action_space.seed(0)
-            envs.append(env)
+            envs[mode] = env
             actions = env.action_space.sample()
             fns[mode] = lambda env=env, a=actions: env.step(a)
-        rates = {k: v * num_envs for k, v in rates_interleaved(fns, 2 * min_time).items()}
-        for env in envs:
+            fns[mode]()  # warm-up (numba JIT, caches)
+        spent = dict.fromkeys(fns, 0.0)
+        done = 0
+        while done < steps:
+            n = min(chunk, steps - done)
+            for mode, fn in fns.items():
+                t0 = now()
+                for _ in range(n):
+                    fn()
+                spent[mode] += now() - t0
+            done += n
+        rates = {k: steps * num_envs / spent[k] for k in fns}
+        for env in envs.values():
             env.close()
         row = {"env": "KinSeek-v1", "num_envs": num_envs, "detector": det,
                "native_env_steps_per_s": rates["vector_entry_point"],
@@ -695,6 +709,8 @@ def main(argv: list[str] | None = None) -> dict:
     )
     p.add_argument("--memory-robots", type=int, default=256, help="memory: robots in the swarm")
     p.add_argument("--vec-envs", type=int, default=64, help="vecenv: number of sub-envs K")
+    p.add_argument("--vec-steps", type=int, default=300,
+                   help="vecenv: vector steps timed per env (300 = one KinSeek episode, autoresets included)")
     p.add_argument("--vec-detectors", nargs="+", default=["none", "geometric"],
                    choices=["none", "geometric", "learned"], help="vecenv: detectors to time")
     p.add_argument(
@@ -717,6 +733,8 @@ def main(argv: list[str] | None = None) -> dict:
         p.error(f"--memory-robots must be in 2..256, got {args.memory_robots}")
     if args.vec_envs < 1:
         p.error(f"--vec-envs must be >= 1, got {args.vec_envs}")
+    if args.vec_steps < 1:
+        p.error(f"--vec-steps must be >= 1, got {args.vec_steps}")
     if min(args.scaling_robots) < 1 or min(args.scaling_obstacles) < 0:
         p.error("--scaling-robots must be >= 1 and --scaling-obstacles >= 0")
     from detectors.fileio import write_json, write_text
@@ -740,6 +758,7 @@ def main(argv: list[str] | None = None) -> dict:
             "memory_steps": args.memory_steps,
             "memory_robots": args.memory_robots,
             "vec_envs": args.vec_envs,
+            "vec_steps": args.vec_steps,
             "vec_detectors": args.vec_detectors,
             "python": platform.python_version(),
             "machine": platform.machine(),
@@ -760,7 +779,7 @@ def main(argv: list[str] | None = None) -> dict:
         elif s == "memory":
             results[s] = SECTIONS[s](args.min_time, steps=args.memory_steps, n_robots=args.memory_robots)
         elif s == "vecenv":
-            results[s] = SECTIONS[s](args.min_time, args.vec_envs, args.vec_detectors)
+            results[s] = SECTIONS[s](args.min_time, args.vec_envs, args.vec_detectors, args.vec_steps)
         else:
             results[s] = SECTIONS[s](args.min_time)
     md = to_markdown(results)

@@ -76,9 +76,28 @@ def test_env_and_memory_sections(bench, tmp_path):
     assert "of detector off" in (tmp_path / "benchmark.md").read_text()
 
 
-def test_vecenv_section(bench, tmp_path):
-    res = bench.main(["--sections", "vecenv", "--min-time", "0.03", "--vec-envs", "2",
+def test_vecenv_section(bench, tmp_path, monkeypatch):
+    import gymnasium as gym
+
+    counts, make_vec = [], gym.make_vec
+
+    def counting_make_vec(*args, **kwargs):
+        env, calls = make_vec(*args, **kwargs), [kwargs["vectorization_mode"], 0]
+        step = env.step
+
+        def counted(a):
+            calls[1] += 1
+            return step(a)
+
+        env.step = counted
+        counts.append(calls)
+        return env
+
+    monkeypatch.setattr(gym, "make_vec", counting_make_vec)
+    res = bench.main(["--sections", "vecenv", "--min-time", "0.03", "--vec-envs", "2", "--vec-steps", "30",
                       "--vec-detectors", "none", "geometric", "--out", str(tmp_path)])
+    # both envs step the same window (in steps, chunk by chunk, so resets count alike), plus one warm-up
+    assert counts == [["vector_entry_point", 31], ["sync", 31]] * 2
     assert [r["detector"] for r in res["vecenv"]] == ["none", "geometric"]
     for r in res["vecenv"]:
         assert r["num_envs"] == 2 and r["native_env_steps_per_s"] > 0 and r["sync_env_steps_per_s"] > 0
@@ -86,6 +105,8 @@ def test_vecenv_section(bench, tmp_path):
     assert "| KinSeek-v1 | 2 | geometric |" in (tmp_path / "benchmark.md").read_text()
     with pytest.raises(SystemExit):
         bench.main(["--sections", "vecenv", "--vec-envs", "0", "--out", str(tmp_path)])
+    with pytest.raises(SystemExit):
+        bench.main(["--sections", "vecenv", "--vec-steps", "0", "--out", str(tmp_path)])
 
 
 def test_naive_baseline_matches_the_world_scan(bench):
