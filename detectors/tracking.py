@@ -1517,149 +1517,161 @@ def _points_prep(pts, owner, obs, noise, cos, sin, poses, sigma2):
     return odom, sig, dist
 
 
-@numba.njit(cache=True, nogil=True)
-def _frame_fit_start(pts, sig, a, b, pose, r, fw, fc, lane):
-    """One frame's fit of the points ``pts[a:b]``: weights ``1 / sig^2`` into ``fw[lane]`` and the start
-    (r behind the points' middle as seen from the observer at ``pose``) into ``fc[lane]``. One pose: no
-    odometry drift, valid while the object moves."""
-    mf = b - a
-    mx = my = 0.0
-    for p in range(a, b):
-        mx += pts[p, 0]
-        my += pts[p, 1]
-        fw[lane, p - a] = 1.0 / (sig[p] * sig[p])
-    mx /= mf
-    my /= mf
-    ux, uy = mx - pose[0], my - pose[1]
-    un = max(math.sqrt(ux * ux + uy * uy), 1e-9)
-    fc[lane, 0] = mx + ux / un * r * 0.7
-    fc[lane, 1] = my + uy / un * r * 0.7
+# fits side by side: LLVM vectorises the lane loop 8 wide, unrolled twice, so it takes the vector path from 16
+# lanes on (8 lanes ran it scalar: 4-5x slower per fit)
+_LANES = 16
 
 
-@numba.njit(cache=True, nogil=True)
-def _frame_fit_score(t, sig, a, b, fe, lane, delta2, resid_clamp, lo_resid, res_chi2, res_dof):
-    """Track ``t``'s per-frame residual sums from one fit's residuals ``fe[lane]``: the noise-normalised
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _lanes_normal(px, py, w, cx, cy, mm, L, r, a00, a01, a11, g0, g1):
+    """One Gauss-Newton step's normal equations of ``L`` fits at once (lane ``l``: points ``px[:mm, l]``,
+    ``py``, weights ``w``, centre ``cx[l], cy[l]``), each lane's sums in :func:`_fit_span`'s order."""
+    for l in range(L):
+        a00[l] = a01[l] = a11[l] = g0[l] = g1[l] = 0.0
+    for i in range(mm):
+        for l in range(L):  # the lanes innermost: vectorised (a vector of fits)
+            dx, dy = px[i, l] - cx[l], py[i, l] - cy[l]
+            d = max(math.sqrt(dx * dx + dy * dy), 1e-12)
+            jx, jy = -dx / d, -dy / d
+            ei = d - r
+            wi = w[i, l]
+            a00[l] += wi * jx * jx
+            a01[l] += wi * jx * jy
+            a11[l] += wi * jy * jy
+            g0[l] += wi * jx * ei
+            g1[l] += wi * jy * ei
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")  # no zero-division checks: they stop vectorising
+def _frame_fits_kernel(ti, ci, pts, sig, cstart, tobs, poses, z, r, iterations, warm, delta2, resid_clamp,
+                       lo_resid, res_chi2, res_dof):  # fmt: skip
+    """The per-frame known-radius circle fits of the updated tracks ``ti`` (candidate ``ci[j]``'s points
+    ``pts[cstart[c]:cstart[c + 1]]``, odometry frame, noise ``sig``; 3 points or more; one pose, so no
+    odometry drift: valid while the object moves) and each track's residual sums: the noise-normalised
     chi-square and its dof, and (when the hand-tuned cue is on) the Gaussian LLR "on the circle" vs "off it
-    by delta", the fit's 2 dof taken out of the log term."""
-    mf = b - a
-    llr = 0.0
-    chi2 = 0.0
-    for p in range(a, b):
-        v0 = sig[p] * sig[p]
-        v1 = v0 + delta2
-        ee = fe[lane, p - a] * fe[lane, p - a]
-        chi2 += ee / v0
-        if resid_clamp > 0.0:  # the hand-tuned cue's LLR (its logs) only when it is on
-            llr += 0.5 * math.log(v1 / v0) * (mf - 2) / mf - 0.5 * ee * (1.0 / v0 - 1.0 / v1)
-    res_chi2[t] += chi2
-    res_dof[t] += mf - 2
-    if resid_clamp > 0.0:
-        lo_resid[t] = min(max(lo_resid[t] + llr, -resid_clamp), resid_clamp)
+    by delta", the fit's 2 dof taken out of the log term. Each fit is :func:`_fit_span` with weights
+    ``1 / sig^2``, ``iterations`` Gauss-Newton steps from ``0.7 r`` behind the points' mean as seen from
+    the observer, or (``warm``) from the candidate's own centre ``z[c]`` (the geometric detector's is its
+    circle fit of the same points).
 
-
-@numba.njit(cache=True, nogil=True)
-def _fit_span2(p, a1, m1, a2, m2, w, r, c, iterations, e):
-    """Two :func:`_fit_span` fits at once, interleaved (lane 0: ``p[a1:a1 + m1]``, lane 1: ``p[a2:a2 + m2]``;
-    weights ``w[lane]``, centres ``c[lane]`` in place, residuals into ``e[lane]``): each lane's operations and
-    stopping rule are exactly those of :func:`_fit_span`, so its results are the same bits."""
-    go1 = go2 = True
-    for _ in range(iterations):
-        if not (go1 or go2):
-            break
-        a00 = a01 = a11 = g0 = g1 = 0.0
-        b00 = b01 = b11 = h0 = h1 = 0.0
-        for i in range(max(m1, m2)):
-            if go1 and i < m1:
-                dx, dy = p[a1 + i, 0] - c[0, 0], p[a1 + i, 1] - c[0, 1]
-                d = max(math.sqrt(dx * dx + dy * dy), 1e-12)
-                jx, jy = -dx / d, -dy / d
-                ei = d - r
-                a00 += w[0, i] * jx * jx
-                a01 += w[0, i] * jx * jy
-                a11 += w[0, i] * jy * jy
-                g0 += w[0, i] * jx * ei
-                g1 += w[0, i] * jy * ei
-            if go2 and i < m2:
-                dx, dy = p[a2 + i, 0] - c[1, 0], p[a2 + i, 1] - c[1, 1]
-                d = max(math.sqrt(dx * dx + dy * dy), 1e-12)
-                jx, jy = -dx / d, -dy / d
-                ei = d - r
-                b00 += w[1, i] * jx * jx
-                b01 += w[1, i] * jx * jy
-                b11 += w[1, i] * jy * jy
-                h0 += w[1, i] * jx * ei
-                h1 += w[1, i] * jy * ei
-        if go1:
-            det = a00 * a11 - a01 * a01
-            if det <= 1e-12 * (a00 + a11) ** 2:
-                go1 = False
-            else:
-                s0 = -(a11 * g0 - a01 * g1) / det
-                s1 = -(a00 * g1 - a01 * g0) / det
-                c[0, 0] += s0
-                c[0, 1] += s1
+    Sixteen fits run side by side, one per vector lane (the point index outer, the lane inner, so the
+    compiler vectorises the square roots and divisions across fits), grouped by point count so that
+    lanes are padded little; a padded point has weight 0 and adds exactly +0.0 or -0.0 to a sum that
+    starts at +0.0, and each lane stops on its own rule, so every fit's centre and residuals are the same
+    bits as :func:`_fit_span`'s (tested against one fit at a time). No division here can be by zero (the
+    distances are >= 1e-12, the step's determinant is tested first), so numpy's error model changes
+    nothing but the code."""
+    n = ti.shape[0]
+    m_max = nf = 0
+    for j in range(n):
+        m = cstart[ci[j] + 1] - cstart[ci[j]]
+        if m >= 3:
+            nf += 1
+            m_max = max(m_max, m)
+    if nf == 0:
+        return
+    L = min(_LANES, nf)  # known at run time only: a constant trip count gets unrolled, not vectorised
+    # the fits in ascending point count (counting sort): a group of L has similar lengths
+    cnt = np.zeros(m_max + 2, np.int64)
+    for j in range(n):
+        m = cstart[ci[j] + 1] - cstart[ci[j]]
+        if m >= 3:
+            cnt[m + 1] += 1
+    for m in range(m_max + 1):
+        cnt[m + 1] += cnt[m]
+    jobs = np.empty(nf, np.int64)
+    for j in range(n):
+        m = cstart[ci[j] + 1] - cstart[ci[j]]
+        if m >= 3:
+            jobs[cnt[m]] = j
+            cnt[m] += 1
+    px, py, w = np.zeros((m_max, L)), np.zeros((m_max, L)), np.zeros((m_max, L))
+    cx, cy, go = np.zeros(L), np.zeros(L), np.zeros(L, np.bool_)
+    a00, a01, a11, g0, g1 = np.empty(L), np.empty(L), np.empty(L), np.empty(L), np.empty(L)
+    for g in range(0, nf, L):
+        nl = min(L, nf - g)
+        mm = cstart[ci[jobs[g + nl - 1]] + 1] - cstart[ci[jobs[g + nl - 1]]]  # the group's longest
+        for l in range(L):
+            if l >= nl:  # an empty lane: weight 0, never stepped
+                for i in range(mm):
+                    px[i, l] = py[i, l] = w[i, l] = 0.0
+                cx[l] = cy[l] = 0.0
+                go[l] = False
+                continue
+            j = jobs[g + l]
+            c = ci[j]
+            a, b = cstart[c], cstart[c + 1]
+            mf = b - a
+            mx = my = 0.0  # the start
+            for p in range(a, b):
+                mx += pts[p, 0]
+                my += pts[p, 1]
+                px[p - a, l] = pts[p, 0]
+                py[p - a, l] = pts[p, 1]
+                w[p - a, l] = 1.0 / (sig[p] * sig[p])
+            for i in range(mf, mm):
+                px[i, l] = py[i, l] = w[i, l] = 0.0
+            mx /= mf
+            my /= mf
+            o = tobs[ti[j]]
+            ux, uy = mx - poses[o, 0], my - poses[o, 1]
+            un = max(math.sqrt(ux * ux + uy * uy), 1e-9)
+            cx[l] = mx + ux / un * r * 0.7
+            cy[l] = my + uy / un * r * 0.7
+            if warm:
+                cx[l], cy[l] = z[c, 0], z[c, 1]
+            go[l] = True
+        for _ in range(iterations):  # _fit_span's steps, lane by lane
+            active = False
+            for l in range(L):
+                active |= go[l]
+            if not active:
+                break
+            _lanes_normal(px, py, w, cx, cy, mm, L, r, a00, a01, a11, g0, g1)
+            for l in range(L):
+                if not go[l]:
+                    continue
+                det = a00[l] * a11[l] - a01[l] * a01[l]
+                if det <= 1e-12 * (a00[l] + a11[l]) ** 2:
+                    go[l] = False
+                    continue
+                s0 = -(a11[l] * g0[l] - a01[l] * g1[l]) / det
+                s1 = -(a00[l] * g1[l] - a01[l] * g0[l]) / det
+                cx[l] += s0
+                cy[l] += s1
                 if s0 * s0 + s1 * s1 < 1e-18:
-                    go1 = False
-        if go2:
-            det = b00 * b11 - b01 * b01
-            if det <= 1e-12 * (b00 + b11) ** 2:
-                go2 = False
-            else:
-                s0 = -(b11 * h0 - b01 * h1) / det
-                s1 = -(b00 * h1 - b01 * h0) / det
-                c[1, 0] += s0
-                c[1, 1] += s1
-                if s0 * s0 + s1 * s1 < 1e-18:
-                    go2 = False
-    for i in range(m1):
-        e[0, i] = math.sqrt((p[a1 + i, 0] - c[0, 0]) ** 2 + (p[a1 + i, 1] - c[0, 1]) ** 2) - r
-    for i in range(m2):
-        e[1, i] = math.sqrt((p[a2 + i, 0] - c[1, 0]) ** 2 + (p[a2 + i, 1] - c[1, 1]) ** 2) - r
+                    go[l] = False
+        for l in range(nl):  # residuals and the track's sums
+            j = jobs[g + l]
+            t, c = ti[j], ci[j]
+            a, b = cstart[c], cstart[c + 1]
+            mf = b - a
+            llr = 0.0
+            chi2 = 0.0
+            for p in range(a, b):
+                ep = math.sqrt((px[p - a, l] - cx[l]) ** 2 + (py[p - a, l] - cy[l]) ** 2) - r
+                v0 = sig[p] * sig[p]
+                v1 = v0 + delta2
+                ee = ep * ep
+                chi2 += ee / v0
+                if resid_clamp > 0.0:  # the hand-tuned cue's LLR (its logs) only when it is on
+                    llr += 0.5 * math.log(v1 / v0) * (mf - 2) / mf - 0.5 * ee * (1.0 / v0 - 1.0 / v1)
+            res_chi2[t] += chi2
+            res_dof[t] += mf - 2
+            if resid_clamp > 0.0:
+                lo_resid[t] = min(max(lo_resid[t] + llr, -resid_clamp), resid_clamp)
 
 
 @numba.njit(cache=True, nogil=True)
 def _outline_kernel(ti, ci, pts, sig, dist, cstart, obs, odometer, moved, buf, aux, npts, head, fit_c,
-                    lo_shape, x, P, now, r, delta2, n_cap, min_points, clamp, head_rate2, pos_rate2, poses,
-                    lo_resid, res_chi2, res_dof, resid_clamp, z, fit_iters, warm):  # fmt: skip
+                    lo_shape, x, P, now, r, delta2, n_cap, min_points, clamp, head_rate2,
+                    pos_rate2):  # fmt: skip
     """Append each updated track's candidate points (odometry frame) to its ring buffer, then refit its
     outline (warm-started at the last fit's centre) and set its shape cue. A track that has moved keeps
     its last shape cue: its points no longer share one frame, and the motion cue has decided it anyway.
-    The per-frame fits run ``fit_iters`` Gauss-Newton steps from r behind the points' middle, or (``warm``)
-    from the candidate's own centre ``z[c]`` (odometry frame; the geometric detector's is its circle fit)."""
+    (The per-frame fits are :func:`_frame_fits_kernel`'s.)"""
     m_max = buf.shape[1]
     e, var, wgt, pp = np.empty(m_max), np.empty(m_max), np.empty(m_max), np.empty((m_max, 2))
-    m_frame = 0
-    for j in range(ti.shape[0]):
-        m_frame = max(m_frame, cstart[ci[j] + 1] - cstart[ci[j]])
-    # per-frame known-radius fits (always: the track classifier reads their summed chi-square, resid_z), two
-    # at a time: the fits are independent, so the two interleaved Gauss-Newton loops overlap their latencies
-    # (each fit's own arithmetic is unchanged: the same bits as one at a time)
-    fe, fw, fc = np.empty((2, m_frame)), np.empty((2, m_frame)), np.empty((2, 2))
-    pend = -1
-    for j in range(ti.shape[0]):
-        if cstart[ci[j] + 1] - cstart[ci[j]] < 3:
-            continue
-        if pend < 0:
-            pend = j
-            continue
-        for lane, jj in ((0, pend), (1, j)):
-            o = obs[ti[jj]]
-            _frame_fit_start(pts, sig, cstart[ci[jj]], cstart[ci[jj] + 1], poses[o], r, fw, fc, lane)
-            if warm:
-                fc[lane, 0], fc[lane, 1] = z[ci[jj], 0], z[ci[jj], 1]
-        a, b, a2, b2 = cstart[ci[pend]], cstart[ci[pend] + 1], cstart[ci[j]], cstart[ci[j] + 1]
-        _fit_span2(pts, a, b - a, a2, b2 - a2, fw, r, fc, fit_iters, fe)
-        for lane, jj in ((0, pend), (1, j)):
-            _frame_fit_score(ti[jj], sig, cstart[ci[jj]], cstart[ci[jj] + 1], fe, lane, delta2, resid_clamp,
-                             lo_resid, res_chi2, res_dof)  # fmt: skip
-        pend = -1
-    if pend >= 0:
-        a, b = cstart[ci[pend]], cstart[ci[pend] + 1]
-        _frame_fit_start(pts, sig, a, b, poses[obs[ti[pend]]], r, fw, fc, 0)
-        if warm:
-            fc[0, 0], fc[0, 1] = z[ci[pend], 0], z[ci[pend], 1]
-        _fit_span(pts, a, b - a, fw[0], r, fc[0], fit_iters, fe[0])
-        _frame_fit_score(ti[pend], sig, a, b, fe, 0, delta2, resid_clamp, lo_resid, res_chi2, res_dof)
     for j in range(ti.shape[0]):
         t, c = ti[j], ci[j]
         a, b = cstart[c], cstart[c + 1]
@@ -1870,10 +1882,12 @@ def _update_kernel(obs, xy, scores, accepted, delta, dt, pts, owner, has_points,
             while i < owner.shape[0] and owner[i] < c:
                 i += 1
             cstart[c] = i
+        # per-frame known-radius fits (always: the track classifier reads their summed chi-square, resid_z)
+        _frame_fits_kernel(tracks, cands, odom, sig, cstart, tobs, poses, z, prm[7], int(prm[32]),
+                           prm[33] > 0.0, prm[17], prm[23], lo_resid, res_chi2, res_dof)  # fmt: skip
         _outline_kernel(tracks, cands, odom, sig, dist, cstart, tobs, odometer, moved, buf, aux, npts, head,
                         fit_c, lo_shape, x, P, now, prm[7], prm[17], prm[18], int(prm[19]), prm[20], prm[21],
-                        prm[22], poses, lo_resid, res_chi2, res_dof, prm[23], z, int(prm[32]),
-                        prm[33] > 0.0)  # fmt: skip
+                        prm[22])  # fmt: skip
         for j in range(n_t):
             bm[j] = cstart[cands[j] + 1] - cstart[cands[j]]
     _feature_kernel(tracks, n_m, sc, ac, rg, bm, f_lgsum, f_lgsq, f_lgmax, f_lglast, f_accsum, f_acclast,

@@ -18,6 +18,7 @@ from detectors.tracking import (
     KinTracker,
     _feature_kernel,
     _finish_kernel,
+    _fit_known_circle,
     _frame_kernel,
     _logit,
     _outline_kernel,
@@ -102,7 +103,7 @@ class StagedKinTracker(KinTracker):
         self._score_cue(tracks, scores[cands], None if accepted is None else accepted[cands], rng[cands])
         beams = np.zeros(k)
         if points is not None and len(tracks):
-            self._outline_cue(tracks, cands, points, owner, obs, noise, cos, sin, k)  # validates owner
+            self._outline_cue(tracks, cands, points, owner, obs, noise, cos, sin, k, z)  # validates owner
             beams = np.bincount(np.asarray(owner, np.int64).reshape(-1), minlength=k).astype(np.float64)
         _feature_kernel(tracks, len(ti), scores[cands], np.zeros(0, np.bool_) if accepted is None
                         else accepted[cands], rng[cands], beams[cands], self._f_lgsum, self._f_lgsq,
@@ -161,7 +162,7 @@ class StagedKinTracker(KinTracker):
                       self._lo_score, float(_logit(pr.score_prior)), pr.score_per_metre, pr.score_weight,
                       pr.accept_llr, pr.reject_llr, pr.score_n0, pr.score_gain, pr.score_clamp)  # fmt: skip
 
-    def _outline_cue(self, ti, ci, points, owner, obs, noise, cos, sin, k) -> None:
+    def _outline_cue(self, ti, ci, points, owner, obs, noise, cos, sin, k, z) -> None:
         # (b) the accumulated outline relative to the track centre (ego-motion compensated)
         pr = self.params
         pts = np.asarray(points, np.float64).reshape(-1, 2)
@@ -180,17 +181,53 @@ class StagedKinTracker(KinTracker):
         odom, sig, d = _points_prep(pts, owner, obs, noise, cos, sin, self.poses,
                                     pr.shape_sigma**2)  # fmt: skip
         cstart = np.searchsorted(owner, np.arange(k + 1))
+        self._frame_fits(ti, ci, odom, sig, cstart, z)
         _outline_kernel(
             ti, ci, odom, sig, d, cstart, self._obs, self.odometer, self._moved,
             self._pts, self._pts_aux, self._npts, self._head, self._fit_c, self._lo_shape, self._x, self._P,
             self.time,
             pr.r, pr.shape_delta**2, float(pr.shape_n_cap), int(pr.shape_min_points),
             pr.shape_clamp, pr.odom_heading_rate**2, pr.odom_position_rate**2,
-            self.poses, self._lo_resid, self._res_chi2, self._res_dof, pr.resid_clamp,
-            np.zeros((k, 2)), 6, False,  # the default per-frame fit (6 steps from the heuristic start)
         )  # fmt: skip
 
-
+    def _frame_fits(self, ti, ci, pts, sig, cstart, z) -> None:
+        """The per-frame circle fits one at a time, as before they ran eight to a vector
+        (:func:`detectors.tracking._frame_fits_kernel`): the start, :func:`_fit_known_circle` and the
+        residual sums, in Python."""
+        pr = self.params
+        r, delta2, clamp = pr.r, pr.shape_delta**2, pr.resid_clamp
+        for t, c in zip(ti.tolist(), ci.tolist(), strict=True):
+            a, b = int(cstart[c]), int(cstart[c + 1])
+            mf = b - a
+            if mf < 3:
+                continue
+            mx = my = 0.0
+            for p in range(a, b):
+                mx += pts[p, 0]
+                my += pts[p, 1]
+            w = np.array([1.0 / (sig[p] * sig[p]) for p in range(a, b)])
+            mx /= mf
+            my /= mf
+            pose = self.poses[self._obs[t]]
+            ux, uy = mx - pose[0], my - pose[1]
+            un = max(math.sqrt(ux * ux + uy * uy), 1e-9)
+            cen = np.array([mx + ux / un * r * 0.7, my + uy / un * r * 0.7])
+            if pr.frame_fit_warm_start:
+                cen = z[c].copy()
+            e = np.empty(mf)
+            _fit_known_circle(np.ascontiguousarray(pts[a:b]), w, r, cen, int(pr.frame_fit_iterations), e)
+            llr = chi2 = 0.0
+            for p in range(a, b):
+                v0 = sig[p] * sig[p]
+                v1 = v0 + delta2
+                ee = e[p - a] * e[p - a]
+                chi2 += ee / v0
+                if clamp > 0.0:
+                    llr += 0.5 * math.log(v1 / v0) * (mf - 2) / mf - 0.5 * ee * (1.0 / v0 - 1.0 / v1)
+            self._res_chi2[t] += chi2
+            self._res_dof[t] += mf - 2
+            if clamp > 0.0:
+                self._lo_resid[t] = min(max(self._lo_resid[t] + llr, -clamp), clamp)
 
     def _features_fast(self, rows):  # the numpy features
         return self._features(rows)

@@ -233,6 +233,49 @@ def test_fit_known_circle_recovers_the_centre():
     assert np.abs(e).max() < 1e-9
 
 
+@pytest.mark.parametrize("n_fits", [1, 15, 16, 17, 70])
+@pytest.mark.parametrize("warm", [0, 1])
+def test_vectorised_frame_fits_are_bitwise_one_fit_at_a_time(n_fits, warm):
+    """The per-frame fits, sixteen to a vector (``_frame_fits_kernel``: lanes grouped by point count, short
+    lanes padded with weight-0 points, each lane stopping on its own), give every track the residual sums
+    of one ``_fit_known_circle`` at a time (the reference tracker's loop), bit for bit: fits of 1-40
+    points (fewer than 3 skipped), housings and hexagons, any noise, tracks and candidates in any order."""
+    from detectors.tracking import _frame_fits_kernel
+    from tests.detectors.reference_tracking import StagedKinTracker
+
+    rng = np.random.default_rng(10 * n_fits + warm)
+    pr = TrackerParams(resid_clamp=2.0, frame_fit_warm_start=warm, frame_fit_iterations=2 if warm else 6)
+    ref = StagedKinTracker(pr, n_observers=3)
+    ref._grow(2 * n_fits)
+    ref.poses = rng.uniform(-1, 1, (3, 3))
+    ref._obs[:] = rng.integers(0, 3, ref._obs.shape[0])
+    ref._res_chi2[:] = rng.uniform(0, 5, ref._res_chi2.shape[0])
+    ref._res_dof[:] = rng.integers(0, 9, ref._res_dof.shape[0])
+    ref._lo_resid[:] = rng.uniform(-1, 1, ref._lo_resid.shape[0])
+    counts = rng.integers(1, 41, n_fits)
+    centres = rng.uniform(-2, 2, (n_fits, 2))
+    pts = []
+    for c, m in zip(centres, counts, strict=True):
+        a = rng.uniform(0, 2 * np.pi) + np.linspace(0, rng.uniform(0.3, 2.5), m)
+        rad = 0.035 * (1 + (rng.random() < 0.5) * 0.08 * np.cos(6 * a))  # half of them hexagon-like
+        pts.append(c + rad[:, None] * np.c_[np.cos(a), np.sin(a)] + rng.normal(0, 0.002, (m, 2)))
+    pts = np.concatenate(pts)
+    sig = rng.uniform(0.001, 0.02, pts.shape[0])
+    cstart = np.r_[0, np.cumsum(counts)].astype(np.int64)
+    ti = rng.permutation(2 * n_fits)[:n_fits].astype(np.int64)  # track rows, any order
+    ci = rng.permutation(n_fits).astype(np.int64)  # candidate of each
+    z = centres + rng.normal(0, 0.01, centres.shape)
+    res = [a.copy() for a in (ref._lo_resid, ref._res_chi2, ref._res_dof)]
+    dof0 = ref._res_dof.copy()
+    _frame_fits_kernel(ti, ci, pts, sig, cstart, ref._obs, ref.poses, z, pr.r, pr.frame_fit_iterations,
+                       bool(warm), pr.shape_delta**2, pr.resid_clamp, *res)  # fmt: skip
+    ref._frame_fits(ti, ci, pts, sig, cstart, z)
+    for name, got in zip(("_lo_resid", "_res_chi2", "_res_dof"), res, strict=True):
+        assert np.array_equal(got, getattr(ref, name)), name
+    fitted = ti[counts[ci] >= 3]  # every fit of 3 points or more added its degrees of freedom
+    assert np.array_equal(res[2][fitted] - dof0[fitted], counts[ci][counts[ci] >= 3] - 2.0)
+
+
 def test_static_circle_rejected_once_others_move():
     pr = TrackerParams(static_penalty=-6.0, score_prior=0.5)  # the static penalty on (default: off)
     tr = KinTracker(pr, kin_model="hand")
