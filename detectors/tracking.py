@@ -943,6 +943,32 @@ class KinTracker:
             self._res_chi2, self._res_dof, pr.odom_heading_rate**2, pr.odom_position_rate**2,
         )  # fmt: skip
 
+    def _decide(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(rows, kin probability)`` of every live track (ascending rows): :meth:`_kin_prob`'s values, for
+        the learned model in one compiled pass (:func:`_decide_kernel`: the classifier's inputs and its
+        first layer only for the tracks it decides — updated this frame (``hit_only``) and seen in
+        ``min_frames`` frames or more —, the others' probability directly), then its later layers, numpy's
+        ``tanh`` and the logistic output on those rows only: the same values bit for bit (tested)."""
+        m = self.kin_model
+        if m is None or TRACK_FEATURES != _KERNEL_FEATURES:
+            rows = np.flatnonzero(self._alive)
+            return rows, self._kin_prob(rows) if rows.size else np.zeros(0)
+        pr = self.params
+        W, b = m.layers[0]
+        log_min = math.log(m.min_frames) - 1e-9 if m.min_frames > 0 else -math.inf
+        rows, kp, sel, h = _decide_kernel(
+            self.n_observers, self._alive, self._confirmed, self._obs, self._seen, self._x, self._P,
+            self._anchor, self._anchor_var, self._anchor_odo, self._anchor_rng, self.odometer, self._hit,
+            self._f_lgsum, self._f_lgsq, self._f_lgmax, self._f_lglast, self._f_accsum, self._f_acclast,
+            self._f_beams, self._f_rng, self._moved, self._exist, self._res_chi2, self._res_dof,
+            pr.odom_heading_rate**2, pr.odom_position_rate**2, m.mean, m.scale, W, b, log_min, m.hit_only,
+        )  # fmt: skip
+        if sel.size:
+            for W, b in m.layers[1:]:  # TrackKinModel.logit's later layers
+                h = _dense_layer(np.tanh(h), W, b)
+            kp[sel] = 1.0 / (1.0 + np.exp(-h[:, 0]))
+        return rows, kp
+
     def _features(self, rows: np.ndarray) -> np.ndarray:
         """(len(rows), F) :data:`TRACK_FEATURES` of the track rows ``rows``."""
         pr = self.params
@@ -1016,13 +1042,13 @@ class KinTracker:
         tracks come first, then by kin probability, when there are more than ``max_tracks``."""
         if isinstance(max_tracks, bool) or not isinstance(max_tracks, int | np.integer) or max_tracks < 0:
             raise ValueError(f"KinTracker.track_arrays: max_tracks must be an int >= 0, got {max_tracks!r}")
-        rows = np.flatnonzero(self._alive)
         # the kin decision of this frame's tracks, once per frame (an env reads it for the info and again for
         # the observation's track channel)
-        key, kp = self._kp_cache
+        key, cached = self._kp_cache
         if key is None or key[0] != self._frame or key[1] is not self.kin_model or key[2] is not self.params:
-            kp = self._kin_prob(rows) if rows.size else np.zeros(0)
-            self._kp_cache = ((self._frame, self.kin_model, self.params), kp)
+            cached = self._decide()
+            self._kp_cache = ((self._frame, self.kin_model, self.params), cached)
+        rows, kp = cached
         out, mask, count = _slots_kernel(rows, kp, self.n_observers, int(max_tracks), self._obs, self._id,
                                          self._confirmed, self._x, self.poses, self._exist, self._seen,
                                          self._age)  # fmt: skip
@@ -1956,6 +1982,90 @@ def _features_kernel(rows, n_obs, alive, confirmed, obs, seen, x, P, anchor, anc
 
 
 @numba.njit(cache=True, nogil=True)
+def _decide_kernel(n_obs, alive, confirmed, obs, seen, x, P, anchor, anchor_var, anchor_odo, anchor_rng,
+                   odometer, hit, lgsum, lgsq, lgmax, lglast, accsum, acclast, beams, f_rng, moved, exist,
+                   res_chi2, res_dof, head_rate2, pos_rate2, mean, scale, W, b, log_min,
+                   hit_only):  # fmt: skip
+    """:meth:`KinTracker._decide`'s compiled part: every live track's row and kin probability where
+    :meth:`TrackKinModel.kin_prob` does not need the network (0 for a track not updated this frame under
+    ``hit_only``; the detector's decision, 0.75 / 0.25, for one seen in fewer frames than the model's
+    ``min_frames``, ``log(frames) < log_min``), and for the others (``sel``, indices into the rows) the
+    network's first layer ``standardised features @ W + b`` (:func:`_features_kernel`'s inputs and
+    :func:`_dense_layer`'s sums, the same operations in the same order)."""
+    n_conf = np.zeros(n_obs)  # the scene: each observer's confirmed tracks, and those that moved
+    n_moved = np.zeros(n_obs, np.int64)
+    n = 0
+    for t in range(alive.shape[0]):
+        if alive[t]:
+            n += 1
+            if confirmed[t]:
+                n_conf[obs[t]] += 1.0
+                if moved[t]:
+                    n_moved[obs[t]] += 1
+    rows, kp, sel = np.empty(n, np.int64), np.zeros(n), np.empty(n, np.int64)
+    F, U = mean.shape[0], W.shape[1]
+    h = np.empty((n, U))
+    xf = np.empty(F)
+    i = n_sel = 0
+    for t in range(alive.shape[0]):
+        if not alive[t]:
+            continue
+        rows[i] = t
+        i += 1
+        if hit_only and not hit[t]:
+            continue  # kin probability 0
+        nf = float(max(seen[t], 1))
+        if math.log(nf) < log_min:  # young: the detector's own decision of the last frame
+            kp[i - 1] = 0.75 if (acclast[t] if hit[t] else 0.0) > 0.75 else 0.25
+            continue
+        o = obs[t]
+        disp = math.hypot(x[t, 0] - anchor[t, 0], x[t, 1] - anchor[t, 1])
+        drift = (odometer[o] - anchor_odo[t]) * (head_rate2 * anchor_rng[t] ** 2 + pos_rate2)
+        var = anchor_var[t] + 0.5 * (P[t, 0, 0] + P[t, 1, 1]) + drift
+        speed_sd = math.sqrt(max(0.5 * (P[t, 2, 2] + P[t, 3, 3]), 1e-12))
+        mn = lgsum[t] / nf
+        dof = res_dof[t]
+        xf[0] = mn
+        xf[1] = math.sqrt(max(lgsq[t] / nf - mn * mn, 0.0))
+        xf[2] = lgmax[t]
+        xf[3] = lglast[t]
+        xf[4] = lglast[t] if hit[t] else -6.0
+        xf[5] = accsum[t] / nf
+        xf[6] = acclast[t]
+        xf[7] = acclast[t] if hit[t] else 0.0
+        xf[8] = 1.0 if hit[t] else 0.0
+        xf[9] = math.log(nf)
+        xf[10] = math.log1p(beams[t])
+        xf[11] = f_rng[t]
+        xf[12] = min(disp / math.sqrt(var), 10.0)
+        xf[13] = 1.0 if moved[t] else 0.0
+        xf[14] = exist[t]
+        xf[15] = min(math.hypot(x[t, 2], x[t, 3]) / speed_sd, 10.0)
+        xf[16] = n_moved[o] / max(n_conf[o], 1.0)
+        xf[17] = math.log1p(n_moved[o])
+        xf[18] = min(max((res_chi2[t] - dof) / math.sqrt(2.0 * max(dof, 1.0)), -10.0), 10.0)
+        for j in range(U):
+            h[n_sel, j] = b[j]
+        for q in range(F):
+            v = (xf[q] - mean[q]) / scale[q]
+            for j in range(U):
+                h[n_sel, j] += v * W[q, j]
+        sel[n_sel] = i - 1
+        n_sel += 1
+    return rows, kp, sel[:n_sel], h[:n_sel]
+
+
+@numba.njit(cache=True, nogil=True)
+def _slot_after(k1, id1, k2, id2):
+    """Track (key ``k1``, id ``id1``) sorts after (``k2``, ``id2``): keys ascending, NaN last, then ids."""
+    if k1 != k1:
+        return k2 == k2 or id1 > id2
+    if k2 != k2:
+        return False
+    return k1 > k2 or (k1 == k2 and id1 > id2)
+
+
+@numba.njit(cache=True, nogil=True)
 def _slots_kernel(rows, kp, n_obs, max_tracks, tobs, tid, confirmed, x, poses, exist, seen, age):
     """:meth:`KinTracker.track_arrays`' padded slots: each observer's tracks ``rows`` (kin probability
     ``kp``) ordered confirmed first, then by kin probability, then by id, the first ``max_tracks`` in its
@@ -1975,15 +2085,22 @@ def _slots_kernel(rows, kp, n_obs, max_tracks, tobs, tid, confirmed, x, poses, e
     out = np.zeros((n_obs, max_tracks, 10), np.float32)
     mask = np.zeros((n_obs, max_tracks), np.bool_)
     count = np.zeros(n_obs, np.int64)
+    key, ids = np.empty(n), np.empty(n, np.int64)
+    for i in range(n):
+        key[i] = -(kp[i] + (1.0 if confirmed[rows[i]] else 0.0))
+        ids[i] = tid[rows[i]]
     for o in range(n_obs):
-        g = order[cnt[o] : cnt[o + 1]]
-        ids, key = np.empty(g.shape[0], np.int64), np.empty(g.shape[0])
-        for j in range(g.shape[0]):
-            ids[j] = tid[rows[g[j]]]
-        g = g[np.argsort(ids)]  # ids are unique: the tie-break
-        for j in range(g.shape[0]):
-            key[j] = -(kp[g[j]] + (1.0 if confirmed[rows[g[j]]] else 0.0))
-        g = g[np.argsort(key, kind="mergesort")]  # stable: equal keys keep id order
+        # insertion sort by (key, id): numpy's argsort by id, then its stable sort by key (NaN keys last),
+        # without the two sorts' allocations (an observer has tens of tracks)
+        a = cnt[o]
+        for q in range(a + 1, cnt[o + 1]):
+            i = order[q]
+            p = q - 1
+            while p >= a and _slot_after(key[order[p]], ids[order[p]], key[i], ids[i]):
+                order[p + 1] = order[p]
+                p -= 1
+            order[p + 1] = i
+        g = order[a : cnt[o + 1]]
         c, s = math.cos(poses[o, 2]), math.sin(poses[o, 2])
         m = min(g.shape[0], max_tracks)
         for r in range(m):

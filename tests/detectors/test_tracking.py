@@ -601,6 +601,39 @@ def test_fused_update_equals_the_staged_steps_with_dropped_and_unsorted_points(s
     assert len(fused) > 5
 
 
+@pytest.mark.parametrize("hidden", [(), (8,), (5, 3)])
+def test_the_compiled_kin_decision_is_bitwise_the_models(hidden):
+    """track_arrays' kin decision (``KinTracker._decide``: the classifier's inputs and first layer compiled,
+    only for the tracks the network decides) gives every track ``TrackKinModel.kin_prob`` of its features
+    bit for bit: logistic, one and two tanh layers, young tracks (``min_frames``), ``hit_only`` on and
+    off; the padded slots carry it."""
+    rng = np.random.default_rng(len(hidden))
+    F = len(TRACK_FEATURES)
+    X = rng.normal(0, 1, (200, F))
+    y = (X[:, 0] + 0.5 * rng.normal(0, 1, 200) > 0).astype(float)
+    base = TrackKinModel.fit(X, y, hidden=hidden, max_iter=30)
+    base = TrackKinModel(rng.normal(0, 0.5, F), rng.uniform(0.5, 2, F), base.layers)
+    frames = list(_crowded_frames(7, n_frames=12))
+    seen = set()  # which branches of the decision the tracks took
+    for min_frames, hit_only in ((0, False), (3, True), (4, False)):
+        model = base.with_min_frames(min_frames).with_hit_only(hit_only)
+        tr = KinTracker(n_observers=3, kin_model=model)
+        for obs, xy, sc, delta, pts, own in frames:
+            tr.update_batch(obs, xy, sc, delta, DT, pts, own, accepted=sc > 0.5)
+            rows, kp = tr._decide()
+            assert np.array_equal(rows, np.flatnonzero(tr._alive))
+            assert np.array_equal(kp, model.kin_prob(tr._features_fast(rows)))
+            a = tr.track_arrays(32)
+            got = a["tracks"][..., 6][a["mask"]]
+            want = np.sort(np.float32(kp))[::-1]  # every track in a slot: the same values
+            assert np.array_equal(np.sort(got)[::-1], want)
+            young = np.isin(kp, (0.25, 0.75))
+            seen |= {"coasting"} if np.any(kp == 0) else set()
+            seen |= {"young"} if young.any() else set()
+            seen |= {"network"} if np.any(~young & (kp > 0)) else set()
+    assert seen == {"coasting", "young", "network"}
+
+
 def test_bad_frame_raises_before_any_state_changes():
     frames = list(_crowded_frames(3, n_frames=6))
     tr = KinTracker(n_observers=3)
