@@ -1193,12 +1193,6 @@ def _frame_kernel(z, obs, rng, dt, n_obs, alive, tobs, tid, next_id, x, P, poses
         c_ord[fill[obs[c]]] = c
         fill[obs[c]] += 1
     # gating: squared Mahalanobis distance under the innovation covariance
-    n_pairs = 0
-    for o in range(n_obs):
-        n_pairs += (t_cnt[o + 1] - t_cnt[o]) * (c_cnt[o + 1] - c_cnt[o])
-    pt = np.empty(n_pairs, np.int64)
-    pc = np.empty(n_pairs, np.int64)
-    pm = np.empty(n_pairs)
     deg_t = np.zeros(cap, np.int64)
     deg_c = np.zeros(k, np.int64)
     n_g = 0
@@ -1211,19 +1205,59 @@ def _frame_kernel(z, obs, rng, dt, n_obs, alive, tobs, tid, next_id, x, P, poses
         h, off = 0.5 * (P[t, 0, 0] - P[t, 1, 1]), max(abs(P[t, 0, 1]), abs(P[t, 1, 0]))
         lam[t] = 0.5 * (P[t, 0, 0] + P[t, 1, 1]) + math.sqrt(h * h + off * off)
     gate_b = gate * (1.0 + 1e-6)
+    # and before the bound, each observer's tracks in ascending x: a candidate visits only those whose x is
+    # within w = sqrt(gate_b (max lambda + mv)) (1 + 1e-9) of its own (a binary search, then a walk). Any
+    # other track has |dx| > w, so |d|^2 exceeds every track's bound even after rounding: the bound would
+    # have rejected it. The gated pairs are the same; only their order changes, which no result depends
+    # on (each track takes at most one candidate; components and the Hungarian see sorted rows and columns)
+    xs = t_ord.copy()
+    lam_max = np.zeros(n_obs)
     for o in range(n_obs):
+        lo = t_cnt[o]
+        for q in range(lo, t_cnt[o + 1]):  # insertion sort by x (an observer has tens of tracks)
+            t = xs[q]
+            lam_max[o] = max(lam_max[o], lam[t])
+            p = q - 1
+            while p >= lo and x[xs[p], 0] > x[t, 0]:
+                xs[p + 1] = xs[p]
+                p -= 1
+            xs[p + 1] = t
+    # gated pairs: about one per candidate; grown when a frame has more
+    pt = np.empty(k + 16, np.int64)
+    pc = np.empty(k + 16, np.int64)
+    pm = np.empty(k + 16)
+    for o in range(n_obs):
+        lo, hi = t_cnt[o], t_cnt[o + 1]
+        if lo == hi:
+            continue
         for a in range(c_cnt[o], c_cnt[o + 1]):
             c = c_ord[a]
             mv = (meas_sigma + meas_sigma_rel * rng[c]) ** 2
-            for b in range(t_cnt[o], t_cnt[o + 1]):
-                t = t_ord[b]
+            w = math.sqrt(gate_b * (lam_max[o] + mv)) * (1.0 + 1e-9)
+            zx = z[c, 0]
+            l, h_ = lo, hi  # the first track with zx - x <= w (zx - x falls along the order)
+            while l < h_:
+                mid = (l + h_) >> 1
+                if zx - x[xs[mid], 0] > w:
+                    l = mid + 1
+                else:
+                    h_ = mid
+            for b in range(l, hi):
+                t = xs[b]
                 d0, d1 = z[c, 0] - x[t, 0], z[c, 1] - x[t, 1]
+                if d0 < -w:
+                    break
                 if d0 * d0 + d1 * d1 > gate_b * (lam[t] + mv):
                     continue
                 s00, s01, s10, s11 = P[t, 0, 0] + mv, P[t, 0, 1], P[t, 1, 0], P[t, 1, 1] + mv
                 det = s00 * s11 - s01 * s10
                 m2 = (s11 * d0 * d0 - 2 * s01 * d0 * d1 + s00 * d1 * d1) / det
                 if m2 <= gate:
+                    if n_g == pt.shape[0]:
+                        pt2, pc2 = np.empty(2 * n_g, np.int64), np.empty(2 * n_g, np.int64)
+                        pm2 = np.empty(2 * n_g)
+                        pt2[:n_g], pc2[:n_g], pm2[:n_g] = pt, pc, pm
+                        pt, pc, pm = pt2, pc2, pm2
                     pt[n_g] = t
                     pc[n_g] = c
                     pm[n_g] = m2

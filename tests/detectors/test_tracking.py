@@ -634,6 +634,34 @@ def test_the_compiled_kin_decision_is_bitwise_the_models(hidden):
     assert seen == {"coasting", "young", "network"}
 
 
+def test_association_of_dense_clusters_is_bitwise_the_previous_kernel():
+    """Objects packed within each other's gates (many gated pairs per candidate: the pair buffer grows,
+    the Hungarian solves large components) and spread along x and y (the x-sorted search skips most
+    tracks): the fused update reproduces the staged one, whose association is the kernel before the
+    x-sorted search, bit for bit."""
+    from tests.detectors.reference_tracking import StagedKinTracker
+
+    rng = np.random.default_rng(5)
+    fused, staged = KinTracker(n_observers=2), StagedKinTracker(n_observers=2)
+    centre = np.array([[1.0, 0.5], [-0.5, 2.0], [3.0, -1.0]])
+    for _ in range(12):
+        obs, xy = [], []
+        for o in range(2):
+            for c in centre:  # a cluster of 10 within 2 cm, and a few loners along x
+                xy += list(c + rng.normal(0, 0.01, (10, 2)))
+                obs += [o] * 10
+            xy += list(np.c_[rng.uniform(-4, 4, 5), rng.uniform(-0.2, 0.2, 5)])
+            obs += [o] * 5
+        xy = np.array(xy)
+        sc = rng.uniform(0.2, 0.95, xy.shape[0])
+        delta = rng.normal(0, 0.005, (2, 3))
+        for tr in (fused, staged):
+            tr.update_batch(np.array(obs), xy, sc, delta, DT)
+        for name in KinTracker._FIELDS:
+            assert np.array_equal(getattr(fused, name), getattr(staged, name)), name
+    assert len(fused) >= 60
+
+
 def test_bad_frame_raises_before_any_state_changes():
     frames = list(_crowded_frames(3, n_frames=6))
     tr = KinTracker(n_observers=3)
