@@ -1550,14 +1550,30 @@ def _score_kernel(ti, scores, accepted, rng, score_sum, n_scored, lo_score, bar1
 @numba.njit(cache=True, nogil=True)
 def _points_check(pts, owner, k):
     """0: fine; 1: an owner outside [0, k); 2: a non-finite point; 3: fine but not sorted by owner."""
+    return _points_scan(pts, owner, k, np.empty(k + 1, np.int64))
+
+
+@numba.njit(cache=True, nogil=True)
+def _points_scan(pts, owner, k, cstart):
+    """:func:`_points_check`'s status, and in the same pass (when sorted) each candidate's points:
+    ``cstart[c]`` the first point owned by ``c`` or a later candidate (so ``c``'s are
+    ``cstart[c]:cstart[c + 1]``)."""
     status = 0
+    c = 0
     for i in range(pts.shape[0]):
-        if owner[i] < 0 or owner[i] >= k:
+        o = owner[i]
+        if o < 0 or o >= k:
             return 1
         if not (np.isfinite(pts[i, 0]) and np.isfinite(pts[i, 1])):
             return 2
-        if i and owner[i] < owner[i - 1]:
+        if i and o < owner[i - 1]:
             status = 3
+        while c <= o:
+            cstart[c] = i
+            c += 1
+    while c <= k:
+        cstart[c] = pts.shape[0]
+        c += 1
     return status
 
 
@@ -1852,8 +1868,9 @@ def _update_kernel(obs, xy, scores, accepted, delta, dt, pts, owner, has_points,
     for o in range(N):
         if not (np.isfinite(noise[o]) and noise[o] >= 0):
             return _BAD_NOISE, next_id
+    cstart = np.empty(k + 1, np.int64)  # owner sorted: candidate c's points are cstart[c]:cstart[c + 1]
     if has_points:
-        status = _points_check(pts, owner, k)
+        status = _points_scan(pts, owner, k, cstart)
         if status == 1:
             return _BAD_OWNER, next_id
         if status == 2:
@@ -1880,19 +1897,22 @@ def _update_kernel(obs, xy, scores, accepted, delta, dt, pts, owner, has_points,
                 if accepted.shape[0]:
                     acc2[j] = accepted[c]
         obs, xy, scores, accepted = ob2, xy2, sc2, acc2
-        if has_points:
+        if has_points:  # the kept candidates' point ranges, copied in order
             m = 0
-            for i in range(owner.shape[0]):
-                if new[owner[i]] >= 0:
-                    m += 1
-            pts2, own2 = np.empty((m, 2)), np.empty(m, np.int64)
+            for c in range(k):
+                if new[c] >= 0:
+                    m += cstart[c + 1] - cstart[c]
+            pts2, own2, cs2 = np.empty((m, 2)), np.empty(m, np.int64), np.empty(kk + 1, np.int64)
             m = 0
-            for i in range(owner.shape[0]):
-                j = new[owner[i]]
+            for c in range(k):
+                j = new[c]
                 if j >= 0:
-                    pts2[m, 0], pts2[m, 1], own2[m] = pts[i, 0], pts[i, 1], j
-                    m += 1
-            pts, owner = pts2, own2
+                    cs2[j] = m
+                    for i in range(cstart[c], cstart[c + 1]):
+                        pts2[m, 0], pts2[m, 1], own2[m] = pts[i, 0], pts[i, 1], j
+                        m += 1
+            cs2[kk] = m
+            pts, owner, cstart = pts2, own2, cs2
         k = kk
     # -- ego-motion: each observer's new pose in its odometry frame; the odometer (wheel travel)
     cos, sin = np.empty(N), np.empty(N)
@@ -1936,12 +1956,6 @@ def _update_kernel(obs, xy, scores, accepted, delta, dt, pts, owner, has_points,
     bm = np.zeros(n_t)
     if has_points and n_t:
         odom, sig, dist = _points_prep(pts, owner, obs, noise, cos, sin, poses, prm[16])
-        cstart = np.empty(k + 1, np.int64)  # owner is sorted: candidate c's points are cstart[c]:cstart[c+1]
-        i = 0
-        for c in range(k + 1):
-            while i < owner.shape[0] and owner[i] < c:
-                i += 1
-            cstart[c] = i
         # per-frame known-radius fits (always: the track classifier reads their summed chi-square, resid_z)
         _frame_fits_kernel(tracks, cands, odom, sig, cstart, tobs, poses, z, prm[7], int(prm[32]),
                            prm[33] > 0.0, prm[17], prm[23], lo_resid, res_chi2, res_dof)  # fmt: skip
