@@ -1478,7 +1478,13 @@ def _frame_kernel(z, obs, rng, dt, n_obs, alive, tobs, tid, next_id, x, P, poses
 def _finish_kernel(pre, hit, dt, alive, tobs, x, P, poses, exist, confirmed, moved, lo_motion, static_t, age,
                    seen, anchor, anchor_var, anchor_odo, anchor_rng, odometer, p_detect, clutter, max_range,
                    confirm_exist, delete_exist, motion_dist, motion_gain, head_rate2, pos_rate2):  # fmt: skip
-    """Existence (Bayes: hit, or a miss when in range), confirm; the motion cue; age; delete."""
+    """Existence (Bayes: hit, or a miss when in range), confirm; the motion cue; age; delete.
+
+    The distances are ``math.hypot``s (libm's, ~15 ns each), taken only where a comparison needs them: a
+    squared distance clear of the threshold's square by a relative 1e-9 (far above the rounding of
+    either) decides it alone, and a track that has moved (the flag stays) or was seen in 2 frames or fewer
+    needs no displacement. The same decisions as computing every distance."""
+    r_in, r_out = max_range * max_range * (1.0 - 1e-9), max_range * max_range * (1.0 + 1e-9)
     for t in range(alive.shape[0]):
         if pre[t]:
             p = exist[t]
@@ -1486,7 +1492,9 @@ def _finish_kernel(pre, hit, dt, alive, tobs, x, P, poses, exist, confirmed, mov
                 exist[t] = p / (p + (1 - p) * clutter)
             else:
                 o = tobs[t]
-                if math.hypot(x[t, 0] - poses[o, 0], x[t, 1] - poses[o, 1]) <= max_range:
+                dx, dy = x[t, 0] - poses[o, 0], x[t, 1] - poses[o, 1]
+                d2 = dx * dx + dy * dy
+                if d2 <= r_in or (d2 < r_out and math.hypot(dx, dy) <= max_range):
                     exist[t] = p * (1 - p_detect) / (1 - p * p_detect)
     for t in range(alive.shape[0]):
         if not alive[t]:
@@ -1494,12 +1502,17 @@ def _finish_kernel(pre, hit, dt, alive, tobs, x, P, poses, exist, confirmed, mov
         if exist[t] >= confirm_exist:
             confirmed[t] = True
         # motion: displaced from where first seen beyond 3 sigma, sigma including the odometry drift since
-        disp = math.hypot(x[t, 0] - anchor[t, 0], x[t, 1] - anchor[t, 1])
-        aged = odometer[tobs[t]] - anchor_odo[t]
-        drift = aged * (head_rate2 * anchor_rng[t] ** 2 + pos_rate2)
-        var = anchor_var[t] + 0.5 * (P[t, 0, 0] + P[t, 1, 1]) + drift
-        if disp > motion_dist and disp > 3.0 * math.sqrt(var) and seen[t] > 2:
-            moved[t] = True
+        if not moved[t] and seen[t] > 2:
+            dx, dy = x[t, 0] - anchor[t, 0], x[t, 1] - anchor[t, 1]
+            aged = odometer[tobs[t]] - anchor_odo[t]
+            drift = aged * (head_rate2 * anchor_rng[t] ** 2 + pos_rate2)
+            var = anchor_var[t] + 0.5 * (P[t, 0, 0] + P[t, 1, 1]) + drift
+            s3 = 3.0 * math.sqrt(var)
+            thr = max(motion_dist, s3)
+            if dx * dx + dy * dy >= thr * thr * (1.0 - 1e-9):
+                disp = math.hypot(dx, dy)
+                if disp > motion_dist and disp > s3:
+                    moved[t] = True
         lo_motion[t] = motion_gain if moved[t] else 0.0
         static_t[t] += dt
         age[t] += 1
@@ -1618,6 +1631,34 @@ def _lanes_normal(px, py, w, cx, cy, mm, L, r, a00, a01, a11, g0, g1):
             g1[l] += wi * jy * ei
 
 
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _lanes_start(v0, w, mm, mx, my, mf, ox, oy, r, cx, cy, L):
+    """The fits' weights ``1 / sig^2`` and starts: ``0.7 r`` behind the points' mean (sums ``mx, my`` of
+    ``mf`` points) as seen from the observer at ``ox, oy`` (each lane's operations in the scalar order)."""
+    for i in range(mm):
+        for l in range(L):
+            w[i, l] = 1.0 / v0[i, l]
+    for l in range(L):
+        ax, ay = mx[l] / mf[l], my[l] / mf[l]
+        ux, uy = ax - ox[l], ay - oy[l]
+        un = max(math.sqrt(ux * ux + uy * uy), 1e-9)
+        cx[l] = ax + ux / un * r * 0.7
+        cy[l] = ay + uy / un * r * 0.7
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _lanes_chi2(px, py, v0, cx, cy, mm, L, r, e, chi2):
+    """The fits' residuals ``e = |p - c| - r`` and their noise-normalised chi-square (padding: ``v0 = inf``
+    adds exactly 0), each lane's sum in the points' order."""
+    for l in range(L):
+        chi2[l] = 0.0
+    for i in range(mm):
+        for l in range(L):
+            ep = math.sqrt((px[i, l] - cx[l]) ** 2 + (py[i, l] - cy[l]) ** 2) - r
+            e[i, l] = ep
+            chi2[l] += ep * ep / v0[i, l]
+
+
 @numba.njit(cache=True, nogil=True, error_model="numpy")  # no zero-division checks: they stop vectorising
 def _frame_fits_kernel(ti, ci, pts, sig, cstart, tobs, poses, z, r, iterations, warm, delta2, resid_clamp,
                        lo_resid, res_chi2, res_dof):  # fmt: skip
@@ -1662,41 +1703,40 @@ def _frame_fits_kernel(ti, ci, pts, sig, cstart, tobs, poses, z, r, iterations, 
             jobs[cnt[m]] = j
             cnt[m] += 1
     px, py, w = np.zeros((m_max, L)), np.zeros((m_max, L)), np.zeros((m_max, L))
+    v0, e = np.zeros((m_max, L)), np.zeros((m_max, L))
     cx, cy, go = np.zeros(L), np.zeros(L), np.zeros(L, np.bool_)
-    a00, a01, a11, g0, g1 = np.empty(L), np.empty(L), np.empty(L), np.empty(L), np.empty(L)
+    mx, my, mfl, ox, oy = np.zeros(L), np.zeros(L), np.ones(L), np.zeros(L), np.zeros(L)
+    a00, a01, a11, g0, g1, chi2 = np.empty(L), np.empty(L), np.empty(L), np.empty(L), np.empty(L), np.empty(L)
     for g in range(0, nf, L):
         nl = min(L, nf - g)
         mm = cstart[ci[jobs[g + nl - 1]] + 1] - cstart[ci[jobs[g + nl - 1]]]  # the group's longest
         for l in range(L):
+            mx[l] = my[l] = 0.0
             if l >= nl:  # an empty lane: weight 0, never stepped
                 for i in range(mm):
-                    px[i, l] = py[i, l] = w[i, l] = 0.0
-                cx[l] = cy[l] = 0.0
+                    px[i, l] = py[i, l] = 0.0
+                    v0[i, l] = np.inf
                 go[l] = False
                 continue
             j = jobs[g + l]
-            c = ci[j]
-            a, b = cstart[c], cstart[c + 1]
-            mf = b - a
-            mx = my = 0.0  # the start
-            for p in range(a, b):
-                mx += pts[p, 0]
-                my += pts[p, 1]
+            a, b = cstart[ci[j]], cstart[ci[j] + 1]
+            for p in range(a, b):  # the points' sums in their order (the start is their mean)
+                mx[l] += pts[p, 0]
+                my[l] += pts[p, 1]
                 px[p - a, l] = pts[p, 0]
                 py[p - a, l] = pts[p, 1]
-                w[p - a, l] = 1.0 / (sig[p] * sig[p])
-            for i in range(mf, mm):
-                px[i, l] = py[i, l] = w[i, l] = 0.0
-            mx /= mf
-            my /= mf
+                v0[p - a, l] = sig[p] * sig[p]
+            for i in range(b - a, mm):  # padding: weight 1 / inf = 0, adds exactly 0 to every sum
+                px[i, l] = py[i, l] = 0.0
+                v0[i, l] = np.inf
             o = tobs[ti[j]]
-            ux, uy = mx - poses[o, 0], my - poses[o, 1]
-            un = max(math.sqrt(ux * ux + uy * uy), 1e-9)
-            cx[l] = mx + ux / un * r * 0.7
-            cy[l] = my + uy / un * r * 0.7
-            if warm:
-                cx[l], cy[l] = z[c, 0], z[c, 1]
+            mfl[l], ox[l], oy[l] = b - a, poses[o, 0], poses[o, 1]
             go[l] = True
+        _lanes_start(v0, w, mm, mx, my, mfl, ox, oy, r, cx, cy, L)
+        if warm:
+            for l in range(nl):
+                c = ci[jobs[g + l]]
+                cx[l], cy[l] = z[c, 0], z[c, 1]
         for _ in range(iterations):  # _fit_span's steps, lane by lane
             active = False
             for l in range(L):
@@ -1717,24 +1757,20 @@ def _frame_fits_kernel(ti, ci, pts, sig, cstart, tobs, poses, z, r, iterations, 
                 cy[l] += s1
                 if s0 * s0 + s1 * s1 < 1e-18:
                     go[l] = False
-        for l in range(nl):  # residuals and the track's sums
+        _lanes_chi2(px, py, v0, cx, cy, mm, L, r, e, chi2)
+        for l in range(nl):  # the track's sums
             j = jobs[g + l]
             t, c = ti[j], ci[j]
-            a, b = cstart[c], cstart[c + 1]
-            mf = b - a
-            llr = 0.0
-            chi2 = 0.0
-            for p in range(a, b):
-                ep = math.sqrt((px[p - a, l] - cx[l]) ** 2 + (py[p - a, l] - cy[l]) ** 2) - r
-                v0 = sig[p] * sig[p]
-                v1 = v0 + delta2
-                ee = ep * ep
-                chi2 += ee / v0
-                if resid_clamp > 0.0:  # the hand-tuned cue's LLR (its logs) only when it is on
-                    llr += 0.5 * math.log(v1 / v0) * (mf - 2) / mf - 0.5 * ee * (1.0 / v0 - 1.0 / v1)
-            res_chi2[t] += chi2
+            mf = cstart[c + 1] - cstart[c]
+            res_chi2[t] += chi2[l]
             res_dof[t] += mf - 2
-            if resid_clamp > 0.0:
+            if resid_clamp > 0.0:  # the hand-tuned cue's LLR (its logs) only when it is on
+                llr = 0.0
+                for i in range(mf):
+                    vi = v0[i, l]
+                    v1 = vi + delta2
+                    ee = e[i, l] * e[i, l]
+                    llr += 0.5 * math.log(v1 / vi) * (mf - 2) / mf - 0.5 * ee * (1.0 / vi - 1.0 / v1)
                 lo_resid[t] = min(max(lo_resid[t] + llr, -resid_clamp), resid_clamp)
 
 
