@@ -2090,6 +2090,13 @@ def _decide_kernel(n_obs, alive, confirmed, obs, seen, x, P, anchor, anchor_var,
     F, U = mean.shape[0], W.shape[1]
     h = np.empty((n, U))
     xf = np.empty(F)
+    # the per-observer scene features, and log(frames) / log1p(beams) of small integers, each computed once
+    # (the same libm calls on the same values: the same bits)
+    share, log_moved = np.empty(n_obs), np.empty(n_obs)
+    for o in range(n_obs):
+        share[o] = n_moved[o] / max(n_conf[o], 1.0)
+        log_moved[o] = math.log1p(n_moved[o])
+    log_n, log1p_b = np.full(64, np.nan), np.full(64, np.nan)
     i = n_sel = 0
     for t in range(alive.shape[0]):
         if not alive[t]:
@@ -2099,7 +2106,13 @@ def _decide_kernel(n_obs, alive, confirmed, obs, seen, x, P, anchor, anchor_var,
         if hit_only and not hit[t]:
             continue  # kin probability 0
         nf = float(max(seen[t], 1))
-        if math.log(nf) < log_min:  # young: the detector's own decision of the last frame
+        if seen[t] < 64:
+            if log_n[seen[t]] != log_n[seen[t]]:
+                log_n[seen[t]] = math.log(nf)
+            lnf = log_n[seen[t]]
+        else:
+            lnf = math.log(nf)
+        if lnf < log_min:  # young: the detector's own decision of the last frame
             kp[i - 1] = 0.75 if (acclast[t] if hit[t] else 0.0) > 0.75 else 0.25
             continue
         o = obs[t]
@@ -2118,15 +2131,22 @@ def _decide_kernel(n_obs, alive, confirmed, obs, seen, x, P, anchor, anchor_var,
         xf[6] = acclast[t]
         xf[7] = acclast[t] if hit[t] else 0.0
         xf[8] = 1.0 if hit[t] else 0.0
-        xf[9] = math.log(nf)
-        xf[10] = math.log1p(beams[t])
+        xf[9] = lnf
+        bt = beams[t]
+        if 0.0 <= bt < 64.0 and bt == int(bt):
+            q = int(bt)
+            if log1p_b[q] != log1p_b[q]:
+                log1p_b[q] = math.log1p(bt)
+            xf[10] = log1p_b[q]
+        else:
+            xf[10] = math.log1p(bt)
         xf[11] = f_rng[t]
         xf[12] = min(disp / math.sqrt(var), 10.0)
         xf[13] = 1.0 if moved[t] else 0.0
         xf[14] = exist[t]
         xf[15] = min(math.hypot(x[t, 2], x[t, 3]) / speed_sd, 10.0)
-        xf[16] = n_moved[o] / max(n_conf[o], 1.0)
-        xf[17] = math.log1p(n_moved[o])
+        xf[16] = share[o]
+        xf[17] = log_moved[o]
         xf[18] = min(max((res_chi2[t] - dof) / math.sqrt(2.0 * max(dof, 1.0)), -10.0), 10.0)
         for j in range(U):
             h[n_sel, j] = b[j]
