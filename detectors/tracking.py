@@ -825,8 +825,9 @@ class KinTracker:
         # room for every kept candidate to start a track
         ms = self.params.min_score
         kept = k if ms <= 0 or not k else int(np.count_nonzero(scores >= ms))
-        if int(self._alive.sum()) + kept > self._alive.shape[0]:
-            self._grow(int(self._alive.sum()) + kept)
+        n_alive = int(np.count_nonzero(self._alive))  # (a bool array's sum casts: ~5x slower)
+        if n_alive + kept > self._alive.shape[0]:
+            self._grow(n_alive + kept)
         poses = self.poses.copy()  # a new array per frame: earlier views of ``poses`` keep their values
         c_ = np.ascontiguousarray
         args = (c_(obs, np.int64), c_(xy), c_(scores), c_(accepted), c_(delta), float(dt), pts, c_(own),
@@ -885,8 +886,9 @@ class KinTracker:
         self._alive[self._alive & (self._obs == observer)] = False
         src = np.flatnonzero(other._alive)
         src = src[np.argsort(other._id[src], kind="stable")]
-        if int(self._alive.sum()) + src.size > self._alive.shape[0]:
-            self._grow(int(self._alive.sum()) + src.size)
+        n_alive = int(np.count_nonzero(self._alive))
+        if n_alive + src.size > self._alive.shape[0]:
+            self._grow(n_alive + src.size)
         dst = np.flatnonzero(~self._alive)[: src.size]
         for name in self._FIELDS:
             getattr(self, name)[dst] = getattr(other, name)[src]
@@ -1010,7 +1012,7 @@ class KinTracker:
         return self._kin_prob(self._rows(observer))
 
     def __len__(self) -> int:
-        return int(self._alive.sum())
+        return int(np.count_nonzero(self._alive))
 
     def tracks(self, observer: int | None = 0) -> list[Track]:
         """``observer``'s tracks (all for ``None``) as :class:`Track` objects, id order, built on demand."""
