@@ -206,7 +206,8 @@ class TrackerParams:
             the points' middle, 1 at the candidate's own centre (the geometric detector's is its circle fit
             of the same points, so 2 steps from there reach a converged fit's residuals to a median relative
             ~1e-9; measured ~2x less fit time). Changes ``resid_z`` slightly: the shipped classifier was
-            fitted with the defaults (README, "Multi-frame kin tracking", tracking cost).
+            fitted with the defaults, and one refitted for the warm starts scored lower on the sequence
+            benchmark (README, "Multi-frame kin tracking", round 9).
     """
 
     r: float = 0.035
