@@ -206,7 +206,8 @@ class TrackerParams:
             the points' middle, 1 at the candidate's own centre (the geometric detector's is its circle fit
             of the same points, so 2 steps from there reach a converged fit's residuals to a median relative
             ~1e-9; measured ~2x less fit time). Changes ``resid_z`` slightly: the shipped classifier was
-            fitted with the defaults (README, "Multi-frame kin tracking", tracking cost).
+            fitted with the defaults, and one refitted for the warm starts scored lower on the sequence
+            benchmark (README, "Multi-frame kin tracking", round 9).
     """
 
     r: float = 0.035
@@ -825,8 +826,9 @@ class KinTracker:
         # room for every kept candidate to start a track
         ms = self.params.min_score
         kept = k if ms <= 0 or not k else int(np.count_nonzero(scores >= ms))
-        if int(self._alive.sum()) + kept > self._alive.shape[0]:
-            self._grow(int(self._alive.sum()) + kept)
+        n_alive = int(np.count_nonzero(self._alive))  # (a bool array's sum casts: ~5x slower)
+        if n_alive + kept > self._alive.shape[0]:
+            self._grow(n_alive + kept)
         poses = self.poses.copy()  # a new array per frame: earlier views of ``poses`` keep their values
         c_ = np.ascontiguousarray
         args = (c_(obs, np.int64), c_(xy), c_(scores), c_(accepted), c_(delta), float(dt), pts, c_(own),
@@ -885,8 +887,9 @@ class KinTracker:
         self._alive[self._alive & (self._obs == observer)] = False
         src = np.flatnonzero(other._alive)
         src = src[np.argsort(other._id[src], kind="stable")]
-        if int(self._alive.sum()) + src.size > self._alive.shape[0]:
-            self._grow(int(self._alive.sum()) + src.size)
+        n_alive = int(np.count_nonzero(self._alive))
+        if n_alive + src.size > self._alive.shape[0]:
+            self._grow(n_alive + src.size)
         dst = np.flatnonzero(~self._alive)[: src.size]
         for name in self._FIELDS:
             getattr(self, name)[dst] = getattr(other, name)[src]
@@ -943,6 +946,32 @@ class KinTracker:
             self._res_chi2, self._res_dof, pr.odom_heading_rate**2, pr.odom_position_rate**2,
         )  # fmt: skip
 
+    def _decide(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(rows, kin probability)`` of every live track (ascending rows): :meth:`_kin_prob`'s values, for
+        the learned model in one compiled pass (:func:`_decide_kernel`: the classifier's inputs and its
+        first layer only for the tracks it decides — updated this frame (``hit_only``) and seen in
+        ``min_frames`` frames or more —, the others' probability directly), then its later layers, numpy's
+        ``tanh`` and the logistic output on those rows only: the same values bit for bit (tested)."""
+        m = self.kin_model
+        if m is None or TRACK_FEATURES != _KERNEL_FEATURES:
+            rows = np.flatnonzero(self._alive)
+            return rows, self._kin_prob(rows) if rows.size else np.zeros(0)
+        pr = self.params
+        W, b = m.layers[0]
+        log_min = math.log(m.min_frames) - 1e-9 if m.min_frames > 0 else -math.inf
+        rows, kp, sel, h = _decide_kernel(
+            self.n_observers, self._alive, self._confirmed, self._obs, self._seen, self._x, self._P,
+            self._anchor, self._anchor_var, self._anchor_odo, self._anchor_rng, self.odometer, self._hit,
+            self._f_lgsum, self._f_lgsq, self._f_lgmax, self._f_lglast, self._f_accsum, self._f_acclast,
+            self._f_beams, self._f_rng, self._moved, self._exist, self._res_chi2, self._res_dof,
+            pr.odom_heading_rate**2, pr.odom_position_rate**2, m.mean, m.scale, W, b, log_min, m.hit_only,
+        )  # fmt: skip
+        if sel.size:
+            for W, b in m.layers[1:]:  # TrackKinModel.logit's later layers
+                h = _dense_layer(np.tanh(h), W, b)
+            kp[sel] = 1.0 / (1.0 + np.exp(-h[:, 0]))
+        return rows, kp
+
     def _features(self, rows: np.ndarray) -> np.ndarray:
         """(len(rows), F) :data:`TRACK_FEATURES` of the track rows ``rows``."""
         pr = self.params
@@ -984,7 +1013,7 @@ class KinTracker:
         return self._kin_prob(self._rows(observer))
 
     def __len__(self) -> int:
-        return int(self._alive.sum())
+        return int(np.count_nonzero(self._alive))
 
     def tracks(self, observer: int | None = 0) -> list[Track]:
         """``observer``'s tracks (all for ``None``) as :class:`Track` objects, id order, built on demand."""
@@ -1016,13 +1045,13 @@ class KinTracker:
         tracks come first, then by kin probability, when there are more than ``max_tracks``."""
         if isinstance(max_tracks, bool) or not isinstance(max_tracks, int | np.integer) or max_tracks < 0:
             raise ValueError(f"KinTracker.track_arrays: max_tracks must be an int >= 0, got {max_tracks!r}")
-        rows = np.flatnonzero(self._alive)
         # the kin decision of this frame's tracks, once per frame (an env reads it for the info and again for
         # the observation's track channel)
-        key, kp = self._kp_cache
+        key, cached = self._kp_cache
         if key is None or key[0] != self._frame or key[1] is not self.kin_model or key[2] is not self.params:
-            kp = self._kin_prob(rows) if rows.size else np.zeros(0)
-            self._kp_cache = ((self._frame, self.kin_model, self.params), kp)
+            cached = self._decide()
+            self._kp_cache = ((self._frame, self.kin_model, self.params), cached)
+        rows, kp = cached
         out, mask, count = _slots_kernel(rows, kp, self.n_observers, int(max_tracks), self._obs, self._id,
                                          self._confirmed, self._x, self.poses, self._exist, self._seen,
                                          self._age)  # fmt: skip
@@ -1167,12 +1196,6 @@ def _frame_kernel(z, obs, rng, dt, n_obs, alive, tobs, tid, next_id, x, P, poses
         c_ord[fill[obs[c]]] = c
         fill[obs[c]] += 1
     # gating: squared Mahalanobis distance under the innovation covariance
-    n_pairs = 0
-    for o in range(n_obs):
-        n_pairs += (t_cnt[o + 1] - t_cnt[o]) * (c_cnt[o + 1] - c_cnt[o])
-    pt = np.empty(n_pairs, np.int64)
-    pc = np.empty(n_pairs, np.int64)
-    pm = np.empty(n_pairs)
     deg_t = np.zeros(cap, np.int64)
     deg_c = np.zeros(k, np.int64)
     n_g = 0
@@ -1185,19 +1208,59 @@ def _frame_kernel(z, obs, rng, dt, n_obs, alive, tobs, tid, next_id, x, P, poses
         h, off = 0.5 * (P[t, 0, 0] - P[t, 1, 1]), max(abs(P[t, 0, 1]), abs(P[t, 1, 0]))
         lam[t] = 0.5 * (P[t, 0, 0] + P[t, 1, 1]) + math.sqrt(h * h + off * off)
     gate_b = gate * (1.0 + 1e-6)
+    # and before the bound, each observer's tracks in ascending x: a candidate visits only those whose x is
+    # within w = sqrt(gate_b (max lambda + mv)) (1 + 1e-9) of its own (a binary search, then a walk). Any
+    # other track has |dx| > w, so |d|^2 exceeds every track's bound even after rounding: the bound would
+    # have rejected it. The gated pairs are the same; only their order changes, which no result depends
+    # on (each track takes at most one candidate; components and the Hungarian see sorted rows and columns)
+    xs = t_ord.copy()
+    lam_max = np.zeros(n_obs)
     for o in range(n_obs):
+        lo = t_cnt[o]
+        for q in range(lo, t_cnt[o + 1]):  # insertion sort by x (an observer has tens of tracks)
+            t = xs[q]
+            lam_max[o] = max(lam_max[o], lam[t])
+            p = q - 1
+            while p >= lo and x[xs[p], 0] > x[t, 0]:
+                xs[p + 1] = xs[p]
+                p -= 1
+            xs[p + 1] = t
+    # gated pairs: about one per candidate; grown when a frame has more
+    pt = np.empty(k + 16, np.int64)
+    pc = np.empty(k + 16, np.int64)
+    pm = np.empty(k + 16)
+    for o in range(n_obs):
+        lo, hi = t_cnt[o], t_cnt[o + 1]
+        if lo == hi:
+            continue
         for a in range(c_cnt[o], c_cnt[o + 1]):
             c = c_ord[a]
             mv = (meas_sigma + meas_sigma_rel * rng[c]) ** 2
-            for b in range(t_cnt[o], t_cnt[o + 1]):
-                t = t_ord[b]
+            w = math.sqrt(gate_b * (lam_max[o] + mv)) * (1.0 + 1e-9)
+            zx = z[c, 0]
+            l, h_ = lo, hi  # the first track with zx - x <= w (zx - x falls along the order)
+            while l < h_:
+                mid = (l + h_) >> 1
+                if zx - x[xs[mid], 0] > w:
+                    l = mid + 1
+                else:
+                    h_ = mid
+            for b in range(l, hi):
+                t = xs[b]
                 d0, d1 = z[c, 0] - x[t, 0], z[c, 1] - x[t, 1]
+                if d0 < -w:
+                    break
                 if d0 * d0 + d1 * d1 > gate_b * (lam[t] + mv):
                     continue
                 s00, s01, s10, s11 = P[t, 0, 0] + mv, P[t, 0, 1], P[t, 1, 0], P[t, 1, 1] + mv
                 det = s00 * s11 - s01 * s10
                 m2 = (s11 * d0 * d0 - 2 * s01 * d0 * d1 + s00 * d1 * d1) / det
                 if m2 <= gate:
+                    if n_g == pt.shape[0]:
+                        pt2, pc2 = np.empty(2 * n_g, np.int64), np.empty(2 * n_g, np.int64)
+                        pm2 = np.empty(2 * n_g)
+                        pt2[:n_g], pc2[:n_g], pm2[:n_g] = pt, pc, pm
+                        pt, pc, pm = pt2, pc2, pm2
                     pt[n_g] = t
                     pc[n_g] = c
                     pm[n_g] = m2
@@ -1418,7 +1481,13 @@ def _frame_kernel(z, obs, rng, dt, n_obs, alive, tobs, tid, next_id, x, P, poses
 def _finish_kernel(pre, hit, dt, alive, tobs, x, P, poses, exist, confirmed, moved, lo_motion, static_t, age,
                    seen, anchor, anchor_var, anchor_odo, anchor_rng, odometer, p_detect, clutter, max_range,
                    confirm_exist, delete_exist, motion_dist, motion_gain, head_rate2, pos_rate2):  # fmt: skip
-    """Existence (Bayes: hit, or a miss when in range), confirm; the motion cue; age; delete."""
+    """Existence (Bayes: hit, or a miss when in range), confirm; the motion cue; age; delete.
+
+    The distances are ``math.hypot``s (libm's, ~15 ns each), taken only where a comparison needs them: a
+    squared distance clear of the threshold's square by a relative 1e-9 (far above the rounding of
+    either) decides it alone, and a track that has moved (the flag stays) or was seen in 2 frames or fewer
+    needs no displacement. The same decisions as computing every distance."""
+    r_in, r_out = max_range * max_range * (1.0 - 1e-9), max_range * max_range * (1.0 + 1e-9)
     for t in range(alive.shape[0]):
         if pre[t]:
             p = exist[t]
@@ -1426,7 +1495,9 @@ def _finish_kernel(pre, hit, dt, alive, tobs, x, P, poses, exist, confirmed, mov
                 exist[t] = p / (p + (1 - p) * clutter)
             else:
                 o = tobs[t]
-                if math.hypot(x[t, 0] - poses[o, 0], x[t, 1] - poses[o, 1]) <= max_range:
+                dx, dy = x[t, 0] - poses[o, 0], x[t, 1] - poses[o, 1]
+                d2 = dx * dx + dy * dy
+                if d2 <= r_in or (d2 < r_out and math.hypot(dx, dy) <= max_range):
                     exist[t] = p * (1 - p_detect) / (1 - p * p_detect)
     for t in range(alive.shape[0]):
         if not alive[t]:
@@ -1434,12 +1505,17 @@ def _finish_kernel(pre, hit, dt, alive, tobs, x, P, poses, exist, confirmed, mov
         if exist[t] >= confirm_exist:
             confirmed[t] = True
         # motion: displaced from where first seen beyond 3 sigma, sigma including the odometry drift since
-        disp = math.hypot(x[t, 0] - anchor[t, 0], x[t, 1] - anchor[t, 1])
-        aged = odometer[tobs[t]] - anchor_odo[t]
-        drift = aged * (head_rate2 * anchor_rng[t] ** 2 + pos_rate2)
-        var = anchor_var[t] + 0.5 * (P[t, 0, 0] + P[t, 1, 1]) + drift
-        if disp > motion_dist and disp > 3.0 * math.sqrt(var) and seen[t] > 2:
-            moved[t] = True
+        if not moved[t] and seen[t] > 2:
+            dx, dy = x[t, 0] - anchor[t, 0], x[t, 1] - anchor[t, 1]
+            aged = odometer[tobs[t]] - anchor_odo[t]
+            drift = aged * (head_rate2 * anchor_rng[t] ** 2 + pos_rate2)
+            var = anchor_var[t] + 0.5 * (P[t, 0, 0] + P[t, 1, 1]) + drift
+            s3 = 3.0 * math.sqrt(var)
+            thr = max(motion_dist, s3)
+            if dx * dx + dy * dy >= thr * thr * (1.0 - 1e-9):
+                disp = math.hypot(dx, dy)
+                if disp > motion_dist and disp > s3:
+                    moved[t] = True
         lo_motion[t] = motion_gain if moved[t] else 0.0
         static_t[t] += dt
         age[t] += 1
@@ -1490,14 +1566,30 @@ def _score_kernel(ti, scores, accepted, rng, score_sum, n_scored, lo_score, bar1
 @numba.njit(cache=True, nogil=True)
 def _points_check(pts, owner, k):
     """0: fine; 1: an owner outside [0, k); 2: a non-finite point; 3: fine but not sorted by owner."""
+    return _points_scan(pts, owner, k, np.empty(k + 1, np.int64))
+
+
+@numba.njit(cache=True, nogil=True)
+def _points_scan(pts, owner, k, cstart):
+    """:func:`_points_check`'s status, and in the same pass (when sorted) each candidate's points:
+    ``cstart[c]`` the first point owned by ``c`` or a later candidate (so ``c``'s are
+    ``cstart[c]:cstart[c + 1]``)."""
     status = 0
+    c = 0
     for i in range(pts.shape[0]):
-        if owner[i] < 0 or owner[i] >= k:
+        o = owner[i]
+        if o < 0 or o >= k:
             return 1
         if not (np.isfinite(pts[i, 0]) and np.isfinite(pts[i, 1])):
             return 2
-        if i and owner[i] < owner[i - 1]:
+        if i and o < owner[i - 1]:
             status = 3
+        while c <= o:
+            cstart[c] = i
+            c += 1
+    while c <= k:
+        cstart[c] = pts.shape[0]
+        c += 1
     return status
 
 
@@ -1517,149 +1609,184 @@ def _points_prep(pts, owner, obs, noise, cos, sin, poses, sigma2):
     return odom, sig, dist
 
 
-@numba.njit(cache=True, nogil=True)
-def _frame_fit_start(pts, sig, a, b, pose, r, fw, fc, lane):
-    """One frame's fit of the points ``pts[a:b]``: weights ``1 / sig^2`` into ``fw[lane]`` and the start
-    (r behind the points' middle as seen from the observer at ``pose``) into ``fc[lane]``. One pose: no
-    odometry drift, valid while the object moves."""
-    mf = b - a
-    mx = my = 0.0
-    for p in range(a, b):
-        mx += pts[p, 0]
-        my += pts[p, 1]
-        fw[lane, p - a] = 1.0 / (sig[p] * sig[p])
-    mx /= mf
-    my /= mf
-    ux, uy = mx - pose[0], my - pose[1]
-    un = max(math.sqrt(ux * ux + uy * uy), 1e-9)
-    fc[lane, 0] = mx + ux / un * r * 0.7
-    fc[lane, 1] = my + uy / un * r * 0.7
+# fits side by side: LLVM vectorises the lane loop 8 wide, unrolled twice, so it takes the vector path from 16
+# lanes on (8 lanes ran it scalar: 4-5x slower per fit)
+_LANES = 16
 
 
-@numba.njit(cache=True, nogil=True)
-def _frame_fit_score(t, sig, a, b, fe, lane, delta2, resid_clamp, lo_resid, res_chi2, res_dof):
-    """Track ``t``'s per-frame residual sums from one fit's residuals ``fe[lane]``: the noise-normalised
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _lanes_normal(px, py, w, cx, cy, mm, L, r, a00, a01, a11, g0, g1):
+    """One Gauss-Newton step's normal equations of ``L`` fits at once (lane ``l``: points ``px[:mm, l]``,
+    ``py``, weights ``w``, centre ``cx[l], cy[l]``), each lane's sums in :func:`_fit_span`'s order."""
+    for l in range(L):
+        a00[l] = a01[l] = a11[l] = g0[l] = g1[l] = 0.0
+    for i in range(mm):
+        for l in range(L):  # the lanes innermost: vectorised (a vector of fits)
+            dx, dy = px[i, l] - cx[l], py[i, l] - cy[l]
+            d = max(math.sqrt(dx * dx + dy * dy), 1e-12)
+            jx, jy = -dx / d, -dy / d
+            ei = d - r
+            wi = w[i, l]
+            a00[l] += wi * jx * jx
+            a01[l] += wi * jx * jy
+            a11[l] += wi * jy * jy
+            g0[l] += wi * jx * ei
+            g1[l] += wi * jy * ei
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _lanes_start(v0, w, mm, mx, my, mf, ox, oy, r, cx, cy, L):
+    """The fits' weights ``1 / sig^2`` and starts: ``0.7 r`` behind the points' mean (sums ``mx, my`` of
+    ``mf`` points) as seen from the observer at ``ox, oy`` (each lane's operations in the scalar order)."""
+    for i in range(mm):
+        for l in range(L):
+            w[i, l] = 1.0 / v0[i, l]
+    for l in range(L):
+        ax, ay = mx[l] / mf[l], my[l] / mf[l]
+        ux, uy = ax - ox[l], ay - oy[l]
+        un = max(math.sqrt(ux * ux + uy * uy), 1e-9)
+        cx[l] = ax + ux / un * r * 0.7
+        cy[l] = ay + uy / un * r * 0.7
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _lanes_chi2(px, py, v0, cx, cy, mm, L, r, e, chi2):
+    """The fits' residuals ``e = |p - c| - r`` and their noise-normalised chi-square (padding: ``v0 = inf``
+    adds exactly 0), each lane's sum in the points' order."""
+    for l in range(L):
+        chi2[l] = 0.0
+    for i in range(mm):
+        for l in range(L):
+            ep = math.sqrt((px[i, l] - cx[l]) ** 2 + (py[i, l] - cy[l]) ** 2) - r
+            e[i, l] = ep
+            chi2[l] += ep * ep / v0[i, l]
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")  # no zero-division checks: they stop vectorising
+def _frame_fits_kernel(ti, ci, pts, sig, cstart, tobs, poses, z, r, iterations, warm, delta2, resid_clamp,
+                       lo_resid, res_chi2, res_dof):  # fmt: skip
+    """The per-frame known-radius circle fits of the updated tracks ``ti`` (candidate ``ci[j]``'s points
+    ``pts[cstart[c]:cstart[c + 1]]``, odometry frame, noise ``sig``; 3 points or more; one pose, so no
+    odometry drift: valid while the object moves) and each track's residual sums: the noise-normalised
     chi-square and its dof, and (when the hand-tuned cue is on) the Gaussian LLR "on the circle" vs "off it
-    by delta", the fit's 2 dof taken out of the log term."""
-    mf = b - a
-    llr = 0.0
-    chi2 = 0.0
-    for p in range(a, b):
-        v0 = sig[p] * sig[p]
-        v1 = v0 + delta2
-        ee = fe[lane, p - a] * fe[lane, p - a]
-        chi2 += ee / v0
-        if resid_clamp > 0.0:  # the hand-tuned cue's LLR (its logs) only when it is on
-            llr += 0.5 * math.log(v1 / v0) * (mf - 2) / mf - 0.5 * ee * (1.0 / v0 - 1.0 / v1)
-    res_chi2[t] += chi2
-    res_dof[t] += mf - 2
-    if resid_clamp > 0.0:
-        lo_resid[t] = min(max(lo_resid[t] + llr, -resid_clamp), resid_clamp)
+    by delta", the fit's 2 dof taken out of the log term. Each fit is :func:`_fit_span` with weights
+    ``1 / sig^2``, ``iterations`` Gauss-Newton steps from ``0.7 r`` behind the points' mean as seen from
+    the observer, or (``warm``) from the candidate's own centre ``z[c]`` (the geometric detector's is its
+    circle fit of the same points).
 
-
-@numba.njit(cache=True, nogil=True)
-def _fit_span2(p, a1, m1, a2, m2, w, r, c, iterations, e):
-    """Two :func:`_fit_span` fits at once, interleaved (lane 0: ``p[a1:a1 + m1]``, lane 1: ``p[a2:a2 + m2]``;
-    weights ``w[lane]``, centres ``c[lane]`` in place, residuals into ``e[lane]``): each lane's operations and
-    stopping rule are exactly those of :func:`_fit_span`, so its results are the same bits."""
-    go1 = go2 = True
-    for _ in range(iterations):
-        if not (go1 or go2):
-            break
-        a00 = a01 = a11 = g0 = g1 = 0.0
-        b00 = b01 = b11 = h0 = h1 = 0.0
-        for i in range(max(m1, m2)):
-            if go1 and i < m1:
-                dx, dy = p[a1 + i, 0] - c[0, 0], p[a1 + i, 1] - c[0, 1]
-                d = max(math.sqrt(dx * dx + dy * dy), 1e-12)
-                jx, jy = -dx / d, -dy / d
-                ei = d - r
-                a00 += w[0, i] * jx * jx
-                a01 += w[0, i] * jx * jy
-                a11 += w[0, i] * jy * jy
-                g0 += w[0, i] * jx * ei
-                g1 += w[0, i] * jy * ei
-            if go2 and i < m2:
-                dx, dy = p[a2 + i, 0] - c[1, 0], p[a2 + i, 1] - c[1, 1]
-                d = max(math.sqrt(dx * dx + dy * dy), 1e-12)
-                jx, jy = -dx / d, -dy / d
-                ei = d - r
-                b00 += w[1, i] * jx * jx
-                b01 += w[1, i] * jx * jy
-                b11 += w[1, i] * jy * jy
-                h0 += w[1, i] * jx * ei
-                h1 += w[1, i] * jy * ei
-        if go1:
-            det = a00 * a11 - a01 * a01
-            if det <= 1e-12 * (a00 + a11) ** 2:
-                go1 = False
-            else:
-                s0 = -(a11 * g0 - a01 * g1) / det
-                s1 = -(a00 * g1 - a01 * g0) / det
-                c[0, 0] += s0
-                c[0, 1] += s1
+    Sixteen fits run side by side, one per vector lane (the point index outer, the lane inner, so the
+    compiler vectorises the square roots and divisions across fits), grouped by point count so that
+    lanes are padded little; a padded point has weight 0 and adds exactly +0.0 or -0.0 to a sum that
+    starts at +0.0, and each lane stops on its own rule, so every fit's centre and residuals are the same
+    bits as :func:`_fit_span`'s (tested against one fit at a time). No division here can be by zero (the
+    distances are >= 1e-12, the step's determinant is tested first), so numpy's error model changes
+    nothing but the code."""
+    n = ti.shape[0]
+    m_max = nf = 0
+    for j in range(n):
+        m = cstart[ci[j] + 1] - cstart[ci[j]]
+        if m >= 3:
+            nf += 1
+            m_max = max(m_max, m)
+    if nf == 0:
+        return
+    L = min(_LANES, nf)  # known at run time only: a constant trip count gets unrolled, not vectorised
+    # the fits in ascending point count (counting sort): a group of L has similar lengths
+    cnt = np.zeros(m_max + 2, np.int64)
+    for j in range(n):
+        m = cstart[ci[j] + 1] - cstart[ci[j]]
+        if m >= 3:
+            cnt[m + 1] += 1
+    for m in range(m_max + 1):
+        cnt[m + 1] += cnt[m]
+    jobs = np.empty(nf, np.int64)
+    for j in range(n):
+        m = cstart[ci[j] + 1] - cstart[ci[j]]
+        if m >= 3:
+            jobs[cnt[m]] = j
+            cnt[m] += 1
+    px, py, w = np.zeros((m_max, L)), np.zeros((m_max, L)), np.zeros((m_max, L))
+    v0, e = np.zeros((m_max, L)), np.zeros((m_max, L))
+    cx, cy, go = np.zeros(L), np.zeros(L), np.zeros(L, np.bool_)
+    mx, my, mfl, ox, oy = np.zeros(L), np.zeros(L), np.ones(L), np.zeros(L), np.zeros(L)
+    a00, a01, a11, g0, g1, chi2 = np.empty(L), np.empty(L), np.empty(L), np.empty(L), np.empty(L), np.empty(L)
+    for g in range(0, nf, L):
+        nl = min(L, nf - g)
+        mm = cstart[ci[jobs[g + nl - 1]] + 1] - cstart[ci[jobs[g + nl - 1]]]  # the group's longest
+        for l in range(L):
+            mx[l] = my[l] = 0.0
+            if l >= nl:  # an empty lane: weight 0, never stepped
+                for i in range(mm):
+                    px[i, l] = py[i, l] = 0.0
+                    v0[i, l] = np.inf
+                go[l] = False
+                continue
+            j = jobs[g + l]
+            a, b = cstart[ci[j]], cstart[ci[j] + 1]
+            for p in range(a, b):  # the points' sums in their order (the start is their mean)
+                mx[l] += pts[p, 0]
+                my[l] += pts[p, 1]
+                px[p - a, l] = pts[p, 0]
+                py[p - a, l] = pts[p, 1]
+                v0[p - a, l] = sig[p] * sig[p]
+            for i in range(b - a, mm):  # padding: weight 1 / inf = 0, adds exactly 0 to every sum
+                px[i, l] = py[i, l] = 0.0
+                v0[i, l] = np.inf
+            o = tobs[ti[j]]
+            mfl[l], ox[l], oy[l] = b - a, poses[o, 0], poses[o, 1]
+            go[l] = True
+        _lanes_start(v0, w, mm, mx, my, mfl, ox, oy, r, cx, cy, L)
+        if warm:
+            for l in range(nl):
+                c = ci[jobs[g + l]]
+                cx[l], cy[l] = z[c, 0], z[c, 1]
+        for _ in range(iterations):  # _fit_span's steps, lane by lane
+            active = False
+            for l in range(L):
+                active |= go[l]
+            if not active:
+                break
+            _lanes_normal(px, py, w, cx, cy, mm, L, r, a00, a01, a11, g0, g1)
+            for l in range(L):
+                if not go[l]:
+                    continue
+                det = a00[l] * a11[l] - a01[l] * a01[l]
+                if det <= 1e-12 * (a00[l] + a11[l]) ** 2:
+                    go[l] = False
+                    continue
+                s0 = -(a11[l] * g0[l] - a01[l] * g1[l]) / det
+                s1 = -(a00[l] * g1[l] - a01[l] * g0[l]) / det
+                cx[l] += s0
+                cy[l] += s1
                 if s0 * s0 + s1 * s1 < 1e-18:
-                    go1 = False
-        if go2:
-            det = b00 * b11 - b01 * b01
-            if det <= 1e-12 * (b00 + b11) ** 2:
-                go2 = False
-            else:
-                s0 = -(b11 * h0 - b01 * h1) / det
-                s1 = -(b00 * h1 - b01 * h0) / det
-                c[1, 0] += s0
-                c[1, 1] += s1
-                if s0 * s0 + s1 * s1 < 1e-18:
-                    go2 = False
-    for i in range(m1):
-        e[0, i] = math.sqrt((p[a1 + i, 0] - c[0, 0]) ** 2 + (p[a1 + i, 1] - c[0, 1]) ** 2) - r
-    for i in range(m2):
-        e[1, i] = math.sqrt((p[a2 + i, 0] - c[1, 0]) ** 2 + (p[a2 + i, 1] - c[1, 1]) ** 2) - r
+                    go[l] = False
+        _lanes_chi2(px, py, v0, cx, cy, mm, L, r, e, chi2)
+        for l in range(nl):  # the track's sums
+            j = jobs[g + l]
+            t, c = ti[j], ci[j]
+            mf = cstart[c + 1] - cstart[c]
+            res_chi2[t] += chi2[l]
+            res_dof[t] += mf - 2
+            if resid_clamp > 0.0:  # the hand-tuned cue's LLR (its logs) only when it is on
+                llr = 0.0
+                for i in range(mf):
+                    vi = v0[i, l]
+                    v1 = vi + delta2
+                    ee = e[i, l] * e[i, l]
+                    llr += 0.5 * math.log(v1 / vi) * (mf - 2) / mf - 0.5 * ee * (1.0 / vi - 1.0 / v1)
+                lo_resid[t] = min(max(lo_resid[t] + llr, -resid_clamp), resid_clamp)
 
 
 @numba.njit(cache=True, nogil=True)
 def _outline_kernel(ti, ci, pts, sig, dist, cstart, obs, odometer, moved, buf, aux, npts, head, fit_c,
-                    lo_shape, x, P, now, r, delta2, n_cap, min_points, clamp, head_rate2, pos_rate2, poses,
-                    lo_resid, res_chi2, res_dof, resid_clamp, z, fit_iters, warm):  # fmt: skip
+                    lo_shape, x, P, now, r, delta2, n_cap, min_points, clamp, head_rate2,
+                    pos_rate2):  # fmt: skip
     """Append each updated track's candidate points (odometry frame) to its ring buffer, then refit its
     outline (warm-started at the last fit's centre) and set its shape cue. A track that has moved keeps
     its last shape cue: its points no longer share one frame, and the motion cue has decided it anyway.
-    The per-frame fits run ``fit_iters`` Gauss-Newton steps from r behind the points' middle, or (``warm``)
-    from the candidate's own centre ``z[c]`` (odometry frame; the geometric detector's is its circle fit)."""
+    (The per-frame fits are :func:`_frame_fits_kernel`'s.)"""
     m_max = buf.shape[1]
     e, var, wgt, pp = np.empty(m_max), np.empty(m_max), np.empty(m_max), np.empty((m_max, 2))
-    m_frame = 0
-    for j in range(ti.shape[0]):
-        m_frame = max(m_frame, cstart[ci[j] + 1] - cstart[ci[j]])
-    # per-frame known-radius fits (always: the track classifier reads their summed chi-square, resid_z), two
-    # at a time: the fits are independent, so the two interleaved Gauss-Newton loops overlap their latencies
-    # (each fit's own arithmetic is unchanged: the same bits as one at a time)
-    fe, fw, fc = np.empty((2, m_frame)), np.empty((2, m_frame)), np.empty((2, 2))
-    pend = -1
-    for j in range(ti.shape[0]):
-        if cstart[ci[j] + 1] - cstart[ci[j]] < 3:
-            continue
-        if pend < 0:
-            pend = j
-            continue
-        for lane, jj in ((0, pend), (1, j)):
-            o = obs[ti[jj]]
-            _frame_fit_start(pts, sig, cstart[ci[jj]], cstart[ci[jj] + 1], poses[o], r, fw, fc, lane)
-            if warm:
-                fc[lane, 0], fc[lane, 1] = z[ci[jj], 0], z[ci[jj], 1]
-        a, b, a2, b2 = cstart[ci[pend]], cstart[ci[pend] + 1], cstart[ci[j]], cstart[ci[j] + 1]
-        _fit_span2(pts, a, b - a, a2, b2 - a2, fw, r, fc, fit_iters, fe)
-        for lane, jj in ((0, pend), (1, j)):
-            _frame_fit_score(ti[jj], sig, cstart[ci[jj]], cstart[ci[jj] + 1], fe, lane, delta2, resid_clamp,
-                             lo_resid, res_chi2, res_dof)  # fmt: skip
-        pend = -1
-    if pend >= 0:
-        a, b = cstart[ci[pend]], cstart[ci[pend] + 1]
-        _frame_fit_start(pts, sig, a, b, poses[obs[ti[pend]]], r, fw, fc, 0)
-        if warm:
-            fc[0, 0], fc[0, 1] = z[ci[pend], 0], z[ci[pend], 1]
-        _fit_span(pts, a, b - a, fw[0], r, fc[0], fit_iters, fe[0])
-        _frame_fit_score(ti[pend], sig, a, b, fe, 0, delta2, resid_clamp, lo_resid, res_chi2, res_dof)
     for j in range(ti.shape[0]):
         t, c = ti[j], ci[j]
         a, b = cstart[c], cstart[c + 1]
@@ -1780,8 +1907,9 @@ def _update_kernel(obs, xy, scores, accepted, delta, dt, pts, owner, has_points,
     for o in range(N):
         if not (np.isfinite(noise[o]) and noise[o] >= 0):
             return _BAD_NOISE, next_id
+    cstart = np.empty(k + 1, np.int64)  # owner sorted: candidate c's points are cstart[c]:cstart[c + 1]
     if has_points:
-        status = _points_check(pts, owner, k)
+        status = _points_scan(pts, owner, k, cstart)
         if status == 1:
             return _BAD_OWNER, next_id
         if status == 2:
@@ -1808,19 +1936,22 @@ def _update_kernel(obs, xy, scores, accepted, delta, dt, pts, owner, has_points,
                 if accepted.shape[0]:
                     acc2[j] = accepted[c]
         obs, xy, scores, accepted = ob2, xy2, sc2, acc2
-        if has_points:
+        if has_points:  # the kept candidates' point ranges, copied in order
             m = 0
-            for i in range(owner.shape[0]):
-                if new[owner[i]] >= 0:
-                    m += 1
-            pts2, own2 = np.empty((m, 2)), np.empty(m, np.int64)
+            for c in range(k):
+                if new[c] >= 0:
+                    m += cstart[c + 1] - cstart[c]
+            pts2, own2, cs2 = np.empty((m, 2)), np.empty(m, np.int64), np.empty(kk + 1, np.int64)
             m = 0
-            for i in range(owner.shape[0]):
-                j = new[owner[i]]
+            for c in range(k):
+                j = new[c]
                 if j >= 0:
-                    pts2[m, 0], pts2[m, 1], own2[m] = pts[i, 0], pts[i, 1], j
-                    m += 1
-            pts, owner = pts2, own2
+                    cs2[j] = m
+                    for i in range(cstart[c], cstart[c + 1]):
+                        pts2[m, 0], pts2[m, 1], own2[m] = pts[i, 0], pts[i, 1], j
+                        m += 1
+            cs2[kk] = m
+            pts, owner, cstart = pts2, own2, cs2
         k = kk
     # -- ego-motion: each observer's new pose in its odometry frame; the odometer (wheel travel)
     cos, sin = np.empty(N), np.empty(N)
@@ -1864,16 +1995,12 @@ def _update_kernel(obs, xy, scores, accepted, delta, dt, pts, owner, has_points,
     bm = np.zeros(n_t)
     if has_points and n_t:
         odom, sig, dist = _points_prep(pts, owner, obs, noise, cos, sin, poses, prm[16])
-        cstart = np.empty(k + 1, np.int64)  # owner is sorted: candidate c's points are cstart[c]:cstart[c+1]
-        i = 0
-        for c in range(k + 1):
-            while i < owner.shape[0] and owner[i] < c:
-                i += 1
-            cstart[c] = i
+        # per-frame known-radius fits (always: the track classifier reads their summed chi-square, resid_z)
+        _frame_fits_kernel(tracks, cands, odom, sig, cstart, tobs, poses, z, prm[7], int(prm[32]),
+                           prm[33] > 0.0, prm[17], prm[23], lo_resid, res_chi2, res_dof)  # fmt: skip
         _outline_kernel(tracks, cands, odom, sig, dist, cstart, tobs, odometer, moved, buf, aux, npts, head,
                         fit_c, lo_shape, x, P, now, prm[7], prm[17], prm[18], int(prm[19]), prm[20], prm[21],
-                        prm[22], poses, lo_resid, res_chi2, res_dof, prm[23], z, int(prm[32]),
-                        prm[33] > 0.0)  # fmt: skip
+                        prm[22])  # fmt: skip
         for j in range(n_t):
             bm[j] = cstart[cands[j] + 1] - cstart[cands[j]]
     _feature_kernel(tracks, n_m, sc, ac, rg, bm, f_lgsum, f_lgsq, f_lgmax, f_lglast, f_accsum, f_acclast,
@@ -1942,6 +2069,110 @@ def _features_kernel(rows, n_obs, alive, confirmed, obs, seen, x, P, anchor, anc
 
 
 @numba.njit(cache=True, nogil=True)
+def _decide_kernel(n_obs, alive, confirmed, obs, seen, x, P, anchor, anchor_var, anchor_odo, anchor_rng,
+                   odometer, hit, lgsum, lgsq, lgmax, lglast, accsum, acclast, beams, f_rng, moved, exist,
+                   res_chi2, res_dof, head_rate2, pos_rate2, mean, scale, W, b, log_min,
+                   hit_only):  # fmt: skip
+    """:meth:`KinTracker._decide`'s compiled part: every live track's row and kin probability where
+    :meth:`TrackKinModel.kin_prob` does not need the network (0 for a track not updated this frame under
+    ``hit_only``; the detector's decision, 0.75 / 0.25, for one seen in fewer frames than the model's
+    ``min_frames``, ``log(frames) < log_min``), and for the others (``sel``, indices into the rows) the
+    network's first layer ``standardised features @ W + b`` (:func:`_features_kernel`'s inputs and
+    :func:`_dense_layer`'s sums, the same operations in the same order)."""
+    n_conf = np.zeros(n_obs)  # the scene: each observer's confirmed tracks, and those that moved
+    n_moved = np.zeros(n_obs, np.int64)
+    n = 0
+    for t in range(alive.shape[0]):
+        if alive[t]:
+            n += 1
+            if confirmed[t]:
+                n_conf[obs[t]] += 1.0
+                if moved[t]:
+                    n_moved[obs[t]] += 1
+    rows, kp, sel = np.empty(n, np.int64), np.zeros(n), np.empty(n, np.int64)
+    F, U = mean.shape[0], W.shape[1]
+    h = np.empty((n, U))
+    xf = np.empty(F)
+    # the per-observer scene features, and log(frames) / log1p(beams) of small integers, each computed once
+    # (the same libm calls on the same values: the same bits)
+    share, log_moved = np.empty(n_obs), np.empty(n_obs)
+    for o in range(n_obs):
+        share[o] = n_moved[o] / max(n_conf[o], 1.0)
+        log_moved[o] = math.log1p(n_moved[o])
+    log_n, log1p_b = np.full(64, np.nan), np.full(64, np.nan)
+    i = n_sel = 0
+    for t in range(alive.shape[0]):
+        if not alive[t]:
+            continue
+        rows[i] = t
+        i += 1
+        if hit_only and not hit[t]:
+            continue  # kin probability 0
+        nf = float(max(seen[t], 1))
+        if seen[t] < 64:
+            if log_n[seen[t]] != log_n[seen[t]]:
+                log_n[seen[t]] = math.log(nf)
+            lnf = log_n[seen[t]]
+        else:
+            lnf = math.log(nf)
+        if lnf < log_min:  # young: the detector's own decision of the last frame
+            kp[i - 1] = 0.75 if (acclast[t] if hit[t] else 0.0) > 0.75 else 0.25
+            continue
+        o = obs[t]
+        disp = math.hypot(x[t, 0] - anchor[t, 0], x[t, 1] - anchor[t, 1])
+        drift = (odometer[o] - anchor_odo[t]) * (head_rate2 * anchor_rng[t] ** 2 + pos_rate2)
+        var = anchor_var[t] + 0.5 * (P[t, 0, 0] + P[t, 1, 1]) + drift
+        speed_sd = math.sqrt(max(0.5 * (P[t, 2, 2] + P[t, 3, 3]), 1e-12))
+        mn = lgsum[t] / nf
+        dof = res_dof[t]
+        xf[0] = mn
+        xf[1] = math.sqrt(max(lgsq[t] / nf - mn * mn, 0.0))
+        xf[2] = lgmax[t]
+        xf[3] = lglast[t]
+        xf[4] = lglast[t] if hit[t] else -6.0
+        xf[5] = accsum[t] / nf
+        xf[6] = acclast[t]
+        xf[7] = acclast[t] if hit[t] else 0.0
+        xf[8] = 1.0 if hit[t] else 0.0
+        xf[9] = lnf
+        bt = beams[t]
+        if 0.0 <= bt < 64.0 and bt == int(bt):
+            q = int(bt)
+            if log1p_b[q] != log1p_b[q]:
+                log1p_b[q] = math.log1p(bt)
+            xf[10] = log1p_b[q]
+        else:
+            xf[10] = math.log1p(bt)
+        xf[11] = f_rng[t]
+        xf[12] = min(disp / math.sqrt(var), 10.0)
+        xf[13] = 1.0 if moved[t] else 0.0
+        xf[14] = exist[t]
+        xf[15] = min(math.hypot(x[t, 2], x[t, 3]) / speed_sd, 10.0)
+        xf[16] = share[o]
+        xf[17] = log_moved[o]
+        xf[18] = min(max((res_chi2[t] - dof) / math.sqrt(2.0 * max(dof, 1.0)), -10.0), 10.0)
+        for j in range(U):
+            h[n_sel, j] = b[j]
+        for q in range(F):
+            v = (xf[q] - mean[q]) / scale[q]
+            for j in range(U):
+                h[n_sel, j] += v * W[q, j]
+        sel[n_sel] = i - 1
+        n_sel += 1
+    return rows, kp, sel[:n_sel], h[:n_sel]
+
+
+@numba.njit(cache=True, nogil=True)
+def _slot_after(k1, id1, k2, id2):
+    """Track (key ``k1``, id ``id1``) sorts after (``k2``, ``id2``): keys ascending, NaN last, then ids."""
+    if k1 != k1:
+        return k2 == k2 or id1 > id2
+    if k2 != k2:
+        return False
+    return k1 > k2 or (k1 == k2 and id1 > id2)
+
+
+@numba.njit(cache=True, nogil=True)
 def _slots_kernel(rows, kp, n_obs, max_tracks, tobs, tid, confirmed, x, poses, exist, seen, age):
     """:meth:`KinTracker.track_arrays`' padded slots: each observer's tracks ``rows`` (kin probability
     ``kp``) ordered confirmed first, then by kin probability, then by id, the first ``max_tracks`` in its
@@ -1961,15 +2192,22 @@ def _slots_kernel(rows, kp, n_obs, max_tracks, tobs, tid, confirmed, x, poses, e
     out = np.zeros((n_obs, max_tracks, 10), np.float32)
     mask = np.zeros((n_obs, max_tracks), np.bool_)
     count = np.zeros(n_obs, np.int64)
+    key, ids = np.empty(n), np.empty(n, np.int64)
+    for i in range(n):
+        key[i] = -(kp[i] + (1.0 if confirmed[rows[i]] else 0.0))
+        ids[i] = tid[rows[i]]
     for o in range(n_obs):
-        g = order[cnt[o] : cnt[o + 1]]
-        ids, key = np.empty(g.shape[0], np.int64), np.empty(g.shape[0])
-        for j in range(g.shape[0]):
-            ids[j] = tid[rows[g[j]]]
-        g = g[np.argsort(ids)]  # ids are unique: the tie-break
-        for j in range(g.shape[0]):
-            key[j] = -(kp[g[j]] + (1.0 if confirmed[rows[g[j]]] else 0.0))
-        g = g[np.argsort(key, kind="mergesort")]  # stable: equal keys keep id order
+        # insertion sort by (key, id): numpy's argsort by id, then its stable sort by key (NaN keys last),
+        # without the two sorts' allocations (an observer has tens of tracks)
+        a = cnt[o]
+        for q in range(a + 1, cnt[o + 1]):
+            i = order[q]
+            p = q - 1
+            while p >= a and _slot_after(key[order[p]], ids[order[p]], key[i], ids[i]):
+                order[p + 1] = order[p]
+                p -= 1
+            order[p + 1] = i
+        g = order[a : cnt[o + 1]]
         c, s = math.cos(poses[o, 2]), math.sin(poses[o, 2])
         m = min(g.shape[0], max_tracks)
         for r in range(m):

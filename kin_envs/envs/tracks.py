@@ -150,7 +150,8 @@ class VectorTracker:
 
     def _record(self, obs: np.ndarray, gid: np.ndarray, lid: np.ndarray) -> None:
         self._gid, self._lid = np.r_[self._gid, gid], np.r_[self._lid, lid]
-        if self._gid.size > 4 * max(int(self.tracker._alive.sum()), 64):  # forget dead tracks' ids
+        alive = int(np.count_nonzero(self.tracker._alive))
+        if self._gid.size > 4 * max(alive, 64):  # forget dead tracks' ids
             keep = np.isin(self._gid, self.tracker._id[self.tracker._alive])
             self._gid, self._lid = self._gid[keep], self._lid[keep]
 

@@ -3,12 +3,16 @@
 * :class:`StagedKinTracker`: the frame update as a sequence of Python steps calling the compiled stage
   kernels (predict / gate / assign / update / birth, score cue, outline and per-frame fits, classifier
   inputs, existence / motion / confirm / delete), which :func:`detectors.tracking._update_kernel` now runs
-  in one call: the fused tracker must reproduce it bitwise;
+  in one call: the fused tracker must reproduce it bitwise. Where a stage kernel was made faster since,
+  the staged tracker keeps its previous version as the oracle: the association and the existence step
+  (``_frame_kernel_before``, ``_finish_kernel_before``, below) and the per-frame circle fits one at a
+  time (:meth:`StagedKinTracker._frame_fits`);
 * :class:`ReferenceKinTracker`: the staged tracker with the frame steps and score cue in numpy (one array
   operation per step), as before the compiled kernels: the compiled tracker must give the same tracks."""
 
 import math
 
+import numba
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
@@ -17,8 +21,7 @@ from detectors.tracking import (
     TRACK_FIELDS,
     KinTracker,
     _feature_kernel,
-    _finish_kernel,
-    _frame_kernel,
+    _fit_known_circle,
     _logit,
     _outline_kernel,
     _points_check,
@@ -102,7 +105,7 @@ class StagedKinTracker(KinTracker):
         self._score_cue(tracks, scores[cands], None if accepted is None else accepted[cands], rng[cands])
         beams = np.zeros(k)
         if points is not None and len(tracks):
-            self._outline_cue(tracks, cands, points, owner, obs, noise, cos, sin, k)  # validates owner
+            self._outline_cue(tracks, cands, points, owner, obs, noise, cos, sin, k, z)  # validates owner
             beams = np.bincount(np.asarray(owner, np.int64).reshape(-1), minlength=k).astype(np.float64)
         _feature_kernel(tracks, len(ti), scores[cands], np.zeros(0, np.bool_) if accepted is None
                         else accepted[cands], rng[cands], beams[cands], self._f_lgsum, self._f_lgsq,
@@ -126,7 +129,7 @@ class StagedKinTracker(KinTracker):
         """Predict, gate, assign, Kalman-update and start tracks for unmatched candidates (one compiled
         kernel). Returns (matched track rows, their candidates, born track rows, their candidates)."""
         pr = self.params
-        ti, ci, tb, born, next_id = _frame_kernel(
+        ti, ci, tb, born, next_id = _frame_kernel_before(
             np.ascontiguousarray(z), obs, rng, float(dt), self.n_observers, self._alive, self._obs, self._id,
             self._next_id, self._x, self._P, self.poses, self._exist, self._lo_score, self._lo_shape,
             self._lo_motion, self._lo_resid, self._res_chi2, self._res_dof, self._score_sum, self._n_scored,
@@ -141,7 +144,7 @@ class StagedKinTracker(KinTracker):
     def _finish(self, pre, hit, dt) -> None:
         """Existence (hit / miss of the tracks before this frame's births), motion, age, confirm / delete."""
         pr = self.params
-        _finish_kernel(
+        _finish_kernel_before(
             pre, hit, float(dt), self._alive, self._obs, self._x, self._P, self.poses, self._exist,
             self._confirmed, self._moved, self._lo_motion, self._static_t, self._age, self._seen,
             self._anchor, self._anchor_var, self._anchor_odo, self._anchor_rng, self.odometer, pr.p_detect,
@@ -161,7 +164,7 @@ class StagedKinTracker(KinTracker):
                       self._lo_score, float(_logit(pr.score_prior)), pr.score_per_metre, pr.score_weight,
                       pr.accept_llr, pr.reject_llr, pr.score_n0, pr.score_gain, pr.score_clamp)  # fmt: skip
 
-    def _outline_cue(self, ti, ci, points, owner, obs, noise, cos, sin, k) -> None:
+    def _outline_cue(self, ti, ci, points, owner, obs, noise, cos, sin, k, z) -> None:
         # (b) the accumulated outline relative to the track centre (ego-motion compensated)
         pr = self.params
         pts = np.asarray(points, np.float64).reshape(-1, 2)
@@ -180,17 +183,53 @@ class StagedKinTracker(KinTracker):
         odom, sig, d = _points_prep(pts, owner, obs, noise, cos, sin, self.poses,
                                     pr.shape_sigma**2)  # fmt: skip
         cstart = np.searchsorted(owner, np.arange(k + 1))
+        self._frame_fits(ti, ci, odom, sig, cstart, z)
         _outline_kernel(
             ti, ci, odom, sig, d, cstart, self._obs, self.odometer, self._moved,
             self._pts, self._pts_aux, self._npts, self._head, self._fit_c, self._lo_shape, self._x, self._P,
             self.time,
             pr.r, pr.shape_delta**2, float(pr.shape_n_cap), int(pr.shape_min_points),
             pr.shape_clamp, pr.odom_heading_rate**2, pr.odom_position_rate**2,
-            self.poses, self._lo_resid, self._res_chi2, self._res_dof, pr.resid_clamp,
-            np.zeros((k, 2)), 6, False,  # the default per-frame fit (6 steps from the heuristic start)
         )  # fmt: skip
 
-
+    def _frame_fits(self, ti, ci, pts, sig, cstart, z) -> None:
+        """The per-frame circle fits one at a time, as before they ran eight to a vector
+        (:func:`detectors.tracking._frame_fits_kernel`): the start, :func:`_fit_known_circle` and the
+        residual sums, in Python."""
+        pr = self.params
+        r, delta2, clamp = pr.r, pr.shape_delta**2, pr.resid_clamp
+        for t, c in zip(ti.tolist(), ci.tolist(), strict=True):
+            a, b = int(cstart[c]), int(cstart[c + 1])
+            mf = b - a
+            if mf < 3:
+                continue
+            mx = my = 0.0
+            for p in range(a, b):
+                mx += pts[p, 0]
+                my += pts[p, 1]
+            w = np.array([1.0 / (sig[p] * sig[p]) for p in range(a, b)])
+            mx /= mf
+            my /= mf
+            pose = self.poses[self._obs[t]]
+            ux, uy = mx - pose[0], my - pose[1]
+            un = max(math.sqrt(ux * ux + uy * uy), 1e-9)
+            cen = np.array([mx + ux / un * r * 0.7, my + uy / un * r * 0.7])
+            if pr.frame_fit_warm_start:
+                cen = z[c].copy()
+            e = np.empty(mf)
+            _fit_known_circle(np.ascontiguousarray(pts[a:b]), w, r, cen, int(pr.frame_fit_iterations), e)
+            llr = chi2 = 0.0
+            for p in range(a, b):
+                v0 = sig[p] * sig[p]
+                v1 = v0 + delta2
+                ee = e[p - a] * e[p - a]
+                chi2 += ee / v0
+                if clamp > 0.0:
+                    llr += 0.5 * math.log(v1 / v0) * (mf - 2) / mf - 0.5 * ee * (1.0 / v0 - 1.0 / v1)
+            self._res_chi2[t] += chi2
+            self._res_dof[t] += mf - 2
+            if clamp > 0.0:
+                self._lo_resid[t] = min(max(self._lo_resid[t] + llr, -clamp), clamp)
 
     def _features_fast(self, rows):  # the numpy features
         return self._features(rows)
@@ -394,3 +433,404 @@ class ReferenceKinTracker(StagedKinTracker):
         self._n_scored[ti] += 1
         mean = self._score_sum[ti] / (self._n_scored[ti] + pr.score_n0)
         self._lo_score[ti] = np.clip(pr.score_gain * mean, -pr.score_clamp, pr.score_clamp)
+
+# -- the frame kernels as they were before the association's spatial pruning and the existence step's
+# pre-checks (the fused update must reproduce them bit for bit) ---------------------------------------------
+
+
+@numba.njit(cache=True, nogil=True)
+def _find_before(parent, i):
+    """Union-find root of ``i`` (with path halving)."""
+    while parent[i] != i:
+        parent[i] = parent[parent[i]]
+        i = parent[i]
+    return i
+
+
+@numba.njit(cache=True, nogil=True)
+def _hungarian_before(cost):
+    """Minimum-cost assignment of the rows of ``cost`` (n, m), n <= m, to distinct columns (shortest
+    augmenting paths with potentials, O(n^2 m)); returns each row's column."""
+    n, m = cost.shape
+    inf = 1e300
+    u = np.zeros(n + 1)
+    v = np.zeros(m + 1)
+    p = np.zeros(m + 1, np.int64)
+    way = np.zeros(m + 1, np.int64)
+    minv = np.empty(m + 1)
+    used = np.empty(m + 1, np.bool_)
+    for i in range(1, n + 1):
+        p[0] = i
+        j0 = 0
+        minv[:] = inf
+        used[:] = False
+        while True:
+            used[j0] = True
+            i0 = p[j0]
+            delta = inf
+            j1 = 0
+            for j in range(1, m + 1):
+                if not used[j]:
+                    cur = cost[i0 - 1, j - 1] - u[i0] - v[j]
+                    if cur < minv[j]:
+                        minv[j] = cur
+                        way[j] = j0
+                    if minv[j] < delta:
+                        delta = minv[j]
+                        j1 = j
+            for j in range(m + 1):
+                if used[j]:
+                    u[p[j]] += delta
+                    v[j] -= delta
+                else:
+                    minv[j] -= delta
+            j0 = j1
+            if p[j0] == 0:
+                break
+        while True:
+            j1 = way[j0]
+            p[j0] = p[j1]
+            j0 = j1
+            if j0 == 0:
+                break
+    ans = np.full(n, -1, np.int64)
+    for j in range(1, m + 1):
+        if p[j] != 0:
+            ans[p[j] - 1] = j - 1
+    return ans
+
+
+@numba.njit(cache=True, nogil=True)
+def _frame_kernel_before(z, obs, rng, dt, n_obs, alive, tobs, tid, next_id, x, P, poses, exist, lo_score,
+                         lo_shape, lo_motion, lo_resid, res_chi2, res_dof, score_sum, n_scored, seen, age,
+                         static_t, moved, confirmed, npts, head, fit_c, anchor, anchor_var, anchor_odo,
+                         anchor_rng, odometer, q, meas_sigma, meas_sigma_rel, speed_var, gate, birth_exist,
+                         confirm_exist, r):  # fmt: skip
+    """One frame's predict (constant velocity), Mahalanobis gating, assignment (a pair alone in both its
+    gates is forced; the rest per observer by :func:`_hungarian`), Joseph-form Kalman update, and births."""
+    cap = alive.shape[0]
+    k = z.shape[0]
+    # predict
+    q11, q12, q22 = q * dt**4 / 4, q * dt**3 / 2, q * dt * dt
+    for t in range(cap):
+        if not alive[t]:
+            continue
+        x[t, 0] += dt * x[t, 2]
+        x[t, 1] += dt * x[t, 3]
+        # P <- F P F^T + Q with F = [[I, dt I], [0, I]]
+        Pt = P[t]  # P F^T: columns 0, 1 += dt * columns 2, 3; then F (P F^T): rows likewise
+        for i in range(4):
+            Pt[i, 0] += dt * Pt[i, 2]
+            Pt[i, 1] += dt * Pt[i, 3]
+        for j in range(4):
+            Pt[0, j] += dt * Pt[2, j]
+            Pt[1, j] += dt * Pt[3, j]
+        Pt[0, 0] += q11
+        Pt[1, 1] += q11
+        Pt[0, 2] += q12
+        Pt[2, 0] += q12
+        Pt[1, 3] += q12
+        Pt[3, 1] += q12
+        Pt[2, 2] += q22
+        Pt[3, 3] += q22
+    # group tracks and candidates by observer (stable counting sort)
+    t_cnt = np.zeros(n_obs + 1, np.int64)
+    c_cnt = np.zeros(n_obs + 1, np.int64)
+    for t in range(cap):
+        if alive[t]:
+            t_cnt[tobs[t] + 1] += 1
+    for c in range(k):
+        c_cnt[obs[c] + 1] += 1
+    for o in range(n_obs):
+        t_cnt[o + 1] += t_cnt[o]
+        c_cnt[o + 1] += c_cnt[o]
+    t_ord = np.empty(t_cnt[n_obs], np.int64)
+    c_ord = np.empty(k, np.int64)
+    fill = t_cnt[:-1].copy()
+    for t in range(cap):
+        if alive[t]:
+            t_ord[fill[tobs[t]]] = t
+            fill[tobs[t]] += 1
+    fill = c_cnt[:-1].copy()
+    for c in range(k):
+        c_ord[fill[obs[c]]] = c
+        fill[obs[c]] += 1
+    # gating: squared Mahalanobis distance under the innovation covariance
+    n_pairs = 0
+    for o in range(n_obs):
+        n_pairs += (t_cnt[o + 1] - t_cnt[o]) * (c_cnt[o + 1] - c_cnt[o])
+    pt = np.empty(n_pairs, np.int64)
+    pc = np.empty(n_pairs, np.int64)
+    pm = np.empty(n_pairs)
+    deg_t = np.zeros(cap, np.int64)
+    deg_c = np.zeros(k, np.int64)
+    n_g = 0
+    # a cheap bound first: m2 >= |d|^2 / lambda_max(S) with S = P_xy + mv I, so a pair whose |d|^2 exceeds
+    # gate * lambda_max(S) (with a margin far above rounding) is outside the gate, and only the others need
+    # the exact test (in a swarm most pairs of an observer are metres apart); the gated pairs are the same
+    lam = np.empty(cap)
+    for b in range(t_cnt[n_obs]):
+        t = t_ord[b]
+        h, off = 0.5 * (P[t, 0, 0] - P[t, 1, 1]), max(abs(P[t, 0, 1]), abs(P[t, 1, 0]))
+        lam[t] = 0.5 * (P[t, 0, 0] + P[t, 1, 1]) + math.sqrt(h * h + off * off)
+    gate_b = gate * (1.0 + 1e-6)
+    for o in range(n_obs):
+        for a in range(c_cnt[o], c_cnt[o + 1]):
+            c = c_ord[a]
+            mv = (meas_sigma + meas_sigma_rel * rng[c]) ** 2
+            for b in range(t_cnt[o], t_cnt[o + 1]):
+                t = t_ord[b]
+                d0, d1 = z[c, 0] - x[t, 0], z[c, 1] - x[t, 1]
+                if d0 * d0 + d1 * d1 > gate_b * (lam[t] + mv):
+                    continue
+                s00, s01, s10, s11 = P[t, 0, 0] + mv, P[t, 0, 1], P[t, 1, 0], P[t, 1, 1] + mv
+                det = s00 * s11 - s01 * s10
+                m2 = (s11 * d0 * d0 - 2 * s01 * d0 * d1 + s00 * d1 * d1) / det
+                if m2 <= gate:
+                    pt[n_g] = t
+                    pc[n_g] = c
+                    pm[n_g] = m2
+                    deg_t[t] += 1
+                    deg_c[c] += 1
+                    n_g += 1
+    ti = np.empty(min(n_g, k), np.int64)
+    ci = np.empty(min(n_g, k), np.int64)
+    n_m = 0
+    # forced pairs; the rest of each observer's gated pairs (grouped by observer already) by the Hungarian
+    t_loc = np.full(cap, -1, np.int64)
+    c_loc = np.full(k, -1, np.int64)
+    t_q = np.full(cap, -1, np.int64)
+    c_q = np.full(k, -1, np.int64)
+    a = 0
+    while a < n_g:
+        o = tobs[pt[a]]
+        b = a
+        while b < n_g and tobs[pt[b]] == o:
+            b += 1
+        nt = nc = 0
+        for g in range(a, b):
+            t, c = pt[g], pc[g]
+            if deg_t[t] == 1 and deg_c[c] == 1:
+                ti[n_m] = t
+                ci[n_m] = c
+                n_m += 1
+            else:
+                if t_loc[t] < 0:
+                    t_loc[t] = nt
+                    nt += 1
+                if c_loc[c] < 0:
+                    c_loc[c] = nc
+                    nc += 1
+        if nt:
+            ut = np.empty(nt, np.int64)
+            uc = np.empty(nc, np.int64)
+            for g in range(a, b):
+                if t_loc[pt[g]] >= 0:
+                    ut[t_loc[pt[g]]] = pt[g]
+                if c_loc[pc[g]] >= 0:
+                    uc[c_loc[pc[g]]] = pc[g]
+            # connected components of the ambiguous gates (tracks and candidates as nodes): the optimal
+            # assignment (most pairs, then least cost) decomposes over them, so each is solved on its own
+            # (in a swarm one observer's gates form many small clusters, not one big matrix)
+            nn = nt + nc
+            parent = np.arange(nn)
+            for g in range(a, b):
+                if not (deg_t[pt[g]] == 1 and deg_c[pc[g]] == 1):
+                    u, v = _find_before(parent, t_loc[pt[g]]), _find_before(parent, nt + c_loc[pc[g]])
+                    if u != v:
+                        parent[u] = v
+            comp = np.empty(nn, np.int64)
+            cid = np.full(nn, -1, np.int64)
+            n_comp = 0
+            for i in range(nn):
+                root = _find_before(parent, i)
+                if cid[root] < 0:
+                    cid[root] = n_comp
+                    n_comp += 1
+                comp[i] = cid[root]
+            # pairs bucketed by component (counting sort)
+            p_cnt = np.zeros(n_comp + 1, np.int64)
+            for g in range(a, b):
+                if not (deg_t[pt[g]] == 1 and deg_c[pc[g]] == 1):
+                    p_cnt[comp[t_loc[pt[g]]] + 1] += 1
+            for q in range(n_comp):
+                p_cnt[q + 1] += p_cnt[q]
+            p_ord = np.empty(p_cnt[n_comp], np.int64)
+            fill = p_cnt[:-1].copy()
+            for g in range(a, b):
+                if not (deg_t[pt[g]] == 1 and deg_c[pc[g]] == 1):
+                    q = comp[t_loc[pt[g]]]
+                    p_ord[fill[q]] = g
+                    fill[q] += 1
+            for q in range(n_comp):
+                # the component's tracks and candidates in ascending order (as np.unique in the reference)
+                mt = mc = 0
+                for z_ in range(p_cnt[q], p_cnt[q + 1]):
+                    g = p_ord[z_]
+                    if t_q[pt[g]] < 0:
+                        t_q[pt[g]] = 0
+                        mt += 1
+                    if c_q[pc[g]] < 0:
+                        c_q[pc[g]] = 0
+                        mc += 1
+                qt = np.empty(mt, np.int64)
+                qc = np.empty(mc, np.int64)
+                it = ic = 0
+                for z_ in range(p_cnt[q], p_cnt[q + 1]):
+                    g = p_ord[z_]
+                    if t_q[pt[g]] == 0:
+                        t_q[pt[g]] = 1
+                        qt[it] = pt[g]
+                        it += 1
+                    if c_q[pc[g]] == 0:
+                        c_q[pc[g]] = 1
+                        qc[ic] = pc[g]
+                        ic += 1
+                qt.sort()
+                qc.sort()
+                for i in range(mt):
+                    t_q[qt[i]] = i
+                for i in range(mc):
+                    c_q[qc[i]] = i
+                cost = np.full((mt, mc), 1e6)
+                for z_ in range(p_cnt[q], p_cnt[q + 1]):
+                    g = p_ord[z_]
+                    cost[t_q[pt[g]], c_q[pc[g]]] = pm[g]
+                if mt <= mc:
+                    col = _hungarian_before(cost)
+                    for i in range(mt):
+                        if col[i] >= 0 and cost[i, col[i]] < 1e6:
+                            ti[n_m] = qt[i]
+                            ci[n_m] = qc[col[i]]
+                            n_m += 1
+                else:
+                    row = _hungarian_before(cost.T.copy())
+                    for j in range(mc):
+                        if row[j] >= 0 and cost[row[j], j] < 1e6:
+                            ti[n_m] = qt[row[j]]
+                            ci[n_m] = qc[j]
+                            n_m += 1
+                for i in range(mt):
+                    t_q[qt[i]] = -1
+                for i in range(mc):
+                    c_q[qc[i]] = -1
+            ut_s, uc_s = ut, uc
+            for i in range(nt):
+                t_loc[ut_s[i]] = -1
+            for i in range(nc):
+                c_loc[uc_s[i]] = -1
+        a = b
+    ti, ci = ti[:n_m], ci[:n_m]
+    # Joseph-form Kalman update, position measured with isotropic noise
+    taken = np.zeros(k, np.bool_)
+    K = np.empty((4, 2))
+    A = np.empty((4, 4))
+    B = np.empty((4, 4))
+    for j in range(n_m):
+        t, c = ti[j], ci[j]
+        taken[c] = True
+        mv = (meas_sigma + meas_sigma_rel * rng[c]) ** 2
+        Pt = P[t]
+        s00, s01, s10, s11 = Pt[0, 0] + mv, Pt[0, 1], Pt[1, 0], Pt[1, 1] + mv
+        det = s00 * s11 - s01 * s10
+        i00, i01, i10, i11 = s11 / det, -s01 / det, -s10 / det, s00 / det
+        for i in range(4):
+            K[i, 0] = Pt[i, 0] * i00 + Pt[i, 1] * i10
+            K[i, 1] = Pt[i, 0] * i01 + Pt[i, 1] * i11
+        d0, d1 = z[c, 0] - x[t, 0], z[c, 1] - x[t, 1]
+        for i in range(4):
+            x[t, i] += K[i, 0] * d0 + K[i, 1] * d1
+        for i in range(4):  # A = I - K H
+            for jj in range(4):
+                A[i, jj] = (1.0 if i == jj else 0.0) - (K[i, jj] if jj < 2 else 0.0)
+        for i in range(4):  # B = A P
+            for jj in range(4):
+                acc = 0.0
+                for l in range(4):
+                    acc += A[i, l] * Pt[l, jj]
+                B[i, jj] = acc
+        for i in range(4):  # P = B A^T + mv K K^T
+            for jj in range(4):
+                acc = 0.0
+                for l in range(4):
+                    acc += B[i, l] * A[jj, l]
+                Pt[i, jj] = acc + mv * (K[i, 0] * K[jj, 0] + K[i, 1] * K[jj, 1])
+        seen[t] += 1
+    # births: unmatched candidates in index order take the first free rows
+    n_b = k - n_m
+    born = np.empty(n_b, np.int64)
+    tb = np.empty(n_b, np.int64)
+    j = 0
+    for c in range(k):
+        if not taken[c]:
+            born[j] = c
+            j += 1
+    t = 0
+    for j in range(n_b):
+        while alive[t]:
+            t += 1
+        c = born[j]
+        tb[j] = t
+        alive[t] = True
+        tid[t] = next_id
+        next_id += 1
+        o = obs[c]
+        tobs[t] = o
+        mv = (meas_sigma + meas_sigma_rel * rng[c]) ** 2
+        x[t, 0], x[t, 1], x[t, 2], x[t, 3] = z[c, 0], z[c, 1], 0.0, 0.0
+        P[t] = 0.0
+        P[t, 0, 0] = P[t, 1, 1] = mv
+        P[t, 2, 2] = P[t, 3, 3] = speed_var
+        exist[t] = birth_exist
+        lo_score[t] = lo_shape[t] = lo_motion[t] = 0.0
+        lo_resid[t] = res_chi2[t] = res_dof[t] = 0.0
+        score_sum[t] = n_scored[t] = 0.0
+        seen[t] = 1
+        age[t] = 0
+        static_t[t] = 0.0
+        moved[t] = False
+        confirmed[t] = birth_exist >= confirm_exist
+        npts[t] = head[t] = 0
+        # the housing's centre is r behind the visible arc's middle, seen from the observer
+        ax, ay = z[c, 0] - poses[o, 0], z[c, 1] - poses[o, 1]
+        an = max(math.sqrt(ax * ax + ay * ay), 1e-9)
+        fit_c[t, 0] = z[c, 0] + ax / an * r * 0.5
+        fit_c[t, 1] = z[c, 1] + ay / an * r * 0.5
+        anchor[t, 0], anchor[t, 1] = z[c, 0], z[c, 1]
+        anchor_var[t] = mv
+        anchor_odo[t] = odometer[o]
+        anchor_rng[t] = rng[c]
+    return ti, ci, tb, born, next_id
+
+
+@numba.njit(cache=True, nogil=True)
+def _finish_kernel_before(pre, hit, dt, alive, tobs, x, P, poses, exist, confirmed, moved, lo_motion,
+                          static_t, age, seen, anchor, anchor_var, anchor_odo, anchor_rng, odometer, p_detect,
+                          clutter, max_range, confirm_exist, delete_exist, motion_dist, motion_gain,
+                          head_rate2, pos_rate2):  # fmt: skip
+    """Existence (Bayes: hit, or a miss when in range), confirm; the motion cue; age; delete."""
+    for t in range(alive.shape[0]):
+        if pre[t]:
+            p = exist[t]
+            if hit[t]:
+                exist[t] = p / (p + (1 - p) * clutter)
+            else:
+                o = tobs[t]
+                if math.hypot(x[t, 0] - poses[o, 0], x[t, 1] - poses[o, 1]) <= max_range:
+                    exist[t] = p * (1 - p_detect) / (1 - p * p_detect)
+    for t in range(alive.shape[0]):
+        if not alive[t]:
+            continue
+        if exist[t] >= confirm_exist:
+            confirmed[t] = True
+        # motion: displaced from where first seen beyond 3 sigma, sigma including the odometry drift since
+        disp = math.hypot(x[t, 0] - anchor[t, 0], x[t, 1] - anchor[t, 1])
+        aged = odometer[tobs[t]] - anchor_odo[t]
+        drift = aged * (head_rate2 * anchor_rng[t] ** 2 + pos_rate2)
+        var = anchor_var[t] + 0.5 * (P[t, 0, 0] + P[t, 1, 1]) + drift
+        if disp > motion_dist and disp > 3.0 * math.sqrt(var) and seen[t] > 2:
+            moved[t] = True
+        lo_motion[t] = motion_gain if moved[t] else 0.0
+        static_t[t] += dt
+        age[t] += 1
+        alive[t] = exist[t] >= delete_exist

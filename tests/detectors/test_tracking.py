@@ -233,6 +233,49 @@ def test_fit_known_circle_recovers_the_centre():
     assert np.abs(e).max() < 1e-9
 
 
+@pytest.mark.parametrize("n_fits", [1, 15, 16, 17, 70])
+@pytest.mark.parametrize("warm", [0, 1])
+def test_vectorised_frame_fits_are_bitwise_one_fit_at_a_time(n_fits, warm):
+    """The per-frame fits, sixteen to a vector (``_frame_fits_kernel``: lanes grouped by point count, short
+    lanes padded with weight-0 points, each lane stopping on its own), give every track the residual sums
+    of one ``_fit_known_circle`` at a time (the reference tracker's loop), bit for bit: fits of 1-40
+    points (fewer than 3 skipped), housings and hexagons, any noise, tracks and candidates in any order."""
+    from detectors.tracking import _frame_fits_kernel
+    from tests.detectors.reference_tracking import StagedKinTracker
+
+    rng = np.random.default_rng(10 * n_fits + warm)
+    pr = TrackerParams(resid_clamp=2.0, frame_fit_warm_start=warm, frame_fit_iterations=2 if warm else 6)
+    ref = StagedKinTracker(pr, n_observers=3)
+    ref._grow(2 * n_fits)
+    ref.poses = rng.uniform(-1, 1, (3, 3))
+    ref._obs[:] = rng.integers(0, 3, ref._obs.shape[0])
+    ref._res_chi2[:] = rng.uniform(0, 5, ref._res_chi2.shape[0])
+    ref._res_dof[:] = rng.integers(0, 9, ref._res_dof.shape[0])
+    ref._lo_resid[:] = rng.uniform(-1, 1, ref._lo_resid.shape[0])
+    counts = rng.integers(1, 41, n_fits)
+    centres = rng.uniform(-2, 2, (n_fits, 2))
+    pts = []
+    for c, m in zip(centres, counts, strict=True):
+        a = rng.uniform(0, 2 * np.pi) + np.linspace(0, rng.uniform(0.3, 2.5), m)
+        rad = 0.035 * (1 + (rng.random() < 0.5) * 0.08 * np.cos(6 * a))  # half of them hexagon-like
+        pts.append(c + rad[:, None] * np.c_[np.cos(a), np.sin(a)] + rng.normal(0, 0.002, (m, 2)))
+    pts = np.concatenate(pts)
+    sig = rng.uniform(0.001, 0.02, pts.shape[0])
+    cstart = np.r_[0, np.cumsum(counts)].astype(np.int64)
+    ti = rng.permutation(2 * n_fits)[:n_fits].astype(np.int64)  # track rows, any order
+    ci = rng.permutation(n_fits).astype(np.int64)  # candidate of each
+    z = centres + rng.normal(0, 0.01, centres.shape)
+    res = [a.copy() for a in (ref._lo_resid, ref._res_chi2, ref._res_dof)]
+    dof0 = ref._res_dof.copy()
+    _frame_fits_kernel(ti, ci, pts, sig, cstart, ref._obs, ref.poses, z, pr.r, pr.frame_fit_iterations,
+                       bool(warm), pr.shape_delta**2, pr.resid_clamp, *res)  # fmt: skip
+    ref._frame_fits(ti, ci, pts, sig, cstart, z)
+    for name, got in zip(("_lo_resid", "_res_chi2", "_res_dof"), res, strict=True):
+        assert np.array_equal(got, getattr(ref, name)), name
+    fitted = ti[counts[ci] >= 3]  # every fit of 3 points or more added its degrees of freedom
+    assert np.array_equal(res[2][fitted] - dof0[fitted], counts[ci][counts[ci] >= 3] - 2.0)
+
+
 def test_static_circle_rejected_once_others_move():
     pr = TrackerParams(static_penalty=-6.0, score_prior=0.5)  # the static penalty on (default: off)
     tr = KinTracker(pr, kin_model="hand")
@@ -556,6 +599,67 @@ def test_fused_update_equals_the_staged_steps_with_dropped_and_unsorted_points(s
         a, b = fused.track_arrays(3), staged.track_arrays(3)
         assert all(same_values(a[key], b[key]) for key in ("tracks", "mask", "count"))
     assert len(fused) > 5
+
+
+@pytest.mark.parametrize("hidden", [(), (8,), (5, 3)])
+def test_the_compiled_kin_decision_is_bitwise_the_models(hidden):
+    """track_arrays' kin decision (``KinTracker._decide``: the classifier's inputs and first layer compiled,
+    only for the tracks the network decides) gives every track ``TrackKinModel.kin_prob`` of its features
+    bit for bit: logistic, one and two tanh layers, young tracks (``min_frames``), ``hit_only`` on and
+    off; the padded slots carry it."""
+    rng = np.random.default_rng(len(hidden))
+    F = len(TRACK_FEATURES)
+    X = rng.normal(0, 1, (200, F))
+    y = (X[:, 0] + 0.5 * rng.normal(0, 1, 200) > 0).astype(float)
+    base = TrackKinModel.fit(X, y, hidden=hidden, max_iter=30)
+    base = TrackKinModel(rng.normal(0, 0.5, F), rng.uniform(0.5, 2, F), base.layers)
+    frames = list(_crowded_frames(7, n_frames=12))
+    seen = set()  # which branches of the decision the tracks took
+    for min_frames, hit_only in ((0, False), (3, True), (4, False)):
+        model = base.with_min_frames(min_frames).with_hit_only(hit_only)
+        tr = KinTracker(n_observers=3, kin_model=model)
+        for obs, xy, sc, delta, pts, own in frames:
+            tr.update_batch(obs, xy, sc, delta, DT, pts, own, accepted=sc > 0.5)
+            rows, kp = tr._decide()
+            assert np.array_equal(rows, np.flatnonzero(tr._alive))
+            assert np.array_equal(kp, model.kin_prob(tr._features_fast(rows)))
+            a = tr.track_arrays(32)
+            got = a["tracks"][..., 6][a["mask"]]
+            want = np.sort(np.float32(kp))[::-1]  # every track in a slot: the same values
+            assert np.array_equal(np.sort(got)[::-1], want)
+            young = np.isin(kp, (0.25, 0.75))
+            seen |= {"coasting"} if np.any(kp == 0) else set()
+            seen |= {"young"} if young.any() else set()
+            seen |= {"network"} if np.any(~young & (kp > 0)) else set()
+    assert seen == {"coasting", "young", "network"}
+
+
+def test_association_of_dense_clusters_is_bitwise_the_previous_kernel():
+    """Objects packed within each other's gates (many gated pairs per candidate: the pair buffer grows,
+    the Hungarian solves large components) and spread along x and y (the x-sorted search skips most
+    tracks): the fused update reproduces the staged one, whose association is the kernel before the
+    x-sorted search, bit for bit."""
+    from tests.detectors.reference_tracking import StagedKinTracker
+
+    rng = np.random.default_rng(5)
+    fused, staged = KinTracker(n_observers=2), StagedKinTracker(n_observers=2)
+    centre = np.array([[1.0, 0.5], [-0.5, 2.0], [3.0, -1.0]])
+    for _ in range(12):
+        obs, xy = [], []
+        for o in range(2):
+            for c in centre:  # a cluster of 10 within 2 cm, and a few loners along x
+                xy += list(c + rng.normal(0, 0.01, (10, 2)))
+                obs += [o] * 10
+            xy += list(np.c_[rng.uniform(-4, 4, 5), rng.uniform(-0.2, 0.2, 5)])
+            obs += [o] * 5
+        xy = np.array(xy)
+        sc = rng.uniform(0.2, 0.95, xy.shape[0])
+        delta = rng.normal(0, 0.005, (2, 3))
+        for tr in (fused, staged):
+            tr.update_batch(np.array(obs), xy, sc, delta, DT)
+        for name in KinTracker._FIELDS:
+            assert np.array_equal(getattr(fused, name), getattr(staged, name)), name
+    assert len(fused) >= 60
 
 
 def test_bad_frame_raises_before_any_state_changes():
