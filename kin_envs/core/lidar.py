@@ -836,31 +836,29 @@ def build_lidar_grid(
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _circle_pass(x0, y0, hw, skip, reach, n_beams, inv_res, xs_, ys_, rs_, ids_, a, b, m, kx_, ky_, kr_, kid_,
-                 fb_, fc_, fn_):  # fmt: skip
-    """Pass 1 over the circles ``a..b-1`` of the columns ``xs_``, ``ys_``, ``rs_`` (ids ``ids_``): the
-    reach test and beam interval of :func:`_cast_prims`' circle pass, bit for bit; the circles with beams
-    to test are appended at ``m`` (coordinates, id, first beam, count, nearest distance). Returns the new
-    count."""
+def _gather_circles(xs, ys, rs, ids, a, b, m, kx, ky, kr, kid):
+    """Append the circles ``a..b-1`` of the columns ``xs``, ``ys``, ``rs`` (ids ``ids``) at ``m`` of the
+    candidate columns; returns the new count."""
+    for q in range(np.uint64(b - a)):
+        kx[np.uint64(m) + q] = xs[np.uint64(a) + q]
+        ky[np.uint64(m) + q] = ys[np.uint64(a) + q]
+        kr[np.uint64(m) + q] = rs[np.uint64(a) + q]
+        kid[np.uint64(m) + q] = ids[np.uint64(a) + q]
+    return m + (b - a)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _circle_tests(x0, y0, hw, skip, reach, n_beams, inv_res, m, kx, ky, kr, kid, fb, fc, fn):
+    """The reach test and beam interval of :func:`_cast_prims`' circle pass, bit for bit, for the ``m``
+    candidate circles: first beam, beam count (0: none to test) and nearest distance."""
     rc = reach + _TOL
-    xs = xs_[a:b]
-    ys = ys_[a:b]
-    rs = rs_[a:b]
-    ids = ids_[a:b]
-    kx = kx_[m:]
-    ky = ky_[m:]
-    kr = kr_[m:]
-    kid = kid_[m:]
-    fb = fb_[m:]
-    fc = fc_[m:]
-    fn = fn_[m:]
-    for q in range(b - a):
-        dx = xs[q] - x0
-        dy = ys[q] - y0
-        r = rs[q]
+    for q in range(np.uint64(m)):
+        dx = kx[q] - x0
+        dy = ky[q] - y0
+        r = kr[q]
         d2 = dx * dx + dy * dy
         cc = d2 - r * r
-        ok = (d2 <= (rc + r) * (rc + r)) & (ids[q] != skip) & (cc > 0.0)
+        ok = (d2 <= (rc + r) * (rc + r)) & (kid[q] != skip) & (cc > 0.0)
         sq = math.sqrt(max(cc, 1e-300))
         half = _half_angle(r / sq) + _EPS
         phi = _fast_atan2(dy, dx) - hw
@@ -869,47 +867,23 @@ def _circle_pass(x0, y0, hw, skip, reach, n_beams, inv_res, xs_, ys_, rs_, ids_,
         fb[q] = _first_beam(k0, n_beams)
         fc[q] = k1 - k0 + 1.0 if ok else 0.0
         fn[q] = sq - r - _TOL
-    k = 0
-    for q in range(b - a):
-        kx[k] = xs[q]
-        ky[k] = ys[q]
-        kr[k] = rs[q]
-        kid[k] = ids[q]
-        fb[k] = fb[q]
-        fc[k] = fc[q]
-        fn[k] = fn[q]
-        k += fc[q] > 0.0
-    return m + k
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _edge_pass(x0, y0, rc2, e1_, e2_, e3_, e4_, eid_, a, b, m, s1_, s2_, s3_, s4_, sid_, flag_):
+def _edge_flags(x0, y0, rc2, e1, e2, e3, e4, a, b, m, eidx, flag):
     """The back-face and reach test of :func:`_cast_prims`' segments over the edges ``a..b-1`` of the
-    columns ``e1_`` .. ``e4_`` (ids ``eid_``); the front faces within reach are appended at ``m`` to the
-    columns ``s1_`` .. ``s4_`` / ``sid_``. Returns the new count. (Flags first, in a pass the compiler
-    vectorises, then the copy.)"""
-    e1 = e1_[a:b]
-    e2 = e2_[a:b]
-    e3 = e3_[a:b]
-    e4 = e4_[a:b]
-    eid = eid_[a:b]
-    flag = flag_[: b - a]
-    for q in range(b - a):
-        flag[q] = _front_in_reach(e1[q] - x0, e2[q] - y0, e3[q] - x0, e4[q] - y0, rc2)
-    s1 = s1_[m:]
-    s2 = s2_[m:]
-    s3 = s3_[m:]
-    s4 = s4_[m:]
-    sid = sid_[m:]
-    k = 0
-    for q in range(b - a):
-        s1[k] = e1[q]
-        s2[k] = e2[q]
-        s3[k] = e3[q]
-        s4[k] = e4[q]
-        sid[k] = eid[q]
-        k += flag[q] > 0.0
-    return m + k
+    columns ``e1`` .. ``e4``; the indices of the front faces within reach are appended at ``m`` to
+    ``eidx``. Returns the new count. (Flags first, in a pass the compiler vectorises, then the indices,
+    one store per edge without a branch. Unsigned indices and no slices: a slice made here, once per
+    run of cells, costs two atomic reference-count updates.)"""
+    a_ = np.uint64(a)
+    for q in range(np.uint64(b - a)):
+        flag[q] = _front_in_reach(e1[a_ + q] - x0, e2[a_ + q] - y0, e3[a_ + q] - x0, e4[a_ + q] - y0, rc2)
+    k = np.uint64(m)
+    for q in range(np.uint64(b - a)):
+        eidx[k] = a_ + q
+        k += np.uint64(flag[q] > 0.0)
+    return np.int64(k)
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -1045,6 +1019,7 @@ def _grid_cast(
     kid, order, one, sid = js[0], js[1], js[2], js[3]
     best_p, stamp = js[9, :n_beams], js[10]
     cmany, cone = js[8], js[12]  # the circles with several beams to test, with one
+    eidx = js[13]  # the groups' front faces in reach, by edge index
     # stamp tags stay unique across calls (the scratch is reused): the last one is kept in js[11, 0]
     tag0 = js[11, 0]
     js[11, 0] = tag0 + ox.shape[0]
@@ -1064,7 +1039,11 @@ def _grid_cast(
             # the direction of beam i, by the same rotation as _cast_prims (bit for bit)
             bux[i] = ch * cos_tab[i] + sh * sin_tab[i]
             buy[i] = sh * cos_tab[i] - ch * sin_tab[i]
-        # --- pass 1: the column runs of cells within reach (cells widened by the layer's largest radius)
+        # --- pass 1: the column runs of cells within reach (cells widened by the layer's largest radius):
+        # the circles' coordinates are gathered into contiguous columns and the groups' front faces within
+        # reach are listed by their edge index (one store per edge visited; copying their coordinates
+        # there cost more than testing them), then both get their tests in single vectorised passes (a
+        # pass per run paid its vector loop's scalar remainder once per column: ~0.15 us each)
         mc = 0
         ms = 0
         for layer in range(3):
@@ -1106,23 +1085,27 @@ def _grid_cast(
                         if ok and ra == c1:
                             ra = cc
                         elif not ok and ra < c1:
-                            ms = _edge_pass(x0, y0, rc2, g_seg[0], g_seg[1], g_seg[2], g_seg[3], g_sid,
-                                            g_off[st[ra]], g_off[st[cc]], ms, s1, s2, s3, s4, sid, flags)
+                            ms = _edge_flags(x0, y0, rc2, g_seg[0], g_seg[1], g_seg[2], g_seg[3],
+                                             g_off[st[ra]], g_off[st[cc]], ms, eidx, flags)  # fmt: skip
                             ra = c1
                     continue
                 a = st[i * ny + int(max(fj0, 0.0))]
                 b = st[i * ny + int(min(fj1, ny - 1.0)) + 1]
-                if a == b:
-                    continue
                 if layer == 0:
-                    mc = _circle_pass(x0, y0, hw, skip, reach, n_beams, inv_res, c_cols[0], c_cols[1],
-                                      c_cols[2], c_ids, a, b, mc, kx, ky, kr, kid, kb, kc, kn)  # fmt: skip
+                    mc = _gather_circles(c_cols[0], c_cols[1], c_cols[2], c_ids, a, b, mc, kx, ky, kr, kid)
                 else:
-                    mc = _circle_pass(x0, y0, hw, skip, reach, n_beams, inv_res, d_cols[0], d_cols[1],
-                                      d_cols[2], d_ids, a, b, mc, kx, ky, kr, kid, kb, kc, kn)  # fmt: skip
+                    mc = _gather_circles(d_cols[0], d_cols[1], d_cols[2], d_ids, a, b, mc, kx, ky, kr, kid)
         if n_in < n_d:
-            mc = _circle_pass(x0, y0, hw, skip, reach, n_beams, inv_res, d_cols[0], d_cols[1], d_cols[2],
-                              d_ids, n_in, n_d, mc, kx, ky, kr, kid, kb, kc, kn)  # fmt: skip
+            mc = _gather_circles(d_cols[0], d_cols[1], d_cols[2], d_ids, n_in, n_d, mc, kx, ky, kr, kid)
+        _circle_tests(x0, y0, hw, skip, reach, n_beams, inv_res, mc, kx, ky, kr, kid, kb, kc, kn)
+        # the front faces' coordinates and ids, gathered in contiguous columns for the interval pass
+        for v in range(ms):
+            q = np.uint64(eidx[v])
+            s1[v] = g_seg[0, q]
+            s2[v] = g_seg[1, q]
+            s3[v] = g_seg[2, q]
+            s4[v] = g_seg[3, q]
+            sid[v] = g_sid[q]
         # --- long segments of the cells within reach (each once: stamp), and the moving segments
         ns = 0
         fi0 = (x0 - reach - gx) / cs
@@ -1307,7 +1290,7 @@ def grid_scratch(grid: LidarGrid, n_beams: int) -> tuple[np.ndarray, np.ndarray]
               grid.n_segments) + 1  # fmt: skip
     # the float rows are always written before they are read; the int rows hold the stamps (and their
     # last tag), which must start below every tag
-    return np.empty((25, cap)), np.zeros((13, cap), np.int64)
+    return np.empty((25, cap)), np.zeros((14, cap), np.int64)
 
 
 def cast_prepared(ox, oy, heading, skip, static: tuple, grid: tuple | None):
