@@ -29,6 +29,9 @@ from functools import cached_property
 
 import numba
 import numpy as np
+from llvmlite import ir
+from numba.core import types
+from numba.extending import intrinsic
 
 from detectors._numba_cache import ensure_cache_dir
 
@@ -1281,13 +1284,17 @@ def grid_args(grid: LidarGrid) -> tuple[np.ndarray, np.ndarray]:
     return gf, gi
 
 
+def _grid_cap(grid: LidarGrid, n_beams: int) -> int:
+    """Columns of the grid kernel's work arrays: the most candidates of any kind in one scan."""
+    return max(len(grid.circle_ids) + len(grid.dynamic_circles), grid.groups.shape[1],
+               len(grid.segment_items) + len(grid.dynamic_segments), n_beams, grid.shape[0] * grid.shape[1],
+               grid.n_segments) + 1  # fmt: skip
+
+
 def grid_scratch(grid: LidarGrid, n_beams: int) -> tuple[np.ndarray, np.ndarray]:
     """Work arrays of the grid kernel for ``grid`` and ``n_beams`` beams, passed after :func:`grid_args`.
     A caller that scans often (``World``) keeps one pair; they must not be used by two scans at once."""
-    n_d = len(grid.dynamic_circles)
-    cap = max(len(grid.circle_ids) + n_d, grid.groups.shape[1],
-              len(grid.segment_items) + len(grid.dynamic_segments), n_beams, grid.shape[0] * grid.shape[1],
-              grid.n_segments) + 1  # fmt: skip
+    cap = _grid_cap(grid, n_beams)
     # the float rows are always written before they are read; the int rows hold the stamps (and their
     # last tag), which must start below every tag
     return np.empty((25, cap)), np.zeros((14, cap), np.int64)
@@ -1321,46 +1328,147 @@ def wrap_headings(rows):
         rows[k, 2] = math.atan2(math.sin(a), math.cos(a))
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
-def _world_rows(rows, idx, n_moved, circles, poses):
-    """:func:`_world_scan_brute`'s and :func:`_world_scan_grid`'s common part: wrap the headings of
-    ``rows`` in place, move the first ``n_moved`` circles (the housings) to them, write the poses of
-    robots ``idx`` into ``poses`` and return their x, y, heading rows."""
-    wrap_headings(rows)
-    for k in range(n_moved):
-        circles[k, 0] = rows[k, 0]
-        circles[k, 1] = rows[k, 1]
-    n = idx.shape[0]
-    o = np.empty((3, n))
-    for m in range(n):
-        for c in range(3):
-            poses[m, c] = rows[idx[m], c]
-            o[c, m] = rows[idx[m], c]
-    return o
+@intrinsic
+def _call_getters(typingctx, get_position, get_angle, body):
+    """``(x, y, angle)`` of a physics body by its C getters: ``get_position`` a ``struct {double x, y;}
+    (*)(void *)`` and ``get_angle`` a ``double (*)(void *)`` function address, ``body`` the address of the
+    body (``World`` passes Chipmunk's ``cpBodyGetPosition`` / ``cpBodyGetAngle`` and its robots'
+    ``cpBody`` pointers: the pose of the moment, read without Python)."""
+    sig = types.UniTuple(types.float64, 3)(types.int64, types.int64, types.int64)
+
+    def codegen(context, builder, signature, args):
+        ptr, dbl = ir.IntType(8).as_pointer(), ir.DoubleType()
+        xy_type = ir.LiteralStructType([dbl, dbl])  # returned in two registers (x86-64 SysV, AArch64)
+        pos_fn = builder.inttoptr(args[0], ir.FunctionType(xy_type, [ptr]).as_pointer())
+        ang_fn = builder.inttoptr(args[1], ir.FunctionType(dbl, [ptr]).as_pointer())
+        body = builder.inttoptr(args[2], ptr)
+        xy = builder.call(pos_fn, [body])
+        angle = builder.call(ang_fn, [body])
+        return context.make_tuple(builder, signature.return_type,
+                                  [builder.extract_value(xy, 0), builder.extract_value(xy, 1), angle])
+
+    return sig, codegen
 
 
 @numba.njit(cache=True, nogil=True)
-def _world_scan_brute(rows, idx, n_moved, tabs, range_min, range_max, circles, segments, prim_kind,
-                      prim_index, bf, bi, poses, ranges, true, kind, index):  # fmt: skip
-    """``World.scan`` after the pose read, in one compiled call (the Python around a one-robot scan's
-    kernel cost as much as the kernel): ``rows`` holds every robot's raw x, y, angle; robots ``idx`` are
-    cast by the brute-force kernel with the work arrays ``bf`` / ``bi`` (:func:`_brute_scratch`). Writes
-    their poses and the four outputs of :func:`cast_scan` (float32) into the last five arrays (allocated
-    by the caller: returning five arrays from a compiled call cost ~1.8 us, allocating them in Python
-    ~0.9). (Two entries, not one with a flag: a fresh install compiles only the kernel it uses.)"""
-    o = _world_rows(rows, idx, n_moved, circles, poses)
-    _scan_kernel_into(o[0], o[1], o[2], tabs, range_min, range_max, circles, idx, segments, prim_kind,
-                      prim_index, bf, bi, ranges, true, kind, index)  # fmt: skip
+def read_poses(getters, bodies, out):
+    """``out[k] = (x, y, angle)`` of body ``bodies[k]`` through the getters ``getters`` (two function
+    addresses, see :func:`_call_getters`); angles raw (unwrapped)."""
+    for k in range(bodies.shape[0]):
+        x, y, a = _call_getters(getters[0], getters[1], bodies[k])
+        out[k, 0] = x
+        out[k, 1] = y
+        out[k, 2] = a
+
+
+# World.scan's arguments are packed in two arrays (a compiled call costs ~50-70 ns per argument: the
+# 19 of the previous entry were ~1 us of a one-robot scan): ``wf`` (float64) and ``wi`` (int64), each a
+# header-described run of regions. wi[0:8]: robots, beams, circles, segments, owner-table length,
+# position getter, angle getter, 1 if gridded; wi[8:16] and wi[16:24]: the start of each region of wf
+# (range_min/max, beam tables, circles, segments, the robots' rows, grid floats, work floats, end) and of
+# wi (the robots' bodies, owner kinds, owner indices, grid ints, work ints, end, -, -).
+_WI_HEAD = 24
+
+
+def world_pack(bodies, getters, spec: LidarSpec, circles, segments, prim_kind, prim_index, grid):
+    """``World.scan``'s two packed arrays and views into them: ``(wf, wi, circles, segments, grid)``.
+
+    ``bodies``: the robots' body addresses (robot ``i``'s housing is circle ``i``); ``getters``: the
+    position and angle getters (:func:`_call_getters`); ``circles`` / ``segments`` / owner tables as
+    :func:`cast_scan` takes them; ``grid``: a :class:`LidarGrid` or ``None`` (the brute-force kernel).
+    The returned ``circles`` / ``segments`` are the packed copies, which the caller must update in place
+    (moved obstacles), and ``grid`` is ``(gf, gi, fs, js)`` for :func:`cast_prepared` (views, or
+    ``None``). One scan at a time: the work arrays are inside."""
+    nb, n_r = spec.n_beams, len(bodies)
+    circles = np.ascontiguousarray(circles, dtype=np.float64).reshape(-1, 3)
+    segments = np.ascontiguousarray(segments, dtype=np.float64).reshape(-1, 4)
+    n_c, n_s, n_p = len(circles), len(segments), len(prim_kind)
+    if grid is None:
+        k = max(n_c, n_s, 1)
+        gf, gi = np.zeros(0), np.zeros(0, np.int64)
+        n_fw, n_iw = 3 * n_c + 4 * n_s + 7 * k + nb, 3 * k + nb  # _brute_scratch
+    else:
+        gf, gi = grid_args(grid)
+        cap = _grid_cap(grid, nb)
+        n_fw, n_iw = 25 * cap, 14 * cap  # grid_scratch
+    fo = np.cumsum([0, 2, 2 * nb, 3 * n_c, 4 * n_s, 3 * n_r, len(gf), n_fw])
+    io = np.cumsum([_WI_HEAD, n_r, n_p, n_p, len(gi), n_iw])
+    wf = np.zeros(fo[-1])
+    wi = np.zeros(io[-1], np.int64)
+    wi[:8] = (n_r, nb, n_c, n_s, n_p, getters[0], getters[1], grid is not None)
+    wi[8:16] = fo
+    wi[16:22] = io
+    wf[:2] = spec.range_min, spec.range_max
+    wf[fo[1] : fo[2]] = beam_tables(nb).ravel()
+    wf[fo[2] : fo[3]] = circles.ravel()
+    wf[fo[3] : fo[4]] = segments.ravel()
+    wf[fo[5] : fo[6]] = gf
+    wi[io[0] : io[1]] = bodies
+    wi[io[1] : io[2]] = prim_kind
+    wi[io[2] : io[3]] = prim_index
+    wi[io[3] : io[4]] = gi
+    if grid is None:
+        wi[io[4] : io[4] + k] = np.arange(k)  # _brute_scratch's ints[0]
+    views = (wf[fo[2] : fo[3]].reshape(n_c, 3), wf[fo[3] : fo[4]].reshape(n_s, 4))
+    if grid is None:
+        return wf, wi, *views, None
+    return wf, wi, *views, (wf[fo[5] : fo[6]], wi[io[3] : io[4]], wf[fo[6] : fo[7]].reshape(25, cap),
+                            wi[io[4] : io[5]].reshape(14, cap))  # fmt: skip
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _world_unpack(wf, wi, idx, poses):
+    """The packed arrays' regions (see :func:`world_pack`), after reading the robots' poses: the housings
+    (circles ``0..robots-1``) moved to them, the headings of robots ``idx`` wrapped (as
+    :func:`wrap_headings`) and their poses written to ``poses``; returns ``(x, y, heading)`` rows of
+    ``idx``, the beam tables, range_min, range_max, circles, segments, owner kinds and indices, and the
+    grid / work regions."""
+    n_r, nb, n_c, n_s = wi[0], wi[1], wi[2], wi[3]
+    fo = wi[8:16]
+    io = wi[16:22]
+    circles = wf[fo[2] : fo[3]].reshape((n_c, 3))
+    bodies = wi[io[0] : io[1]]
+    for k in range(n_r):
+        x, y, a = _call_getters(wi[5], wi[6], bodies[k])
+        circles[k, 0] = x
+        circles[k, 1] = y
+    n = idx.shape[0]
+    o = np.empty((3, n))
+    for m in range(n):
+        x, y, a = _call_getters(wi[5], wi[6], bodies[idx[m]])
+        a = math.atan2(math.sin(a), math.cos(a))  # wrap_headings
+        poses[m, 0] = o[0, m] = x
+        poses[m, 1] = o[1, m] = y
+        poses[m, 2] = o[2, m] = a
+    return (o, wf[fo[1] : fo[2]].reshape((2, nb)), wf[0], wf[1], circles, wf[fo[3] : fo[4]].reshape((n_s, 4)),
+            wi[io[1] : io[2]], wi[io[2] : io[3]], wf[fo[5] : fo[6]], wi[io[3] : io[4]], wf[fo[6] : fo[7]],
+            wi[io[4] : io[5]])  # fmt: skip
+
+
+@numba.njit(cache=True, nogil=True)
+def _world_scan_brute(idx, wf, wi, poses, ranges, true, kind, index):
+    """``World.scan`` in one compiled call (the Python around a one-robot scan's kernel cost as much as
+    the kernel): the robots' poses read (:func:`_world_unpack`), robots ``idx`` cast by the brute-force
+    kernel with the work arrays packed in ``wf`` / ``wi`` (:func:`world_pack`). Writes their poses and
+    the four outputs of :func:`cast_scan` (float32) into the last five arrays (allocated by the caller:
+    returning five arrays from a compiled call cost ~1.8 us, allocating them in Python ~0.9). (Two
+    entries, not one with a flag: a fresh install compiles only the kernel it uses.)"""
+    unpacked = _world_unpack(wf, wi, idx, poses)
+    o, tabs, range_min, range_max, circles, segments, kinds, owners, _, _, ff, fi = unpacked
+    n_c, n_s, nb = circles.shape[0], segments.shape[0], tabs.shape[1]
+    k = max(n_c, n_s, 1)
+    _scan_kernel_into(o[0], o[1], o[2], tabs, range_min, range_max, circles, idx, segments, kinds, owners,
+                      ff[: 3 * n_c + 4 * n_s + 7 * k + nb], fi[: 3 * k + nb], ranges, true, kind, index)
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _world_scan_grid(rows, idx, n_moved, tabs, range_min, range_max, circles, segments, prim_kind, prim_index,
-                     gf, gi, fs, js, poses, ranges, true, kind, index):  # fmt: skip
-    """:func:`_world_scan_brute` through the grid packed in ``gf`` / ``gi`` with the work arrays ``fs`` /
-    ``js``."""
-    o = _world_rows(rows, idx, n_moved, circles, poses)
-    _grid_cast(o[0], o[1], o[2], tabs, range_min, range_max, circles, idx, segments, prim_kind, prim_index,
-               *_unpack_grid(gf, gi), fs, js, ranges, true, kind, index)  # fmt: skip
+def _world_scan_grid(idx, wf, wi, poses, ranges, true, kind, index):
+    """:func:`_world_scan_brute` through the grid packed in ``wf`` / ``wi``."""
+    unpacked = _world_unpack(wf, wi, idx, poses)
+    o, tabs, range_min, range_max, circles, segments, kinds, owners, gf, gi, ff, fi = unpacked
+    cap = ff.shape[0] // 25
+    _grid_cast(o[0], o[1], o[2], tabs, range_min, range_max, circles, idx, segments, kinds, owners,
+               *_unpack_grid(gf, gi), ff.reshape((25, cap)), fi.reshape((14, cap)), ranges, true, kind, index)
 
 
 def scan_shapes(
