@@ -890,40 +890,31 @@ def _edge_flags(x0, y0, rc2, e1, e2, e3, e4, a, b, m, eidx, flag):
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _segment_beams(ax, ay, ex, ey, p, i, cnt, n_beams, bux, buy, best_d, best_p):
-    """The exact ray-segment test of :func:`_cast_prims` on ``cnt`` beams after beam ``i`` of a front face.
-
-    A hit needs ``den < 0`` (a front face has ``tn < 0``, and ``t = tn / den > 0``), ``s = num / den`` in
-    [0, 1] and ``t < bd``: these are tested on the products first, with a margin far above their
-    rounding, and the divisions (the exact test, as :func:`_cast_prims`) run only for the few beams that
-    pass."""
+def _segment_run(ax, ay, ex, ey, p, i0, i1, bux, buy, best_d, best_p):
+    """:func:`_segment_beam`'s test on the beams ``i0..i1-1`` (a segment's beams up to the wrap, then from
+    0), without a branch, so that the compiler vectorises it (the previous per-beam branches, on products
+    first and divisions only for the beams that could hit, were mispredicted often: whether a near
+    segment's beam hits depends on what occludes it). A front face has ``tn < 0``: a beam with ``den >= 0``
+    gives ``t <= 0``, inf or NaN and no hit."""
     tn = ax * ey - ay * ex
-    for _ in range(cnt):
-        i += 1
-        if i == n_beams:
-            i = 0
-        u = np.uint64(i)
+    for u in range(i0, i1):
         bd = best_d[u]
+        bp = best_p[u]
         ux = bux[u]
         uy = buy[u]
         den = ux * ey - uy * ex
-        num = ax * uy - ay * ux
-        # (num <= -den * 1e-300: a quotient that underflows to -0.0 passes the exact test)
-        if not ((den < 0.0) & (num <= -den * 1e-300) & (num >= den * (1.0 + 1e-9))
-                & (tn >= bd * den * (1.0 + 1e-9))):  # fmt: skip
-            continue
         t = tn / den
-        sp = num / den
-        if t > 0.0 and 0.0 <= sp <= 1.0 and (t < bd or (t == bd and p < best_p[u])):
-            best_d[u] = t
-            best_p[u] = p
+        sp = (ax * uy - ay * ux) / den
+        hit = (den < 0.0) & (t > 0.0) & (sp >= 0.0) & (sp <= 1.0) & ((t < bd) | ((t == bd) & (p < bp)))
+        best_d[u] = t if hit else bd
+        best_p[u] = p if hit else bp
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _segment_beam(ax, ay, ex, ey, p, u, bux, buy, best_d, best_p):
-    """:func:`_segment_beams` for the one beam ``u``, without a branch: the exact test of :func:`_cast_prims`
-    (a hit on a front face has ``den < 0``; a zero ``den`` is no hit, as there) and the update as
-    selects. (Branches on these tests were mispredicted often: far segments hit or miss at random.)"""
+    """The exact ray-segment test of :func:`_cast_prims` on the one beam ``u``, without a branch
+    (a hit on a front face has ``den < 0``; a zero ``den`` is no hit, as there), the update as selects.
+    (Branches on these tests were mispredicted often: far segments hit or miss at random.)"""
     bd = best_d[u]
     bp = best_p[u]
     ux = bux[u]
@@ -1196,8 +1187,12 @@ def _grid_cast(
             ay = s2[v] - y0
             ex = (s3[v] - x0) - ax
             ey = (s4[v] - y0) - ay
-            _segment_beams(ax, ay, ex, ey, n_c + sid[v], int(sb[v]) - 1, int(sc[v]), n_beams, bux,
-                           buy, best_d, best_p)  # fmt: skip
+            i0 = np.uint64(sb[v])
+            i1 = i0 + np.uint64(sc[v])  # one past the last beam, unwrapped
+            p = n_c + sid[v]
+            _segment_run(ax, ay, ex, ey, p, i0, min(i1, np.uint64(n_beams)), bux, buy, best_d, best_p)
+            _segment_run(ax, ay, ex, ey, p, np.uint64(0), i1 - min(i1, np.uint64(n_beams)), bux, buy, best_d,
+                         best_p)  # fmt: skip
         # segments with one beam to test (most of the far ones): that beam without a branch
         for w in range(m1):
             v = np.uint64(one[w])
