@@ -433,34 +433,42 @@ def _cast_prims(x0, y0, h, skip, reach, cx, cy, cr, cid, n_ci, sx1, sy1, sx2, sy
         f_count[k] = f_count[v]
         f_near[k] = f_near[v]
         k += f_count[v] > 0.0
+    # their beams without a branch, in vectorisable runs (up to the wrap, then from beam 0; as the grid's
+    # _segment_run): hit or not, occluded or not, were mispredicted often (the arena's walls span ~90 beams)
     for v in range(k):
         q = np.uint64(keep[v])
-        p = n_c + sid[q]
         ax = sx1[q] - x0
         ay = sy1[q] - y0
         ex = (sx2[q] - x0) - ax
         ey = (sy2[q] - y0) - ay
-        near_d = f_near[v]
-        i = int(f_beam[v]) - 1
-        for _ in range(int(f_count[v])):
-            i += 1
-            if i == n_beams:
-                i = 0
-            w = np.uint64(i)
-            bd = best_d[w]
-            if bd < near_d:
-                continue  # occluded
-            ux = ch * cos_tab[w] + sh * sin_tab[w]
-            uy = sh * cos_tab[w] - ch * sin_tab[w]
-            den = ux * ey - uy * ex  # cross(u, e)
-            if den == 0.0:
-                continue
-            # origin + t u = A + s e  ->  t = cross(A, e)/cross(u, e), s = cross(A, u)/cross(u, e)
-            t = (ax * ey - ay * ex) / den
-            sp = (ax * uy - ay * ux) / den
-            if t > 0.0 and 0.0 <= sp <= 1.0 and (t < bd or (t == bd and p < best_p[w])):
-                best_d[w] = t
-                best_p[w] = p
+        i0 = np.uint64(f_beam[v])
+        i1 = i0 + np.uint64(f_count[v])  # one past the last beam, unwrapped
+        p = n_c + sid[q]
+        _segment_run_tab(ax, ay, ex, ey, p, i0, min(i1, np.uint64(n_beams)), ch, sh, cos_tab, sin_tab, best_d,
+                         best_p)  # fmt: skip
+        _segment_run_tab(ax, ay, ex, ey, p, np.uint64(0), i1 - min(i1, np.uint64(n_beams)), ch, sh, cos_tab,
+                         sin_tab, best_d, best_p)  # fmt: skip
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _segment_run_tab(ax, ay, ex, ey, p, i0, i1, ch, sh, cos_tab, sin_tab, best_d, best_p):
+    """The exact ray-segment test of :func:`_cast_prims` on the beams ``i0..i1-1`` of a front face, their
+    directions rotated from the tables (bit for bit as before), without a branch: a front face has
+    ``cross(A, e) < 0``, so ``t > 0`` needs ``den < 0`` (``den = 0`` gives ``t = -inf``, no hit), and a
+    beam whose current hit is nearer than the segment (the occlusion test before) gets ``t > bd``."""
+    tn = ax * ey - ay * ex
+    for w in range(i0, i1):
+        bd = best_d[w]
+        bp = best_p[w]
+        ux = ch * cos_tab[w] + sh * sin_tab[w]
+        uy = sh * cos_tab[w] - ch * sin_tab[w]
+        den = ux * ey - uy * ex  # cross(u, e)
+        # origin + t u = A + s e  ->  t = cross(A, e)/cross(u, e), s = cross(A, u)/cross(u, e)
+        t = tn / den
+        sp = (ax * uy - ay * ux) / den
+        hit = (den != 0.0) & (t > 0.0) & (sp >= 0.0) & (sp <= 1.0) & ((t < bd) | ((t == bd) & (p < bp)))
+        best_d[w] = t if hit else bd
+        best_p[w] = p if hit else bp
 
 
 @numba.njit(cache=True, nogil=True)
