@@ -35,6 +35,7 @@ from kin_envs.core.lidar import (
     build_lidar_grid,
     default_cell_size,
     polygon_edges,
+    read_poses,
     world_pack,
     wrap_headings,
 )
@@ -75,6 +76,25 @@ _local = threading.local()
 #: cpBodyGetAngle(cpBody *)``) as function addresses, for World.scan's compiled pose read
 _GETTERS = tuple(int(_ffi.cast("uintptr_t", _ffi.addressof(_cp, f)))
                  for f in ("cpBodyGetPosition", "cpBodyGetAngle"))  # fmt: skip
+_GETTERS_CHECKED: list[bool] = []
+
+
+def _check_getters() -> None:
+    """Once per process: the compiled pose read gives pymunk's values (``cpBodyGetPosition`` returns its
+    ``cpVect`` by value, in two floating-point registers on x86-64 and AArch64; a platform that returned it
+    otherwise would read garbage, so it is refused here instead)."""
+    if _GETTERS_CHECKED:
+        return
+    body = pymunk.Body(1.0, 1.0)
+    body.position, body.angle = (1.25, -3.5e-7), 2.0e5
+    out = np.zeros((1, 3))
+    address = int(_ffi.cast("uintptr_t", body._body))
+    read_poses(np.array(_GETTERS, np.int64), np.array([address], np.int64), out)
+    if out.tolist() != [[1.25, -3.5e-7, 2.0e5]]:
+        raise RuntimeError(f"World: the compiled pose read gave {out.tolist()} for a body at (1.25, "
+                           "-3.5e-7), angle 2e5: this platform returns cpVect differently; the lidar cannot "
+                           "read poses")
+    _GETTERS_CHECKED.append(True)
 
 
 def _direct_read(n_robots: int, n_obstacles: int) -> bool:
@@ -452,6 +472,7 @@ class World:
         # poses read there through Chipmunk's getters (the moment's pose: never a stale copy); the
         # primitives become views into the packed copy (_update_movable and WorldBatch use them)
         spec = self.scene.lidar
+        _check_getters()
         bodies = [int(_ffi.cast("uintptr_t", b._body)) for b in self.robot_bodies]
         wf, wi, self._circles, self._segments, grid_args = world_pack(
             bodies, _GETTERS, spec, self._circles, self._segments, self._prim_kind, self._prim_index,

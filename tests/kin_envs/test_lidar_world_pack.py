@@ -183,3 +183,14 @@ def test_world_batch_sees_robots_moved_by_hand_like_world():
         assert ref.poses[2].tolist() == [3.0, -4.0, math.atan2(math.sin(7.5), math.cos(7.5))]
         for name in NAMES:
             np.testing.assert_array_equal(getattr(ref, name), getattr(scans[k], name), err_msg=name)
+
+
+def test_pose_read_checked_once_per_process(monkeypatch):
+    # a platform whose getters' results the compiled read misreads is refused, naming what it read
+    monkeypatch.setattr(world_mod, "_GETTERS_CHECKED", [])
+    monkeypatch.setattr(world_mod, "read_poses", lambda getters, bodies, out: out.fill(0.5))
+    with pytest.raises(RuntimeError, match=r"gave \[\[0.5, 0.5, 0.5\]\]"):
+        World(scenes.random_arena(1, 2, seed=0, size=5.0), seed=0)
+    monkeypatch.undo()
+    world_mod._check_getters()  # the real read passes
+    assert world_mod._GETTERS_CHECKED == [True]
