@@ -29,6 +29,9 @@ from functools import cached_property
 
 import numba
 import numpy as np
+from llvmlite import ir
+from numba.core import types
+from numba.extending import intrinsic
 
 from detectors._numba_cache import ensure_cache_dir
 
@@ -430,34 +433,42 @@ def _cast_prims(x0, y0, h, skip, reach, cx, cy, cr, cid, n_ci, sx1, sy1, sx2, sy
         f_count[k] = f_count[v]
         f_near[k] = f_near[v]
         k += f_count[v] > 0.0
+    # their beams without a branch, in vectorisable runs (up to the wrap, then from beam 0; as the grid's
+    # _segment_run): hit or not, occluded or not, were mispredicted often (the arena's walls span ~90 beams)
     for v in range(k):
         q = np.uint64(keep[v])
-        p = n_c + sid[q]
         ax = sx1[q] - x0
         ay = sy1[q] - y0
         ex = (sx2[q] - x0) - ax
         ey = (sy2[q] - y0) - ay
-        near_d = f_near[v]
-        i = int(f_beam[v]) - 1
-        for _ in range(int(f_count[v])):
-            i += 1
-            if i == n_beams:
-                i = 0
-            w = np.uint64(i)
-            bd = best_d[w]
-            if bd < near_d:
-                continue  # occluded
-            ux = ch * cos_tab[w] + sh * sin_tab[w]
-            uy = sh * cos_tab[w] - ch * sin_tab[w]
-            den = ux * ey - uy * ex  # cross(u, e)
-            if den == 0.0:
-                continue
-            # origin + t u = A + s e  ->  t = cross(A, e)/cross(u, e), s = cross(A, u)/cross(u, e)
-            t = (ax * ey - ay * ex) / den
-            sp = (ax * uy - ay * ux) / den
-            if t > 0.0 and 0.0 <= sp <= 1.0 and (t < bd or (t == bd and p < best_p[w])):
-                best_d[w] = t
-                best_p[w] = p
+        i0 = np.uint64(f_beam[v])
+        i1 = i0 + np.uint64(f_count[v])  # one past the last beam, unwrapped
+        p = n_c + sid[q]
+        _segment_run_tab(ax, ay, ex, ey, p, i0, min(i1, np.uint64(n_beams)), ch, sh, cos_tab, sin_tab, best_d,
+                         best_p)  # fmt: skip
+        _segment_run_tab(ax, ay, ex, ey, p, np.uint64(0), i1 - min(i1, np.uint64(n_beams)), ch, sh, cos_tab,
+                         sin_tab, best_d, best_p)  # fmt: skip
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _segment_run_tab(ax, ay, ex, ey, p, i0, i1, ch, sh, cos_tab, sin_tab, best_d, best_p):
+    """The exact ray-segment test of :func:`_cast_prims` on the beams ``i0..i1-1`` of a front face, their
+    directions rotated from the tables (bit for bit as before), without a branch: a front face has
+    ``cross(A, e) < 0``, so ``t > 0`` needs ``den < 0`` (``den = 0`` gives ``t = -inf``, no hit), and a
+    beam whose current hit is nearer than the segment (the occlusion test before) gets ``t > bd``."""
+    tn = ax * ey - ay * ex
+    for w in range(i0, i1):
+        bd = best_d[w]
+        bp = best_p[w]
+        ux = ch * cos_tab[w] + sh * sin_tab[w]
+        uy = sh * cos_tab[w] - ch * sin_tab[w]
+        den = ux * ey - uy * ex  # cross(u, e)
+        # origin + t u = A + s e  ->  t = cross(A, e)/cross(u, e), s = cross(A, u)/cross(u, e)
+        t = tn / den
+        sp = (ax * uy - ay * ux) / den
+        hit = (den != 0.0) & (t > 0.0) & (sp >= 0.0) & (sp <= 1.0) & ((t < bd) | ((t == bd) & (p < bp)))
+        best_d[w] = t if hit else bd
+        best_p[w] = p if hit else bp
 
 
 @numba.njit(cache=True, nogil=True)
@@ -836,31 +847,29 @@ def build_lidar_grid(
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _circle_pass(x0, y0, hw, skip, reach, n_beams, inv_res, xs_, ys_, rs_, ids_, a, b, m, kx_, ky_, kr_, kid_,
-                 fb_, fc_, fn_):  # fmt: skip
-    """Pass 1 over the circles ``a..b-1`` of the columns ``xs_``, ``ys_``, ``rs_`` (ids ``ids_``): the
-    reach test and beam interval of :func:`_cast_prims`' circle pass, bit for bit; the circles with beams
-    to test are appended at ``m`` (coordinates, id, first beam, count, nearest distance). Returns the new
-    count."""
+def _gather_circles(xs, ys, rs, ids, a, b, m, kx, ky, kr, kid):
+    """Append the circles ``a..b-1`` of the columns ``xs``, ``ys``, ``rs`` (ids ``ids``) at ``m`` of the
+    candidate columns; returns the new count."""
+    for q in range(np.uint64(b - a)):
+        kx[np.uint64(m) + q] = xs[np.uint64(a) + q]
+        ky[np.uint64(m) + q] = ys[np.uint64(a) + q]
+        kr[np.uint64(m) + q] = rs[np.uint64(a) + q]
+        kid[np.uint64(m) + q] = ids[np.uint64(a) + q]
+    return m + (b - a)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _circle_tests(x0, y0, hw, skip, reach, n_beams, inv_res, m, kx, ky, kr, kid, fb, fc, fn):
+    """The reach test and beam interval of :func:`_cast_prims`' circle pass, bit for bit, for the ``m``
+    candidate circles: first beam, beam count (0: none to test) and nearest distance."""
     rc = reach + _TOL
-    xs = xs_[a:b]
-    ys = ys_[a:b]
-    rs = rs_[a:b]
-    ids = ids_[a:b]
-    kx = kx_[m:]
-    ky = ky_[m:]
-    kr = kr_[m:]
-    kid = kid_[m:]
-    fb = fb_[m:]
-    fc = fc_[m:]
-    fn = fn_[m:]
-    for q in range(b - a):
-        dx = xs[q] - x0
-        dy = ys[q] - y0
-        r = rs[q]
+    for q in range(np.uint64(m)):
+        dx = kx[q] - x0
+        dy = ky[q] - y0
+        r = kr[q]
         d2 = dx * dx + dy * dy
         cc = d2 - r * r
-        ok = (d2 <= (rc + r) * (rc + r)) & (ids[q] != skip) & (cc > 0.0)
+        ok = (d2 <= (rc + r) * (rc + r)) & (kid[q] != skip) & (cc > 0.0)
         sq = math.sqrt(max(cc, 1e-300))
         half = _half_angle(r / sq) + _EPS
         phi = _fast_atan2(dy, dx) - hw
@@ -869,84 +878,51 @@ def _circle_pass(x0, y0, hw, skip, reach, n_beams, inv_res, xs_, ys_, rs_, ids_,
         fb[q] = _first_beam(k0, n_beams)
         fc[q] = k1 - k0 + 1.0 if ok else 0.0
         fn[q] = sq - r - _TOL
-    k = 0
-    for q in range(b - a):
-        kx[k] = xs[q]
-        ky[k] = ys[q]
-        kr[k] = rs[q]
-        kid[k] = ids[q]
-        fb[k] = fb[q]
-        fc[k] = fc[q]
-        fn[k] = fn[q]
-        k += fc[q] > 0.0
-    return m + k
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _edge_pass(x0, y0, rc2, e1_, e2_, e3_, e4_, eid_, a, b, m, s1_, s2_, s3_, s4_, sid_, flag_):
+def _edge_flags(x0, y0, rc2, e1, e2, e3, e4, a, b, m, eidx, flag):
     """The back-face and reach test of :func:`_cast_prims`' segments over the edges ``a..b-1`` of the
-    columns ``e1_`` .. ``e4_`` (ids ``eid_``); the front faces within reach are appended at ``m`` to the
-    columns ``s1_`` .. ``s4_`` / ``sid_``. Returns the new count. (Flags first, in a pass the compiler
-    vectorises, then the copy.)"""
-    e1 = e1_[a:b]
-    e2 = e2_[a:b]
-    e3 = e3_[a:b]
-    e4 = e4_[a:b]
-    eid = eid_[a:b]
-    flag = flag_[: b - a]
-    for q in range(b - a):
-        flag[q] = _front_in_reach(e1[q] - x0, e2[q] - y0, e3[q] - x0, e4[q] - y0, rc2)
-    s1 = s1_[m:]
-    s2 = s2_[m:]
-    s3 = s3_[m:]
-    s4 = s4_[m:]
-    sid = sid_[m:]
-    k = 0
-    for q in range(b - a):
-        s1[k] = e1[q]
-        s2[k] = e2[q]
-        s3[k] = e3[q]
-        s4[k] = e4[q]
-        sid[k] = eid[q]
-        k += flag[q] > 0.0
-    return m + k
+    columns ``e1`` .. ``e4``; the indices of the front faces within reach are appended at ``m`` to
+    ``eidx``. Returns the new count. (Flags first, in a pass the compiler vectorises, then the indices,
+    one store per edge without a branch. Unsigned indices and no slices: a slice made here, once per
+    run of cells, costs two atomic reference-count updates.)"""
+    a_ = np.uint64(a)
+    for q in range(np.uint64(b - a)):
+        flag[q] = _front_in_reach(e1[a_ + q] - x0, e2[a_ + q] - y0, e3[a_ + q] - x0, e4[a_ + q] - y0, rc2)
+    k = np.uint64(m)
+    for q in range(np.uint64(b - a)):
+        eidx[k] = a_ + q
+        k += np.uint64(flag[q] > 0.0)
+    return np.int64(k)
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _segment_beams(ax, ay, ex, ey, p, i, cnt, n_beams, bux, buy, best_d, best_p):
-    """The exact ray-segment test of :func:`_cast_prims` on ``cnt`` beams after beam ``i`` of a front face.
-
-    A hit needs ``den < 0`` (a front face has ``tn < 0``, and ``t = tn / den > 0``), ``s = num / den`` in
-    [0, 1] and ``t < bd``: these are tested on the products first, with a margin far above their
-    rounding, and the divisions (the exact test, as :func:`_cast_prims`) run only for the few beams that
-    pass."""
+def _segment_run(ax, ay, ex, ey, p, i0, i1, bux, buy, best_d, best_p):
+    """:func:`_segment_beam`'s test on the beams ``i0..i1-1`` (a segment's beams up to the wrap, then from
+    0), without a branch, so that the compiler vectorises it (the previous per-beam branches, on products
+    first and divisions only for the beams that could hit, were mispredicted often: whether a near
+    segment's beam hits depends on what occludes it). A front face has ``tn < 0``: a beam with ``den >= 0``
+    gives ``t <= 0``, inf or NaN and no hit."""
     tn = ax * ey - ay * ex
-    for _ in range(cnt):
-        i += 1
-        if i == n_beams:
-            i = 0
-        u = np.uint64(i)
+    for u in range(i0, i1):
         bd = best_d[u]
+        bp = best_p[u]
         ux = bux[u]
         uy = buy[u]
         den = ux * ey - uy * ex
-        num = ax * uy - ay * ux
-        # (num <= -den * 1e-300: a quotient that underflows to -0.0 passes the exact test)
-        if not ((den < 0.0) & (num <= -den * 1e-300) & (num >= den * (1.0 + 1e-9))
-                & (tn >= bd * den * (1.0 + 1e-9))):  # fmt: skip
-            continue
         t = tn / den
-        sp = num / den
-        if t > 0.0 and 0.0 <= sp <= 1.0 and (t < bd or (t == bd and p < best_p[u])):
-            best_d[u] = t
-            best_p[u] = p
+        sp = (ax * uy - ay * ux) / den
+        hit = (den < 0.0) & (t > 0.0) & (sp >= 0.0) & (sp <= 1.0) & ((t < bd) | ((t == bd) & (p < bp)))
+        best_d[u] = t if hit else bd
+        best_p[u] = p if hit else bp
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _segment_beam(ax, ay, ex, ey, p, u, bux, buy, best_d, best_p):
-    """:func:`_segment_beams` for the one beam ``u``, without a branch: the exact test of :func:`_cast_prims`
-    (a hit on a front face has ``den < 0``; a zero ``den`` is no hit, as there) and the update as
-    selects. (Branches on these tests were mispredicted often: far segments hit or miss at random.)"""
+    """The exact ray-segment test of :func:`_cast_prims` on the one beam ``u``, without a branch
+    (a hit on a front face has ``den < 0``; a zero ``den`` is no hit, as there), the update as selects.
+    (Branches on these tests were mispredicted often: far segments hit or miss at random.)"""
     bd = best_d[u]
     bp = best_p[u]
     ux = bux[u]
@@ -1045,6 +1021,7 @@ def _grid_cast(
     kid, order, one, sid = js[0], js[1], js[2], js[3]
     best_p, stamp = js[9, :n_beams], js[10]
     cmany, cone = js[8], js[12]  # the circles with several beams to test, with one
+    eidx = js[13]  # the groups' front faces in reach, by edge index
     # stamp tags stay unique across calls (the scratch is reused): the last one is kept in js[11, 0]
     tag0 = js[11, 0]
     js[11, 0] = tag0 + ox.shape[0]
@@ -1064,7 +1041,11 @@ def _grid_cast(
             # the direction of beam i, by the same rotation as _cast_prims (bit for bit)
             bux[i] = ch * cos_tab[i] + sh * sin_tab[i]
             buy[i] = sh * cos_tab[i] - ch * sin_tab[i]
-        # --- pass 1: the column runs of cells within reach (cells widened by the layer's largest radius)
+        # --- pass 1: the column runs of cells within reach (cells widened by the layer's largest radius):
+        # the circles' coordinates are gathered into contiguous columns and the groups' front faces within
+        # reach are listed by their edge index (one store per edge visited; copying their coordinates
+        # there cost more than testing them), then both get their tests in single vectorised passes (a
+        # pass per run paid its vector loop's scalar remainder once per column: ~0.15 us each)
         mc = 0
         ms = 0
         for layer in range(3):
@@ -1106,23 +1087,27 @@ def _grid_cast(
                         if ok and ra == c1:
                             ra = cc
                         elif not ok and ra < c1:
-                            ms = _edge_pass(x0, y0, rc2, g_seg[0], g_seg[1], g_seg[2], g_seg[3], g_sid,
-                                            g_off[st[ra]], g_off[st[cc]], ms, s1, s2, s3, s4, sid, flags)
+                            ms = _edge_flags(x0, y0, rc2, g_seg[0], g_seg[1], g_seg[2], g_seg[3],
+                                             g_off[st[ra]], g_off[st[cc]], ms, eidx, flags)  # fmt: skip
                             ra = c1
                     continue
                 a = st[i * ny + int(max(fj0, 0.0))]
                 b = st[i * ny + int(min(fj1, ny - 1.0)) + 1]
-                if a == b:
-                    continue
                 if layer == 0:
-                    mc = _circle_pass(x0, y0, hw, skip, reach, n_beams, inv_res, c_cols[0], c_cols[1],
-                                      c_cols[2], c_ids, a, b, mc, kx, ky, kr, kid, kb, kc, kn)  # fmt: skip
+                    mc = _gather_circles(c_cols[0], c_cols[1], c_cols[2], c_ids, a, b, mc, kx, ky, kr, kid)
                 else:
-                    mc = _circle_pass(x0, y0, hw, skip, reach, n_beams, inv_res, d_cols[0], d_cols[1],
-                                      d_cols[2], d_ids, a, b, mc, kx, ky, kr, kid, kb, kc, kn)  # fmt: skip
+                    mc = _gather_circles(d_cols[0], d_cols[1], d_cols[2], d_ids, a, b, mc, kx, ky, kr, kid)
         if n_in < n_d:
-            mc = _circle_pass(x0, y0, hw, skip, reach, n_beams, inv_res, d_cols[0], d_cols[1], d_cols[2],
-                              d_ids, n_in, n_d, mc, kx, ky, kr, kid, kb, kc, kn)  # fmt: skip
+            mc = _gather_circles(d_cols[0], d_cols[1], d_cols[2], d_ids, n_in, n_d, mc, kx, ky, kr, kid)
+        _circle_tests(x0, y0, hw, skip, reach, n_beams, inv_res, mc, kx, ky, kr, kid, kb, kc, kn)
+        # the front faces' coordinates and ids, gathered in contiguous columns for the interval pass
+        for v in range(ms):
+            q = np.uint64(eidx[v])
+            s1[v] = g_seg[0, q]
+            s2[v] = g_seg[1, q]
+            s3[v] = g_seg[2, q]
+            s4[v] = g_seg[3, q]
+            sid[v] = g_sid[q]
         # --- long segments of the cells within reach (each once: stamp), and the moving segments
         ns = 0
         fi0 = (x0 - reach - gx) / cs
@@ -1210,8 +1195,12 @@ def _grid_cast(
             ay = s2[v] - y0
             ex = (s3[v] - x0) - ax
             ey = (s4[v] - y0) - ay
-            _segment_beams(ax, ay, ex, ey, n_c + sid[v], int(sb[v]) - 1, int(sc[v]), n_beams, bux,
-                           buy, best_d, best_p)  # fmt: skip
+            i0 = np.uint64(sb[v])
+            i1 = i0 + np.uint64(sc[v])  # one past the last beam, unwrapped
+            p = n_c + sid[v]
+            _segment_run(ax, ay, ex, ey, p, i0, min(i1, np.uint64(n_beams)), bux, buy, best_d, best_p)
+            _segment_run(ax, ay, ex, ey, p, np.uint64(0), i1 - min(i1, np.uint64(n_beams)), bux, buy, best_d,
+                         best_p)  # fmt: skip
         # segments with one beam to test (most of the far ones): that beam without a branch
         for w in range(m1):
             v = np.uint64(one[w])
@@ -1298,16 +1287,20 @@ def grid_args(grid: LidarGrid) -> tuple[np.ndarray, np.ndarray]:
     return gf, gi
 
 
+def _grid_cap(grid: LidarGrid, n_beams: int) -> int:
+    """Columns of the grid kernel's work arrays: the most candidates of any kind in one scan."""
+    return max(len(grid.circle_ids) + len(grid.dynamic_circles), grid.groups.shape[1],
+               len(grid.segment_items) + len(grid.dynamic_segments), n_beams, grid.shape[0] * grid.shape[1],
+               grid.n_segments) + 1  # fmt: skip
+
+
 def grid_scratch(grid: LidarGrid, n_beams: int) -> tuple[np.ndarray, np.ndarray]:
     """Work arrays of the grid kernel for ``grid`` and ``n_beams`` beams, passed after :func:`grid_args`.
     A caller that scans often (``World``) keeps one pair; they must not be used by two scans at once."""
-    n_d = len(grid.dynamic_circles)
-    cap = max(len(grid.circle_ids) + n_d, grid.groups.shape[1],
-              len(grid.segment_items) + len(grid.dynamic_segments), n_beams, grid.shape[0] * grid.shape[1],
-              grid.n_segments) + 1  # fmt: skip
+    cap = _grid_cap(grid, n_beams)
     # the float rows are always written before they are read; the int rows hold the stamps (and their
     # last tag), which must start below every tag
-    return np.empty((25, cap)), np.zeros((13, cap), np.int64)
+    return np.empty((25, cap)), np.zeros((14, cap), np.int64)
 
 
 def cast_prepared(ox, oy, heading, skip, static: tuple, grid: tuple | None):
@@ -1338,46 +1331,147 @@ def wrap_headings(rows):
         rows[k, 2] = math.atan2(math.sin(a), math.cos(a))
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
-def _world_rows(rows, idx, n_moved, circles, poses):
-    """:func:`_world_scan_brute`'s and :func:`_world_scan_grid`'s common part: wrap the headings of
-    ``rows`` in place, move the first ``n_moved`` circles (the housings) to them, write the poses of
-    robots ``idx`` into ``poses`` and return their x, y, heading rows."""
-    wrap_headings(rows)
-    for k in range(n_moved):
-        circles[k, 0] = rows[k, 0]
-        circles[k, 1] = rows[k, 1]
-    n = idx.shape[0]
-    o = np.empty((3, n))
-    for m in range(n):
-        for c in range(3):
-            poses[m, c] = rows[idx[m], c]
-            o[c, m] = rows[idx[m], c]
-    return o
+@intrinsic
+def _call_getters(typingctx, get_position, get_angle, body):
+    """``(x, y, angle)`` of a physics body by its C getters: ``get_position`` a ``struct {double x, y;}
+    (*)(void *)`` and ``get_angle`` a ``double (*)(void *)`` function address, ``body`` the address of the
+    body (``World`` passes Chipmunk's ``cpBodyGetPosition`` / ``cpBodyGetAngle`` and its robots'
+    ``cpBody`` pointers: the pose of the moment, read without Python)."""
+    sig = types.UniTuple(types.float64, 3)(types.int64, types.int64, types.int64)
+
+    def codegen(context, builder, signature, args):
+        ptr, dbl = ir.IntType(8).as_pointer(), ir.DoubleType()
+        xy_type = ir.LiteralStructType([dbl, dbl])  # returned in two registers (x86-64 SysV, AArch64)
+        pos_fn = builder.inttoptr(args[0], ir.FunctionType(xy_type, [ptr]).as_pointer())
+        ang_fn = builder.inttoptr(args[1], ir.FunctionType(dbl, [ptr]).as_pointer())
+        body = builder.inttoptr(args[2], ptr)
+        xy = builder.call(pos_fn, [body])
+        angle = builder.call(ang_fn, [body])
+        return context.make_tuple(builder, signature.return_type,
+                                  [builder.extract_value(xy, 0), builder.extract_value(xy, 1), angle])
+
+    return sig, codegen
 
 
 @numba.njit(cache=True, nogil=True)
-def _world_scan_brute(rows, idx, n_moved, tabs, range_min, range_max, circles, segments, prim_kind,
-                      prim_index, bf, bi, poses, ranges, true, kind, index):  # fmt: skip
-    """``World.scan`` after the pose read, in one compiled call (the Python around a one-robot scan's
-    kernel cost as much as the kernel): ``rows`` holds every robot's raw x, y, angle; robots ``idx`` are
-    cast by the brute-force kernel with the work arrays ``bf`` / ``bi`` (:func:`_brute_scratch`). Writes
-    their poses and the four outputs of :func:`cast_scan` (float32) into the last five arrays (allocated
-    by the caller: returning five arrays from a compiled call cost ~1.8 us, allocating them in Python
-    ~0.9). (Two entries, not one with a flag: a fresh install compiles only the kernel it uses.)"""
-    o = _world_rows(rows, idx, n_moved, circles, poses)
-    _scan_kernel_into(o[0], o[1], o[2], tabs, range_min, range_max, circles, idx, segments, prim_kind,
-                      prim_index, bf, bi, ranges, true, kind, index)  # fmt: skip
+def read_poses(getters, bodies, out):
+    """``out[k] = (x, y, angle)`` of body ``bodies[k]`` through the getters ``getters`` (two function
+    addresses, see :func:`_call_getters`); angles raw (unwrapped)."""
+    for k in range(bodies.shape[0]):
+        x, y, a = _call_getters(getters[0], getters[1], bodies[k])
+        out[k, 0] = x
+        out[k, 1] = y
+        out[k, 2] = a
+
+
+# World.scan's arguments are packed in two arrays (a compiled call costs ~50-70 ns per argument: the
+# 19 of the previous entry were ~1 us of a one-robot scan): ``wf`` (float64) and ``wi`` (int64), each a
+# header-described run of regions. wi[0:8]: robots, beams, circles, segments, owner-table length,
+# position getter, angle getter, 1 if gridded; wi[8:16] and wi[16:24]: the start of each region of wf
+# (range_min/max, beam tables, circles, segments, the robots' rows, grid floats, work floats, end) and of
+# wi (the robots' bodies, owner kinds, owner indices, grid ints, work ints, end, -, -).
+_WI_HEAD = 24
+
+
+def world_pack(bodies, getters, spec: LidarSpec, circles, segments, prim_kind, prim_index, grid):
+    """``World.scan``'s two packed arrays and views into them: ``(wf, wi, circles, segments, grid)``.
+
+    ``bodies``: the robots' body addresses (robot ``i``'s housing is circle ``i``); ``getters``: the
+    position and angle getters (:func:`_call_getters`); ``circles`` / ``segments`` / owner tables as
+    :func:`cast_scan` takes them; ``grid``: a :class:`LidarGrid` or ``None`` (the brute-force kernel).
+    The returned ``circles`` / ``segments`` are the packed copies, which the caller must update in place
+    (moved obstacles), and ``grid`` is ``(gf, gi, fs, js)`` for :func:`cast_prepared` (views, or
+    ``None``). One scan at a time: the work arrays are inside."""
+    nb, n_r = spec.n_beams, len(bodies)
+    circles = np.ascontiguousarray(circles, dtype=np.float64).reshape(-1, 3)
+    segments = np.ascontiguousarray(segments, dtype=np.float64).reshape(-1, 4)
+    n_c, n_s, n_p = len(circles), len(segments), len(prim_kind)
+    if grid is None:
+        k = max(n_c, n_s, 1)
+        gf, gi = np.zeros(0), np.zeros(0, np.int64)
+        n_fw, n_iw = 3 * n_c + 4 * n_s + 7 * k + nb, 3 * k + nb  # _brute_scratch
+    else:
+        gf, gi = grid_args(grid)
+        cap = _grid_cap(grid, nb)
+        n_fw, n_iw = 25 * cap, 14 * cap  # grid_scratch
+    fo = np.cumsum([0, 2, 2 * nb, 3 * n_c, 4 * n_s, 3 * n_r, len(gf), n_fw])
+    io = np.cumsum([_WI_HEAD, n_r, n_p, n_p, len(gi), n_iw])
+    wf = np.zeros(fo[-1])
+    wi = np.zeros(io[-1], np.int64)
+    wi[:8] = (n_r, nb, n_c, n_s, n_p, getters[0], getters[1], grid is not None)
+    wi[8:16] = fo
+    wi[16:22] = io
+    wf[:2] = spec.range_min, spec.range_max
+    wf[fo[1] : fo[2]] = beam_tables(nb).ravel()
+    wf[fo[2] : fo[3]] = circles.ravel()
+    wf[fo[3] : fo[4]] = segments.ravel()
+    wf[fo[5] : fo[6]] = gf
+    wi[io[0] : io[1]] = bodies
+    wi[io[1] : io[2]] = prim_kind
+    wi[io[2] : io[3]] = prim_index
+    wi[io[3] : io[4]] = gi
+    if grid is None:
+        wi[io[4] : io[4] + k] = np.arange(k)  # _brute_scratch's ints[0]
+    views = (wf[fo[2] : fo[3]].reshape(n_c, 3), wf[fo[3] : fo[4]].reshape(n_s, 4))
+    if grid is None:
+        return wf, wi, *views, None
+    return wf, wi, *views, (wf[fo[5] : fo[6]], wi[io[3] : io[4]], wf[fo[6] : fo[7]].reshape(25, cap),
+                            wi[io[4] : io[5]].reshape(14, cap))  # fmt: skip
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _world_unpack(wf, wi, idx, poses):
+    """The packed arrays' regions (see :func:`world_pack`), after reading the robots' poses: the housings
+    (circles ``0..robots-1``) moved to them, the headings of robots ``idx`` wrapped (as
+    :func:`wrap_headings`) and their poses written to ``poses``; returns ``(x, y, heading)`` rows of
+    ``idx``, the beam tables, range_min, range_max, circles, segments, owner kinds and indices, and the
+    grid / work regions."""
+    n_r, nb, n_c, n_s = wi[0], wi[1], wi[2], wi[3]
+    fo = wi[8:16]
+    io = wi[16:22]
+    circles = wf[fo[2] : fo[3]].reshape((n_c, 3))
+    bodies = wi[io[0] : io[1]]
+    for k in range(n_r):
+        x, y, a = _call_getters(wi[5], wi[6], bodies[k])
+        circles[k, 0] = x
+        circles[k, 1] = y
+    n = idx.shape[0]
+    o = np.empty((3, n))
+    for m in range(n):
+        x, y, a = _call_getters(wi[5], wi[6], bodies[idx[m]])
+        a = math.atan2(math.sin(a), math.cos(a))  # wrap_headings
+        poses[m, 0] = o[0, m] = x
+        poses[m, 1] = o[1, m] = y
+        poses[m, 2] = o[2, m] = a
+    return (o, wf[fo[1] : fo[2]].reshape((2, nb)), wf[0], wf[1], circles, wf[fo[3] : fo[4]].reshape((n_s, 4)),
+            wi[io[1] : io[2]], wi[io[2] : io[3]], wf[fo[5] : fo[6]], wi[io[3] : io[4]], wf[fo[6] : fo[7]],
+            wi[io[4] : io[5]])  # fmt: skip
+
+
+@numba.njit(cache=True, nogil=True)
+def _world_scan_brute(idx, wf, wi, poses, ranges, true, kind, index):
+    """``World.scan`` in one compiled call (the Python around a one-robot scan's kernel cost as much as
+    the kernel): the robots' poses read (:func:`_world_unpack`), robots ``idx`` cast by the brute-force
+    kernel with the work arrays packed in ``wf`` / ``wi`` (:func:`world_pack`). Writes their poses and
+    the four outputs of :func:`cast_scan` (float32) into the last five arrays (allocated by the caller:
+    returning five arrays from a compiled call cost ~1.8 us, allocating them in Python ~0.9). (Two
+    entries, not one with a flag: a fresh install compiles only the kernel it uses.)"""
+    unpacked = _world_unpack(wf, wi, idx, poses)
+    o, tabs, range_min, range_max, circles, segments, kinds, owners, _, _, ff, fi = unpacked
+    n_c, n_s, nb = circles.shape[0], segments.shape[0], tabs.shape[1]
+    k = max(n_c, n_s, 1)
+    _scan_kernel_into(o[0], o[1], o[2], tabs, range_min, range_max, circles, idx, segments, kinds, owners,
+                      ff[: 3 * n_c + 4 * n_s + 7 * k + nb], fi[: 3 * k + nb], ranges, true, kind, index)
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _world_scan_grid(rows, idx, n_moved, tabs, range_min, range_max, circles, segments, prim_kind, prim_index,
-                     gf, gi, fs, js, poses, ranges, true, kind, index):  # fmt: skip
-    """:func:`_world_scan_brute` through the grid packed in ``gf`` / ``gi`` with the work arrays ``fs`` /
-    ``js``."""
-    o = _world_rows(rows, idx, n_moved, circles, poses)
-    _grid_cast(o[0], o[1], o[2], tabs, range_min, range_max, circles, idx, segments, prim_kind, prim_index,
-               *_unpack_grid(gf, gi), fs, js, ranges, true, kind, index)  # fmt: skip
+def _world_scan_grid(idx, wf, wi, poses, ranges, true, kind, index):
+    """:func:`_world_scan_brute` through the grid packed in ``wf`` / ``wi``."""
+    unpacked = _world_unpack(wf, wi, idx, poses)
+    o, tabs, range_min, range_max, circles, segments, kinds, owners, gf, gi, ff, fi = unpacked
+    cap = ff.shape[0] // 25
+    _grid_cast(o[0], o[1], o[2], tabs, range_min, range_max, circles, idx, segments, kinds, owners,
+               *_unpack_grid(gf, gi), ff.reshape((25, cap)), fi.reshape((14, cap)), ranges, true, kind, index)
 
 
 def scan_shapes(

@@ -22,21 +22,21 @@ from dataclasses import dataclass, field
 import numpy as np
 import pymunk
 import pymunk.batch as pmbatch
+from pymunk._chipmunk import ffi as _ffi
 from pymunk._chipmunk import lib as _cp
 
 from kin_envs.core._validate import FieldTypeError, check_number, dataclass_from_dict
 from kin_envs.core.interrupts import atomic
 from kin_envs.core.lidar import (
     HitKind,
-    _brute_scratch,
     _world_scan_brute,
     _world_scan_grid,
     beam_tables,
     build_lidar_grid,
     default_cell_size,
-    grid_args,
-    grid_scratch,
     polygon_edges,
+    read_poses,
+    world_pack,
     wrap_headings,
 )
 from kin_envs.core.odometry import Odometry, OdometrySpec
@@ -72,6 +72,29 @@ _BOUNDARY_THICKNESS = 1.0  # m; thick so nothing can be pushed through it
 _COMMAND_CAP = 1e12
 
 _local = threading.local()
+#: Chipmunk's position and angle getters (``cpVect cpBodyGetPosition(cpBody *)``, ``cpFloat
+#: cpBodyGetAngle(cpBody *)``) as function addresses, for World.scan's compiled pose read
+_GETTERS = tuple(int(_ffi.cast("uintptr_t", _ffi.addressof(_cp, f)))
+                 for f in ("cpBodyGetPosition", "cpBodyGetAngle"))  # fmt: skip
+_GETTERS_CHECKED: list[bool] = []
+
+
+def _check_getters() -> None:
+    """Once per process: the compiled pose read gives pymunk's values (``cpBodyGetPosition`` returns its
+    ``cpVect`` by value, in two floating-point registers on x86-64 and AArch64; a platform that returned it
+    otherwise would read garbage, so it is refused here instead)."""
+    if _GETTERS_CHECKED:
+        return
+    body = pymunk.Body(1.0, 1.0)
+    body.position, body.angle = (1.25, -3.5e-7), 2.0e5
+    out = np.zeros((1, 3))
+    address = int(_ffi.cast("uintptr_t", body._body))
+    read_poses(np.array(_GETTERS, np.int64), np.array([address], np.int64), out)
+    if out.tolist() != [[1.25, -3.5e-7, 2.0e5]]:
+        raise RuntimeError(f"World: the compiled pose read gave {out.tolist()} for a body at (1.25, "
+                           "-3.5e-7), angle 2e5: this platform returns cpVect differently; the lidar cannot "
+                           "read poses")
+    _GETTERS_CHECKED.append(True)
 
 
 def _direct_read(n_robots: int, n_obstacles: int) -> bool:
@@ -445,19 +468,24 @@ class World:
             self._lidar_grid = build_lidar_grid(
                 self._circles, self._segments, dyn_c, dyn_s, bounds=(-hx, -hy, hx, hy), cell_size=cell
             )
-        # the kernel's arguments, kept in its form (_update_lidar_geometry writes into these arrays)
+        # World.scan's compiled call: everything it reads packed in two arrays (world_pack), the robots'
+        # poses read there through Chipmunk's getters (the moment's pose: never a stale copy); the
+        # primitives become views into the packed copy (_update_movable and WorldBatch use them)
         spec = self.scene.lidar
-        self._segments = np.ascontiguousarray(self._segments)
+        _check_getters()
+        bodies = [int(_ffi.cast("uintptr_t", b._body)) for b in self.robot_bodies]
+        wf, wi, self._circles, self._segments, grid_args = world_pack(
+            bodies, _GETTERS, spec, self._circles, self._segments, self._prim_kind, self._prim_index,
+            self._lidar_grid)  # fmt: skip
+        self._lidar_call = (_world_scan_brute if self._lidar_grid is None else _world_scan_grid, wf, wi)
+        # WorldBatch's arguments for cast_prepared (views into the same arrays)
         self._lidar_static = (beam_tables(spec.n_beams), float(spec.range_min), float(spec.range_max),
                               self._circles, self._segments, self._prim_kind, self._prim_index)  # fmt: skip
-        self._lidar_grid_args = None if self._lidar_grid is None else (
-            grid_args(self._lidar_grid) + grid_scratch(self._lidar_grid, spec.n_beams))
-        # World.scan's one compiled call
-        self._lidar_call = (
-            (_world_scan_brute, self._lidar_static + _brute_scratch(len(self._circles), len(self._segments),
-                                                                    spec.n_beams))
-            if self._lidar_grid is None else (_world_scan_grid, self._lidar_static + self._lidar_grid_args)
-        )  # fmt: skip
+        self._lidar_grid_args = grid_args
+        # every robot's index: for the kernel, and a read-only view for the Scans (shared, like spec.angles)
+        self._all_robots = np.arange(self.n_robots)
+        self._all_robots_out = self._all_robots.view()
+        self._all_robots_out.flags.writeable = False
 
     def _update_lidar_geometry(self, poses: np.ndarray) -> None:
         self._circles[: self.n_robots, :2] = poses[:, :2]
@@ -711,16 +739,17 @@ class World:
             noise: apply the lidar spec's range noise and dropouts, drawn from the world's RNG.
         """
         spec = self.scene.lidar
-        idx = np.arange(self.n_robots) if robots is None else self._check_robots(robots)
+        # (all robots: a shared index array, a new one cost ~0.3 us)
+        idx = self._all_robots if robots is None else self._check_robots(robots)
         if self._movable:
             self._update_movable()
-        # one compiled call: heading wrap, housings moved, the kernel (into output arrays made here)
-        kernel, args = self._lidar_call
+        # one compiled call: the poses read, heading wrap, housings moved, the kernel (into outputs made here)
+        kernel, wf, wi = self._lidar_call
         n, nb = idx.shape[0], spec.n_beams
         poses, ranges = np.empty((n, 3)), np.empty((n, nb), np.float32)
         true_ranges = np.empty((n, nb), np.float32)
         hit_kind, hit_index = np.empty((n, nb), np.int8), np.empty((n, nb), np.int32)
-        kernel(self._robot_rows(), idx, self.n_robots, *args, poses, ranges, true_ranges, hit_kind, hit_index)
+        kernel(idx, wf, wi, poses, ranges, true_ranges, hit_kind, hit_index)
         if noise and (spec.noise_sigma > 0 or spec.dropout_prob > 0):
             hit = np.isfinite(true_ranges)
             d = true_ranges[hit].astype(np.float64)
@@ -734,5 +763,6 @@ class World:
         # the frozen dataclass's __init__ (a checked setattr per field) cost ~2 µs of a ~15 µs one-robot scan
         out = object.__new__(Scan)
         out.__dict__.update(ranges=ranges, angles=spec.angles, hit_kind=hit_kind, hit_index=hit_index,
-                            true_ranges=true_ranges, robots=idx, poses=poses, range_max=spec.range_max)
+                            true_ranges=true_ranges, robots=self._all_robots_out if robots is None else idx,
+                            poses=poses, range_max=spec.range_max)
         return out
