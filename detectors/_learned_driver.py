@@ -32,7 +32,13 @@ after the network repeats that pipeline's numpy expression on the same float64 v
 are bitwise the same (``tests/detectors/test_learned_driver.py``). A change to a stage (a new
 feature kernel signature, a cascade stage) must be made in both places; that test fails otherwise.
 
-Every output array is allocated in the call: results handed to a caller are never reused.
+Every output array is allocated in the call: results handed to a caller are never reused. The large
+intermediate ones live in work arrays (:func:`new_work`) that the detector keeps per thread and passes in.
+
+Every kernel here and in :mod:`detectors.features` / :mod:`detectors._kernels` is compiled with
+``error_model="numpy"``: no zero-divisor check before each division (IEEE inf / NaN instead of a
+``ZeroDivisionError``; none of them divides by zero on valid input, so every output is the same), ~5 %
+of a swarm batch, and loops with a division can use SIMD.
 
 numba's on-disk cache stamps a function with its own file only; :mod:`detectors._numba_cache` adds
 the digest of every jitted source of the package to the stamp, so an edit to a kernel these functions
@@ -91,20 +97,20 @@ def new_work(cells: int, rows: int, n_feat: int) -> tuple:
     )  # fmt: skip
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _work_fits(ws, cells):
     f64, i64, b8 = ws[0].shape[0], ws[1].shape[0], ws[2].shape[0]
     return f64 >= _W_F64 * cells and i64 >= _W_I64 * cells and b8 >= _W_BOOL * cells
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _rows_fit(ws, n_sel, n_feat):
     # the work arrays hold n_sel network rows (features, frames, fit centres, min beams, outputs)
     rf, rx, ri = ws[3].shape[0], ws[4].shape[0], ws[5].shape[0]
     return n_sel * _R_I64 <= ri and n_sel * (n_feat + 3) <= rx and n_sel * _R_F64 <= rf
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, error_model="numpy", nogil=True)
 def front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_ang, cos_a, sin_a, sweep,
           tan_tab, occlusion_unbounded, n_points, n_context, gn_iters, n_feat, cascade, c_w1t, c_b1, c_w2,
           c_b2, c_threshold, c_one_beam, lean):  # fmt: skip
@@ -138,7 +144,7 @@ def front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_a
                   c_b1, c_w2, c_b2, c_threshold, c_one_beam, lean, ws)  # fmt: skip
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, error_model="numpy", nogil=True)
 def _front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_ang, cos_a, sin_a, sweep,
            tan_tab, occlusion_unbounded, n_points, n_context, gn_iters, n_feat, cascade, c_w1t, c_b1, c_w2,
            c_b2, c_threshold, c_one_beam, lean, ws):  # fmt: skip
@@ -230,7 +236,7 @@ def _front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_
     return d, scan, first, count, prev, nxt, p_near, n_near, max_beams, rows, x, frames, scan_cols, cscore
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _scan_threshold(log_noise, fixed, edges, values):
     # LearnedKinDetector._thresholds for one scan: the float32 feature value, exp in float64, and
     # np.searchsorted(edges, sigma, side="right") (NaN sorts last)
@@ -247,7 +253,7 @@ def _scan_threshold(log_noise, fixed, edges, values):
     return values[k]
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _scan_thresholds(scan_cols, n_seg, fixed, edges, values):
     # each scan's threshold (:func:`_scan_threshold` of its log noise); not read without segments
     thr_scan = np.empty(scan_cols.shape[0])
@@ -257,7 +263,7 @@ def _scan_thresholds(scan_cols, n_seg, fixed, edges, values):
     return thr_scan
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, error_model="numpy", nogil=True)
 def back(out, d, scan, first, count, max_beams, rows, frames, scan_cols, ang, pre_gate, fixed_threshold,
          edges, values, regression, t_mean, t_std, r_kin, max_iter, xtol, lam0, lam_max):  # fmt: skip
     """Stages 4-5 from the network outputs ``out`` (R, 3) float64 of the segments ``rows``.
@@ -298,7 +304,7 @@ def back(out, d, scan, first, count, max_beams, rows, frames, scan_cols, ang, pr
     return p, thr, stage, det, table
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, error_model="numpy", nogil=True)
 def back_table(out, d, scan, first, count, rows, frames, scan_cols, ang, fixed_threshold, edges, values,
                regression, t_mean, t_std, r_kin, max_iter, xtol, lam0, lam_max):  # fmt: skip
     """:func:`back`'s ``(scan row (D,), table)`` of the detections alone (the env's entry): only the
@@ -320,7 +326,7 @@ def back_table(out, d, scan, first, count, rows, frames, scan_cols, ang, fixed_t
     return scan[det], table
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@numba.njit(cache=True, error_model="numpy", nogil=True, inline="always")
 def _table(out, d, scan, first, count, det, det_o, p_det, frames, ang, regression, t_mean, t_std, r_kin,
            max_iter, xtol, lam0, lam_max):  # fmt: skip
     # the (D, 8) detection table of the accepted segments det (rows det_o of out and frames, p(kin) p_det)
@@ -412,7 +418,7 @@ def mlp_rows4(x, mean, std, weights_t, biases, sizes, out):
                 out[r0 + q, j] = a[q, j]
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@numba.njit(cache=True, error_model="numpy", nogil=True, inline="always")
 def _network(x, rows_max, mean, std, weights, weights_t, biases, sizes, ws):
     # the network's (R, 3) outputs as float64: mlp_rows4 below rows_max rows, else the block kernel; in the
     # work arrays ws (after x and the frames) when they hold R rows
@@ -436,7 +442,7 @@ def _network(x, rows_max, mean, std, weights, weights_t, biases, sizes, ws):
     return out
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@numba.njit(cache=True, error_model="numpy", nogil=True, inline="always")
 def _checked_work(r, ws):
     # ws when it holds this batch's segment arrays, else a set of this call's own (never out of bounds:
     # numba does not check indices)
@@ -447,7 +453,7 @@ def _checked_work(r, ws):
             np.empty(_W_BOOL * cells, dtype=np.bool_), ws[3], ws[4], ws[5], ws[6])  # fmt: skip
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@numba.njit(cache=True, error_model="numpy", nogil=True, inline="always")
 def fused(r, front_args, rows_max, mean, std, weights, weights_t, biases, sizes, back_args, ws):
     """:func:`front`, the network compiled (:func:`mlp_rows4` below ``rows_max`` rows, else the block
     kernel :func:`detectors._kernels.mlp_forward`; bitwise the same) and :func:`back` in one
@@ -464,13 +470,13 @@ def fused(r, front_args, rows_max, mean, std, weights, weights_t, biases, sizes,
     return fr, out, back_rest(out, fr, back_args)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, error_model="numpy", nogil=True)
 def back_rest(out, fr, back_args):
     """:func:`back` on the outputs ``fr`` of :func:`front` (``back_args``: its arguments from ``ang``)."""
     return back(out, fr[0], fr[1], fr[2], fr[3], fr[8], fr[9], fr[11], fr[12], *back_args)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, error_model="numpy", nogil=True)
 def fused_table(r, front_args, rows_max, mean, std, weights, weights_t, biases, sizes, back_args, ws):
     """The detections alone, ``(scan row (D,), table (D, 8))``: what the envs read (fewer arrays
     cross back into Python). :func:`front` runs ``lean`` (what only the other segments' reported
@@ -483,7 +489,7 @@ def fused_table(r, front_args, rows_max, mean, std, weights, weights_t, biases, 
     return back_table(out, fr[0], fr[1], fr[2], fr[3], fr[9], fr[11], fr[12], back_args[0], *back_args[2:])
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, error_model="numpy", nogil=True)
 def pack(fr, bk):
     """The :class:`~detectors.base.BatchDetections` columns from :func:`front` / :func:`back` outputs
     as a few blocks (each column a row of one; fewer arrays to hand back to Python): ``(seg_i (5, S)
@@ -523,7 +529,7 @@ def pack(fr, bk):
     return seg_i, seg_b, seg_f, stage, det, det_f, det_i
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, error_model="numpy", nogil=True)
 def fused_packed(r, front_args, rows_max, mean, std, weights, weights_t, biases, sizes, back_args, ws):
     """:func:`fused` returning :func:`pack` of its outputs: ``detect_arrays`` hands 7 arrays back to
     Python instead of 19 (~1 us each) and none of the intermediate ones (nor any view of ``ws``)."""
