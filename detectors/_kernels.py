@@ -4,7 +4,8 @@ One pass per stage over *all* scans of a batch, writing flat per-segment arrays:
 (paper 4.1), segmentation (4.2), the diameter filter (4.3.1) and the known-radius circle fit
 (4.3.2, the same Levenberg-Marquardt iteration as :func:`detectors.geometric.fit_circle`). The
 numpy functions of :mod:`detectors.geometric` stay the readable one-segment reference; tests check
-that both agree.
+that both agree. ``error_model="numpy"`` throughout (no zero-divisor check per division; see
+:mod:`detectors._learned_driver`).
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ _TWO_PI = 2.0 * math.pi
 _HALF_PI = 0.5 * math.pi
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, error_model="numpy", nogil=True)
 def preprocess_rows(r, d_max, d_th, circular, noise_filter, out):
     """Paper 4.1 on every row of ``r`` into ``out``: 0.0, negative, NaN and inf -> ``d_max``
     (a real RPLIDAR reports 0.0 for an invalid reading), clip at ``d_max``, optional spike filter
@@ -51,64 +52,69 @@ def preprocess_rows(r, d_max, d_th, circular, noise_filter, out):
             out[b, i] = d
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, error_model="numpy", nogil=True)
 def segment_rows(d, d_th, d_max, circular, scan, first, count, prev, nxt, prev_nearer, next_nearer):
     """Paper 4.2 (eq. 1) on every row of pre-processed ``d`` (B, n), as
     :func:`detectors.geometric.segment`: maximal runs of beams ``< d_max`` without a break
     ``|d_i - d_{i-1}| > d_th`` (no return reads ``d_max + 2 d_th``, so a change between return and
     no return is always a break). Output arrays hold at least ``B * n`` entries; returns the number
-    of segments written (scan 0's first, each scan's in order of first beam)."""
+    of segments written (scan 0's first, each scan's in order of first beam).
+
+    Without branches on the data: the breaks' positions are compacted in one pass, then every break
+    writes a segment (to the next break) into the next slot, kept when its first beam has a return (a
+    noisy swarm scan breaks at ~1 beam in 3, unpredictably: a branch per beam and a walk per segment
+    mispredicted)."""
     n_rows, n = d.shape
     hi = d_max + 2.0 * d_th
-    brk = np.empty(n, dtype=np.bool_)
+    pos = np.empty(n + 1, dtype=np.int64)
     s = 0
     for b in range(n_rows):
-        prev_e = d[b, n - 1] if d[b, n - 1] < d_max else hi
-        all_valid = True
+        row = d[b]
+        prev_e = row[n - 1] if row[n - 1] < d_max else hi
+        m = 0
+        n_valid = 0
         for i in range(n):
-            e = d[b, i] if d[b, i] < d_max else hi
-            if i == 0 and not circular:
-                brk[i] = True
-            else:
-                brk[i] = abs(e - prev_e) > d_th
+            v = row[i]
+            ok = v < d_max
+            e = v if ok else hi
+            pos[m] = i
+            m += abs(e - prev_e) > d_th or (i == 0 and not circular)
+            n_valid += ok
             prev_e = e
-            if not d[b, i] < d_max:
-                all_valid = False
-        s0 = s
-        for f in range(n):
-            if not (brk[f] and d[b, f] < d_max):
-                continue
-            k = f
-            c = 1
-            # a valid beam without a break after it continues onto the (valid) next beam
-            nk = k + 1 if k < n - 1 else 0
-            while not brk[nk]:
-                k = nk
-                nk = k + 1 if k < n - 1 else 0
-                c += 1
-            scan[s] = b
-            first[s] = f
-            count[s] = c
+        if m == 0:
+            if n_valid == n:  # a ring without any break (round room): one segment
+                scan[s] = b
+                first[s] = 0
+                count[s] = n
+                prev[s] = -1
+                nxt[s] = -1
+                prev_nearer[s] = False
+                next_nearer[s] = False
+                s += 1
+            continue
+        # the segment of the last break runs to the end (partial sweep) or around to the first break
+        pos[m] = pos[0] + n if circular else n
+        for j in range(m):
+            f = pos[j]
+            c = pos[j + 1] - f
+            k = f + c - 1  # last beam, < 2 n
+            if k >= n:
+                k -= n
             if circular:  # (f - 1) % n and (k + 1) % n for 0 <= f, k < n, without an integer division
                 p = f - 1 if f > 0 else n - 1
                 q = k + 1 if k < n - 1 else 0
             else:
                 p = f - 1
                 q = k + 1 if k < n - 1 else -1
+            df = row[f]
+            scan[s] = b
+            first[s] = f
+            count[s] = c
             prev[s] = p
             nxt[s] = q
-            prev_nearer[s] = p >= 0 and d[b, p] < d[b, f]
-            next_nearer[s] = q >= 0 and d[b, q] < d[b, k]
-            s += 1
-        if s == s0 and all_valid:  # a ring without any break (round room): one segment
-            scan[s] = b
-            first[s] = 0
-            count[s] = n
-            prev[s] = -1
-            nxt[s] = -1
-            prev_nearer[s] = False
-            next_nearer[s] = False
-            s += 1
+            prev_nearer[s] = p >= 0 and row[max(p, 0)] < df
+            next_nearer[s] = q >= 0 and row[max(q, 0)] < row[k]
+            s += df < d_max  # kept when its first beam has a return
     return s
 
 
@@ -118,7 +124,7 @@ def segment_arrays(d: np.ndarray, d_th: float, d_max: float, circular: bool) -> 
     return _segment_arrays(d, d_th, d_max, circular)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, error_model="numpy", nogil=True)
 def _segment_views(d, d_th, d_max, circular):
     # _segment_arrays as views of the (B * n) buffers, for callers that drop them within the call
     # (the learned driver): no copies
@@ -134,7 +140,7 @@ def _segment_views(d, d_th, d_max, circular):
     return scan[:s], first[:s], count[:s], prev[:s], nxt[:s], p_near[:s], n_near[:s]
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, error_model="numpy", nogil=True)
 def _segment_arrays(d, d_th, d_max, circular):
     # buffers and exact-size copies made inside one compiled call: for one scan, 14 numpy
     # allocations and 7 slices from Python cost more than the segmentation itself
@@ -142,13 +148,13 @@ def _segment_arrays(d, d_th, d_max, circular):
     return scan.copy(), first.copy(), count.copy(), prev.copy(), nxt.copy(), p_near.copy(), n_near.copy()
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _half_width(d_cest, alpha):
     # eqs. 4-5 half-widths; an angle >= 90 deg from the min beam bounds no finite diameter
     return d_cest * math.tan(alpha) if alpha < _HALF_PI else math.inf
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, error_model="numpy", nogil=True)
 def lm_fit(px, py, n, r, rc, tc, max_iter, xtol, lam0, lam_max):
     """:func:`detectors.geometric._lm_scalar` compiled: known-radius circle fit of the first ``n``
     points (Cartesian ``px, py``) from the polar centre ``(rc, tc)``. Same iteration, so the same
@@ -188,7 +194,7 @@ def lm_fit(px, py, n, r, rc, tc, max_iter, xtol, lam0, lam_max):
     return rc, tc, sabs
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _lm_eval(px, py, n, r, rc, tc):
     # points rotated by -theta_c put the centre at (r_c, 0): q = rotated point - centre,
     # e = |q| - r; one cos/sin per evaluation instead of one per point
@@ -212,14 +218,14 @@ def _lm_eval(px, py, n, r, rc, tc):
     return a11, a12, a22, g1, g2, cost, sabs
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def wrap(a):
     """Angle to (-pi, pi] (as :func:`detectors.base.wrap_angle` on arrays)."""
     w = (a + math.pi) % _TWO_PI - math.pi
     return w + _TWO_PI if w <= -math.pi else w
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, error_model="numpy", nogil=True)
 def geometric_segments(
     d,
     ang,
@@ -313,7 +319,7 @@ def geometric_segments(
         stage[i] = ACCEPTED if err < F_threshold else SHAPE
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, error_model="numpy", nogil=True)
 def fit_centres(d, ang, scan, first, count, which, r, max_iter, xtol, lam0, lam_max, out):
     """Observer-frame ``x, y`` of the circle fit (eq. 7 start at the first min beam) of the
     segments ``which`` into ``out`` rows; one-beam segments get eq. 7's centre."""
@@ -480,7 +486,7 @@ def mlp_forward_rows(x, mean, std, weights_t, biases, sizes, out):
             out[r_, j] = a[j]
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, error_model="numpy", nogil=True)
 def housing_max_beams(d, scan, first, count, step, r, slack, margin, out):
     """Most beams (``step`` rad apart) a circle of radius ``r`` can return, plus ``margin``, for
     every segment, from its nearest reading ``d_min``: the circle's centre is at least ``slack *
@@ -491,7 +497,7 @@ def housing_max_beams(d, scan, first, count, step, r, slack, margin, out):
     _housing_max_beams(d, scan, first, count, step, r, slack, margin, False, out)
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@numba.njit(cache=True, error_model="numpy", nogil=True, inline="always")
 def _housing_max_beams(d, scan, first, count, step, r, slack, margin, skip_one, out):
     # housing_max_beams; skip_one: NaN for one-beam segments (not computed: the learned driver's lean path)
     n_beams = d.shape[1]

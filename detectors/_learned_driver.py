@@ -32,7 +32,13 @@ after the network repeats that pipeline's numpy expression on the same float64 v
 are bitwise the same (``tests/detectors/test_learned_driver.py``). A change to a stage (a new
 feature kernel signature, a cascade stage) must be made in both places; that test fails otherwise.
 
-Every output array is allocated in the call: results handed to a caller are never reused.
+Every output array is allocated in the call: results handed to a caller are never reused. The large
+intermediate ones live in work arrays (:func:`new_work`) that the detector keeps per thread and passes in.
+
+Every kernel here and in :mod:`detectors.features` / :mod:`detectors._kernels` is compiled with
+``error_model="numpy"``: no zero-divisor check before each division (IEEE inf / NaN instead of a
+``ZeroDivisionError``; none of them divides by zero on valid input, so every output is the same), ~5 %
+of a swarm batch, and loops with a division can use SIMD.
 
 numba's on-disk cache stamps a function with its own file only; :mod:`detectors._numba_cache` adds
 the digest of every jitted source of the package to the stamp, so an edit to a kernel these functions
@@ -63,7 +69,48 @@ _CAS_CHUNK = 256  # segments per chunk of the cascade's stage 1 in :func:`front`
 TABLE_FIELDS = ("range", "bearing", "x", "y", "score", "first_beam", "last_beam", "n_beams")
 
 
-@numba.njit(cache=True, nogil=True)
+#: the kept work arrays serve batches of at most this many beams (scans x beams); a larger batch allocates
+#: its own for the call (as a detector without kept arrays), so a one-off huge batch is not kept resident
+WORK_MAX_CELLS = 1 << 18
+_W_F64 = 4  # float64 work values per beam of a batch: d, max_beams, cascade scores, stage-1 scores
+_W_I64 = 7  # int64: scan, first, count, prev, next (segments), pre-gate keep, stage-1 rows
+_W_BOOL = 2  # bool: prev_nearer, next_nearer
+_R_F64 = 9  # float64 per network row: frames (4), circle-fit centre (2), outputs (3)
+_R_I64 = 1  # int64 per network row: min_beam
+
+
+def new_work(cells: int, rows: int, n_feat: int) -> tuple:
+    """Work arrays for :func:`fused_table` / :func:`fused_packed`: batches of up to ``cells`` beams and
+    ``rows`` network rows (more rows: that call allocates its own, and ``need[0]`` tells how many).
+
+    ``(wf float64, wi int64, wb bool, rf float64, rx float32, ri int64, need int64 (1,))``. Kept by
+    :class:`detectors.learned.LearnedKinDetector` (one set per thread) and reused: the driver's large
+    intermediate arrays came from fresh pages on every call (at 256 robots ~1,100 page faults per call),
+    and a kept set stays in cache. Nothing the driver returns is a view of them."""
+    cells = max(int(cells), 0)
+    rows = max(int(rows), 0)
+    return (
+        np.empty(_W_F64 * cells), np.empty(_W_I64 * cells, dtype=np.int64),
+        np.empty(_W_BOOL * cells, dtype=np.bool_), np.empty(_R_F64 * rows),
+        np.empty((n_feat + 3) * rows, dtype=np.float32), np.empty(_R_I64 * rows, dtype=np.int64),
+        np.zeros(1, dtype=np.int64),
+    )  # fmt: skip
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _work_fits(ws, cells):
+    f64, i64, b8 = ws[0].shape[0], ws[1].shape[0], ws[2].shape[0]
+    return f64 >= _W_F64 * cells and i64 >= _W_I64 * cells and b8 >= _W_BOOL * cells
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _rows_fit(ws, n_sel, n_feat):
+    # the work arrays hold n_sel network rows (features, frames, fit centres, min beams, outputs)
+    rf, rx, ri = ws[3].shape[0], ws[4].shape[0], ws[5].shape[0]
+    return n_sel * _R_I64 <= ri and n_sel * (n_feat + 3) <= rx and n_sel * _R_F64 <= rf
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
 def front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_ang, cos_a, sin_a, sweep,
           tan_tab, occlusion_unbounded, n_points, n_context, gn_iters, n_feat, cascade, c_w1t, c_b1, c_w2,
           c_b2, c_threshold, c_one_beam, lean):  # fmt: skip
@@ -85,31 +132,60 @@ def front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_a
     :func:`detectors._kernels.segment_arrays`), the pre-gate bound of every segment (NaN without the
     gate), the segments ``rows`` that reach the network, their ``(R, F)`` float32 features and local
     frames, each scan's float64 noise features (:func:`detectors.features._features_kernel`) and
-    every segment's stage-1 score (NaN where not scored).
+    every segment's stage-1 score (NaN where not scored). Arrays of this call's own (work arrays made
+    for it; :func:`_front` is the driver's version on kept ones).
     """
+    cells = r.shape[0] * r.shape[1]
+    ws = (np.empty(_W_F64 * cells), np.empty(_W_I64 * cells, dtype=np.int64),
+          np.empty(_W_BOOL * cells, dtype=np.bool_), np.empty(0), np.empty(0, dtype=np.float32),
+          np.empty(0, dtype=np.int64), np.zeros(1, dtype=np.int64))  # fmt: skip
+    return _front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_ang, cos_a, sin_a,
+                  sweep, tan_tab, occlusion_unbounded, n_points, n_context, gn_iters, n_feat, cascade, c_w1t,
+                  c_b1, c_w2, c_b2, c_threshold, c_one_beam, lean, ws)  # fmt: skip
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def _front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_ang, cos_a, sin_a, sweep,
+           tan_tab, occlusion_unbounded, n_points, n_context, gn_iters, n_feat, cascade, c_w1t, c_b1, c_w2,
+           c_b2, c_threshold, c_one_beam, lean, ws):  # fmt: skip
+    # front on the work arrays ws (new_work; the caller checked _work_fits for this batch): the arrays it
+    # returns are views of them, except where ws holds too few network rows (then this call's own)
+    wf, wi, wb, rf, rx, ri, need = ws
     n_rows, n = r.shape
-    d = np.empty((n_rows, n))
+    cells = n_rows * n
+    d = wf[:cells].reshape((n_rows, n))
     _k.preprocess_rows(r, d_max, d_th, circular, False, d)
-    # views of the segmentation buffers (no copies: nothing of them outlives the caller unless copied)
-    scan, first, count, prev, nxt, p_near, n_near = _k._segment_views(d, d_th, d_max, circular)
-    s = scan.shape[0]
-    max_beams = np.empty(s)
+    # the segmentation's columns are views of the work arrays (no copies)
+    scan = wi[:cells]
+    first = wi[cells : 2 * cells]
+    count = wi[2 * cells : 3 * cells]
+    prev = wi[3 * cells : 4 * cells]
+    nxt = wi[4 * cells : 5 * cells]
+    p_near = wb[:cells]
+    n_near = wb[cells : 2 * cells]
+    s = _k.segment_rows(d, d_th, d_max, circular, scan, first, count, prev, nxt, p_near, n_near)
+    scan, first, count, prev, nxt = scan[:s], first[:s], count[:s], prev[:s], nxt[:s]
+    p_near, n_near = p_near[:s], n_near[:s]
+    max_beams = wf[cells : cells + s]
+    keep = wi[5 * cells : 5 * cells + s]
     if pre_gate:
         # (a one-beam segment's bound floor(2 asin(.) / step) + 1 + margin is >= 1 for step > 0, margin >= 0)
         skip_one = lean and step > 0.0 and margin >= 0.0
         _k._housing_max_beams(d, scan, first, count, step, r_kin, slack, margin, skip_one, max_beams)
-        keep = np.empty(s, dtype=np.int64)
         n_keep = 0
         for i in range(s):
             if count[i] <= max_beams[i] or (skip_one and count[i] == 1):
                 keep[n_keep] = i
                 n_keep += 1
-        rows = keep[:n_keep].copy()
+        rows = keep[:n_keep]
     else:
         max_beams[:] = np.nan
-        rows = np.arange(s)
+        for i in range(s):
+            keep[i] = i
+        rows = keep
     scan_cols = np.empty((n_rows, 2))
-    cscore = np.full(s, np.nan)
+    cscore = wf[2 * cells : 2 * cells + s]
+    cscore[:] = np.nan
     noise = np.empty(n_rows)
     noise_n = np.empty(n_rows, dtype=np.int64)
     if s > 0:
@@ -119,13 +195,13 @@ def front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_a
         _scan_columns(noise, noise_n, scan_cols)
         d_flat = d.reshape(-1)
         if lean:  # the one-beam segments the bound rejects drop out here (the others keep their order)
-            todo = np.empty(rows.shape[0], dtype=np.int64)
+            todo = wi[6 * cells : 6 * cells + rows.shape[0]]
             n_todo = _cascade_one_beam_filter(d_flat, scan, first, count, p_near, n_near, n, circular, d_max,
                                               scan_cols, c_one_beam, c_threshold, rows, todo)  # fmt: skip
             rows = todo[:n_todo]
         # in chunks: the inputs stay in cache (a row's score does not depend on its chunk)
         xc = np.empty((_CAS_CHUNK, 12))
-        s1 = np.empty(rows.shape[0])
+        s1 = wf[3 * cells : 3 * cells + rows.shape[0]]
         for c0 in range(0, rows.shape[0], _CAS_CHUNK):
             c1 = min(c0 + _CAS_CHUNK, rows.shape[0])
             _cascade_kernel(d_flat, cos_a, sin_a, trig_ang, scan, first, count, prev, nxt, p_near, n_near, n,
@@ -138,22 +214,29 @@ def front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_a
             if s1[o] >= c_threshold:
                 rows[n_keep] = rows[o]
                 n_keep += 1
-        rows = rows[:n_keep].copy()
+        rows = rows[:n_keep]
     n_sel = rows.shape[0]
-    x = np.empty((n_sel, n_feat), dtype=np.float32)
-    frames = np.empty((n_sel, 4))
-    if s > 0:
+    need[0] = n_sel
+    if _rows_fit(ws, n_sel, n_feat):
+        x = rx[: n_sel * n_feat].reshape((n_sel, n_feat))
+        frames = rf[: 4 * n_sel].reshape((n_sel, 4))
+        fit_centre = rf[4 * n_sel : 6 * n_sel].reshape((n_sel, 2))
+        min_beam = ri[:n_sel]
+    else:  # more network rows than the work arrays hold: this call's own
+        x = np.empty((n_sel, n_feat), dtype=np.float32)
+        frames = np.empty((n_sel, 4))
         fit_centre = np.empty((n_sel, 2))
         min_beam = np.empty(n_sel, dtype=np.int64)
+    if s > 0:
         _features_kernel(
-            d.reshape(-1), cos_a, sin_a, trig_ang, scan, first, count, prev, nxt, p_near, n_near, n,
-            circular, sweep, r_kin, d_max, occlusion_unbounded, n_points, n_context, gn_iters, noise,
-            noise_n, rows, x, frames, fit_centre, min_beam, scan_cols, tan_tab,
+            d.reshape(-1), cos_a, sin_a, trig_ang, scan, first, count, prev, nxt, p_near, n_near, n, circular,
+            sweep, r_kin, d_max, occlusion_unbounded, n_points, n_context, gn_iters, noise, noise_n, rows, x,
+            frames, fit_centre, min_beam, scan_cols, tan_tab,
         )  # fmt: skip
     return d, scan, first, count, prev, nxt, p_near, n_near, max_beams, rows, x, frames, scan_cols, cscore
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _scan_threshold(log_noise, fixed, edges, values):
     # LearnedKinDetector._thresholds for one scan: the float32 feature value, exp in float64, and
     # np.searchsorted(edges, sigma, side="right") (NaN sorts last)
@@ -170,7 +253,7 @@ def _scan_threshold(log_noise, fixed, edges, values):
     return values[k]
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _scan_thresholds(scan_cols, n_seg, fixed, edges, values):
     # each scan's threshold (:func:`_scan_threshold` of its log noise); not read without segments
     thr_scan = np.empty(scan_cols.shape[0])
@@ -180,7 +263,7 @@ def _scan_thresholds(scan_cols, n_seg, fixed, edges, values):
     return thr_scan
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, error_model="numpy", nogil=True)
 def back(out, d, scan, first, count, max_beams, rows, frames, scan_cols, ang, pre_gate, fixed_threshold,
          edges, values, regression, t_mean, t_std, r_kin, max_iter, xtol, lam0, lam_max):  # fmt: skip
     """Stages 4-5 from the network outputs ``out`` (R, 3) float64 of the segments ``rows``.
@@ -221,7 +304,7 @@ def back(out, d, scan, first, count, max_beams, rows, frames, scan_cols, ang, pr
     return p, thr, stage, det, table
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, error_model="numpy", nogil=True)
 def back_table(out, d, scan, first, count, rows, frames, scan_cols, ang, fixed_threshold, edges, values,
                regression, t_mean, t_std, r_kin, max_iter, xtol, lam0, lam_max):  # fmt: skip
     """:func:`back`'s ``(scan row (D,), table)`` of the detections alone (the env's entry): only the
@@ -243,7 +326,7 @@ def back_table(out, d, scan, first, count, rows, frames, scan_cols, ang, fixed_t
     return scan[det], table
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@numba.njit(cache=True, error_model="numpy", nogil=True, inline="always")
 def _table(out, d, scan, first, count, det, det_o, p_det, frames, ang, regression, t_mean, t_std, r_kin,
            max_iter, xtol, lam0, lam_max):  # fmt: skip
     # the (D, 8) detection table of the accepted segments det (rows det_o of out and frames, p(kin) p_det)
@@ -335,55 +418,78 @@ def mlp_rows4(x, mean, std, weights_t, biases, sizes, out):
                 out[r0 + q, j] = a[q, j]
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
-def _network(x, rows_max, mean, std, weights, weights_t, biases, sizes):
-    # the network's (R, 3) outputs as float64: mlp_rows4 below rows_max rows, else the block kernel
+@numba.njit(cache=True, error_model="numpy", nogil=True, inline="always")
+def _network(x, rows_max, mean, std, weights, weights_t, biases, sizes, ws):
+    # the network's (R, 3) outputs as float64: mlp_rows4 below rows_max rows, else the block kernel; in the
+    # work arrays ws (after x and the frames) when they hold R rows
     n_sel = x.shape[0]
-    out32 = np.empty((n_sel, 3), dtype=np.float32)
+    rf, rx = ws[3], ws[4]
+    n_feat = x.shape[1]
+    if _rows_fit(ws, n_sel, n_feat):
+        out32 = rx[n_sel * n_feat : n_sel * (n_feat + 3)].reshape((n_sel, 3))
+        out = rf[6 * n_sel : 9 * n_sel].reshape((n_sel, 3))
+    else:
+        out32 = np.empty((n_sel, 3), dtype=np.float32)
+        out = np.empty((n_sel, 3))
     if n_sel > 0:
         if n_sel < rows_max:
             mlp_rows4(x, mean, std, weights_t, biases, sizes, out32)
         else:
             _k.mlp_forward(x, mean, std, weights, biases, sizes, out32)
-    return out32.astype(np.float64)
+    for o in range(n_sel):
+        for j in range(3):
+            out[o, j] = out32[o, j]
+    return out
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
-def fused(r, front_args, rows_max, mean, std, weights, weights_t, biases, sizes, back_args):
+@numba.njit(cache=True, error_model="numpy", nogil=True, inline="always")
+def _checked_work(r, ws):
+    # ws when it holds this batch's segment arrays, else a set of this call's own (never out of bounds:
+    # numba does not check indices)
+    cells = r.shape[0] * r.shape[1]
+    if _work_fits(ws, cells):
+        return ws
+    return (np.empty(_W_F64 * cells), np.empty(_W_I64 * cells, dtype=np.int64),
+            np.empty(_W_BOOL * cells, dtype=np.bool_), ws[3], ws[4], ws[5], ws[6])  # fmt: skip
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True, inline="always")
+def fused(r, front_args, rows_max, mean, std, weights, weights_t, biases, sizes, back_args, ws):
     """:func:`front`, the network compiled (:func:`mlp_rows4` below ``rows_max`` rows, else the block
     kernel :func:`detectors._kernels.mlp_forward`; bitwise the same) and :func:`back` in one
-    dispatch. ``front_args`` / ``back_args``: the other arguments of :func:`front` / :func:`back`
-    after ``r`` / ``scan_cols``.
+    dispatch, on the work arrays ``ws`` (:func:`new_work`). ``front_args`` / ``back_args``: the other
+    arguments of :func:`front` / :func:`back` after ``r`` / ``scan_cols``.
 
     Returns ``(front outputs, out (R, 3) float64, back outputs)``. Called from compiled code only
     (:func:`fused_packed`): handing the intermediate arrays back to Python cost ~0.9 ms per 64
-    dense-arena scans (measured; large arrays freed outside the call come back as fresh pages), and
+    dense-arena scans (measured; large arrays freed outside the call came back as fresh pages), and
     as a separate compiled function (not inlined into its callers) ~0.5 ms more (measured, not
     understood)."""
-    fr = front(r, *front_args, False)
-    out = _network(fr[10], rows_max, mean, std, weights, weights_t, biases, sizes)
+    fr = _front(r, *front_args, False, _checked_work(r, ws))
+    out = _network(fr[10], rows_max, mean, std, weights, weights_t, biases, sizes, ws)
     return fr, out, back_rest(out, fr, back_args)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, error_model="numpy", nogil=True)
 def back_rest(out, fr, back_args):
     """:func:`back` on the outputs ``fr`` of :func:`front` (``back_args``: its arguments from ``ang``)."""
     return back(out, fr[0], fr[1], fr[2], fr[3], fr[8], fr[9], fr[11], fr[12], *back_args)
 
 
-@numba.njit(cache=True, nogil=True)
-def fused_table(r, front_args, rows_max, mean, std, weights, weights_t, biases, sizes, back_args):
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def fused_table(r, front_args, rows_max, mean, std, weights, weights_t, biases, sizes, back_args, ws):
     """The detections alone, ``(scan row (D,), table (D, 8))``: what the envs read (fewer arrays
     cross back into Python). :func:`front` runs ``lean`` (what only the other segments' reported
     values need is skipped) and :func:`back_table` looks at the network's rows only; the same
-    detections as :func:`fused_packed` (``tests/detectors/test_cascade_bound.py``)."""
-    fr = front(r, *front_args, True)
-    out = _network(fr[10], rows_max, mean, std, weights, weights_t, biases, sizes)
+    detections as :func:`fused_packed` (``tests/detectors/test_cascade_bound.py``). ``ws``: the work
+    arrays (:func:`new_work`); both outputs are new arrays."""
+    fr = _front(r, *front_args, True, _checked_work(r, ws))
+    out = _network(fr[10], rows_max, mean, std, weights, weights_t, biases, sizes, ws)
     # back_args: (ang, pre_gate, fixed_threshold, edges, values, regression, t_mean, t_std, r_kin, ...)
     return back_table(out, fr[0], fr[1], fr[2], fr[3], fr[9], fr[11], fr[12], back_args[0], *back_args[2:])
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, error_model="numpy", nogil=True)
 def pack(fr, bk):
     """The :class:`~detectors.base.BatchDetections` columns from :func:`front` / :func:`back` outputs
     as a few blocks (each column a row of one; fewer arrays to hand back to Python): ``(seg_i (5, S)
@@ -423,10 +529,9 @@ def pack(fr, bk):
     return seg_i, seg_b, seg_f, stage, det, det_f, det_i
 
 
-@numba.njit(cache=True, nogil=True)
-def fused_packed(r, front_args, rows_max, mean, std, weights, weights_t, biases, sizes, back_args):
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def fused_packed(r, front_args, rows_max, mean, std, weights, weights_t, biases, sizes, back_args, ws):
     """:func:`fused` returning :func:`pack` of its outputs: ``detect_arrays`` hands 7 arrays back to
-    Python instead of 19 (~1 us each) and none of the intermediate ones."""
-    fr, _, bk = fused(r, front_args, rows_max, mean, std, weights, weights_t, biases, sizes, back_args)
+    Python instead of 19 (~1 us each) and none of the intermediate ones (nor any view of ``ws``)."""
+    fr, _, bk = fused(r, front_args, rows_max, mean, std, weights, weights_t, biases, sizes, back_args, ws)
     return pack(fr, bk)
-

@@ -307,18 +307,40 @@ def observer_to_local(frames: np.ndarray, xy: np.ndarray) -> np.ndarray:
     return np.stack([dx * c + dy * sn, s * (-dx * sn + dy * c)], axis=1)
 
 
-@numba.njit(cache=True, inline="always")
+#: relative bound on ``|sqrt(x * x + y * y) - math.hypot(x, y)|`` used by :func:`_f32_clip_hypot` (the two
+#: differ by a few ulps, 2**-51 relative; 32x margin)
+_HYPOT_EPS = 2.0**-46
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _f32_clip_hypot(x, y, d, lo, hi):
+    """``float(np.float32(min(max(math.hypot(x, y) - d, lo), hi)))`` without ``hypot`` (~17 ns) when the
+    float32 value is certain: ``sqrt(x * x + y * y)`` is within ``_HYPOT_EPS`` of it (relative; no under- or
+    overflow in the squares), rounding, the clip and the float32 conversion are monotone, so when both
+    ends of that interval give the same non-zero float32 the exact value gives it too; else (a zero's
+    sign, a value at a float32 rounding edge, about one in 10**7) ``hypot`` itself."""
+    a = math.sqrt(x * x + y * y)
+    if a > 1e-150 and a < 1e150:
+        e = a * _HYPOT_EPS
+        f_lo = np.float32(min(max((a - e) - d, lo), hi))
+        f_hi = np.float32(min(max((a + e) - d, lo), hi))
+        if f_lo == f_hi and f_lo != 0.0:
+            return np.float64(f_lo)
+    return np.float64(np.float32(min(max(math.hypot(x, y) - d, lo), hi)))
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _log_err(e):
     return math.log(min(e, _ERR_CLIP) + _ERR_FLOOR)
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _log1p_n(n):
     # math.log1p(float(n)) for a segment length n >= 0, from _LOG1P_N when it is there
     return _LOG1P_N[n] if n < _LOG1P_N.shape[0] else math.log1p(float(n))
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _wrap_index(i, n):
     # i % n for -n <= i < 2n without an integer division (the same value)
     if i >= n:
@@ -328,7 +350,7 @@ def _wrap_index(i, n):
     return i
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _mod_two_pi(x):
     # Python's x % 2 pi: for |x| < 2 pi fmod returns x exactly, so the same value without fmod
     # (and +0.0 for -0.0, as Python)
@@ -341,13 +363,13 @@ def _mod_two_pi(x):
     return x % _TWO_PI
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _half_width(d_cest, alpha):
     # eqs. 4-5 half-widths; an angle >= 90 deg from the min beam bounds no finite diameter
     return d_cest * math.tan(alpha) if alpha < 0.5 * math.pi else math.inf
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, error_model="numpy", nogil=True)
 def _tan_table(ang, sweep, n_off, out):
     # tan_tab[i, off]: what _half_width multiplies d_cest by for beams i and j = i - off (wrapped)
     n = ang.shape[0]
@@ -358,7 +380,7 @@ def _tan_table(ang, sweep, n_off, out):
             out[i, off] = math.tan(alpha) if alpha < 0.5 * math.pi else math.inf
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _half_width_ij(d_cest, i, j, ang, sweep, n_beams, tan_tab):
     """``_half_width(d_cest, _mod_two_pi(sweep * (ang[i] - ang[j])))``, its ``tan`` looked up in
     ``tan_tab`` (:func:`beam_trig`) when beam ``j`` is fewer than ``tan_tab.shape[1]`` beams before
@@ -369,7 +391,7 @@ def _half_width_ij(d_cest, i, j, ang, sweep, n_beams, tan_tab):
     return _half_width(d_cest, _mod_two_pi(sweep * (ang[i] - ang[j])))
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _omegas(d_cest, bmin, f, bl, pb, nb, unbounded, ang, sweep, n_beams, tan_tab):
     """Eqs. 4-5: ``omega_min`` (the segment's own extent, nearest beam ``bmin`` to its first ``f`` and last
     ``bl`` beams) and ``omega_max`` (to the outside beams ``pb`` / ``nb``; inf when ``unbounded``), m."""
@@ -384,7 +406,7 @@ def _omegas(d_cest, bmin, f, bl, pb, nb, unbounded, ang, sweep, n_beams, tan_tab
     return omega_min, omega_max
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _context_value(d_flat, row, idx, n_beams, circular, d_edge, d_max):
     """A context feature: beam ``idx``'s range minus the segment's edge range ``d_edge``, clipped to
     +-_CTX_CLIP; _CTX_CLIP where the beam is outside a partial sweep or has no return."""
@@ -398,7 +420,7 @@ def _context_value(d_flat, row, idx, n_beams, circular, d_edge, d_max):
     return _CTX_CLIP
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, error_model="numpy", nogil=True)
 def _features_kernel(
     d_flat,
     cos_a,
@@ -536,7 +558,8 @@ def _features_kernel(
         omega_min, omega_max = _omegas(
             d_cest, bmin, f, bl, pb, nb, unb_f or unb_l, ang, sweep, n_beams, tan_tab
         )
-        chord = math.hypot(px[n - 1] - px[0], py[n - 1] - py[0])
+        # min(chord, _LEN_CLIP) enters the float32 vector only
+        chord_f = _f32_clip_hypot(px[n - 1] - px[0], py[n - 1] - py[0], 0.0, 0.0, _LEN_CLIP)
         # known-radius circle fit (eqs. 6-7): Gauss-Newton from the eq. 7 centre
         grow = 1.0 + r / d_min
         cx = px[kmin] * grow
@@ -593,7 +616,6 @@ def _features_kernel(
         fdy = cy - oy
         fit_u = fdx * cphi + fdy * sphi
         fit_v = sweep * (-fdx * sphi + fdy * cphi)
-        fit_dr = math.hypot(cx, cy) - d_cest
         # free-radius (Kasa) fit and straight-line residual from centred moments
         suu = 0.0
         suv = 0.0
@@ -632,13 +654,13 @@ def _features_kernel(
             1.0 if (omega_min <= 2.0 * r and 2.0 * r < omega_max) else 0.0,
             1.0 if prev_nearer[i] else 0.0,
             1.0 if next_nearer[i] else 0.0,
-            min(chord, _LEN_CLIP),
+            chord_f,
             min(umax - umin, _LEN_CLIP),
             _log_err(F0),
             _log_err(F_sum) if fit_ok else log_err0,
             _log_err(F_sum / n) if fit_ok else log_err0,
             _log_err(e_max) if fit_ok else log_err0,
-            min(max(fit_dr, -_OFF_CLIP), _OFF_CLIP) if fit_ok else 0.0,
+            _f32_clip_hypot(cx, cy, d_cest, -_OFF_CLIP, _OFF_CLIP) if fit_ok else 0.0,
             min(max(fit_u, -_OFF_CLIP), _OFF_CLIP) if fit_ok else 0.0,
             min(max(fit_v, -_OFF_CLIP), _OFF_CLIP) if fit_ok else 0.0,
             1.0 if fit_ok else 0.0,
@@ -660,7 +682,7 @@ def _features_kernel(
             x[o, col + j] = min(max(e, -_RES_CLIP), _RES_CLIP)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, error_model="numpy", nogil=True)
 def _scan_noise_kernel(d, d_th, d_max, circular, out, count):
     n_rows, n = d.shape
     buf = np.empty(n)
@@ -696,7 +718,7 @@ def _scan_noise_kernel(d, d_th, d_max, circular, out, count):
         count[b] = k
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, error_model="numpy", nogil=True)
 def _quantile(buf, n, q):
     """numba's ``np.quantile(buf[:n], q)`` (linear interpolation between the two order statistics
     around rank ``1 + (n - 1) q``, its expressions) for ``n >= 2`` finite values and ``0 < q < 1``,
@@ -893,7 +915,7 @@ CASCADE_FEATURES = (
 )
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, error_model="numpy", nogil=True)
 def _scan_columns(scan_noise, noise_n, out):
     # the per-scan features, the same expressions as in _features_kernel (same bits)
     for b in range(scan_noise.shape[0]):
@@ -936,7 +958,7 @@ def _cascade_scores(x, w1t, b1, w2, b2, out):
             out[r0 + q] = s[q]
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, error_model="numpy", nogil=True)
 def _cascade_kernel(
     d_flat, cos_a, sin_a, ang, scan, first, count, prev_beam, next_beam, prev_nearer, next_nearer,
     n_beams, circular, sweep, r, d_max, occlusion_unbounded, scan_cols, which, x, tan_tab,
@@ -983,14 +1005,14 @@ def _cascade_kernel(
         chord = 0.0
         if n > 1:
             dx = d_last * cos_a[bl] - d_first * cos_a[f]
-            chord = math.hypot(dx, d_last * sin_a[bl] - d_first * sin_a[f])
+            chord = _f32_clip_hypot(dx, d_last * sin_a[bl] - d_first * sin_a[f], 0.0, 0.0, _LEN_CLIP)
         x[o, 0] = np.float32(_log1p_n(n))
         x[o, 1] = np.float32(math.log(dmin))
         x[o, 2] = np.float32(min(omega_min, _LEN_CLIP))
         x[o, 3] = np.float32(min(omega_max, _LEN_CLIP))
         x[o, 4] = 1.0 if prev_nearer[i] else 0.0
         x[o, 5] = 1.0 if next_nearer[i] else 0.0
-        x[o, 6] = np.float32(min(chord, _LEN_CLIP))
+        x[o, 6] = chord  # (float32 value)
         x[o, 7] = np.float32(scan_cols[scan[i], 0])
 
 
@@ -1110,7 +1132,7 @@ def cascade_one_beam_table(w1t, b1, w2, b2) -> np.ndarray:
     return np.ascontiguousarray(np.concatenate([c[..., None], g[..., 7:]], axis=-1))
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _one_beam_bound(d_flat, d_bits, row, f, n_beams, circular, d_max, key, base, x7, tab_flat):
     # the bound B of the derivation above for the one-beam segment at beam f of the scan starting at
     # d_flat[row]; inf when its range or scan noise (base < 0: _one_beam_scan_bins) is outside the table
@@ -1127,7 +1149,7 @@ def _one_beam_bound(d_flat, d_bits, row, f, n_beams, circular, d_max, key, base,
             + tab_flat[t + 4] * c10 + tab_flat[t + 5] * c11)  # fmt: skip
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _segment_bound(i, d_flat, d_bits, scan, first, prev_nearer, next_nearer, n_beams, circular, d_max,
                    base, x7, tab_flat):  # fmt: skip
     # _one_beam_bound of one-beam segment i (its scan's bins from _one_beam_scan_bins)
@@ -1137,7 +1159,7 @@ def _segment_bound(i, d_flat, d_bits, scan, first, prev_nearer, next_nearer, n_b
                            x7[b], tab_flat)  # fmt: skip
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, error_model="numpy", nogil=True)
 def _one_beam_scan_bins(scan_cols, tab):
     # per scan: where its bin starts in the flat table (-1: outside the table, or an empty table) and its
     # log_scan_noise as the stage sees it (float32)
@@ -1159,7 +1181,7 @@ def _one_beam_scan_bins(scan_cols, tab):
     return base, x7
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, error_model="numpy", nogil=True)
 def _cascade_one_beam_filter(d_flat, scan, first, count, prev_nearer, next_nearer, n_beams, circular, d_max,
                              scan_cols, tab, threshold, rows, out):  # fmt: skip
     """Copy into ``out`` the segments ``rows`` that stage 1 must score: all but the one-beam segments
@@ -1180,7 +1202,7 @@ def _cascade_one_beam_filter(d_flat, scan, first, count, prev_nearer, next_neare
     return m
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, error_model="numpy", nogil=True)
 def _cascade_one_beam_bounds(d_flat, scan, first, prev_nearer, next_nearer, n_beams, circular, d_max,
                              scan_cols, tab, which, out):  # fmt: skip
     # the bound of each (one-beam) segment of `which` (tests compare it with the stage-1 score)

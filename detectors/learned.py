@@ -129,6 +129,32 @@ PRE_GATE_MARGIN = 2
 CASCADE_FORMAT = "kin-envs/learned-cascade"
 CASCADE_FORMAT_VERSION = 1
 _BEAM_KEYS = ("beam_edges", "table")
+#: this thread's kept work arrays of the fused driver (:func:`_driver_work`), shared by its detectors
+_WORK = threading.local()
+
+
+def _driver_work(cells: int, n_feat: int) -> tuple:
+    """This thread's work arrays (:func:`detectors._learned_driver.new_work`) for a batch of ``cells``
+    beams: kept and reused across calls (grown when a batch needs more; a call only uses them inside
+    itself, so the detectors of one thread can share them), or a set of the call's own for batches past
+    ``WORK_MAX_CELLS``."""
+    if cells > _drv.WORK_MAX_CELLS:
+        return _drv.new_work(0, 0, n_feat)
+    ws = getattr(_WORK, "ws", None)
+    if ws is None or ws[1].shape[0] < _drv._W_I64 * cells:
+        old_rows = 0 if ws is None else ws[5].shape[0] // _drv._R_I64
+        ws = _WORK.ws = _drv.new_work(cells, max(old_rows, cells // 4), n_feat)
+    return ws
+
+
+def _grow_driver_rows(ws: tuple, n_feat: int) -> None:
+    """After a driver call on the kept work arrays ``ws``: room for more network rows next time if that
+    call needed more than they hold (it then used arrays of its own)."""
+    need = int(ws[6][0])
+    if need * (n_feat + 3) > ws[4].shape[0] or need * _drv._R_F64 > ws[3].shape[0]:
+        cells = ws[1].shape[0] // _drv._W_I64
+        if getattr(_WORK, "ws", None) is ws:
+            _WORK.ws = _drv.new_work(cells, min(cells, need + need // 4 + 64), n_feat)
 
 
 def duplicates(scan, xy, score, radius: float) -> np.ndarray:
@@ -1136,8 +1162,12 @@ class LearnedKinDetector(KinDetector):
             return None
         front_args, back_args = self._driver_consts(cascade)
         mean, std, w, b, sizes = self._numba_weights
-        return kernel(rb, front_args, _DRIVER_ROWS_MAX, mean, std, w, self._numba_weights_t[2], b, sizes,
-                      back_args)  # fmt: skip
+        n_feat = int(front_args[17])
+        ws = _driver_work(rb.shape[0] * rb.shape[1], n_feat)
+        res = kernel(rb, front_args, _DRIVER_ROWS_MAX, mean, std, w, self._numba_weights_t[2], b, sizes,
+                     back_args, ws)  # fmt: skip
+        _grow_driver_rows(ws, n_feat)
+        return res
 
     def _run_driver(self, rb: np.ndarray):
         """The driver's two kernels with the network in between in Python (BLAS or torch
