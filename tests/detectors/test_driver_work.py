@@ -14,22 +14,14 @@ pytest.importorskip("torch")  # the only reason to skip: CI installs torch
 from detectors import _learned_driver as _drv  # noqa: E402
 from detectors import learned as _learned  # noqa: E402
 from detectors.learned import LearnedKinDetector  # noqa: E402
-from kin_envs import LidarSpec, World, scenes  # noqa: E402
-
-FIELDS = (
-    "scan", "range", "bearing", "x", "y", "score", "first_beam", "last_beam", "n_beams_on", "segment",
-    "seg_scan", "seg_first", "seg_count", "seg_prev", "seg_next", "seg_prev_nearer", "seg_next_nearer",
-    "seg_stage",
-)  # fmt: skip
+from tests.detectors.test_learned_driver import FIELDS, arena  # noqa: E402
 
 
 def arena_scans(seed, noise, n_robots, n_obstacles=20):
-    scene = scenes.random_arena(n_robots, n_obstacles, seed=seed).replace(lidar=LidarSpec(noise_sigma=noise))
-    s = World(scene, seed=seed).scan()
+    s = arena(seed, noise, n_robots, n_obstacles)
     return s.ranges.astype(np.float64), s.angles
 
 
-# batches of 64, 3, 32, 1 and 48 scans (larger and smaller than the one before), 0-2 % noise
 BATCHES = [arena_scans(seed, noise, n) for seed, noise, n in ((0, 0.01, 64), (1, 0.0, 3), (2, 0.02, 32),
                                                               (3, 0.005, 2), (4, 0.01, 48))]  # fmt: skip
 BATCHES.insert(3, (BATCHES[0][0][5:6], BATCHES[0][1]))  # one scan
