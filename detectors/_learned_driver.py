@@ -35,10 +35,15 @@ feature kernel signature, a cascade stage) must be made in both places; that tes
 Every output array is allocated in the call: results handed to a caller are never reused. The large
 intermediate ones live in work arrays (:func:`new_work`) that the detector keeps per thread and passes in.
 
-Every kernel here and in :mod:`detectors.features` / :mod:`detectors._kernels` is compiled with
-``error_model="numpy"``: no zero-divisor check before each division (IEEE inf / NaN instead of a
-``ZeroDivisionError``; none of them divides by zero on valid input, so every output is the same), ~5 %
-of a swarm batch, and loops with a division can use SIMD.
+The kernels here and in :mod:`detectors.features` / :mod:`detectors._kernels` are compiled with
+``error_model="numpy"`` (no zero-divisor check before each division: IEEE inf / NaN instead of a
+``ZeroDivisionError``; none of them divides by zero on valid input), **except every function on a call
+path to a ``fastmath`` kernel** (:func:`front`, :func:`fused`, :func:`fused_table`, :func:`fused_packed`,
+their inlined helpers): numba compiles a callee in its first caller's error model, and a fastmath
+network or cascade-score kernel compiled under ``"numpy"`` gets other machine code and other last bits
+than the same kernel called from Python, so the outputs depended on which path compiled it first
+(tests/detectors/test_learned_driver.py's four-row test and the vector env's learned trajectories failed
+in a fresh clone's CI run).
 
 numba's on-disk cache stamps a function with its own file only; :mod:`detectors._numba_cache` adds
 the digest of every jitted source of the package to the stamp, so an edit to a kernel these functions
@@ -110,7 +115,7 @@ def _rows_fit(ws, n_sel, n_feat):
     return n_sel * _R_I64 <= ri and n_sel * (n_feat + 3) <= rx and n_sel * _R_F64 <= rf
 
 
-@numba.njit(cache=True, error_model="numpy", nogil=True)
+@numba.njit(cache=True, nogil=True)
 def front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_ang, cos_a, sin_a, sweep,
           tan_tab, occlusion_unbounded, n_points, n_context, gn_iters, n_feat, cascade, c_w1t, c_b1, c_w2,
           c_b2, c_threshold, c_one_beam, lean):  # fmt: skip
@@ -144,7 +149,7 @@ def front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_a
                   c_b1, c_w2, c_b2, c_threshold, c_one_beam, lean, ws)  # fmt: skip
 
 
-@numba.njit(cache=True, error_model="numpy", nogil=True)
+@numba.njit(cache=True, nogil=True)
 def _front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_ang, cos_a, sin_a, sweep,
            tan_tab, occlusion_unbounded, n_points, n_context, gn_iters, n_feat, cascade, c_w1t, c_b1, c_w2,
            c_b2, c_threshold, c_one_beam, lean, ws):  # fmt: skip
@@ -418,7 +423,7 @@ def mlp_rows4(x, mean, std, weights_t, biases, sizes, out):
                 out[r0 + q, j] = a[q, j]
 
 
-@numba.njit(cache=True, error_model="numpy", nogil=True, inline="always")
+@numba.njit(cache=True, nogil=True, inline="always")
 def _network(x, rows_max, mean, std, weights, weights_t, biases, sizes, ws):
     # the network's (R, 3) outputs as float64: mlp_rows4 below rows_max rows, else the block kernel; in the
     # work arrays ws (after x and the frames) when they hold R rows
@@ -453,7 +458,7 @@ def _checked_work(r, ws):
             np.empty(_W_BOOL * cells, dtype=np.bool_), ws[3], ws[4], ws[5], ws[6])  # fmt: skip
 
 
-@numba.njit(cache=True, error_model="numpy", nogil=True, inline="always")
+@numba.njit(cache=True, nogil=True, inline="always")
 def fused(r, front_args, rows_max, mean, std, weights, weights_t, biases, sizes, back_args, ws):
     """:func:`front`, the network compiled (:func:`mlp_rows4` below ``rows_max`` rows, else the block
     kernel :func:`detectors._kernels.mlp_forward`; bitwise the same) and :func:`back` in one
@@ -476,7 +481,7 @@ def back_rest(out, fr, back_args):
     return back(out, fr[0], fr[1], fr[2], fr[3], fr[8], fr[9], fr[11], fr[12], *back_args)
 
 
-@numba.njit(cache=True, error_model="numpy", nogil=True)
+@numba.njit(cache=True, nogil=True)
 def fused_table(r, front_args, rows_max, mean, std, weights, weights_t, biases, sizes, back_args, ws):
     """The detections alone, ``(scan row (D,), table (D, 8))``: what the envs read (fewer arrays
     cross back into Python). :func:`front` runs ``lean`` (what only the other segments' reported
@@ -529,7 +534,7 @@ def pack(fr, bk):
     return seg_i, seg_b, seg_f, stage, det, det_f, det_i
 
 
-@numba.njit(cache=True, error_model="numpy", nogil=True)
+@numba.njit(cache=True, nogil=True)
 def fused_packed(r, front_args, rows_max, mean, std, weights, weights_t, biases, sizes, back_args, ws):
     """:func:`fused` returning :func:`pack` of its outputs: ``detect_arrays`` hands 7 arrays back to
     Python instead of 19 (~1 us each) and none of the intermediate ones (nor any view of ``ws``)."""

@@ -246,3 +246,32 @@ def test_fused_driver_with_a_small_random_network(tmp_path):
                 assert_same(det.detect_arrays(r, angles), ref)
                 n_det += ref.n_detections
         assert n_det > 0
+
+
+def test_callers_of_fastmath_kernels_keep_the_default_error_model():
+    """numba compiles a callee in its first caller's error model, and a ``fastmath`` kernel compiled under
+    ``error_model="numpy"`` gets other machine code and other last bits than when called from Python: so
+    every jitted function on a call path to a fastmath kernel keeps the default model, or the outputs
+    depend on which path compiled the kernel first (a fresh clone's CI failed this way)."""
+    import inspect
+    import re
+
+    from numba.core.registry import CPUDispatcher
+
+    from detectors import _kernels, features
+
+    jitted = {n: f for m in (_drv, features, _kernels) for n, f in vars(m).items()
+              if isinstance(f, CPUDispatcher)}
+    fast = {n for n, f in jitted.items() if f.targetoptions.get("fastmath")}
+    assert {"mlp_rows4", "mlp_forward", "mlp_forward_rows", "_cascade_scores"} <= fast
+    callers, grew = set(fast), True
+    while grew:  # every jitted function that calls one of them, transitively
+        grew = False
+        for n, f in jitted.items():
+            src = inspect.getsource(f.py_func)
+            if n not in callers and any(re.search(rf"\b{c}\(", src) for c in callers):
+                callers.add(n)
+                grew = True
+    assert {"front", "fused_table", "fused_packed"} <= callers
+    numpy_model = sorted(n for n in callers - fast if jitted[n].targetoptions.get("error_model") == "numpy")
+    assert not numpy_model, f"call fastmath kernels under error_model='numpy': {numpy_model}"
