@@ -201,7 +201,8 @@ class Scan:
         hit_index: ``(n, n_beams)`` int32 robot index (``ROBOT``) or obstacle index (obstacle kinds),
             -1 for the boundary or nothing.
         true_ranges: ``(n, n_beams)`` float32 exact noise-free distance to the hit, ``inf`` if none.
-        robots: ``(n,)`` which robots these rows belong to.
+        robots: ``(n,)`` which robots these rows belong to. A scan of every robot (``robots=None``)
+            shares one read-only array per world (like ``angles``): copy it before changing it.
         poses: ``(n, 3)`` their ``x, y, theta`` when scanned.
     """
 
