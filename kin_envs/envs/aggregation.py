@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 from typing import Any, ClassVar
@@ -25,11 +26,15 @@ from kin_envs.envs.common import (
     config_from_kwargs,
     detect_rows,
     detect_rows_padded,
+    kin_truth_padded,
     kin_truth_rows,
     resolve_detector,
     split_rows,
 )
-from kin_envs.envs.info import pad_rows, row_infos
+from kin_envs.envs.info import dict_maker, pad_rows, row_infos
+
+#: ``reward_terms`` of one agent from its two terms
+_TERMS = dict_maker(("kin", "collision"))
 
 __all__ = [
     "AggregationConfig", "AggregationEnv", "AggregationEnvV0", "env", "env_v0", "parallel_env",
@@ -258,13 +263,11 @@ class AggregationEnv(ParallelEnv):
         frame, infos = self._sense(first=True)
         obs = self._obs.reset(frame)
         _, n_kin = self._kin_counts()
-        zero = {"kin": 0.0, "collision": 0.0}
-        for i, a in enumerate(self.agents):
-            infos[a]["reward_terms"] = dict(zero)
-            infos[a]["n_kin"] = int(n_kin[i])
+        zero = [0.0] * len(self.agents)
+        _add_reward_info(infos, zero, zero, n_kin)
         if self.render_mode == "human":
             self.render()
-        return {a: obs[i] for i, a in enumerate(self.agents)}, infos
+        return dict(zip(self.agents, obs, strict=True)), infos
 
     def step(self, actions: dict):
         if self.world is None:
@@ -289,19 +292,15 @@ class AggregationEnv(ParallelEnv):
         obs = self._obs.push(frame)
         cfg = self.config
         counted, n_kin = self._kin_counts()
-        kin_terms = (cfg.kin_reward * counted).tolist()
-        hit = (self.world.contacts != 0).tolist()
-        pen = -cfg.collision_penalty
+        # the reward terms as columns (the same IEEE operations as per agent: kin + collision)
+        kin_terms = cfg.kin_reward * counted
+        collision = np.where(self.world.contacts != 0, -cfg.collision_penalty, 0.0)
+        rewards = dict(zip(self.agents, (kin_terms + collision).tolist(), strict=True))
+        _add_reward_info(infos, kin_terms.tolist(), collision.tolist(), n_kin)
         truncate = self._cycles >= cfg.max_cycles
-        observations, rewards, terminations, truncations = {}, {}, {}, {}
-        for i, a in enumerate(self.agents):
-            terms = {"kin": kin_terms[i], "collision": pen if hit[i] else 0.0}
-            infos[a]["reward_terms"] = terms
-            infos[a]["n_kin"] = int(n_kin[i])
-            observations[a] = obs[i]
-            rewards[a] = terms["kin"] + terms["collision"]
-            terminations[a] = False
-            truncations[a] = truncate
+        observations = dict(zip(self.agents, obs, strict=True))  # row views, as obs[i]
+        terminations = dict.fromkeys(self.agents, False)
+        truncations = dict.fromkeys(self.agents, truncate)
         if truncate:
             self.agents = []
         if self.render_mode == "human":
@@ -315,10 +314,13 @@ class AggregationEnv(ParallelEnv):
                                   self.config.max_kin_counted)  # fmt: skip
 
     def _sense(self, first: bool = False) -> tuple[np.ndarray, dict[str, dict]]:
+        """Scan, detect, track: ``(observation frame, {agent: info})``, each info its kin entries with
+        ``reward_terms`` and ``n_kin`` last (v1: placeholders, so that :func:`_add_reward_info` fills
+        a dict built once at its final size)."""
         scan = self.world.scan()
         self._last_scan = scan
         poses, n = scan.poses, scan.ranges.shape[0]
-        truth = kin_truth_rows(scan, poses)
+        cfg = self.config
         dets = feed = padded = None
         if self._feeder is not None:
             dets, feed = self._feeder.detect(scan.ranges, scan.angles, scan.robots, poses,
@@ -326,7 +328,7 @@ class AggregationEnv(ParallelEnv):
         elif self.detector is not None and self.padded_info:
             # sorted, matched and padded in one compiled call (pad_rows' values)
             dets, padded = detect_rows_padded(self.detector, scan.ranges, scan.angles, scan.robots, poses,
-                                              self.config.max_detections, trusted=True)  # fmt: skip
+                                              cfg.max_detections, trusted=True)  # fmt: skip
         elif self.detector is not None:
             dets = detect_rows(self.detector, scan.ranges, scan.angles, scan.robots, poses, trusted=True)
         self._last_detections = dets
@@ -336,29 +338,32 @@ class AggregationEnv(ParallelEnv):
 
             delta = np.zeros((n, 3)) if first else self.world.odometry_delta
             track_update(self.tracker, scan, dets, delta, self.world.config.control_dt, feed)
-            entries["kin_tracks"] = track_info(self.tracker, self.config.max_tracks)
+            entries["kin_tracks"] = track_info(self.tracker, cfg.max_tracks)
+        frame = self._obs.frame(scan.ranges, dets)
         if self.padded_info:
-            entries["kin_truth"] = pad_rows(*truth, n, self.config.max_kin_truth)
+            # kin_truth counted, matched and padded in one compiled pass over the lidar's arrays
+            entries["kin_truth"] = kin_truth_padded(scan, poses, cfg.max_kin_truth)
             if dets is not None:
                 if padded is None:
-                    padded = pad_rows(*dets, n, self.config.max_detections)
+                    padded = pad_rows(*dets, n, cfg.max_detections)
                 entries["kin_detections"] = padded
             # each agent's entries as row views of the (n, slots) columns; one shape on every step
-            infos = dict(zip(self.possible_agents, row_infos(entries), strict=True))
-        else:
-            truth_rows = split_rows(*truth, n)
-            det_rows = split_rows(*dets, n) if dets is not None else None
-            infos = {}
-            for i, a in enumerate(self.possible_agents):
-                info = {"kin_truth": truth_rows[i]}
-                if det_rows is not None:
-                    info["kin_detections"] = det_rows[i]
-                if "kin_tracks" in entries:
-                    cols, count = entries["kin_tracks"]
-                    info["kin_tracks"] = {f: c[i] for f, c in cols.items()}
-                    info["kin_tracks_count"] = int(count[i])
-                infos[a] = info
-        return self._obs.frame(scan.ranges, dets), infos
+            later = itertools.repeat(None)
+            return frame, dict(zip(self.possible_agents, row_infos(entries, reward_terms=later, n_kin=later),
+                                   strict=True))  # fmt: skip
+        truth_rows = split_rows(*kin_truth_rows(scan, poses), n)
+        det_rows = split_rows(*dets, n) if dets is not None else None
+        infos = {}
+        for i, a in enumerate(self.possible_agents):
+            info = {"kin_truth": truth_rows[i]}
+            if det_rows is not None:
+                info["kin_detections"] = det_rows[i]
+            if "kin_tracks" in entries:
+                cols, count = entries["kin_tracks"]
+                info["kin_tracks"] = {f: c[i] for f, c in cols.items()}
+                info["kin_tracks_count"] = int(count[i])
+            infos[a] = info
+        return frame, infos
 
     def state(self) -> np.ndarray:
         if self.world is None:
@@ -427,6 +432,13 @@ def _kin_counts_kernel(p, r2, cap):
         n[i] = c - 1
         capped[i] = min(c - 1, cap)
     return capped, n
+
+
+def _add_reward_info(infos: dict[str, dict], kin: list, collision: list, n_kin: np.ndarray) -> None:
+    """Each agent's ``reward_terms`` (``{"kin", "collision"}``) and ``n_kin`` into its info (agent order)."""
+    for info, terms, k in zip(infos.values(), map(_TERMS, kin, collision), n_kin.tolist(), strict=True):
+        info["reward_terms"] = terms
+        info["n_kin"] = k
 
 
 def parallel_env(**kwargs: Any) -> AggregationEnv:

@@ -53,6 +53,7 @@ __all__ = [
     "detect_rows_padded",
     "detection_arrays",
     "kin_truth",
+    "kin_truth_padded",
     "kin_truth_rows",
     "resolve_detector",
     "run_detector",
@@ -787,6 +788,120 @@ def kin_truth_rows(scan, poses: np.ndarray) -> tuple[np.ndarray, dict[str, np.nd
         "n_beams": n_beams.astype(np.int64),
     }
     return rows, cols
+
+
+def kin_truth_padded(scan, poses: np.ndarray, slots: int) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """``pad_rows(*kin_truth_rows(scan, poses), n_rows, slots)`` (:func:`kin_envs.envs.info.pad_rows`):
+    ``(padded (n_rows, slots) columns, count (n_rows,))``, the same values
+    (``tests/kin_envs/envs/test_swarm_glue.py``), for the swarm's every step.
+
+    One compiled pass over the lidar's own arrays (:func:`_kin_truth_pad_kernel`: each row's beams
+    counted per robot, its robots sorted by the same composite key, the first ``slots`` written
+    into padded blocks) instead of ~40 numpy calls over ``(n_rows, n_beams)`` temporaries; the
+    headings' cos/sin and the bearings' ``arctan2`` stay numpy's (the same functions, bit for bit).
+    The columns are rows of two fresh blocks (floats, ints). Poses that are not all finite take the
+    numpy path."""
+    op = scan.poses
+    ranges = scan.ranges
+    # the comparison numpy makes in kin_truth_rows: a Python float range_max is cast to the ranges'
+    # dtype (NEP 50); float32 -> float64 is exact, so the kernel compares in float64
+    below = float(np.asarray(scan.range_max, dtype=np.result_type(ranges.dtype, scan.range_max)))
+    th = op[:, 2]
+    ok, pf, pi, count = _kin_truth_pad_kernel(
+        scan.hit_kind, scan.hit_index, ranges, below, np.int8(HitKind.ROBOT.value), op, poses, np.cos(th),
+        np.sin(th), 2.0 * scan.range_max + 1.0, slots,
+    )  # fmt: skip
+    if not ok:
+        from kin_envs.envs.info import pad_rows
+
+        return pad_rows(*kin_truth_rows(scan, poses), ranges.shape[0], slots)
+    np.arctan2(pf[3], pf[2], out=pf[1])  # bearing = arctan2(y, x); empty slots: arctan2(0, 0) = 0
+    return dict(zip(KIN_TRUTH_FIELDS, (pi[0], pf[0], pf[1], pf[2], pf[3], pi[1]), strict=True)), count
+
+
+@numba.njit(cache=True, nogil=True)
+def _kin_truth_pad_kernel(hit_kind, hit_index, ranges, below, robot_kind, op, poses, c, s, key_scale, slots):
+    """:func:`kin_truth_padded`'s blocks: ``(ok, floats (4, n_rows, slots): range, bearing (0 here), x,
+    y; ints (2, n_rows, slots): index, n_beams; count (n_rows,))``; ``ok`` False (empty blocks) if a
+    position in ``poses`` or ``op`` is not finite.
+
+    :func:`kin_truth_rows` term by term: a row's beams with ``hit_kind == robot_kind`` and ``range <
+    below`` counted per robot; its robots sorted by ``row * key_scale + range`` (stable from ascending
+    robot index, as the global stable argsort of that key orders a row's robots), the first ``slots``
+    kept."""
+    n_rows, n_beams = ranges.shape
+    n_rob = poses.shape[0]
+    finite = True
+    for q in range(n_rob):
+        finite &= math.isfinite(poses[q, 0]) and math.isfinite(poses[q, 1])
+    for r in range(n_rows):
+        finite &= math.isfinite(op[r, 0]) and math.isfinite(op[r, 1])
+    if not finite:  # NaN keys: the numpy path's global sort order (the caller falls back to it)
+        return False, np.zeros((4, 0, slots)), np.zeros((2, 0, slots), dtype=np.int64), np.zeros(0, np.int64)
+    pf = np.zeros((4, n_rows, slots))
+    pi = np.empty((2, n_rows, slots), dtype=np.int64)
+    pi[0] = -1  # PAD_VALUES["index"]; n_beams pads with 0
+    pi[1] = 0
+    count = np.empty(n_rows, dtype=np.int64)
+    beams = np.zeros(n_rob, dtype=np.int64)  # per robot, this row's beams (reset after the row)
+    seen = np.empty(n_rob, dtype=np.int64)  # this row's robots, first-hit order
+    dxs = np.empty(n_rob)
+    dys = np.empty(n_rob)
+    rngs = np.empty(n_rob)
+    keys = np.empty(n_rob)
+    order = np.empty(n_rob, dtype=np.int64)
+    for r in range(n_rows):
+        k = 0
+        for b in range(n_beams):
+            if hit_kind[r, b] == robot_kind and ranges[r, b] < below:
+                q = hit_index[r, b]
+                if q < 0 or q >= n_rob:
+                    raise ValueError("a robot hit's hit_index must be a robot index in [0, len(poses))")
+                if beams[q] == 0:
+                    seen[k] = q
+                    k += 1
+                beams[q] += 1
+        ox = op[r, 0]
+        oy = op[r, 1]
+        m = 0  # order[:m]: the row's nearest so far, sorted by (key, robot index), at most ``slots``
+        for j in range(k):
+            q = seen[j]
+            dx = poses[q, 0] - ox
+            dy = poses[q, 1] - oy
+            rng = np.sqrt(dx * dx + dy * dy)
+            dxs[j] = dx
+            dys[j] = dy
+            rngs[j] = rng
+            key = r * key_scale + rng
+            keys[j] = key
+            # (key, robot index) order: the stable sort of the robots in index order; robots beyond the
+            # first ``slots`` are never written, so a full buffer's farther candidates stop at one test
+            t = m
+            while t > 0:
+                o = order[t - 1]
+                if keys[o] > key or (keys[o] == key and seen[o] > q):
+                    t -= 1
+                else:
+                    break
+            if t < slots:
+                for u in range(min(m, slots - 1), t, -1):
+                    order[u] = order[u - 1]
+                order[t] = j
+                m = min(m + 1, slots)
+        count[r] = m
+        cr = c[r]
+        sr = s[r]
+        for t in range(m):
+            j = order[t]
+            q = seen[j]
+            pi[0, r, t] = q
+            pi[1, r, t] = beams[q]
+            pf[0, r, t] = rngs[j]
+            pf[2, r, t] = cr * dxs[j] + sr * dys[j]
+            pf[3, r, t] = cr * dys[j] - sr * dxs[j]
+        for j in range(k):
+            beams[seen[j]] = 0
+    return True, pf, pi, count
 
 
 def kin_truth(scan, poses: np.ndarray) -> list[dict[str, np.ndarray]]:

@@ -26,6 +26,7 @@ __all__ = [
     "INT_FIELDS",
     "KIN_TRUTH_FIELDS",
     "PAD_VALUES",
+    "dict_maker",
     "pad_rows",
     "row_infos",
     "unpad",
@@ -110,7 +111,7 @@ def pad_rows(
 
 
 @functools.lru_cache(maxsize=64)
-def _dict_maker(keys: tuple[str, ...]):
+def dict_maker(keys: tuple[str, ...]):
     """``f(v0, v1, ...) -> {keys[0]: v0, keys[1]: v1, ...}``: a dict display with constant keys, ~2x faster
     than ``dict(zip(keys, values))`` for the per-agent info dicts of a swarm step (measured)."""
     args = ", ".join(f"v{i}" for i in range(len(keys)))
@@ -118,19 +119,43 @@ def _dict_maker(keys: tuple[str, ...]):
     return eval(f"lambda {args}: {{{body}}}")  # keys enter as repr() string literals
 
 
-def row_infos(entries: dict[str, tuple[dict[str, np.ndarray], np.ndarray]]) -> list[dict[str, Any]]:
+@functools.lru_cache(maxsize=64)
+def _row_maker(layout: tuple[tuple[str, tuple[str, ...]], ...], extra: tuple[str, ...]):
+    """``f(*field rows, count, ..., *extra values) -> one row's info``: :func:`row_infos`' per-row dict,
+    inner dicts included, as one nested dict display with constant keys (one Python call per row)."""
+    args, items = [], []
+    for key, fields in layout:
+        inner = []
+        for f in fields:
+            inner.append(f"{f!r}: v{len(args)}")
+            args.append(f"v{len(args)}")
+        items.append(f"{key!r}: {{{', '.join(inner)}}}")
+        items.append(f"{key + '_count'!r}: v{len(args)}")
+        args.append(f"v{len(args)}")
+    for name in extra:
+        items.append(f"{name!r}: v{len(args)}")
+        args.append(f"v{len(args)}")
+    return eval(f"lambda {', '.join(args)}: {{{', '.join(items)}}}")  # keys enter as repr() string literals
+
+
+def row_infos(
+    entries: dict[str, tuple[dict[str, np.ndarray], np.ndarray]], **extra: Any
+) -> list[dict[str, Any]]:
     """One info dict per row from padded ``{key: (cols, count)}`` (:func:`pad_rows`' output, every
     ``cols`` field ``(n_rows, slots)``): row ``i``'s is ``{key: {field: cols[field][i]}, f"{key}_count":
-    int(count[i]), ...}`` in ``entries``' order. The field arrays are row views of the columns, made by
-    iterating them (views made in C); the dicts are built by constant-key displays mapped over the
-    rows, with no per-row Python loop."""
+    int(count[i]), ...}`` in ``entries``' order, then ``{name: values[i]}`` for each ``extra`` iterable
+    (one value per row, in the order given). The field arrays are row views of the columns, made by
+    iterating them (views made in C); each row's dicts are one nested constant-key display mapped over
+    the rows, with no per-row Python loop."""
     if not entries:
         raise ValueError("row_infos needs at least one entry (the rows are counted from them)")
-    keys, vals = [], []
+    layout, vals = [], []
     for key, (cols, count) in entries.items():
-        keys += [key, f"{key}_count"]
-        vals += [map(_dict_maker(tuple(cols)), *map(list, cols.values())), count.tolist()]
-    return list(map(_dict_maker(tuple(keys)), *vals))
+        layout.append((key, tuple(cols)))
+        vals += map(list, cols.values())
+        vals.append(count.tolist())
+    vals += extra.values()
+    return list(map(_row_maker(tuple(layout), tuple(extra)), *vals))
 
 
 def unpad(info: dict[str, Any], key: str) -> dict[str, np.ndarray] | list[dict[str, np.ndarray]] | None:
