@@ -12,7 +12,8 @@ speeds:
 * :func:`resolve_detector`, :func:`detect_rows`: the ``detector=`` argument and
   ``info["kin_detections"]`` (:func:`detection_arrays` is the one place that reads a detector's
   output);
-* :func:`kin_truth_rows`: ``info["kin_truth"]``, the kin each robot's lidar actually sees.
+* :func:`kin_truth_rows`: ``info["kin_truth"]``, the kin each robot's lidar actually sees
+  (:func:`kin_truth_padded`: the same, padded, in one compiled pass, for the swarm's every step).
 
 Info arrays are *columns*: a dict of equal-length 1-D numpy arrays, one entry per kin, nearest
 first, padded to a fixed number of slots (:mod:`kin_envs.envs.info`). (Structured numpy arrays
