@@ -321,6 +321,9 @@ class AggregationEnv(ParallelEnv):
         self._last_scan = scan
         poses, n = scan.poses, scan.ranges.shape[0]
         cfg = self.config
+        # kin_truth counted, sorted and padded in one compiled pass over the lidar's arrays (read while the
+        # scan has just written them, before the detector's call)
+        truth = kin_truth_padded(scan, poses, cfg.max_kin_truth) if self.padded_info else None
         dets = feed = padded = None
         if self._feeder is not None:
             dets, feed = self._feeder.detect(scan.ranges, scan.angles, scan.robots, poses,
@@ -341,8 +344,7 @@ class AggregationEnv(ParallelEnv):
             entries["kin_tracks"] = track_info(self.tracker, cfg.max_tracks)
         frame = self._obs.frame(scan.ranges, dets)
         if self.padded_info:
-            # kin_truth counted, matched and padded in one compiled pass over the lidar's arrays
-            entries["kin_truth"] = kin_truth_padded(scan, poses, cfg.max_kin_truth)
+            entries["kin_truth"] = truth
             if dets is not None:
                 if padded is None:
                     padded = pad_rows(*dets, n, cfg.max_detections)
