@@ -345,16 +345,30 @@ def _pm_shape(kind: str, geom: np.ndarray, body: pymunk.Body, inflate: float = 0
 
 
 class _OverlapIndex:
-    """Incrementally add footprints and ask whether a new one overlaps any placed one."""
+    """Incrementally add footprints and ask whether a new one overlaps any placed one.
+
+    pymunk decides every overlap, but only for footprints whose bounding circles come within
+    ``_PREFILTER_GAP`` of each other: farther apart, pymunk cannot report a penetration deeper than
+    ``_OVERLAP_TOL`` (the answer is the same, without building the shapes). The pymunk space is built
+    lazily, with the placed shapes added in placement order, so its answers (and their order) are
+    those of a space built eagerly."""
 
     def __init__(self) -> None:
-        self.space = pymunk.Space()
+        self.space: pymunk.Space | None = None
         self.labels: dict[pymunk.Shape, str] = {}
+        self._placed: list[tuple[str, np.ndarray, str]] = []
+        self._in_space = 0  # how many of _placed are in self.space
+        self._bounds: list[tuple[float, float, float]] = []  # bounding circle of each placed footprint
 
     def hits(self, kind: str, geom: np.ndarray, inflate: float = 0.0, ignore=lambda label: False):
-        probe = _pm_shape(kind, geom, self.space.static_body, inflate)
+        x, y, r = _bounding_circle(kind, geom)
+        reach = r + inflate + _PREFILTER_GAP
+        if not any(math.hypot(x - bx, y - by) <= reach + br for bx, by, br in self._bounds):
+            return []
+        space = self._sync()
+        probe = _pm_shape(kind, geom, space.static_body, inflate)
         out = []
-        for info in self.space.shape_query(probe):
+        for info in space.shape_query(probe):
             label = self.labels[info.shape]
             if ignore(label):
                 continue
@@ -364,17 +378,46 @@ class _OverlapIndex:
         return out
 
     def add(self, kind: str, geom: np.ndarray, label: str) -> None:
-        shape = _pm_shape(kind, geom, self.space.static_body)
-        self.space.add(shape)
-        self.labels[shape] = label
+        self._placed.append((kind, geom, label))
+        self._bounds.append(_bounding_circle(kind, geom))
+
+    def _sync(self) -> pymunk.Space:
+        """The pymunk space with every placed footprint in it (added in placement order)."""
+        if self.space is None:
+            self.space = pymunk.Space()
+        for kind, geom, label in self._placed[self._in_space :]:
+            shape = _pm_shape(kind, geom, self.space.static_body)
+            self.space.add(shape)
+            self.labels[shape] = label
+        self._in_space = len(self._placed)
+        return self.space
+
+
+#: Bounding circles farther apart than this (m) are not given to pymunk: rounding in its distance
+#: (~1e-15 m at these sizes) cannot turn a gap of 1e-7 m into a penetration deeper than _OVERLAP_TOL.
+_PREFILTER_GAP = 1e-7
+
+
+def _bounding_circle(kind: str, geom: np.ndarray) -> tuple[float, float, float]:
+    """``(x, y, r)``: a circle containing the footprint (polygons: around their vertices' mean; plain
+    Python: numpy's per-call overhead dominated on a few vertices)."""
+    if kind == "circle":
+        x, y, r = geom.tolist()
+        return x, y, r
+    pts = geom.tolist()
+    cx = sum(p[0] for p in pts) / len(pts)
+    cy = sum(p[1] for p in pts) / len(pts)
+    r = max(math.hypot(p[0] - cx, p[1] - cy) for p in pts)
+    return cx, cy, r * (1 + 1e-12) + 1e-12
 
 
 def _inside_arena(kind: str, geom: np.ndarray, arena: Arena) -> bool:
     hx, hy = arena.half_extents
     if kind == "circle":
-        x, y, r = geom
+        x, y, r = geom.tolist()
         return -hx <= x - r and x + r <= hx and -hy <= y - r and y + r <= hy
-    return bool(np.all(np.abs(geom[:, 0]) <= hx) and np.all(np.abs(geom[:, 1]) <= hy))
+    # (the same float64 comparisons as numpy's, without its per-call overhead on a few vertices)
+    return all(abs(x) <= hx and abs(y) <= hy for x, y in geom.tolist())
 
 
 @dataclass(frozen=True)
