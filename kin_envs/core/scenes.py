@@ -151,7 +151,14 @@ class _Obstacle:
     hit_kind: ClassVar[HitKind] = HitKind.NONE
 
     def footprint(self) -> tuple[str, np.ndarray]:
-        """``("circle", [cx, cy, r])`` or ``("polygon", vertices (k, 2) CCW)`` in the world frame."""
+        """``("circle", [cx, cy, r])`` or ``("polygon", vertices (k, 2) CCW)`` in the world frame (a fresh
+        array: computed once per obstacle, since placement, validation and a world's build each ask)."""
+        cached = self.__dict__.get("_footprint_cache")
+        if cached is None:  # (a frozen dataclass: the cache bypasses __setattr__, and is not a field)
+            cached = self.__dict__["_footprint_cache"] = self._footprint()
+        return cached[0], cached[1].copy()
+
+    def _footprint(self) -> tuple[str, np.ndarray]:
         raise NotImplementedError
 
     @property
@@ -186,7 +193,7 @@ class Cylinder(_Obstacle):
         self._check_common()
         check_positive("cylinder", radius=self.radius)
 
-    def footprint(self):
+    def _footprint(self):
         return "circle", np.array([self.x, self.y, self.radius])
 
 
@@ -208,7 +215,7 @@ class Box(_Obstacle):
         self._check_common()
         check_positive("box", width=self.width, depth=self.depth)
 
-    def footprint(self):
+    def _footprint(self):
         w, d = self.width / 2, self.depth / 2
         local = np.array([[-w, -d], [w, -d], [w, d], [-w, d]])
         return "polygon", local @ _rot(self.theta).T + [self.x, self.y]
@@ -239,7 +246,7 @@ class Prism(_Obstacle):
             raise ValueError(f"prism: sides must be <= 64, got {self.sides!r}")
         check_positive("prism", width=self.width)
 
-    def footprint(self):
+    def _footprint(self):
         a = self.theta + 2 * np.pi * np.arange(self.sides) / self.sides
         r = self.width / 2
         return "polygon", np.stack([self.x + r * np.cos(a), self.y + r * np.sin(a)], axis=1)
@@ -273,7 +280,7 @@ class Polygon(_Obstacle):
         if not (np.all(cross > 1e-12) or np.all(cross < -1e-12)):
             raise ValueError(f"polygon: vertices must form a strictly convex polygon, got {self.vertices!r}")
 
-    def footprint(self):
+    def _footprint(self):
         v = np.asarray(self.vertices) @ _rot(self.theta).T + [self.x, self.y]
         if _signed_area(v) < 0:
             v = v[::-1]
@@ -305,7 +312,7 @@ class Wall(_Obstacle):
     def center(self) -> tuple[float, float]:
         return ((self.x1 + self.x2) / 2, (self.y1 + self.y2) / 2)
 
-    def footprint(self):
+    def _footprint(self):
         p, q = np.array([self.x1, self.y1]), np.array([self.x2, self.y2])
         t = (q - p) / np.linalg.norm(q - p)
         nrm = np.array([-t[1], t[0]]) * self.thickness / 2
