@@ -451,6 +451,25 @@ class Scene:
     name: str = ""
 
     def __post_init__(self) -> None:
+        self._check_fields()
+        self._check_layout()
+
+    @classmethod
+    def _placed(cls, **fields) -> Scene:
+        """A scene whose layout is valid by construction (every field given): its fields are checked, its
+        layout is not checked again. For :func:`random_arena`'s :class:`_Placer`, which is stricter than
+        :meth:`_check_layout` (the same pymunk overlap test with ``clearance >= 0`` added, inside an arena
+        shrunk by it, interior walls not allowed to cross), and for a valid scene's cylinders made
+        thinner in place; the check could not fail (skipping it saved a fifth of a KinSeek reset's scene)."""
+        scene = object.__new__(cls)
+        for f in dataclasses.fields(cls):
+            object.__setattr__(scene, f.name, fields.pop(f.name))
+        if fields:
+            raise TypeError(f"Scene._placed: unknown fields {sorted(fields)}")
+        scene._check_fields()
+        return scene
+
+    def _check_fields(self) -> None:
         for name, cls in (("arena", Arena), ("robot", RobotSpec), ("lidar", LidarSpec), ("name", str)):
             if not isinstance(getattr(self, name), cls):
                 raise FieldTypeError(
@@ -467,7 +486,6 @@ class Scene:
         for j, o in enumerate(self.obstacles):
             if not isinstance(o, tuple(OBSTACLE_TYPES.values())):
                 raise ValueError(f"scene.obstacles[{j}]: expected an obstacle, got {type(o).__name__}")
-        self._check_layout()
 
     def robot_footprint(self, i: int) -> np.ndarray:
         r = self.robots[i]
@@ -696,8 +714,14 @@ class RandomArenaConfig:
         return dataclass_from_dict(cls, d, "RandomArenaConfig")
 
 
-def _random_obstacle(rng: np.random.Generator, cfg: RandomArenaConfig, spec: RobotSpec, x, y) -> Obstacle:
-    kind = rng.choice(4, p=np.asarray(cfg.kind_weights) / sum(cfg.kind_weights))
+#: random_arena's robot spec when none is given (a frozen value: one instance, validated once)
+_DEFAULT_ROBOT = RobotSpec()
+
+
+def _random_obstacle(rng: np.random.Generator, cfg: RandomArenaConfig, spec: RobotSpec, x, y,
+                     p: np.ndarray | None = None) -> Obstacle:  # fmt: skip
+    """One obstacle at ``(x, y)``; ``p``: ``cfg.kind_weights`` normalised (computed here if not given)."""
+    kind = rng.choice(4, p=np.asarray(cfg.kind_weights) / sum(cfg.kind_weights) if p is None else p)
     theta = float(rng.uniform(-math.pi, math.pi))
     kin = rng.random() < cfg.kin_width_prob
     kin_w = 2 * spec.housing_radius
@@ -779,7 +803,7 @@ def random_arena(
     """
     # a dict (e.g. from JSON) is accepted and validated like the dataclass
     cfg = dataclass_from_dict(RandomArenaConfig, {} if config is None else config, "random_arena")
-    spec = robot or RobotSpec()
+    spec = robot or _DEFAULT_ROBOT
     if not isinstance(n_robots, int | np.integer) or n_robots < 0:
         raise ValueError(f"random_arena: n_robots must be an integer >= 0, got {n_robots!r}")
     if not isinstance(n_obstacles, int | np.integer) or n_obstacles < 0:
@@ -793,8 +817,9 @@ def random_arena(
     def uniform_xy():
         return float(rng.uniform(-hx, hx)), float(rng.uniform(-hy, hy))
 
+    p = np.asarray(cfg.kind_weights) / sum(cfg.kind_weights)
     obstacles = [
-        placer.place(lambda x, y: _random_obstacle(rng, cfg, spec, x, y), uniform_xy, f"obstacle {j}")
+        placer.place(lambda x, y: _random_obstacle(rng, cfg, spec, x, y, p), uniform_xy, f"obstacle {j}")
         for j in range(n_obstacles)
     ]
     robots = [
@@ -803,7 +828,7 @@ def random_arena(
         )
         for i in range(n_robots)
     ]
-    return Scene(
+    return Scene._placed(
         robots=tuple(robots),
         obstacles=tuple(obstacles),
         arena=arena,

@@ -94,3 +94,42 @@ def test_validation_errors_identical(monkeypatch):
     fast, slow = _both(monkeypatch, lambda: Scene(**touching))
     assert fast == slow and isinstance(fast, Scene)
     assert 50 < errors < 290  # both kinds of outcome were exercised
+
+
+def test_placed_scenes_pass_full_validation():
+    """random_arena and KinSeek's thinned layouts skip the layout check (valid by construction): the
+    full check accepts every one of them, dense arenas with zero clearance included."""
+    rng = np.random.default_rng(11)
+    checked = 0
+    for _ in range(150):
+        cfg = {"clearance": float(rng.choice([0.0, 0.0, 0.01, 0.05])), "max_attempts": 200}
+        try:
+            scene = scenes.random_arena(int(rng.integers(0, 10)), int(rng.integers(0, 40)),
+                                        seed=int(rng.integers(1 << 30)), size=float(rng.uniform(2.0, 6.0)),
+                                        config=cfg)  # fmt: skip
+        except ValueError:
+            continue
+        assert scene.replace() == scene  # replace() runs the full validation
+        checked += 1
+    env = KinSeekEnv(detector=None, n_distractors=20, arena_size=3.0)
+    for s in range(40):
+        scene = env._make_scene(np.random.default_rng(s))
+        assert scene.replace() == scene
+    assert checked > 100
+    with pytest.raises(TypeError, match="unknown fields"):
+        Scene._placed(robots=(), obstacles=(), arena=scenes.Arena(), robot=scenes.RobotSpec(),
+                      lidar=scenes.LidarSpec(), name="", extra=1)  # fmt: skip
+    with pytest.raises(scenes.FieldTypeError, match="scene.lidar"):
+        scenes.random_arena(2, 2, lidar="not a spec")
+
+
+def test_footprint_cached_copies():
+    """A footprint is computed once per obstacle; every call returns a fresh array."""
+    box = Box(x=0.5, y=-0.2, width=0.3, depth=0.1, theta=0.4)
+    kind, a = box.footprint()
+    a[:] = 0.0  # the caller's copy only
+    kind2, b = box.footprint()
+    assert kind == kind2 == "polygon" and np.array_equal(b, Box(x=0.5, y=-0.2, width=0.3, depth=0.1,
+                                                                  theta=0.4)._footprint()[1])  # fmt: skip
+    assert b is not box.footprint()[1] and not np.array_equal(a, b)
+    assert box == Box(x=0.5, y=-0.2, width=0.3, depth=0.1, theta=0.4)  # the cache is not a field
