@@ -151,7 +151,14 @@ class _Obstacle:
     hit_kind: ClassVar[HitKind] = HitKind.NONE
 
     def footprint(self) -> tuple[str, np.ndarray]:
-        """``("circle", [cx, cy, r])`` or ``("polygon", vertices (k, 2) CCW)`` in the world frame."""
+        """``("circle", [cx, cy, r])`` or ``("polygon", vertices (k, 2) CCW)`` in the world frame (a fresh
+        array: computed once per obstacle, since placement, validation and a world's build each ask)."""
+        cached = self.__dict__.get("_footprint_cache")
+        if cached is None:  # (a frozen dataclass: the cache bypasses __setattr__, and is not a field)
+            cached = self.__dict__["_footprint_cache"] = self._footprint()
+        return cached[0], cached[1].copy()
+
+    def _footprint(self) -> tuple[str, np.ndarray]:
         raise NotImplementedError
 
     @property
@@ -186,7 +193,7 @@ class Cylinder(_Obstacle):
         self._check_common()
         check_positive("cylinder", radius=self.radius)
 
-    def footprint(self):
+    def _footprint(self):
         return "circle", np.array([self.x, self.y, self.radius])
 
 
@@ -208,7 +215,7 @@ class Box(_Obstacle):
         self._check_common()
         check_positive("box", width=self.width, depth=self.depth)
 
-    def footprint(self):
+    def _footprint(self):
         w, d = self.width / 2, self.depth / 2
         local = np.array([[-w, -d], [w, -d], [w, d], [-w, d]])
         return "polygon", local @ _rot(self.theta).T + [self.x, self.y]
@@ -239,7 +246,7 @@ class Prism(_Obstacle):
             raise ValueError(f"prism: sides must be <= 64, got {self.sides!r}")
         check_positive("prism", width=self.width)
 
-    def footprint(self):
+    def _footprint(self):
         a = self.theta + 2 * np.pi * np.arange(self.sides) / self.sides
         r = self.width / 2
         return "polygon", np.stack([self.x + r * np.cos(a), self.y + r * np.sin(a)], axis=1)
@@ -273,7 +280,7 @@ class Polygon(_Obstacle):
         if not (np.all(cross > 1e-12) or np.all(cross < -1e-12)):
             raise ValueError(f"polygon: vertices must form a strictly convex polygon, got {self.vertices!r}")
 
-    def footprint(self):
+    def _footprint(self):
         v = np.asarray(self.vertices) @ _rot(self.theta).T + [self.x, self.y]
         if _signed_area(v) < 0:
             v = v[::-1]
@@ -305,7 +312,7 @@ class Wall(_Obstacle):
     def center(self) -> tuple[float, float]:
         return ((self.x1 + self.x2) / 2, (self.y1 + self.y2) / 2)
 
-    def footprint(self):
+    def _footprint(self):
         p, q = np.array([self.x1, self.y1]), np.array([self.x2, self.y2])
         t = (q - p) / np.linalg.norm(q - p)
         nrm = np.array([-t[1], t[0]]) * self.thickness / 2
@@ -345,16 +352,30 @@ def _pm_shape(kind: str, geom: np.ndarray, body: pymunk.Body, inflate: float = 0
 
 
 class _OverlapIndex:
-    """Incrementally add footprints and ask whether a new one overlaps any placed one."""
+    """Incrementally add footprints and ask whether a new one overlaps any placed one.
+
+    pymunk decides every overlap, but only for footprints whose bounding circles come within
+    ``_PREFILTER_GAP`` of each other: farther apart, pymunk cannot report a penetration deeper than
+    ``_OVERLAP_TOL`` (the answer is the same, without building the shapes). The pymunk space is built
+    lazily, with the placed shapes added in placement order, so its answers (and their order) are
+    those of a space built eagerly."""
 
     def __init__(self) -> None:
-        self.space = pymunk.Space()
+        self.space: pymunk.Space | None = None
         self.labels: dict[pymunk.Shape, str] = {}
+        self._placed: list[tuple[str, np.ndarray, str]] = []
+        self._in_space = 0  # how many of _placed are in self.space
+        self._bounds: list[tuple[float, float, float]] = []  # bounding circle of each placed footprint
 
     def hits(self, kind: str, geom: np.ndarray, inflate: float = 0.0, ignore=lambda label: False):
-        probe = _pm_shape(kind, geom, self.space.static_body, inflate)
+        x, y, r = _bounding_circle(kind, geom)
+        reach = r + inflate + _PREFILTER_GAP
+        if not any(math.hypot(x - bx, y - by) <= reach + br for bx, by, br in self._bounds):
+            return []
+        space = self._sync()
+        probe = _pm_shape(kind, geom, space.static_body, inflate)
         out = []
-        for info in self.space.shape_query(probe):
+        for info in space.shape_query(probe):
             label = self.labels[info.shape]
             if ignore(label):
                 continue
@@ -364,17 +385,46 @@ class _OverlapIndex:
         return out
 
     def add(self, kind: str, geom: np.ndarray, label: str) -> None:
-        shape = _pm_shape(kind, geom, self.space.static_body)
-        self.space.add(shape)
-        self.labels[shape] = label
+        self._placed.append((kind, geom, label))
+        self._bounds.append(_bounding_circle(kind, geom))
+
+    def _sync(self) -> pymunk.Space:
+        """The pymunk space with every placed footprint in it (added in placement order)."""
+        if self.space is None:
+            self.space = pymunk.Space()
+        for kind, geom, label in self._placed[self._in_space :]:
+            shape = _pm_shape(kind, geom, self.space.static_body)
+            self.space.add(shape)
+            self.labels[shape] = label
+        self._in_space = len(self._placed)
+        return self.space
+
+
+#: Bounding circles farther apart than this (m) are not given to pymunk: rounding in its distance
+#: (~1e-15 m at these sizes) cannot turn a gap of 1e-7 m into a penetration deeper than _OVERLAP_TOL.
+_PREFILTER_GAP = 1e-7
+
+
+def _bounding_circle(kind: str, geom: np.ndarray) -> tuple[float, float, float]:
+    """``(x, y, r)``: a circle containing the footprint (polygons: around their vertices' mean; plain
+    Python: numpy's per-call overhead dominated on a few vertices)."""
+    if kind == "circle":
+        x, y, r = geom.tolist()
+        return x, y, r
+    pts = geom.tolist()
+    cx = sum(p[0] for p in pts) / len(pts)
+    cy = sum(p[1] for p in pts) / len(pts)
+    r = max(math.hypot(p[0] - cx, p[1] - cy) for p in pts)
+    return cx, cy, r * (1 + 1e-12) + 1e-12
 
 
 def _inside_arena(kind: str, geom: np.ndarray, arena: Arena) -> bool:
     hx, hy = arena.half_extents
     if kind == "circle":
-        x, y, r = geom
+        x, y, r = geom.tolist()
         return -hx <= x - r and x + r <= hx and -hy <= y - r and y + r <= hy
-    return bool(np.all(np.abs(geom[:, 0]) <= hx) and np.all(np.abs(geom[:, 1]) <= hy))
+    # (the same float64 comparisons as numpy's, without its per-call overhead on a few vertices)
+    return all(abs(x) <= hx and abs(y) <= hy for x, y in geom.tolist())
 
 
 @dataclass(frozen=True)
@@ -401,6 +451,25 @@ class Scene:
     name: str = ""
 
     def __post_init__(self) -> None:
+        self._check_fields()
+        self._check_layout()
+
+    @classmethod
+    def _placed(cls, **fields) -> Scene:
+        """A scene whose layout is valid by construction (every field given): its fields are checked, its
+        layout is not checked again. For :func:`random_arena`'s :class:`_Placer`, which is stricter than
+        :meth:`_check_layout` (the same pymunk overlap test with ``clearance >= 0`` added, inside an arena
+        shrunk by it, interior walls not allowed to cross), and for a valid scene's cylinders made
+        thinner in place; the check could not fail (skipping it saved a fifth of a KinSeek reset's scene)."""
+        scene = object.__new__(cls)
+        for f in dataclasses.fields(cls):
+            object.__setattr__(scene, f.name, fields.pop(f.name))
+        if fields:
+            raise TypeError(f"Scene._placed: unknown fields {sorted(fields)}")
+        scene._check_fields()
+        return scene
+
+    def _check_fields(self) -> None:
         for name, cls in (("arena", Arena), ("robot", RobotSpec), ("lidar", LidarSpec), ("name", str)):
             if not isinstance(getattr(self, name), cls):
                 raise FieldTypeError(
@@ -417,7 +486,6 @@ class Scene:
         for j, o in enumerate(self.obstacles):
             if not isinstance(o, tuple(OBSTACLE_TYPES.values())):
                 raise ValueError(f"scene.obstacles[{j}]: expected an obstacle, got {type(o).__name__}")
-        self._check_layout()
 
     def robot_footprint(self, i: int) -> np.ndarray:
         r = self.robots[i]
@@ -646,8 +714,14 @@ class RandomArenaConfig:
         return dataclass_from_dict(cls, d, "RandomArenaConfig")
 
 
-def _random_obstacle(rng: np.random.Generator, cfg: RandomArenaConfig, spec: RobotSpec, x, y) -> Obstacle:
-    kind = rng.choice(4, p=np.asarray(cfg.kind_weights) / sum(cfg.kind_weights))
+#: random_arena's robot spec when none is given (a frozen value: one instance, validated once)
+_DEFAULT_ROBOT = RobotSpec()
+
+
+def _random_obstacle(rng: np.random.Generator, cfg: RandomArenaConfig, spec: RobotSpec, x, y,
+                     p: np.ndarray | None = None) -> Obstacle:  # fmt: skip
+    """One obstacle at ``(x, y)``; ``p``: ``cfg.kind_weights`` normalised (computed here if not given)."""
+    kind = rng.choice(4, p=np.asarray(cfg.kind_weights) / sum(cfg.kind_weights) if p is None else p)
     theta = float(rng.uniform(-math.pi, math.pi))
     kin = rng.random() < cfg.kin_width_prob
     kin_w = 2 * spec.housing_radius
@@ -729,7 +803,7 @@ def random_arena(
     """
     # a dict (e.g. from JSON) is accepted and validated like the dataclass
     cfg = dataclass_from_dict(RandomArenaConfig, {} if config is None else config, "random_arena")
-    spec = robot or RobotSpec()
+    spec = robot or _DEFAULT_ROBOT
     if not isinstance(n_robots, int | np.integer) or n_robots < 0:
         raise ValueError(f"random_arena: n_robots must be an integer >= 0, got {n_robots!r}")
     if not isinstance(n_obstacles, int | np.integer) or n_obstacles < 0:
@@ -743,8 +817,9 @@ def random_arena(
     def uniform_xy():
         return float(rng.uniform(-hx, hx)), float(rng.uniform(-hy, hy))
 
+    p = np.asarray(cfg.kind_weights) / sum(cfg.kind_weights)
     obstacles = [
-        placer.place(lambda x, y: _random_obstacle(rng, cfg, spec, x, y), uniform_xy, f"obstacle {j}")
+        placer.place(lambda x, y: _random_obstacle(rng, cfg, spec, x, y, p), uniform_xy, f"obstacle {j}")
         for j in range(n_obstacles)
     ]
     robots = [
@@ -753,7 +828,7 @@ def random_arena(
         )
         for i in range(n_robots)
     ]
-    return Scene(
+    return Scene._placed(
         robots=tuple(robots),
         obstacles=tuple(obstacles),
         arena=arena,

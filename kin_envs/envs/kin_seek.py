@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Any, ClassVar
@@ -270,7 +271,11 @@ def thin_kin_like_cylinders(scene: Scene, rng: np.random.Generator) -> Scene:
         if isinstance(o, Cylinder) and math.isclose(o.radius, r_kin):
             obstacles[j] = Cylinder(x=o.x, y=o.y, radius=float(rng.uniform(*_SMALL_CYLINDER_RADIUS)))
             changed = True
-    return scene.replace(obstacles=tuple(obstacles)) if changed else scene
+    if not changed:
+        return scene
+    # (a thinner cylinder at the same centre overlaps nothing the valid scene's did not: not checked again)
+    fields = {f.name: getattr(scene, f.name) for f in dataclasses.fields(scene)}
+    return Scene._placed(**{**fields, "obstacles": tuple(obstacles)})
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -23,7 +23,9 @@ autoresets).
 
 from __future__ import annotations
 
+import contextlib
 import functools
+import gc
 from typing import Any, ClassVar
 
 import numpy as np
@@ -42,6 +44,24 @@ from kin_envs.envs.tracks import VectorTracker, track_info, track_rows
 __all__ = ["KinFollowVectorEnv", "KinSeekVectorEnv", "KinVectorEnv", "stack_infos"]
 
 _KIN_KEYS = ("kin_truth", "kin_detections", "kin_tracks")
+
+
+@contextlib.contextmanager
+def _gc_paused():
+    """The cyclic garbage collector paused while sub-envs reset (the previous state restored).
+
+    K sub-envs ending together reset in one step (~350 tracked objects each: a scene, a pymunk world):
+    that burst ran ~30 young collections, and the full collection they lead to every few bursts
+    (~150-250 ms: it traverses every object of the process, torch's included) landed in it. Paused,
+    the burst's objects are examined once, by the first collection after it. (As
+    ``detectors.learned`` does around a batch's result objects.)"""
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if enabled:
+            gc.enable()
 
 
 def stack_infos(infos: list[dict[str, Any]]) -> dict[str, Any]:
@@ -151,10 +171,11 @@ class KinVectorEnv(VectorEnv):
         if self._batch is None and len(ids) < k:
             raise ValueError("reset: the first reset must reset every sub-env (no reset_mask)")
         infos = []
-        for i in ids:
-            obs, info = self._reset_sub(i, seed=seeds[i], options=options or None)
-            self._observations[i] = obs
-            infos.append(info)
+        with _gc_paused():
+            for i in ids:
+                obs, info = self._reset_sub(i, seed=seeds[i], options=options or None)
+                self._observations[i] = obs
+                infos.append(info)
         self._autoreset[ids] = False
         self._sync_batch(ids)
         info = stack_infos(infos)
@@ -225,10 +246,11 @@ class KinVectorEnv(VectorEnv):
                     self._observations[i] = obs
                     rewards[i], terminations[i], truncations[i] = rew, term, trunc
                     per_env[i] = info
-        for i in resets:
-            obs, info = self._reset_sub(i)
-            self._observations[i] = obs
-            per_env[i] = info
+        with _gc_paused():
+            for i in resets:
+                obs, info = self._reset_sub(i)
+                self._observations[i] = obs
+                per_env[i] = info
         if resets:
             self._sync_batch(resets)
         info = self._assemble_info(per_env, on, resets, kin, task)
