@@ -35,7 +35,7 @@ from gymnasium.vector.utils import batch_space
 from kin_envs.core.multi import WorldBatch
 from kin_envs.core.world import Scan
 from kin_envs.envs.base import LEARNER, SingleRobotEnv
-from kin_envs.envs.common import detect_rows, kin_truth_rows
+from kin_envs.envs.common import detect_rows, kin_truth_padded
 from kin_envs.envs.info import DETECTION_FIELDS, INT_FIELDS, KIN_TRUTH_FIELDS, pad_rows
 from kin_envs.envs.kin_follow import KinFollowEnv
 from kin_envs.envs.kin_seek import KinSeekEnv
@@ -344,9 +344,12 @@ class KinVectorEnv(VectorEnv):
             true_ranges=combined.true_ranges[learner], robots=observers,
             poses=combined.poses[learner], range_max=combined.range_max,
         )  # fmt: skip
-        t_row, t_cols = kin_truth_rows(stacked, flat_poses)
-        t_cols["index"] = t_cols["index"] - t_row * n
-        kin = {"kin_truth": pad_rows(t_row, t_cols, k_on, self._truth_slots)}
+        t_cols, t_count = kin_truth_padded(stacked, flat_poses, self._truth_slots)
+        # global robot index -> the sub-env's own (filled slots only; empty ones keep the pad value)
+        idx = t_cols["index"]
+        filled = np.arange(idx.shape[1]) < t_count[:, None]
+        np.subtract(idx, (np.arange(k_on) * n)[:, None], out=idx, where=filled)
+        kin = {"kin_truth": (t_cols, t_count)}
         obs_rows = dets
         if self._tracks is not None:
             on_a = np.asarray(on, np.int64)
