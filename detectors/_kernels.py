@@ -359,6 +359,73 @@ def _mlp_block(a, h, weights, biases, sizes, lanes):
         k4 = k_in - k_in % 4
         j = 0
         # (lanes past m hold finite leftovers of an earlier block and are never read out)
+        while j + 4 <= n_out:  # four units a pass: each activation load serves four sums
+            b0 = biases[li, j]
+            b1 = biases[li, j + 1]
+            b2 = biases[li, j + 2]
+            b3 = biases[li, j + 3]
+            for r_ in range(lanes):
+                h[j, r_] = b0
+                h[j + 1, r_] = b1
+                h[j + 2, r_] = b2
+                h[j + 3, r_] = b3
+            for k in range(0, k4, 4):
+                u0 = weights[li, j, k]
+                u1 = weights[li, j, k + 1]
+                u2 = weights[li, j, k + 2]
+                u3 = weights[li, j, k + 3]
+                v0 = weights[li, j + 1, k]
+                v1 = weights[li, j + 1, k + 1]
+                v2 = weights[li, j + 1, k + 2]
+                v3 = weights[li, j + 1, k + 3]
+                w0 = weights[li, j + 2, k]
+                w1 = weights[li, j + 2, k + 1]
+                w2 = weights[li, j + 2, k + 2]
+                w3 = weights[li, j + 2, k + 3]
+                z0 = weights[li, j + 3, k]
+                z1 = weights[li, j + 3, k + 1]
+                z2 = weights[li, j + 3, k + 2]
+                z3 = weights[li, j + 3, k + 3]
+                for r_ in range(lanes):
+                    x0 = a[k, r_]
+                    x1 = a[k + 1, r_]
+                    x2 = a[k + 2, r_]
+                    x3 = a[k + 3, r_]
+                    p = h[j, r_]
+                    p += u0 * x0
+                    p += u1 * x1
+                    p += u2 * x2
+                    p += u3 * x3
+                    h[j, r_] = p
+                    q = h[j + 1, r_]
+                    q += v0 * x0
+                    q += v1 * x1
+                    q += v2 * x2
+                    q += v3 * x3
+                    h[j + 1, r_] = q
+                    t = h[j + 2, r_]
+                    t += w0 * x0
+                    t += w1 * x1
+                    t += w2 * x2
+                    t += w3 * x3
+                    h[j + 2, r_] = t
+                    y = h[j + 3, r_]
+                    y += z0 * x0
+                    y += z1 * x1
+                    y += z2 * x2
+                    y += z3 * x3
+                    h[j + 3, r_] = y
+            for k in range(k4, k_in):
+                u0 = weights[li, j, k]
+                v0 = weights[li, j + 1, k]
+                w0 = weights[li, j + 2, k]
+                z0 = weights[li, j + 3, k]
+                for r_ in range(lanes):
+                    h[j, r_] += u0 * a[k, r_]
+                    h[j + 1, r_] += v0 * a[k, r_]
+                    h[j + 2, r_] += w0 * a[k, r_]
+                    h[j + 3, r_] += z0 * a[k, r_]
+            j += 4
         while j + 2 <= n_out:
             b0 = biases[li, j]
             b1 = biases[li, j + 1]
@@ -435,13 +502,19 @@ def mlp_forward(x, mean, std, weights, biases, sizes, out):
     width = max(sizes.max(), n_in)
     a = np.zeros((width, blk), dtype=np.float32)
     h = np.zeros((width, blk), dtype=np.float32)
+    row = np.zeros(n_in, dtype=np.float32)
     n_layers = weights.shape[0]
     for s in range(0, n_rows, blk):
         m = min(blk, n_rows - s)
         lanes = min(blk, (m + 7) // 8 * 8)  # whole SIMD vectors; a short block does not pay for 64
+        # a row's inputs as SIMD divisions (np.true_divide: the IEEE quotients of `/`, without the
+        # zero-divisor check and branch that keep `/` scalar), then into the block's column
         for r_ in range(m):
+            xr = x[s + r_]
             for k in range(n_in):
-                a[k, r_] = (x[s + r_, k] - mean[k]) / std[k]
+                row[k] = np.true_divide(xr[k] - mean[k], std[k])
+            for k in range(n_in):
+                a[k, r_] = row[k]
         if m == blk:
             a_out = _mlp_block(a, h, weights, biases, sizes, blk)
         else:
