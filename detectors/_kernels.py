@@ -14,6 +14,27 @@ import math
 
 import numba
 import numpy as np
+from llvmlite import ir
+from numba.core import cgutils, types
+from numba.extending import intrinsic
+
+
+@intrinsic
+def prefetch(typingctx, arr, idx):
+    """``prefetch(arr, i)``: a hint that ``arr[i]`` (a contiguous 1-D array, ``0 <= i < len``) will be
+    read soon (``llvm.prefetch``, read, into all cache levels). No effect on any value."""
+    sig = types.void(arr, types.intp)
+
+    def codegen(context, builder, signature, args):
+        ary = context.make_array(signature.args[0])(context, builder, args[0])
+        i8p = ir.IntType(8).as_pointer()
+        i32 = ir.IntType(32)
+        fnty = ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32])
+        fn = cgutils.get_or_insert_function(builder.module, fnty, "llvm.prefetch.p0")
+        builder.call(fn, [builder.bitcast(builder.gep(ary.data, [args[1]]), i8p), i32(0), i32(3), i32(1)])
+        return context.get_dummy_value()
+
+    return sig, codegen
 
 # Segment stage codes shared by both detectors (detectors.base.STAGES names them).
 ACCEPTED, DIAMETER, TOO_FEW_POINTS, SHAPE, LEARNED = 0, 1, 2, 3, 4

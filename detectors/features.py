@@ -330,6 +330,14 @@ def _f32_clip_hypot(x, y, d, lo, hi):
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
+def _may_exceed_step(x, y):
+    # False only when hypot(x, y) <= _GN_MAX_STEP for certain: sqrt(x * x + y * y) is within _HYPOT_EPS of
+    # it (relative; a square that underflows only makes both smaller, an overflow gives inf: True), so the
+    # Gauss-Newton step's cap needs the hypot only past this (most steps are shorter)
+    return not (math.sqrt(x * x + y * y) * (1.0 + _HYPOT_EPS) < _GN_MAX_STEP)
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _log_err(e):
     return math.log(min(e, _ERR_CLIP) + _ERR_FLOOR)
 
@@ -423,6 +431,7 @@ def _context_value(d_flat, row, idx, n_beams, circular, d_edge, d_max):
 #: :func:`_features_kernel` fits the circles of segments of 2 to this many beams with the segments in SIMD
 #: lanes (:func:`_fit_lanes`; ~95 % of a swarm's network rows), longer ones one segment at a time
 _FIT_LANES_MAX = 8
+_PREFETCH = 4  # rows ahead whose ranges _features_kernel requests (their segment columns twice that)
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
@@ -478,7 +487,7 @@ def _fit_lanes(n, c, q0, p0, l_px, l_py, l_cx, l_cy, l_o, l_ox, l_oy, l_cphi, l_
             stx[q] = (m22 * g1[q] - a12[q] * g2[q]) / det
             sty[q] = (m11 * g2[q] - a12[q] * g1[q]) / det
         for q in range(c):  # the step's cap (rare: a loop of its own, the others stay branch-free)
-            if abs(stx[q]) + abs(sty[q]) > 0.5 * _GN_MAX_STEP:
+            if abs(stx[q]) + abs(sty[q]) > 0.5 * _GN_MAX_STEP and _may_exceed_step(stx[q], sty[q]):
                 norm = math.hypot(stx[q], sty[q])
                 if norm > _GN_MAX_STEP:
                     stx[q] *= _GN_MAX_STEP / norm
@@ -617,6 +626,19 @@ def _features_kernel(
     l_py = np.empty(pt0[_FIT_LANES_MAX + 1])
     col_g = 2 * kp + 2 * n_context
     for o in range(n_sel):
+        # the segments a few rows ahead are scattered over the batch's arrays: their reads requested now
+        if o + 2 * _PREFETCH < n_sel:
+            i2 = which[o + 2 * _PREFETCH]
+            _k.prefetch(scan, i2)
+            _k.prefetch(first, i2)
+            _k.prefetch(count, i2)
+            _k.prefetch(prev_beam, i2)
+            _k.prefetch(next_beam, i2)
+            _k.prefetch(prev_nearer, i2)
+            _k.prefetch(next_nearer, i2)
+        if o + _PREFETCH < n_sel:
+            i2 = which[o + _PREFETCH]
+            _k.prefetch(d_flat, scan[i2] * n_beams + first[i2])
         i = which[o]
         n = count[i]
         f = first[i]
@@ -742,7 +764,7 @@ def _features_kernel(
                 sty = (m11 * g2 - a12 * g1) / det
                 # the step's length only matters past _GN_MAX_STEP: a step with |x| + |y| (>= its
                 # length, here with a 2x margin over rounding) below half that needs no hypot
-                if abs(stx) + abs(sty) > 0.5 * _GN_MAX_STEP:
+                if abs(stx) + abs(sty) > 0.5 * _GN_MAX_STEP and _may_exceed_step(stx, sty):
                     norm = math.hypot(stx, sty)
                     if norm > _GN_MAX_STEP:
                         stx *= _GN_MAX_STEP / norm
@@ -1118,7 +1140,20 @@ def _cascade_kernel(
 ):  # fmt: skip
     """:data:`CASCADE_FEATURES` of the segments ``which`` into ``x`` (rows as float32 values in
     float64). Expressions as in :func:`_features_kernel` (the context with ``n_context = 2``)."""
-    for o in range(which.shape[0]):
+    n_sel = which.shape[0]
+    for o in range(n_sel):
+        if o + 2 * _PREFETCH < n_sel:  # (as in _features_kernel)
+            i2 = which[o + 2 * _PREFETCH]
+            _k.prefetch(scan, i2)
+            _k.prefetch(first, i2)
+            _k.prefetch(count, i2)
+            _k.prefetch(prev_beam, i2)
+            _k.prefetch(next_beam, i2)
+            _k.prefetch(prev_nearer, i2)
+            _k.prefetch(next_nearer, i2)
+        if o + _PREFETCH < n_sel:
+            i2 = which[o + _PREFETCH]
+            _k.prefetch(d_flat, scan[i2] * n_beams + first[i2])
         i = which[o]
         n = count[i]
         f = first[i]
