@@ -588,15 +588,16 @@ def housing_max_beams(d, scan, first, count, step, r, slack, margin, out):
     allows each reading to be ``k sigma`` too long), where it spans ``2 asin(r / D)``, so at most
     ``floor(2 asin(r / D) / step) + 1`` beams. Writes ``out[i]`` (float64; a segment with more
     beams cannot be a housing)."""
-    _housing_max_beams(d, scan, first, count, step, r, slack, margin, False, out)
+    _housing_max_beams(d, scan, first, count, step, r, slack, margin, 0, out)
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True, inline="always")
-def _housing_max_beams(d, scan, first, count, step, r, slack, margin, skip_one, out):
-    # housing_max_beams; skip_one: NaN for one-beam segments (not computed: the learned driver's lean path)
+def _housing_max_beams(d, scan, first, count, step, r, slack, margin, skip_upto, out):
+    # housing_max_beams; NaN for segments of at most skip_upto beams (not computed: the learned driver's lean
+    # path, where the bound, >= 1 + margin, keeps them anyway)
     n_beams = d.shape[1]
     for i in range(scan.shape[0]):
-        if skip_one and count[i] == 1:
+        if count[i] <= skip_upto:
             out[i] = np.nan
             continue
         b = scan[i]
