@@ -510,13 +510,15 @@ def mlp_forward(x, mean, std, weights, biases, sizes, out):
     Layer ``l`` maps ``sizes[l]`` to ``sizes[l + 1]`` units with ``weights[l, :sizes[l + 1],
     :sizes[l]]`` (``(out, in)``, zero-padded to one 3-D array) and ``biases[l, :sizes[l + 1]]``.
     Rows go through in blocks of 64, activations stored transposed (unit, row) so that the inner
-    loops run over contiguous rows and compile to SIMD. Two units and four inputs per pass over a
-    block: each activation load serves two units and each partial sum stays in a register for
-    four inputs (~2x faster than one unit and one input per pass, which loads and stores the sum
-    for every multiply-add). Each unit's sum is still accumulated input by input, in order, with
-    one fused multiply-add each (``contract``, no reassociation), so the outputs are bitwise those
-    of :func:`mlp_forward_rows` and of ``detectors._learned_driver.mlp_rows4``
-    (``tests/detectors/test_learned_driver.py``), for any layer widths.
+    loops run over contiguous rows and compile to SIMD. Four units (then two, then one for the
+    rest) and four inputs per pass over a block: each activation load serves four units and each
+    partial sum stays in a register for four inputs (two units a pass: ~2x faster than one unit
+    and one input, which loads and stores the sum for every multiply-add; four: ~5 % more). The
+    inputs are standardised row by row with SIMD divisions, then transposed into the block. Each
+    unit's sum is still accumulated input by input, in order, with one fused multiply-add each
+    (``contract``, no reassociation), so the outputs are bitwise those of :func:`mlp_forward_rows`
+    and of ``detectors._learned_driver.mlp_rows4`` (``tests/detectors/test_learned_driver.py``), for
+    any layer widths.
     """
     n_rows, n_in = x.shape
     blk = 64
