@@ -14,6 +14,27 @@ import math
 
 import numba
 import numpy as np
+from llvmlite import ir
+from numba.core import cgutils, types
+from numba.extending import intrinsic
+
+
+@intrinsic
+def prefetch(typingctx, arr, idx):
+    """``prefetch(arr, i)``: a hint that ``arr[i]`` (a contiguous 1-D array, ``0 <= i < len``) will be
+    read soon (``llvm.prefetch``, read, into all cache levels). No effect on any value."""
+    sig = types.void(arr, types.intp)
+
+    def codegen(context, builder, signature, args):
+        ary = context.make_array(signature.args[0])(context, builder, args[0])
+        i8p = ir.IntType(8).as_pointer()
+        i32 = ir.IntType(32)
+        fnty = ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32])
+        fn = cgutils.get_or_insert_function(builder.module, fnty, "llvm.prefetch.p0")
+        builder.call(fn, [builder.bitcast(builder.gep(ary.data, [args[1]]), i8p), i32(0), i32(3), i32(1)])
+        return context.get_dummy_value()
+
+    return sig, codegen
 
 # Segment stage codes shared by both detectors (detectors.base.STAGES names them).
 ACCEPTED, DIAMETER, TOO_FEW_POINTS, SHAPE, LEARNED = 0, 1, 2, 3, 4
@@ -359,6 +380,73 @@ def _mlp_block(a, h, weights, biases, sizes, lanes):
         k4 = k_in - k_in % 4
         j = 0
         # (lanes past m hold finite leftovers of an earlier block and are never read out)
+        while j + 4 <= n_out:  # four units a pass: each activation load serves four sums
+            b0 = biases[li, j]
+            b1 = biases[li, j + 1]
+            b2 = biases[li, j + 2]
+            b3 = biases[li, j + 3]
+            for r_ in range(lanes):
+                h[j, r_] = b0
+                h[j + 1, r_] = b1
+                h[j + 2, r_] = b2
+                h[j + 3, r_] = b3
+            for k in range(0, k4, 4):
+                u0 = weights[li, j, k]
+                u1 = weights[li, j, k + 1]
+                u2 = weights[li, j, k + 2]
+                u3 = weights[li, j, k + 3]
+                v0 = weights[li, j + 1, k]
+                v1 = weights[li, j + 1, k + 1]
+                v2 = weights[li, j + 1, k + 2]
+                v3 = weights[li, j + 1, k + 3]
+                w0 = weights[li, j + 2, k]
+                w1 = weights[li, j + 2, k + 1]
+                w2 = weights[li, j + 2, k + 2]
+                w3 = weights[li, j + 2, k + 3]
+                z0 = weights[li, j + 3, k]
+                z1 = weights[li, j + 3, k + 1]
+                z2 = weights[li, j + 3, k + 2]
+                z3 = weights[li, j + 3, k + 3]
+                for r_ in range(lanes):
+                    x0 = a[k, r_]
+                    x1 = a[k + 1, r_]
+                    x2 = a[k + 2, r_]
+                    x3 = a[k + 3, r_]
+                    p = h[j, r_]
+                    p += u0 * x0
+                    p += u1 * x1
+                    p += u2 * x2
+                    p += u3 * x3
+                    h[j, r_] = p
+                    q = h[j + 1, r_]
+                    q += v0 * x0
+                    q += v1 * x1
+                    q += v2 * x2
+                    q += v3 * x3
+                    h[j + 1, r_] = q
+                    t = h[j + 2, r_]
+                    t += w0 * x0
+                    t += w1 * x1
+                    t += w2 * x2
+                    t += w3 * x3
+                    h[j + 2, r_] = t
+                    y = h[j + 3, r_]
+                    y += z0 * x0
+                    y += z1 * x1
+                    y += z2 * x2
+                    y += z3 * x3
+                    h[j + 3, r_] = y
+            for k in range(k4, k_in):
+                u0 = weights[li, j, k]
+                v0 = weights[li, j + 1, k]
+                w0 = weights[li, j + 2, k]
+                z0 = weights[li, j + 3, k]
+                for r_ in range(lanes):
+                    h[j, r_] += u0 * a[k, r_]
+                    h[j + 1, r_] += v0 * a[k, r_]
+                    h[j + 2, r_] += w0 * a[k, r_]
+                    h[j + 3, r_] += z0 * a[k, r_]
+            j += 4
         while j + 2 <= n_out:
             b0 = biases[li, j]
             b1 = biases[li, j + 1]
@@ -422,26 +510,34 @@ def mlp_forward(x, mean, std, weights, biases, sizes, out):
     Layer ``l`` maps ``sizes[l]`` to ``sizes[l + 1]`` units with ``weights[l, :sizes[l + 1],
     :sizes[l]]`` (``(out, in)``, zero-padded to one 3-D array) and ``biases[l, :sizes[l + 1]]``.
     Rows go through in blocks of 64, activations stored transposed (unit, row) so that the inner
-    loops run over contiguous rows and compile to SIMD. Two units and four inputs per pass over a
-    block: each activation load serves two units and each partial sum stays in a register for
-    four inputs (~2x faster than one unit and one input per pass, which loads and stores the sum
-    for every multiply-add). Each unit's sum is still accumulated input by input, in order, with
-    one fused multiply-add each (``contract``, no reassociation), so the outputs are bitwise those
-    of :func:`mlp_forward_rows` and of ``detectors._learned_driver.mlp_rows4``
-    (``tests/detectors/test_learned_driver.py``), for any layer widths.
+    loops run over contiguous rows and compile to SIMD. Four units (then two, then one for the
+    rest) and four inputs per pass over a block: each activation load serves four units and each
+    partial sum stays in a register for four inputs (two units a pass: ~2x faster than one unit
+    and one input, which loads and stores the sum for every multiply-add; four: ~5 % more). The
+    inputs are standardised row by row with SIMD divisions, then transposed into the block. Each
+    unit's sum is still accumulated input by input, in order, with one fused multiply-add each
+    (``contract``, no reassociation), so the outputs are bitwise those of :func:`mlp_forward_rows`
+    and of ``detectors._learned_driver.mlp_rows4`` (``tests/detectors/test_learned_driver.py``), for
+    any layer widths.
     """
     n_rows, n_in = x.shape
     blk = 64
     width = max(sizes.max(), n_in)
     a = np.zeros((width, blk), dtype=np.float32)
     h = np.zeros((width, blk), dtype=np.float32)
+    row = np.zeros(n_in, dtype=np.float32)
     n_layers = weights.shape[0]
     for s in range(0, n_rows, blk):
         m = min(blk, n_rows - s)
         lanes = min(blk, (m + 7) // 8 * 8)  # whole SIMD vectors; a short block does not pay for 64
+        # a row's inputs as SIMD divisions (np.true_divide: the IEEE quotients of `/`, without the
+        # zero-divisor check and branch that keep `/` scalar), then into the block's column
         for r_ in range(m):
+            xr = x[s + r_]
             for k in range(n_in):
-                a[k, r_] = (x[s + r_, k] - mean[k]) / std[k]
+                row[k] = np.true_divide(xr[k] - mean[k], std[k])
+            for k in range(n_in):
+                a[k, r_] = row[k]
         if m == blk:
             a_out = _mlp_block(a, h, weights, biases, sizes, blk)
         else:
@@ -494,15 +590,16 @@ def housing_max_beams(d, scan, first, count, step, r, slack, margin, out):
     allows each reading to be ``k sigma`` too long), where it spans ``2 asin(r / D)``, so at most
     ``floor(2 asin(r / D) / step) + 1`` beams. Writes ``out[i]`` (float64; a segment with more
     beams cannot be a housing)."""
-    _housing_max_beams(d, scan, first, count, step, r, slack, margin, False, out)
+    _housing_max_beams(d, scan, first, count, step, r, slack, margin, 0, out)
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True, inline="always")
-def _housing_max_beams(d, scan, first, count, step, r, slack, margin, skip_one, out):
-    # housing_max_beams; skip_one: NaN for one-beam segments (not computed: the learned driver's lean path)
+def _housing_max_beams(d, scan, first, count, step, r, slack, margin, skip_upto, out):
+    # housing_max_beams; NaN for segments of at most skip_upto beams (not computed: the learned driver's lean
+    # path, where the bound, >= 1 + margin, keeps them anyway)
     n_beams = d.shape[1]
     for i in range(scan.shape[0]):
-        if skip_one and count[i] == 1:
+        if count[i] <= skip_upto:
             out[i] = np.nan
             continue
         b = scan[i]

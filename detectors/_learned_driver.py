@@ -17,11 +17,12 @@ the stages run back to back inside compiled code and write the compact result co
   intermediate ones (ranges, features) ~0.9 ms per 64 dense-arena scans (freed outside the call,
   their pages come back fresh on the next);
 * :func:`fused_table`: the envs' entry, only the detections ``(row, table)``: ``front`` runs
-  ``lean`` (one-beam segments skip the pre-gate's bound, which always keeps them, and the cascade's
-  stage 1 where a bound proves their score below its threshold:
-  :func:`detectors.features.cascade_one_beam_table`) and :func:`back_table` looks only at the rows
-  that reached the network. The same detections as ``fused_packed``; what differs (``max_beams``
-  and ``cascade_score`` of one-beam segments, NaN) never leaves the call.
+  ``lean`` (segments of at most ``1 + margin`` beams skip the pre-gate's bound, which always keeps
+  them, and one-beam segments the cascade's stage 1 where a bound proves their score below its
+  threshold: :func:`detectors.features.cascade_one_beam_table`) and :func:`back_table` looks only at
+  the rows that reached the network. The same detections as ``fused_packed``; what differs
+  (``max_beams`` of those short segments and ``cascade_score`` of one-beam ones, NaN) never leaves
+  the call.
 
 With ``inference="blas"`` / ``"torch"`` the detector calls ``front`` (not lean), runs the network in
 Python, then ``back_rest``.
@@ -125,12 +126,13 @@ def front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_a
     :func:`detectors.learned.load_cascade`) on the segments the pre-gate keeps; those scoring below
     ``c_threshold`` do not reach the features and the network (as ``LearnedKinDetector._predict``).
 
-    ``lean`` (the env's :func:`fused_table`, which returns only the detections): one-beam segments
-    skip the pre-gate's bound (it always keeps them: ``max_beams >= 1 + margin``; NaN here) and, with
-    the cascade, those whose score :func:`detectors.features._cascade_one_beam_filter` proves below
-    the threshold with the bound table ``c_one_beam`` (:func:`detectors.features.cascade_one_beam_table`)
-    skip stage 1 (score NaN here). Which segments reach the network, and so every detection and
-    stage code, is the same as without ``lean``.
+    ``lean`` (the env's :func:`fused_table`, which returns only the detections): segments of at most
+    ``1 + margin`` beams skip the pre-gate's bound (it always keeps them: ``max_beams >= 1 + margin``;
+    NaN here) and, with the cascade, the one-beam segments whose score
+    :func:`detectors.features._cascade_one_beam_filter` proves below the threshold with the bound
+    table ``c_one_beam`` (:func:`detectors.features.cascade_one_beam_table`) skip stage 1 (score NaN
+    here). Which segments reach the network, and so every detection and stage code, is the same as
+    without ``lean``.
 
     Returns ``(d, scan, first, count, prev, next, prev_nearer, next_nearer, max_beams, rows, x,
     frames, scan_cols, cascade_score)``: the pre-processed ranges, the segments (as
@@ -174,12 +176,13 @@ def _front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_
     max_beams = wf[cells : cells + s]
     keep = wi[5 * cells : 5 * cells + s]
     if pre_gate:
-        # (a one-beam segment's bound floor(2 asin(.) / step) + 1 + margin is >= 1 for step > 0, margin >= 0)
-        skip_one = lean and step > 0.0 and margin >= 0.0
-        _k._housing_max_beams(d, scan, first, count, step, r_kin, slack, margin, skip_one, max_beams)
+        # the bound floor(2 asin(.) / step) + 1 + margin is >= 1 + margin for step > 0 (asin >= 0): segments
+        # of at most 1 + margin beams are always kept, and the lean path does not compute their asin
+        skip_upto = int(1.0 + math.floor(margin)) if lean and step > 0.0 and margin >= 0.0 else 0
+        _k._housing_max_beams(d, scan, first, count, step, r_kin, slack, margin, skip_upto, max_beams)
         n_keep = 0
         for i in range(s):
-            if count[i] <= max_beams[i] or (skip_one and count[i] == 1):
+            if count[i] <= max_beams[i] or count[i] <= skip_upto:
                 keep[n_keep] = i
                 n_keep += 1
         rows = keep[:n_keep]

@@ -330,6 +330,14 @@ def _f32_clip_hypot(x, y, d, lo, hi):
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
+def _may_exceed_step(x, y):
+    # False only when hypot(x, y) <= _GN_MAX_STEP for certain: sqrt(x * x + y * y) is within _HYPOT_EPS of
+    # it (relative; a square that underflows only makes both smaller, an overflow gives inf: True), so the
+    # Gauss-Newton step's cap needs the hypot only past this (most steps are shorter)
+    return not (math.sqrt(x * x + y * y) * (1.0 + _HYPOT_EPS) < _GN_MAX_STEP)
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _log_err(e):
     return math.log(min(e, _ERR_CLIP) + _ERR_FLOOR)
 
@@ -420,6 +428,110 @@ def _context_value(d_flat, row, idx, n_beams, circular, d_edge, d_max):
     return _CTX_CLIP
 
 
+#: :func:`_features_kernel` fits the circles of segments of 2 to this many beams with the segments in SIMD
+#: lanes (:func:`_fit_lanes`; ~95 % of a swarm's network rows), longer ones one segment at a time
+_FIT_LANES_MAX = 8
+_PREFETCH = 4  # rows ahead whose ranges _features_kernel requests (their segment columns twice that)
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _fit_lanes(n, c, q0, p0, l_px, l_py, l_cx, l_cy, l_o, l_ox, l_oy, l_cphi, l_sphi, l_dcest, r, sweep,
+               gn_iters, kp, rs_lo, rs_hi, rs_w, col_g, x, fit_centre):  # fmt: skip
+    """The known-radius circle fits of the ``c`` segments of ``n`` beams in lanes ``q0 ..`` (their points
+    ``l_px, l_py`` point-major from ``p0``, eq. 7 starts ``l_cx, l_cy``) and their fit-dependent columns of
+    ``x`` (row ``l_o``): :func:`_features_kernel`'s expressions per segment, in the same order, one loop
+    over the lanes per step (no reduction across lanes: each lane's values are those of the segment
+    fitted alone), so the divisions and square roots of ``c`` segments run as SIMD instructions side by
+    side instead of one dependent chain per segment (``tests/detectors/test_fast_paths.py``)."""
+    px = l_px[p0 : p0 + n * c].reshape((n, c))
+    py = l_py[p0 : p0 + n * c].reshape((n, c))
+    cx = l_cx[q0 : q0 + c]
+    cy = l_cy[q0 : q0 + c]
+    f0 = np.zeros(c)
+    for k in range(n):
+        for q in range(c):
+            f0[q] += abs(math.sqrt((px[k, q] - cx[q]) ** 2 + (py[k, q] - cy[q]) ** 2) - r)
+    for q in range(c):
+        f0[q] /= n
+    a11 = np.empty(c)
+    a12 = np.empty(c)
+    a22 = np.empty(c)
+    g1 = np.empty(c)
+    g2 = np.empty(c)
+    stx = np.empty(c)
+    sty = np.empty(c)
+    for _ in range(gn_iters):
+        a11[:] = 0.0
+        a12[:] = 0.0
+        a22[:] = 0.0
+        g1[:] = 0.0
+        g2[:] = 0.0
+        for k in range(n):
+            for q in range(c):
+                qx = px[k, q] - cx[q]
+                qy = py[k, q] - cy[q]
+                nq = max(math.sqrt(qx * qx + qy * qy), 1e-12)
+                e = nq - r
+                jx = qx / nq
+                jy = qy / nq
+                a11[q] += jx * jx
+                a12[q] += jx * jy
+                a22[q] += jy * jy
+                g1[q] += jx * e
+                g2[q] += jy * e
+        for q in range(c):
+            mu = 1e-6 + 1e-3 * (a11[q] + a22[q])
+            m11 = a11[q] + mu
+            m22 = a22[q] + mu
+            det = m11 * m22 - a12[q] * a12[q]
+            stx[q] = (m22 * g1[q] - a12[q] * g2[q]) / det
+            sty[q] = (m11 * g2[q] - a12[q] * g1[q]) / det
+        for q in range(c):  # the step's cap (rare: a loop of its own, the others stay branch-free)
+            if abs(stx[q]) + abs(sty[q]) > 0.5 * _GN_MAX_STEP and _may_exceed_step(stx[q], sty[q]):
+                norm = math.hypot(stx[q], sty[q])
+                if norm > _GN_MAX_STEP:
+                    stx[q] *= _GN_MAX_STEP / norm
+                    sty[q] *= _GN_MAX_STEP / norm
+        for q in range(c):
+            cx[q] += stx[q]
+            cy[q] += sty[q]
+    f_sum = np.zeros(c)
+    e_max = np.zeros(c)
+    pe = np.empty((n, c))
+    for k in range(n):
+        for q in range(c):
+            pe[k, q] = math.sqrt((px[k, q] - cx[q]) ** 2 + (py[k, q] - cy[q]) ** 2) - r
+            e = abs(pe[k, q])
+            f_sum[q] += e
+            e_max[q] = max(e_max[q], e)
+    for q in range(c):
+        o = l_o[q0 + q]
+        fx = cx[q]
+        fy = cy[q]
+        fit_centre[o, 0] = fx
+        fit_centre[o, 1] = fy
+        fdx = fx - l_ox[q0 + q]
+        fdy = fy - l_oy[q0 + q]
+        cphi = l_cphi[q0 + q]
+        sphi = l_sphi[q0 + q]
+        fit_u = fdx * cphi + fdy * sphi
+        fit_v = sweep * (-fdx * sphi + fdy * cphi)
+        x[o, col_g + 11] = _log_err(f0[q])
+        x[o, col_g + 12] = _log_err(f_sum[q])
+        x[o, col_g + 13] = _log_err(f_sum[q] / n)
+        x[o, col_g + 14] = _log_err(e_max[q])
+        x[o, col_g + 15] = _f32_clip_hypot(fx, fy, l_dcest[q0 + q], -_OFF_CLIP, _OFF_CLIP)
+        x[o, col_g + 16] = min(max(fit_u, -_OFF_CLIP), _OFF_CLIP)
+        x[o, col_g + 17] = min(max(fit_v, -_OFF_CLIP), _OFF_CLIP)
+        x[o, col_g + 18] = 1.0
+        for j in range(kp):
+            lo = rs_lo[n, j]
+            hi = rs_hi[n, j]
+            w = rs_w[n, j]
+            e = pe[lo, q] * (1.0 - w) + pe[hi, q] * w
+            x[o, col_g + 24 + j] = min(max(e, -_RES_CLIP), _RES_CLIP)
+
+
 @numba.njit(cache=True, error_model="numpy", nogil=True)
 def _features_kernel(
     d_flat,
@@ -487,7 +599,46 @@ def _features_kernel(
     for b in range(scan_noise.shape[0]):
         scan_cols[b, 0] = math.log(scan_noise[b] + 1e-4)
         scan_cols[b, 1] = math.log1p(float(noise_n[b]))
-    for o in range(which.shape[0]):
+    # the circle fits of segments of 2.._FIT_LANES_MAX beams run after this loop, grouped by beam count with
+    # the segments in the SIMD lanes (_fit_lanes); the others' here, one segment at a time
+    n_sel = which.shape[0]
+    lane_n = np.zeros(_FIT_LANES_MAX + 1, dtype=np.int64)
+    for o in range(n_sel):
+        n = count[which[o]]
+        if n >= 2 and n <= _FIT_LANES_MAX:
+            lane_n[n] += 1
+    lane0 = np.zeros(_FIT_LANES_MAX + 2, dtype=np.int64)  # first lane of each beam count
+    pt0 = np.zeros(_FIT_LANES_MAX + 2, dtype=np.int64)  # first point slot of each beam count
+    for n in range(_FIT_LANES_MAX + 1):
+        lane0[n + 1] = lane0[n] + lane_n[n]
+        pt0[n + 1] = pt0[n] + n * lane_n[n]
+    n_lanes = lane0[_FIT_LANES_MAX + 1]
+    fill = lane0[:-1].copy()
+    l_o = np.empty(n_lanes, dtype=np.int64)
+    l_cx = np.empty(n_lanes)
+    l_cy = np.empty(n_lanes)
+    l_ox = np.empty(n_lanes)
+    l_oy = np.empty(n_lanes)
+    l_cphi = np.empty(n_lanes)
+    l_sphi = np.empty(n_lanes)
+    l_dcest = np.empty(n_lanes)
+    l_px = np.empty(pt0[_FIT_LANES_MAX + 1])
+    l_py = np.empty(pt0[_FIT_LANES_MAX + 1])
+    col_g = 2 * kp + 2 * n_context
+    for o in range(n_sel):
+        # the segments a few rows ahead are scattered over the batch's arrays: their reads requested now
+        if o + 2 * _PREFETCH < n_sel:
+            i2 = which[o + 2 * _PREFETCH]
+            _k.prefetch(scan, i2)
+            _k.prefetch(first, i2)
+            _k.prefetch(count, i2)
+            _k.prefetch(prev_beam, i2)
+            _k.prefetch(next_beam, i2)
+            _k.prefetch(prev_nearer, i2)
+            _k.prefetch(next_nearer, i2)
+        if o + _PREFETCH < n_sel:
+            i2 = which[o + _PREFETCH]
+            _k.prefetch(d_flat, scan[i2] * n_beams + first[i2])
         i = which[o]
         n = count[i]
         f = first[i]
@@ -564,11 +715,28 @@ def _features_kernel(
         grow = 1.0 + r / d_min
         cx = px[kmin] * grow
         cy = py[kmin] * grow
-        fit_ok = n >= 2
+        lanes = n >= 2 and n <= _FIT_LANES_MAX
+        if lanes:  # fitted in _fit_lanes: its points and start to lane q (points k at pt0[n] + k c + q)
+            q = fill[n]
+            fill[n] += 1
+            c = lane_n[n]
+            for k in range(n):
+                l_px[pt0[n] + k * c + (q - lane0[n])] = px[k]
+                l_py[pt0[n] + k * c + (q - lane0[n])] = py[k]
+            l_o[q] = o
+            l_cx[q] = cx
+            l_cy[q] = cy
+            l_ox[q] = ox
+            l_oy[q] = oy
+            l_cphi[q] = cphi
+            l_sphi[q] = sphi
+            l_dcest[q] = d_cest
+        fit_ok = n >= 2 and not lanes  # (the lanes' fit-dependent columns: written by _fit_lanes)
         F0 = 0.0
-        for k in range(n):
-            F0 += abs(math.sqrt((px[k] - cx) ** 2 + (py[k] - cy) ** 2) - r)
-        F0 /= n
+        if not lanes:
+            for k in range(n):
+                F0 += abs(math.sqrt((px[k] - cx) ** 2 + (py[k] - cy) ** 2) - r)
+            F0 /= n
         if fit_ok:
             for _ in range(gn_iters):
                 a11 = 0.0
@@ -596,7 +764,7 @@ def _features_kernel(
                 sty = (m11 * g2 - a12 * g1) / det
                 # the step's length only matters past _GN_MAX_STEP: a step with |x| + |y| (>= its
                 # length, here with a 2x margin over rounding) below half that needs no hypot
-                if abs(stx) + abs(sty) > 0.5 * _GN_MAX_STEP:
+                if abs(stx) + abs(sty) > 0.5 * _GN_MAX_STEP and _may_exceed_step(stx, sty):
                     norm = math.hypot(stx, sty)
                     if norm > _GN_MAX_STEP:
                         stx *= _GN_MAX_STEP / norm
@@ -605,11 +773,12 @@ def _features_kernel(
                 cy += sty
         F_sum = 0.0
         e_max = 0.0
-        for k in range(n):
-            pe[k] = math.sqrt((px[k] - cx) ** 2 + (py[k] - cy) ** 2) - r
-            e = abs(pe[k])
-            F_sum += e
-            e_max = max(e_max, e)
+        if not lanes:
+            for k in range(n):
+                pe[k] = math.sqrt((px[k] - cx) ** 2 + (py[k] - cy) ** 2) - r
+                e = abs(pe[k])
+                F_sum += e
+                e_max = max(e_max, e)
         fit_centre[o, 0] = cx
         fit_centre[o, 1] = cy
         fdx = cx - ox
@@ -656,7 +825,7 @@ def _features_kernel(
             1.0 if next_nearer[i] else 0.0,
             chord_f,
             min(umax - umin, _LEN_CLIP),
-            _log_err(F0),
+            _log_err(F0) if not lanes else 0.0,
             _log_err(F_sum) if fit_ok else log_err0,
             _log_err(F_sum / n) if fit_ok else log_err0,
             _log_err(e_max) if fit_ok else log_err0,
@@ -674,12 +843,18 @@ def _features_kernel(
             x[o, col] = val
             col += 1
         # signed residual profile of the fit, resampled like the points (0 without a fit)
-        for j in range(kp):
-            lo = rs_lo[n, j]
-            hi = rs_hi[n, j]
-            w = rs_w[n, j]
-            e = pe[lo] * (1.0 - w) + pe[hi] * w if fit_ok else 0.0
-            x[o, col + j] = min(max(e, -_RES_CLIP), _RES_CLIP)
+        if not lanes:
+            for j in range(kp):
+                lo = rs_lo[n, j]
+                hi = rs_hi[n, j]
+                w = rs_w[n, j]
+                e = pe[lo] * (1.0 - w) + pe[hi] * w if fit_ok else 0.0
+                x[o, col + j] = min(max(e, -_RES_CLIP), _RES_CLIP)
+    for n in range(2, _FIT_LANES_MAX + 1):
+        if lane_n[n] > 0:
+            _fit_lanes(n, lane_n[n], lane0[n], pt0[n], l_px, l_py, l_cx, l_cy, l_o, l_ox, l_oy, l_cphi,
+                       l_sphi, l_dcest, r, sweep, gn_iters, kp, rs_lo, rs_hi, rs_w, col_g, x,
+                       fit_centre)  # fmt: skip
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
@@ -965,7 +1140,20 @@ def _cascade_kernel(
 ):  # fmt: skip
     """:data:`CASCADE_FEATURES` of the segments ``which`` into ``x`` (rows as float32 values in
     float64). Expressions as in :func:`_features_kernel` (the context with ``n_context = 2``)."""
-    for o in range(which.shape[0]):
+    n_sel = which.shape[0]
+    for o in range(n_sel):
+        if o + 2 * _PREFETCH < n_sel:  # (as in _features_kernel)
+            i2 = which[o + 2 * _PREFETCH]
+            _k.prefetch(scan, i2)
+            _k.prefetch(first, i2)
+            _k.prefetch(count, i2)
+            _k.prefetch(prev_beam, i2)
+            _k.prefetch(next_beam, i2)
+            _k.prefetch(prev_nearer, i2)
+            _k.prefetch(next_nearer, i2)
+        if o + _PREFETCH < n_sel:
+            i2 = which[o + _PREFETCH]
+            _k.prefetch(d_flat, scan[i2] * n_beams + first[i2])
         i = which[o]
         n = count[i]
         f = first[i]

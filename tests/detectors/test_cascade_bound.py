@@ -18,7 +18,7 @@ pytest.importorskip("torch")
 from detectors import _learned_driver as _drv  # noqa: E402
 from detectors import features as F  # noqa: E402
 from detectors.features import FeatureConfig, beam_trig, scan_noise, segment_batch  # noqa: E402
-from detectors.learned import LearnedKinDetector  # noqa: E402
+from detectors.learned import PRE_GATE_MARGIN, LearnedKinDetector  # noqa: E402
 from kin_envs import LidarSpec, World, scenes  # noqa: E402
 
 NOISES = (0.0, 0.005, 0.01, 0.02)
@@ -144,7 +144,9 @@ def test_lean_driver_sends_the_same_segments_to_the_network(positioning):
         for k in (0, 1, 2, 3, 4, 5, 6, 7, 9, 10, 11, 12):
             assert np.array_equal(full[k], lean[k], equal_nan=True), k
         one = full[3] == 1
-        assert np.isnan(lean[8][one]).all() and np.array_equal(full[8][~one], lean[8][~one])
+        short = full[3] <= 1 + PRE_GATE_MARGIN  # (their bound, >= 1 + margin, always keeps them)
+        assert np.isnan(lean[8][short]).all() and np.array_equal(full[8][~short], lean[8][~short])
+        assert (full[3][short] <= full[8][short]).all()
         settled = np.isfinite(full[13]) & np.isnan(lean[13])
         assert (one[settled]).all() and np.array_equal(full[13][~settled], lean[13][~settled], equal_nan=True)
         n_skipped += int(settled.sum())

@@ -127,3 +127,147 @@ def test_branch_free_segmentation_is_the_walk():
 
 def outputs(cap):
     return [np.zeros(cap, np.int64) for _ in range(5)] + [np.zeros(cap, bool) for _ in range(2)]
+
+
+def test_step_cap_check_never_skips_a_step_longer_than_the_cap():
+    # _may_exceed_step may say False only when hypot(x, y) <= _GN_MAX_STEP: random steps around the cap,
+    # steps of exactly the cap's length up to a few ulps, zeros, tiny, huge and non-finite values
+    cap = F._GN_MAX_STEP
+    rng = np.random.default_rng(3)
+    ang = rng.uniform(0, 2 * np.pi, 100_000)
+    rad = cap * (1.0 + rng.normal(size=ang.size) * np.exp(rng.uniform(-40, -1, ang.size)))
+    xs = np.concatenate([rad * np.cos(ang), [0.0, 1e-170, 1e-300, cap, 0.03, 1e200, np.inf, np.nan]])
+    ys = np.concatenate([rad * np.sin(ang), [cap, 1e-170, 0.0, 0.0, 0.04, 0.0, 0.0, 0.0]])
+    n_skipped = 0
+    for x, y in zip(xs.tolist(), ys.tolist(), strict=True):
+        may = _may_exceed(x, y)
+        if not may:
+            n_skipped += 1
+            assert _hypot(x, y) <= cap, (x, y)
+    assert 30_000 < n_skipped < 60_000  # the check does skip the short steps
+
+
+@numba.njit
+def _may_exceed(x, y):
+    return F._may_exceed_step(x, y)
+
+
+@numba.njit
+def _hypot(x, y):
+    return math.hypot(x, y)  # libm's, as the kernels
+
+
+@numba.njit(error_model="numpy")
+def _fit_one(px, py, cx, cy, r, gn_iters):
+    # _features_kernel's per-segment circle fit (the expressions _fit_lanes runs in SIMD lanes), one segment:
+    # (centre, F0, F_sum, e_max, signed residuals)
+    n = px.shape[0]
+    F0 = 0.0
+    for k in range(n):
+        F0 += abs(math.sqrt((px[k] - cx) ** 2 + (py[k] - cy) ** 2) - r)
+    F0 /= n
+    for _ in range(gn_iters):
+        a11 = a12 = a22 = g1 = g2 = 0.0
+        for k in range(n):
+            qx = px[k] - cx
+            qy = py[k] - cy
+            nq = max(math.sqrt(qx * qx + qy * qy), 1e-12)
+            e = nq - r
+            jx = qx / nq
+            jy = qy / nq
+            a11 += jx * jx
+            a12 += jx * jy
+            a22 += jy * jy
+            g1 += jx * e
+            g2 += jy * e
+        mu = 1e-6 + 1e-3 * (a11 + a22)
+        m11 = a11 + mu
+        m22 = a22 + mu
+        det = m11 * m22 - a12 * a12
+        stx = (m22 * g1 - a12 * g2) / det
+        sty = (m11 * g2 - a12 * g1) / det
+        norm = math.hypot(stx, sty)
+        if norm > F._GN_MAX_STEP:
+            stx *= F._GN_MAX_STEP / norm
+            sty *= F._GN_MAX_STEP / norm
+        cx += stx
+        cy += sty
+    pe = np.empty(n)
+    F_sum = 0.0
+    e_max = 0.0
+    for k in range(n):
+        pe[k] = math.sqrt((px[k] - cx) ** 2 + (py[k] - cy) ** 2) - r
+        e = abs(pe[k])
+        F_sum += e
+        e_max = max(e_max, e)
+    return cx, cy, F0, F_sum, e_max, pe
+
+
+@numba.njit(error_model="numpy")
+def _lanes(n, c, px, py, cx, cy, ox, oy, cphi, sphi, dcest, r, gn_iters, kp, rs_lo, rs_hi, rs_w, x, fc):
+    F._fit_lanes(n, c, 0, 0, px, py, cx, cy, np.arange(c), ox, oy, cphi, sphi, dcest, r, 1.0, gn_iters, kp,
+                 rs_lo, rs_hi, rs_w, 0, x, fc)  # fmt: skip
+
+
+def test_circle_fits_in_simd_lanes_are_the_per_segment_fits():
+    # _fit_lanes (segments of n beams side by side) against the per-segment expressions above (hypot on every
+    # step): kin-like arcs with noise, lines, points far off the circle (long, capped steps), 1-100 lanes
+    rng = np.random.default_rng(4)
+    r = 0.035
+    kp = 8
+    for trial in range(60):
+        n = int(rng.integers(2, F._FIT_LANES_MAX + 1))
+        c = int(rng.integers(1, 100))
+        gn_iters = int(rng.integers(0, 5))
+        rng_ = rng.uniform(0.2, 8.0, c)
+        bear = rng.uniform(-np.pi, np.pi, c)
+        centre = np.stack([(rng_ + r) * np.cos(bear), (rng_ + r) * np.sin(bear)], 1)
+        t = np.linspace(-1.0, 1.0, n)[:, None] * rng.uniform(0.1, 1.4, c)[None, :]
+        kind = rng.integers(0, 3, c)
+        px = centre[:, 0] - r * np.cos(bear + t) * (kind != 1) + t * 0.05 * np.sin(bear) * (kind == 1)
+        py = centre[:, 1] - r * np.sin(bear + t) * (kind != 1) - t * 0.05 * np.cos(bear) * (kind == 1)
+        px = px + rng.normal(size=px.shape) * 10.0 ** rng.uniform(-5, -1.5) * (1 + 20 * (kind == 2))
+        py = py + rng.normal(size=py.shape) * 10.0 ** rng.uniform(-5, -1.5) * (1 + 20 * (kind == 2))
+        d = np.hypot(px, py)
+        kmin = d.argmin(0)
+        grow = 1.0 + r / d[kmin, np.arange(c)]
+        cx0 = px[kmin, np.arange(c)] * grow
+        cy0 = py[kmin, np.arange(c)] * grow
+        ox, oy = px.mean(0), py.mean(0)
+        phi = np.arctan2(oy, ox)
+        cphi, sphi = np.cos(phi), np.sin(phi)
+        dcest = d.min(0) + r
+        rs_lo = np.zeros((n + 1, kp), np.int64)
+        rs_hi = np.zeros((n + 1, kp), np.int64)
+        rs_w = np.zeros((n + 1, kp))
+        for j in range(kp):
+            tt = j * (n - 1) / (kp - 1)
+            lo = min(int(math.floor(tt)), n - 1)
+            rs_lo[n, j], rs_hi[n, j], rs_w[n, j] = lo, min(lo + 1, n - 1), tt - lo
+        x = np.zeros((c, 24 + kp), np.float32)
+        fc = np.zeros((c, 2))
+        cx, cy = cx0.copy(), cy0.copy()
+        _lanes(n, c, np.ascontiguousarray(px).ravel(), np.ascontiguousarray(py).ravel(), cx, cy, ox, oy, cphi,
+               sphi, dcest, r, gn_iters, kp, rs_lo, rs_hi, rs_w, x, fc)  # fmt: skip
+        for q in range(c):
+            fx, fy, f0, fs, em, pe = _fit_one(px[:, q].copy(), py[:, q].copy(), cx0[q], cy0[q], r, gn_iters)
+            assert fc[q, 0] == fx and fc[q, 1] == fy, (trial, q)
+            fdx, fdy = fx - ox[q], fy - oy[q]
+            want = [_log_err(f0), _log_err(fs), _log_err(fs / n), _log_err(em),
+                    _clip_hypot(fx, fy, dcest[q]),
+                    min(max(fdx * cphi[q] + fdy * sphi[q], -F._OFF_CLIP), F._OFF_CLIP),
+                    min(max(-fdx * sphi[q] + fdy * cphi[q], -F._OFF_CLIP), F._OFF_CLIP), 1.0]  # fmt: skip
+            assert np.array_equal(x[q, 11:19], np.float32(want)), (trial, q)
+            res = [min(max(pe[rs_lo[n, j]] * (1.0 - rs_w[n, j]) + pe[rs_hi[n, j]] * rs_w[n, j], -F._RES_CLIP),
+                       F._RES_CLIP) for j in range(kp)]  # fmt: skip
+            assert np.array_equal(x[q, 24:], np.float32(res)), (trial, q)
+
+
+@numba.njit(error_model="numpy")
+def _log_err(e):
+    return F._log_err(e)
+
+
+@numba.njit(error_model="numpy")
+def _clip_hypot(x, y, d):
+    return slow(x, y, d, -F._OFF_CLIP, F._OFF_CLIP)

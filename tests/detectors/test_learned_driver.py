@@ -181,6 +181,35 @@ def test_four_row_network_kernel_is_bitwise_the_row_and_block_kernels():
         assert np.array_equal(outs[0].view(np.int32), outs[2].view(np.int32)), n
 
 
+@pytest.mark.parametrize("sizes", [(13, 7, 10, 3), (9, 6, 5, 2), (52, 64, 64, 3), (5, 4, 1), (6, 11, 9, 4)])
+def test_block_network_kernel_is_bitwise_the_row_kernels_for_any_widths(sizes):
+    # random networks whose widths are not multiples of the block kernel's four units (the 4-, 2- and 1-unit
+    # passes) nor of its four inputs, random inputs with exact zeros: every kernel's bits are the same
+    from detectors import _kernels as _k
+
+    rng = np.random.default_rng(sum(sizes))
+    sizes = np.array(sizes, dtype=np.int64)
+    n_layers = sizes.size - 1
+    w_max = int(sizes.max())
+    w = np.zeros((n_layers, w_max, w_max), np.float32)
+    b = np.zeros((n_layers, w_max), np.float32)
+    for li in range(n_layers):
+        w[li, : sizes[li + 1], : sizes[li]] = rng.normal(size=(sizes[li + 1], sizes[li])) / np.sqrt(sizes[li])
+        b[li, : sizes[li + 1]] = rng.normal(size=sizes[li + 1]) * 0.3
+    wt = np.ascontiguousarray(w.transpose(0, 2, 1))
+    mean = rng.normal(size=sizes[0]).astype(np.float32)
+    std = rng.uniform(0.5, 2.0, sizes[0]).astype(np.float32)
+    for n in (1, 3, 4, 9, 63, 64, 65, 200):
+        x = (mean + rng.normal(size=(n, sizes[0])) * 2.0 * std).astype(np.float32)
+        x[rng.random(x.shape) < 0.2] = 0.0
+        outs = [np.empty((n, sizes[-1]), np.float32) for _ in range(3)]
+        _k.mlp_forward(x, mean, std, w, b, sizes, outs[0])
+        _k.mlp_forward_rows(x, mean, std, wt, b, sizes, outs[1])
+        _drv.mlp_rows4(x, mean, std, wt, b, sizes, outs[2])
+        assert np.array_equal(outs[0].view(np.int32), outs[1].view(np.int32)), n
+        assert np.array_equal(outs[0].view(np.int32), outs[2].view(np.int32)), n
+
+
 def _random_arena_batches():
     # random arenas of several densities and noise levels, every robot's scan (batched calls)
     for seed, noise, n_robots in ((10, 0.01, 24), (11, 0.0, 12), (12, 0.005, 40)):
