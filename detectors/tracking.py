@@ -1443,20 +1443,22 @@ def _frame_kernel(z, obs, rng, dt, n_obs, alive, tobs, tid, next_id, x, P, poses
         d0, d1 = z[c, 0] - x[t, 0], z[c, 1] - x[t, 1]
         for i in range(4):
             x[t, i] += K[i, 0] * d0 + K[i, 1] * d1
-        for i in range(4):  # A = I - K H
-            for jj in range(4):
-                A[i, jj] = (1.0 if i == jj else 0.0) - (K[i, jj] if jj < 2 else 0.0)
+        # A = I - K H: its columns 2 and 3 are the identity's, so of each 4-term sum below only the terms
+        # with A's first two columns and the identity's one remain. The others were products with an
+        # exact 0.0 (+-0 for finite P), and adding +-0 to these partial sums changes no bit (a sum that
+        # starts at 0.0 + ... is never -0): the same values as the full products, ~40 % fewer operations
+        for i in range(4):
+            A[i, 0] = (1.0 if i == 0 else 0.0) - K[i, 0]
+            A[i, 1] = (1.0 if i == 1 else 0.0) - K[i, 1]
         for i in range(4):  # B = A P
             for jj in range(4):
-                acc = 0.0
-                for l in range(4):
-                    acc += A[i, l] * Pt[l, jj]
-                B[i, jj] = acc
+                acc = (0.0 + A[i, 0] * Pt[0, jj]) + A[i, 1] * Pt[1, jj]
+                B[i, jj] = acc + Pt[i, jj] if i >= 2 else acc
         for i in range(4):  # P = B A^T + mv K K^T
             for jj in range(4):
-                acc = 0.0
-                for l in range(4):
-                    acc += B[i, l] * A[jj, l]
+                acc = (0.0 + B[i, 0] * A[jj, 0]) + B[i, 1] * A[jj, 1]
+                if jj >= 2:
+                    acc += B[i, jj]
                 Pt[i, jj] = acc + mv * (K[i, 0] * K[jj, 0] + K[i, 1] * K[jj, 1])
         seen[t] += 1
     # births: unmatched candidates in index order take the first free rows
@@ -1595,11 +1597,40 @@ def _score_kernel(ti, scores, accepted, rng, score_sum, n_scored, lo_score, bar1
 @numba.njit(cache=True, nogil=True)
 def _points_check(pts, owner, k):
     """0: fine; 1: an owner outside [0, k); 2: a non-finite point; 3: fine but not sorted by owner."""
-    return _points_scan(pts, owner, k, np.empty(k + 1, np.int64))
+    return _points_scan_seq(pts, owner, k, np.empty(k + 1, np.int64))
 
 
 @numba.njit(cache=True, nogil=True)
 def _points_scan(pts, owner, k, cstart):
+    """:func:`_points_scan_seq` (the same status and ``cstart``) without a branch per point: the checks
+    as branch-free counts (``v - v`` is 0 for a finite ``v``, NaN otherwise), and ``cstart`` by
+    counting each candidate's points (for owners sorted in ``[0, k)``, the number of points owned by an
+    earlier candidate is the first point owned by ``c`` or a later one). A frame of the learned feed has
+    ~6,000 candidates of ~2 points: the sequential scan's "next candidate?" branch was mispredicted at
+    about every other point. A bad input takes the sequential scan (its first bad point decides)."""
+    n = pts.shape[0]
+    n_nonfinite = n_bad = n_desc = 0
+    for i in range(n):
+        v = (pts[i, 0] - pts[i, 0]) + (pts[i, 1] - pts[i, 1])  # NaN unless both are finite
+        n_nonfinite += v != v
+        o = owner[i]
+        n_bad += (o < 0) | (o >= k)
+    if n_nonfinite or n_bad:
+        return _points_scan_seq(pts, owner, k, cstart)
+    for i in range(1, n):
+        n_desc += owner[i] < owner[i - 1]
+    if n_desc:
+        return 3
+    cstart[:] = 0
+    for i in range(n):
+        cstart[owner[i] + 1] += 1
+    for c in range(k):
+        cstart[c + 1] += cstart[c]
+    return 0
+
+
+@numba.njit(cache=True, nogil=True)
+def _points_scan_seq(pts, owner, k, cstart):
     """:func:`_points_check`'s status, and in the same pass (when sorted) each candidate's points:
     ``cstart[c]`` the first point owned by ``c`` or a later candidate (so ``c``'s are
     ``cstart[c]:cstart[c + 1]``)."""
@@ -1932,12 +1963,17 @@ def _update_kernel(obs, xy, scores, accepted, delta, dt, pts, owner, has_points,
     for o in range(N):
         if not (np.isfinite(delta[o, 0]) and np.isfinite(delta[o, 1]) and np.isfinite(delta[o, 2])):
             return _BAD_DELTA, next_id
+    n_nonfinite = n_bad = 0  # counted branch-free first (vectorised), then which one
     for c in range(k):
-        if not (np.isfinite(xy[c, 0]) and np.isfinite(xy[c, 1]) and np.isfinite(scores[c])):
-            return _BAD_VALUES, next_id
-    for c in range(k):
-        if obs[c] < 0 or obs[c] >= N:
-            return _BAD_OBS, next_id
+        v = (xy[c, 0] - xy[c, 0]) + (xy[c, 1] - xy[c, 1]) + (scores[c] - scores[c])  # NaN unless finite
+        n_nonfinite += v != v
+        n_bad += (obs[c] < 0) | (obs[c] >= N)
+    if n_nonfinite:
+        for c in range(k):
+            if not (np.isfinite(xy[c, 0]) and np.isfinite(xy[c, 1]) and np.isfinite(scores[c])):
+                return _BAD_VALUES, next_id
+    if n_bad:
+        return _BAD_OBS, next_id
     for o in range(N):
         if not (np.isfinite(noise[o]) and noise[o] >= 0):
             return _BAD_NOISE, next_id
