@@ -2254,6 +2254,9 @@ def _slot_after(k1, id1, k2, id2):
     return k1 > k2 or (k1 == k2 and id1 > id2)
 
 
+_NAN_KEY = np.iinfo(np.int64).max
+
+
 @numba.njit(cache=True, nogil=True)
 def _slots_kernel(rows, kp, n_obs, max_tracks, tobs, tid, confirmed, x, poses, exist, seen, age):
     """:meth:`KinTracker.track_arrays`' padded slots: each observer's tracks ``rows`` (kin probability
@@ -2278,18 +2281,40 @@ def _slots_kernel(rows, kp, n_obs, max_tracks, tobs, tid, confirmed, x, poses, e
     for i in range(n):
         key[i] = -(kp[i] + (1.0 if confirmed[rows[i]] else 0.0))
         ids[i] = tid[rows[i]]
+    # each key as an integer of the same order (a float's bits, its magnitude bits flipped when negative;
+    # -0 as +0, NaN above all), so that (key, id) compares as two integers, without branches
+    kb = (key + 0.0).view(np.int64)  # + 0.0: -0 -> +0 (they tie as floats)
+    for i in range(n):
+        b = kb[i]
+        kb[i] = _NAN_KEY if key[i] != key[i] else (b ^ 0x7FFFFFFFFFFFFFFF if b < 0 else b)
+    slot = np.empty(n, np.int64)
+    gk, gi = np.empty(64, np.int64), np.empty(64, np.int64)
     for o in range(n_obs):
-        # insertion sort by (key, id): numpy's argsort by id, then its stable sort by key (NaN keys last),
-        # without the two sorts' allocations (an observer has tens of tracks)
-        a = cnt[o]
-        for q in range(a + 1, cnt[o + 1]):
-            i = order[q]
-            p = q - 1
-            while p >= a and _slot_after(key[order[p]], ids[order[p]], key[i], ids[i]):
-                order[p + 1] = order[p]
-                p -= 1
-            order[p + 1] = i
-        g = order[a : cnt[o + 1]]
+        # each track's slot: its rank by (key, id) among the observer's tracks — numpy's argsort by id, then
+        # its stable sort by key (NaN keys last). Counted branch-free for the usual tens of tracks (an
+        # insertion sort's comparisons were mispredicted about every other time); ranks are distinct (ids)
+        a, e = cnt[o], cnt[o + 1]
+        if e - a <= 64:
+            ng = e - a
+            for q in range(ng):  # the group's keys and ids side by side (the count runs down them)
+                gk[q], gi[q] = kb[order[a + q]], ids[order[a + q]]
+            for q in range(ng):
+                ki, ii = gk[q], gi[q]
+                r = 0
+                for q2 in range(ng):
+                    r += (gk[q2] < ki) | ((gk[q2] == ki) & (gi[q2] < ii))
+                slot[a + r] = order[a + q]
+        else:
+            for q in range(a, e):
+                slot[q] = order[q]
+            for q in range(a + 1, e):  # insertion sort by (key, id)
+                i = slot[q]
+                p = q - 1
+                while p >= a and _slot_after(key[slot[p]], ids[slot[p]], key[i], ids[i]):
+                    slot[p + 1] = slot[p]
+                    p -= 1
+                slot[p + 1] = i
+        g = slot[a:e]
         c, s = math.cos(poses[o, 2]), math.sin(poses[o, 2])
         m = min(g.shape[0], max_tracks)
         for r in range(m):
