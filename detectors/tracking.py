@@ -1262,12 +1262,29 @@ def _frame_kernel(z, obs, rng, dt, n_obs, alive, tobs, tid, next_id, x, P, poses
     xs = t_ord.copy()
     kx = np.empty(nt_all)  # the sort key beside the rows: the sort and the search read contiguous keys
     lam_max = np.zeros(n_obs)
+    gx = np.empty(64)
     for o in range(n_obs):
-        lo = t_cnt[o]
-        for q in range(lo, t_cnt[o + 1]):  # insertion sort by x (an observer has tens of tracks)
+        lo, hi = t_cnt[o], t_cnt[o + 1]
+        for q in range(lo, hi):
+            lam_max[o] = max(lam_max[o], lam[t_ord[q]])
+        if hi - lo <= 64:
+            # stable sort by x as ranks, counted branch-free (the usual tens of tracks of an observer: an
+            # insertion sort's comparisons were mispredicted about every other time): x below, or equal and
+            # earlier in row order
+            ng = hi - lo
+            for q in range(ng):
+                gx[q] = x[t_ord[lo + q], 0]
+            for q in range(ng):
+                xq = gx[q]
+                rk = 0
+                for q2 in range(ng):
+                    rk += (gx[q2] < xq) | ((gx[q2] == xq) & (q2 < q))
+                xs[lo + rk] = t_ord[lo + q]
+                kx[lo + rk] = xq
+            continue
+        for q in range(lo, hi):  # insertion sort by x
             t = xs[q]
             xt = x[t, 0]
-            lam_max[o] = max(lam_max[o], lam[t])
             p = q - 1
             while p >= lo and kx[p] > xt:
                 xs[p + 1] = xs[p]
