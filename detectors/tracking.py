@@ -1149,22 +1149,26 @@ def _gate_pairs(n_obs, t_cnt, c_cnt, c_ord, z, rng, meas_sigma, meas_sigma_rel, 
     when they do not fit the buffers. Each observer's tracks ``xs[t_cnt[o]:t_cnt[o + 1]]`` are sorted by
     ``x`` (``kx``), with their ``y``, bound and position covariance in the same order."""
     n_g = 0
+    mv_a, w_a = np.empty(c_ord.shape[0]), np.empty(c_ord.shape[0])
     for o in range(n_obs):
         lo, hi = t_cnt[o], t_cnt[o + 1]
         if lo == hi:
             continue
-        for a in range(c_cnt[o], c_cnt[o + 1]):
+        a0, a1 = c_cnt[o], c_cnt[o + 1]
+        for a in range(a0, a1):  # the reach of each candidate's gate first (its square roots vectorised)
             c = c_ord[a]
-            mv = (meas_sigma + meas_sigma_rel * rng[c]) ** 2
-            w = math.sqrt(gate_b * (lam_max[o] + mv)) * (1.0 + 1e-9)
+            mv_a[a - a0] = (meas_sigma + meas_sigma_rel * rng[c]) ** 2
+            w_a[a - a0] = math.sqrt(gate_b * (lam_max[o] + mv_a[a - a0])) * (1.0 + 1e-9)
+        for a in range(a0, a1):
+            c = c_ord[a]
+            mv, w = mv_a[a - a0], w_a[a - a0]
             zx, zy = z[c, 0], z[c, 1]
             l, h_ = lo, hi  # the first track with zx - x <= w (zx - x falls along the order)
-            while l < h_:
+            while l < h_:  # branch-free halving (conditional moves)
                 mid = (l + h_) >> 1
-                if zx - kx[mid] > w:
-                    l = mid + 1
-                else:
-                    h_ = mid
+                right = zx - kx[mid] > w
+                l = mid + 1 if right else l
+                h_ = h_ if right else mid
             for b in range(l, hi):
                 d0, d1 = zx - kx[b], zy - ky[b]
                 if d0 < -w:
