@@ -696,6 +696,27 @@ def test_crowded_observers_and_tied_positions_are_bitwise_the_staged_tracker():
     assert n0 > 64 and np.count_nonzero(fused._alive & (fused._obs == 1)) < 64
 
 
+def test_points_prep_is_the_numpy_transform():
+    """The points' odometry-frame transform, noise and range (one vector pass after a gather) against the
+    same arithmetic in numpy, per point with its candidate's observer, bit for bit."""
+    from detectors.tracking import _points_prep
+
+    rng = np.random.default_rng(4)
+    n_obs, k, n = 5, 40, 300
+    obs = rng.integers(0, n_obs, k)
+    owner = np.sort(rng.integers(0, k, n))
+    pts = rng.normal(0, 2, (n, 2))
+    noise, poses = rng.uniform(0, 0.02, n_obs), rng.normal(0, 1, (n_obs, 3))
+    cos, sin = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+    odom, sig, dist = _points_prep(pts, owner, obs, noise, cos, sin, poses, 0.0005**2)
+    o = obs[owner]
+    d = np.sqrt(pts[:, 0] * pts[:, 0] + pts[:, 1] * pts[:, 1])
+    assert np.array_equal(dist, d)
+    assert np.array_equal(sig, np.sqrt(0.0005**2 + (noise[o] * d) ** 2))
+    assert np.array_equal(odom[:, 0], cos[o] * pts[:, 0] - sin[o] * pts[:, 1] + poses[o, 0])
+    assert np.array_equal(odom[:, 1], sin[o] * pts[:, 0] + cos[o] * pts[:, 1] + poses[o, 1])
+
+
 def test_points_scan_is_the_sequential_scan():
     """The branch-free points' check (the fused update's) gives the sequential scan's status on sorted,
     unsorted, out-of-range and non-finite inputs (the first bad point deciding), and the same candidate
