@@ -662,6 +662,92 @@ def test_association_of_dense_clusters_is_bitwise_the_previous_kernel():
     assert len(fused) >= 60
 
 
+def test_crowded_observers_and_tied_positions_are_bitwise_the_staged_tracker():
+    """An observer with more than 64 tracks (the x-sort and the slots' ranking take their insertion-sort
+    paths) beside one with fewer (the counted ranks), candidates sharing x coordinates exactly (the x-sort
+    is stable) and many tied kin probabilities (the slots break ties by id): every state array and the
+    padded slots, few and many, are bitwise the staged tracker's (its association is the kernel before the
+    counted x-sort, its slots numpy's lexsort)."""
+    from tests.detectors.reference_tracking import StagedKinTracker
+
+    rng = np.random.default_rng(11)
+    fused, staged = KinTracker(n_observers=2), StagedKinTracker(n_observers=2)
+    grid = np.round(np.linspace(-4.0, 4.0, 45), 3)
+    ones = rng.uniform(-3, 3, (20, 2))
+    for f in range(10):
+        # observer 0: 90 objects on a grid, pairs sharing an x; observer 1: 20
+        xy0 = np.c_[np.repeat(grid, 2), np.tile([-1.5, 1.5], 45)] + rng.normal(0, 0.003, (90, 2)) * (f > 0)
+        xy0[::2, 0] = xy0[1::2, 0]  # exact ties in x
+        xy1 = ones + rng.normal(0, 0.003, (20, 2))
+        xy1[::2, 0] = xy1[1::2, 0]
+        keep0 = rng.random(90) < 0.85
+        xy = np.r_[xy0[keep0], xy1]
+        obs = np.r_[np.zeros(keep0.sum(), np.int64), np.ones(20, np.int64)]
+        sc = rng.uniform(0.15, 0.95, obs.size)
+        delta = np.zeros((2, 3)) if f == 0 else rng.normal(0, 0.003, (2, 3))
+        for tr in (fused, staged):
+            tr.update_batch(obs, xy, sc, delta, DT, accepted=sc > 0.6)
+        for name in KinTracker._FIELDS:
+            assert np.array_equal(getattr(fused, name), getattr(staged, name)), name
+        for m in (5, 200):
+            a, b = fused.track_arrays(m), staged.track_arrays(m)
+            assert all(same_values(a[key], b[key]) for key in ("tracks", "mask", "count")), m
+    n0 = np.count_nonzero(fused._alive & (fused._obs == 0))
+    assert n0 > 64 and np.count_nonzero(fused._alive & (fused._obs == 1)) < 64
+
+
+def test_points_prep_is_the_numpy_transform():
+    """The points' odometry-frame transform, noise and range (one vector pass after a gather) against the
+    same arithmetic in numpy, per point with its candidate's observer, bit for bit."""
+    from detectors.tracking import _points_prep
+
+    rng = np.random.default_rng(4)
+    n_obs, k, n = 5, 40, 300
+    obs = rng.integers(0, n_obs, k)
+    owner = np.sort(rng.integers(0, k, n))
+    pts = rng.normal(0, 2, (n, 2))
+    noise, poses = rng.uniform(0, 0.02, n_obs), rng.normal(0, 1, (n_obs, 3))
+    cos, sin = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+    odom, sig, dist = _points_prep(pts, owner, obs, noise, cos, sin, poses, 0.0005**2)
+    o = obs[owner]
+    d = np.sqrt(pts[:, 0] * pts[:, 0] + pts[:, 1] * pts[:, 1])
+    assert np.array_equal(dist, d)
+    assert np.array_equal(sig, np.sqrt(0.0005**2 + (noise[o] * d) ** 2))
+    assert np.array_equal(odom[:, 0], cos[o] * pts[:, 0] - sin[o] * pts[:, 1] + poses[o, 0])
+    assert np.array_equal(odom[:, 1], sin[o] * pts[:, 0] + cos[o] * pts[:, 1] + poses[o, 1])
+
+
+def test_points_scan_is_the_sequential_scan():
+    """The branch-free points' check (the fused update's) gives the sequential scan's status on sorted,
+    unsorted, out-of-range and non-finite inputs (the first bad point deciding), and the same candidate
+    point ranges when the points are fine."""
+    from detectors.tracking import _points_scan, _points_scan_seq
+
+    rng = np.random.default_rng(3)
+    statuses = set()
+    for trial in range(400):
+        k = int(rng.integers(0, 12))
+        n = int(rng.integers(0, 30))
+        owner = np.sort(rng.integers(0, max(k, 1), n)) if k else np.zeros(n, np.int64)
+        pts = rng.normal(0, 1, (n, 2))
+        kind = trial % 5
+        if n and kind == 1:  # unsorted
+            owner = rng.permutation(owner)
+        if n and kind == 2:  # an owner out of range, maybe after a non-finite point
+            owner[rng.integers(0, n)] = rng.choice([-1, k])
+            if rng.random() < 0.5:
+                pts[rng.integers(0, n), rng.integers(0, 2)] = np.nan
+        if n and kind == 3:  # non-finite points
+            pts[rng.integers(0, n), rng.integers(0, 2)] = rng.choice([np.nan, np.inf, -np.inf])
+        a, b = np.full(k + 1, -7, np.int64), np.full(k + 1, -7, np.int64)
+        s_fast, s_seq = _points_scan(pts, owner, k, a), _points_scan_seq(pts, owner, k, b)
+        assert s_fast == s_seq, (trial, s_fast, s_seq)
+        if s_seq == 0:
+            assert np.array_equal(a, b)
+        statuses.add(int(s_seq))
+    assert statuses == {0, 1, 2, 3}
+
+
 def test_bad_frame_raises_before_any_state_changes():
     frames = list(_crowded_frames(3, n_frames=6))
     tr = KinTracker(n_observers=3)
