@@ -14,6 +14,8 @@ learned detector can implement :class:`KinDetector` and reuse
 
 from __future__ import annotations
 
+import contextlib
+import gc
 import math
 import sys
 from abc import ABC, abstractmethod
@@ -481,3 +483,21 @@ class KinDetector(ABC):
         """
         r, a = validate_batch(ranges, angles)
         return [self.detect(row, a) for row in r]
+
+
+@contextlib.contextmanager
+def gc_paused():
+    """Python's cyclic garbage collector paused inside the block; its previous state restored on exit
+    (also when the block raises).
+
+    For bursts of many short-lived objects without reference cycles (a batch's result objects, K
+    sub-envs' resets): each few hundred allocations would trigger a collection, and the full ones
+    traverse every object of the process (torch's included). Reference counting still frees the
+    objects; the first collection after the block examines the survivors once."""
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if enabled:
+            gc.enable()

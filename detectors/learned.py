@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import gc
 import hashlib
 import json
 import math
@@ -56,6 +55,7 @@ from .base import (
     KinDetector,
     LazyBatchReports,
     SegmentReport,
+    gc_paused,
     trusted_ranges,
     validate_batch,
     validate_scan,
@@ -594,24 +594,6 @@ def load_cascade(path, weights_sha256: str | None = None) -> dict:
 
 
 # --------------------------------------------------------------------------- detector
-
-
-@contextlib.contextmanager
-def _gc_paused():
-    """Pause the cyclic garbage collector while a batch's result objects are built.
-
-    A cluttered batch of 256 scans makes ~80k Segment / SegmentReport / Detection objects; each
-    few hundred allocations trigger a collection, and the full ones traverse every object of the
-    process (torch's included): half of ``detect_batch``'s time. These objects hold no reference
-    cycles, so reference counting frees them anyway; the previous GC state is restored.
-    """
-    enabled = gc.isenabled()
-    gc.disable()
-    try:
-        yield
-    finally:
-        if enabled:
-            gc.enable()
 
 
 class LearnedKinDetector(KinDetector):
@@ -1262,7 +1244,7 @@ class LearnedKinDetector(KinDetector):
         ``metrics`` ``p_kin`` and ``threshold``, plus ``max_beams`` with the pre-gate and
         ``cascade_score`` with the cascade; a segment the cascade dropped is ``"learned"`` with
         ``p_kin`` NaN)."""
-        with _gc_paused():
+        with gc_paused():
             p, thr = arrays.seg_values["p_kin"], arrays.seg_values["threshold"]
             gate = arrays.seg_values.get("max_beams")
             cas = arrays.seg_values.get("cascade_score")

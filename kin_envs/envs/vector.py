@@ -23,15 +23,14 @@ autoresets).
 
 from __future__ import annotations
 
-import contextlib
 import functools
-import gc
 from typing import Any, ClassVar
 
 import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
+from detectors.base import gc_paused
 from kin_envs.core.multi import WorldBatch
 from kin_envs.core.world import Scan
 from kin_envs.envs.base import LEARNER, SingleRobotEnv
@@ -44,24 +43,6 @@ from kin_envs.envs.tracks import VectorTracker, track_info, track_rows
 __all__ = ["KinFollowVectorEnv", "KinSeekVectorEnv", "KinVectorEnv", "stack_infos"]
 
 _KIN_KEYS = ("kin_truth", "kin_detections", "kin_tracks")
-
-
-@contextlib.contextmanager
-def _gc_paused():
-    """The cyclic garbage collector paused while sub-envs reset (the previous state restored).
-
-    K sub-envs ending together reset in one step (~350 tracked objects each: a scene, a pymunk world):
-    that burst ran ~30 young collections, and the full collection they lead to every few bursts
-    (~150-250 ms: it traverses every object of the process, torch's included) landed in it. Paused,
-    the burst's objects are examined once, by the first collection after it. (As
-    ``detectors.learned`` does around a batch's result objects.)"""
-    enabled = gc.isenabled()
-    gc.disable()
-    try:
-        yield
-    finally:
-        if enabled:
-            gc.enable()
 
 
 def stack_infos(infos: list[dict[str, Any]]) -> dict[str, Any]:
@@ -171,7 +152,7 @@ class KinVectorEnv(VectorEnv):
         if self._batch is None and len(ids) < k:
             raise ValueError("reset: the first reset must reset every sub-env (no reset_mask)")
         infos = []
-        with _gc_paused():
+        with gc_paused():  # K resets: one burst of objects, examined by the next collection
             for i in ids:
                 obs, info = self._reset_sub(i, seed=seeds[i], options=options or None)
                 self._observations[i] = obs
@@ -246,7 +227,7 @@ class KinVectorEnv(VectorEnv):
                     self._observations[i] = obs
                     rewards[i], terminations[i], truncations[i] = rew, term, trunc
                     per_env[i] = info
-        with _gc_paused():
+        with gc_paused():
             for i in resets:
                 obs, info = self._reset_sub(i)
                 self._observations[i] = obs
