@@ -120,7 +120,7 @@ def test_beams_through_segment_ends_and_along_segments():
 
 
 def test_one_heading_wrap_for_poses_scans_and_batches():
-    from kin_envs.core.lidar import _half_angle, wrap_headings
+    from kin_envs.core.lidar import wrap_headings
     from kin_envs.core.multi import WorldBatch
 
     a = np.concatenate([np.random.default_rng(0).uniform(-50, 50, 2000), [np.pi, -np.pi, 0.0, 3 * np.pi]])
@@ -137,8 +137,44 @@ def test_one_heading_wrap_for_poses_scans_and_batches():
         batch.step(batch[0].unicycle_to_wheel_speeds(cmd)[None])
     np.testing.assert_array_equal(w.scan(robots=[2, 0]).poses, w.poses[[2, 0]])
     np.testing.assert_array_equal(batch.poses()[0], w.poses)
-    # the candidate passes' half-angle: an upper bound of atan, < 4 % above it for z <= 2 (r < 0.9 d)
-    z = np.concatenate([[0.0], np.logspace(-6, 4, 400)])
-    half, at = np.array([_half_angle(v) for v in z]), np.arctan(z)
-    assert np.all(half >= at) and np.all(half <= 1.18 * at + 1e-15)
-    assert np.all((half <= 1.04 * at + 1e-15)[z <= 2.0])
+
+
+def test_circle_interval_bounds_the_half_angle_and_distance():
+    """The candidate passes' circle interval (one division, no square root): the bearing within the fast
+    atan2's 1.2e-5 rad, the half-angle ``asin(r / d)`` bounded from above (by at most 6 % of it for far
+    circles, ``r < d / 10``, 30 % for near ones) and the distance from below (by at most 3 %), at every
+    bearing and from tangent-close to far circles."""
+    from kin_envs.core.lidar import _EPS, _circle_interval
+
+    rng = np.random.default_rng(0)
+    d = np.concatenate([rng.uniform(0.01, 60.0, 4000), np.logspace(-6, 3, 400)])
+    ang = np.concatenate([rng.uniform(-np.pi, np.pi, 4000), np.linspace(-np.pi, np.pi, 400)])
+    ang[:16] = np.arange(16) * np.pi / 4 - 2 * np.pi  # the axes and diagonals exactly
+    ratio = np.concatenate([rng.uniform(0.0, 1.0, 4000) ** 3, rng.uniform(0.0, 0.999, 400)])
+    dx, dy, r = d * np.cos(ang), d * np.sin(ang), ratio * d
+    got = np.array([_circle_interval(a, b, c) for a, b, c in zip(dx, dy, r, strict=True)])
+    phi, half, dlo = got.T
+    true_d = np.hypot(dx, dy)
+    dphi = np.angle(np.exp(1j * (phi - np.arctan2(dy, dx))))
+    assert np.all(np.abs(dphi) < 1.2e-5)  # (the polynomial: 1.14e-5 at the diagonals)
+    true_half = np.arcsin(np.minimum(r / true_d, 1.0))
+    assert np.all(half - _EPS >= true_half)
+    over = (half - _EPS) / np.maximum(true_half, 1e-300)
+    assert np.all(over[r > 0] <= 1.3) and np.all(over[(r > 0) & (r < 0.1 * true_d)] <= 1.06)
+    assert np.all(dlo <= true_d) and np.all(dlo >= 0.97 * true_d)
+
+
+@pytest.mark.parametrize("n_beams", [3, 7, 360, 361, 1000, 100_000])
+def test_first_beam_is_the_modulo(n_beams):
+    """The candidate passes' first beam: ``k0 mod n_beams`` for every whole ``|k0| < 3 n_beams`` (near the
+    multiples, where the multiplied quotient can be off by one, every value)."""
+    from kin_envs.core.lidar import _first_beam
+
+    k = np.arange(-3 * n_beams + 1, 3 * n_beams)
+    if len(k) > 20_000:
+        m = np.arange(-3, 4)[:, None] * n_beams + np.arange(-5, 6)[None, :]
+        rand = np.random.default_rng(1).integers(-3 * n_beams + 1, 3 * n_beams, 5000)
+        k = np.concatenate([m.ravel(), rand])
+        k = k[np.abs(k) < 3 * n_beams]
+    got = np.array([_first_beam(float(v), n_beams) for v in k])
+    np.testing.assert_array_equal(got, k % n_beams)
