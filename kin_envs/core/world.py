@@ -607,7 +607,8 @@ class World:
         # such rows down with their ratio kept (the wheel limit scales them further anyway)
         peak = np.max(np.abs(c), axis=1, keepdims=True) if self.n_robots else np.zeros((0, 1))
         if np.any(peak > _COMMAND_CAP):
-            c = c * np.minimum(1.0, _COMMAND_CAP / peak)
+            # cap / max(peak, cap): 1.0 exactly for rows within the cap, no division by a zero peak
+            c = c * (_COMMAND_CAP / np.maximum(peak, _COMMAND_CAP))
         return c
 
     def step(self, commands=None, wheel_speeds=None) -> None:
