@@ -330,8 +330,10 @@ class AggregationEnv(ParallelEnv):
                                              range_max=scan.range_max)  # fmt: skip
         elif self.detector is not None and self.padded_info:
             # sorted, matched and padded in one compiled call (pad_rows' values)
+            # the lidar's robot hits settle most matches without a search
             dets, padded = detect_rows_padded(self.detector, scan.ranges, scan.angles, scan.robots, poses,
-                                              cfg.max_detections, trusted=True)  # fmt: skip
+                                              cfg.max_detections, trusted=True,
+                                              hits=(scan.hit_kind, scan.hit_index))  # fmt: skip
         elif self.detector is not None:
             dets = detect_rows(self.detector, scan.ranges, scan.angles, scan.robots, poses, trusted=True)
         self._last_detections = dets

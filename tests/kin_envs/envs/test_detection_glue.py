@@ -188,7 +188,14 @@ def _random_glue_case(rng, trial):
 def test_match_and_pad_in_one_call_is_the_distance_matrix_and_pad_rows():
     # _match_pad_kernel (x-sorted candidate window, counting sort by row, padding) against the previous
     # distance-matrix match and pad_rows, bit for bit, on random steps that reach the match's edges
-    from kin_envs.envs.common import _INT_PADS, KIN_MATCH_TOLERANCE, _detection_cols, _match_pad_kernel
+    from kin_envs.envs.common import (
+        _INT_PADS,
+        _NO_HITS,
+        _ROBOT_HIT,
+        KIN_MATCH_TOLERANCE,
+        _detection_cols,
+        _match_pad_kernel,
+    )
 
     rng = np.random.default_rng(1)
     n_matched = 0
@@ -196,8 +203,8 @@ def test_match_and_pad_in_one_call_is_the_distance_matrix_and_pad_rows():
         tab, owner, observers, poses, n_rows, slots = _random_glue_case(rng, trial)
         if trial % 11 == 5:
             poses[int(rng.integers(len(poses))), int(rng.integers(2))] = [np.nan, np.inf, -np.inf][trial % 3]
-        row, flo, ints, pf, pi, count = _match_pad_kernel(tab, owner, observers, poses,
-                                                          KIN_MATCH_TOLERANCE**2, n_rows, slots, _INT_PADS)
+        args = (tab, owner, observers, poses, KIN_MATCH_TOLERANCE**2, n_rows, slots, _INT_PADS)
+        row, flo, ints, pf, pi, count = _match_pad_kernel(*args, *_NO_HITS, _ROBOT_HIT)
         got = (row, _detection_cols(flo, ints)), (_detection_cols(pf, pi), count)
         with np.errstate(invalid="ignore"):  # inf - inf in the distance matrix of non-finite poses
             ref = _oracle_padded(tab, owner, observers, poses, n_rows, slots)
@@ -208,14 +215,142 @@ def test_match_and_pad_in_one_call_is_the_distance_matrix_and_pad_rows():
 
 
 def test_match_and_pad_refuses_rows_outside_the_scan():
-    from kin_envs.envs.common import _INT_PADS, _match_pad_kernel
+    from kin_envs.envs.common import _INT_PADS, _NO_HITS, _ROBOT_HIT, _match_pad_kernel
 
     tab = np.zeros((1, 8))
     poses = np.zeros((3, 3))
+    rest = (poses, 0.01, 2, 4, _INT_PADS, *_NO_HITS, _ROBOT_HIT)
     with pytest.raises(ValueError, match="scan rows"):
-        _match_pad_kernel(tab, np.array([2]), np.array([0, 1]), poses, 0.01, 2, 4, _INT_PADS)
+        _match_pad_kernel(tab, np.array([2]), np.array([0, 1]), *rest)
     with pytest.raises(ValueError, match="scan rows"):
-        _match_pad_kernel(tab, np.array([-1]), np.array([0, 1]), poses, 0.01, 2, 4, _INT_PADS)
+        _match_pad_kernel(tab, np.array([-1]), np.array([0, 1]), *rest)
+
+
+def _random_hits(rng, tab, owner, observers, poses, n_rows, n_beams=360):
+    """Lidar hit arrays for :func:`_match_pad_kernel`'s candidates: every detection's first beam (when in
+    range) names a robot: the nearest to its centre (what a real scan gives, mostly), a random one, the
+    observer, an index out of range, or no robot at all (another hit kind); other beams hold noise."""
+    kind = rng.choice(np.array([0, 2, 3, 1], dtype=np.int8), size=(n_rows, n_beams), p=[0.4, 0.2, 0.2, 0.2])
+    index = rng.integers(-1, len(poses), size=(n_rows, n_beams)).astype(np.int32)
+    obs = observers[owner]
+    c, s = np.cos(poses[obs, 2]), np.sin(poses[obs, 2])
+    wx = poses[obs, 0] + c * tab[:, 2] - s * tab[:, 3]
+    wy = poses[obs, 1] + s * tab[:, 2] + c * tab[:, 3]
+    with np.errstate(invalid="ignore"):
+        d2 = (wx[:, None] - poses[None, :, 0]) ** 2 + (wy[:, None] - poses[None, :, 1]) ** 2
+        d2[np.arange(len(obs)), obs] = np.inf
+    nearest = np.argmin(d2, axis=1) if len(obs) else np.zeros(0, dtype=np.int64)
+    pick = rng.choice(5, size=len(obs), p=[0.6, 0.2, 0.1, 0.05, 0.05])
+    cand = np.choose(pick, [nearest, rng.integers(len(poses), size=len(obs)), obs,
+                            np.full(len(obs), -1), np.full(len(obs), len(poses) + 2)])
+    beam = tab[:, 5].astype(np.int64)
+    ok = (beam >= 0) & (beam < n_beams)
+    kind[owner[ok], beam[ok]] = np.where(rng.uniform(size=int(ok.sum())) < 0.9, 1, 3)
+    index[owner[ok], beam[ok]] = cand[ok]
+    return kind, index
+
+
+def _touching_case(rng, trial):
+    """A clustered swarm: robots on a jittered lattice whose spacing is about the robots' diameter (touching
+    or overlapping, some exactly touching pairs, a shared position), detection centres near robots (0 to
+    0.12 m) and exactly or nearly at the midpoint of two robots (equal distances: the first robot wins)."""
+    n_side = int(rng.integers(2, 9))
+    gap = float(rng.choice([0.18, 0.15, 0.12, 0.2])) if trial % 4 else 0.18
+    gx, gy = np.meshgrid(np.arange(n_side) * gap, np.arange(n_side) * gap)
+    xy = np.column_stack([gx.ravel(), gy.ravel()])
+    if trial % 3:
+        xy = xy + rng.normal(scale=0.01, size=xy.shape)
+    n_rob = len(xy)
+    poses = np.column_stack([xy, rng.uniform(-4, 4, n_rob)])
+    if trial % 5 == 0:
+        poses[1, :2] = poses[0, :2]  # two robots at one position
+    n_rows = int(rng.integers(1, n_rob + 1))
+    observers = rng.permutation(n_rob)[:n_rows]
+    n_det = int(rng.integers(0, 20 * n_rows + 1))
+    owner = np.sort(rng.integers(n_rows, size=n_det))
+    obs = observers[owner]
+    a, b = rng.integers(n_rob, size=n_det), rng.integers(n_rob, size=n_det)
+    ang = rng.uniform(-np.pi, np.pi, n_det)
+    dist = rng.uniform(0, 0.12, n_det)
+    wx = poses[a, 0] + dist * np.cos(ang)
+    wy = poses[a, 1] + dist * np.sin(ang)
+    mid = rng.uniform(size=n_det) < 0.3  # midpoints of two robots, some off by an ulp or two
+    eps = rng.choice([0.0, 0.0, 1e-16, -1e-16, 1e-12], size=n_det)
+    wx = np.where(mid, (poses[a, 0] + poses[b, 0]) / 2 + eps, wx)
+    wy = np.where(mid, (poses[a, 1] + poses[b, 1]) / 2, wy)
+    c, s = np.cos(poses[obs, 2]), np.sin(poses[obs, 2])
+    dx, dy = wx - poses[obs, 0], wy - poses[obs, 1]
+    tab = np.empty((n_det, 8))
+    tab[:, 2], tab[:, 3] = c * dx + s * dy, c * dy - s * dx
+    tab[:, 0] = np.round(np.hypot(tab[:, 2], tab[:, 3]), 12)
+    tab[:, 1] = np.arctan2(tab[:, 3], tab[:, 2])
+    tab[:, 4] = rng.uniform(size=n_det)
+    tab[:, 5] = rng.integers(-2, 362, size=n_det)  # a few beams outside the scan: no candidate
+    tab[:, 6] = rng.integers(360, size=n_det)
+    tab[:, 7] = rng.integers(1, 9, size=n_det)
+    return tab, owner, observers, poses, n_rows, int(rng.integers(1, 21))
+
+
+def test_lidar_candidates_give_the_distance_matrix_match():
+    # _match_pad_kernel with the lidar's hit arrays (a candidate robot per detection, taken when it is
+    # provably the nearest) against the distance-matrix oracle and against the kernel without hits, bit for
+    # bit: random steps (the edge cases above) and clustered swarms with touching and overlapping robots,
+    # midpoints of two robots (ties), with candidates that are right, wrong, the observer or out of range
+    from kin_envs.envs.common import (
+        _INT_PADS,
+        _NO_HITS,
+        _ROBOT_HIT,
+        KIN_MATCH_TOLERANCE,
+        _detection_cols,
+        _match_pad_kernel,
+    )
+
+    rng = np.random.default_rng(7)
+    n_matched = n_tied = 0
+    for trial in range(600):
+        case = _touching_case(rng, trial) if trial % 2 else _random_glue_case(rng, trial)
+        tab, owner, observers, poses, n_rows, slots = case
+        if trial % 2 == 0 and trial % 11 == 4:
+            poses[int(rng.integers(len(poses))), 0] = np.nan  # non-finite poses: the brute force, hits unused
+        kind, index = _random_hits(rng, tab, owner, observers, poses, n_rows)
+        args = (tab, owner, observers, poses, KIN_MATCH_TOLERANCE**2, n_rows, slots, _INT_PADS)
+        row, flo, ints, pf, pi, count = _match_pad_kernel(*args, kind, index, _ROBOT_HIT)
+        got = (row, _detection_cols(flo, ints)), (_detection_cols(pf, pi), count)
+        with np.errstate(invalid="ignore"):
+            ref = _oracle_padded(tab, owner, observers, poses, n_rows, slots)
+        _same_padded(got, ref)
+        row, flo, ints, pf, pi, count = _match_pad_kernel(*args, *_NO_HITS, _ROBOT_HIT)
+        _same_padded(got, ((row, _detection_cols(flo, ints)), (_detection_cols(pf, pi), count)))
+        k = ref[0][1]["kin_index"]
+        n_matched += int((k >= 0).sum())
+        if trial % 2 and len(tab):  # detections at equal distance from two robots, within the tolerance
+            obs = observers[owner]
+            c, s = np.cos(poses[obs, 2]), np.sin(poses[obs, 2])
+            wx = poses[obs, 0] + c * tab[:, 2] - s * tab[:, 3]
+            wy = poses[obs, 1] + s * tab[:, 2] + c * tab[:, 3]
+            d2 = (wx[:, None] - poses[None, :, 0]) ** 2 + (wy[:, None] - poses[None, :, 1]) ** 2
+            d2[np.arange(len(obs)), obs] = np.inf
+            d2.sort(axis=1)
+            n_tied += int(((d2[:, 0] == d2[:, 1]) & (d2[:, 0] <= KIN_MATCH_TOLERANCE**2)).sum())
+    assert n_matched > 5000 and n_tied > 50  # matches, misses and ties were all compared
+
+
+def test_min_separation_is_the_smallest_pair_distance():
+    from kin_envs.envs.common import _min_separation2
+
+    rng = np.random.default_rng(3)
+    for trial in range(300):
+        n = int(rng.integers(1, 40))
+        poses = np.column_stack([rng.uniform(-3, 3, (n, 2)), np.zeros(n)])
+        if trial % 3 == 0:
+            poses[:, :2] = np.round(poses[:, :2], 1)  # equal x, equal distances
+        if trial % 7 == 0 and n > 2:
+            poses[2, :2] = poses[0, :2]
+        order = np.argsort(poses[:, 0])
+        got = _min_separation2(poses, poses[order, 0].copy(), order)
+        d2 = (poses[:, None, 0] - poses[None, :, 0]) ** 2 + (poses[:, None, 1] - poses[None, :, 1]) ** 2
+        d2[np.arange(n), np.arange(n)] = np.inf
+        assert got == pytest.approx(d2.min(), rel=1e-12, abs=0) if n > 1 else got == np.inf
 
 
 @pytest.mark.parametrize("detector", ["geometric", "learned"])
@@ -237,6 +372,8 @@ def test_detect_rows_padded_is_detect_rows_then_pad_rows(detector):
             row, cols = detect_rows(*args, trusted=True)
             got = detect_rows_padded(*args, slots, trusted=True)
             _same_padded(got, ((row, cols), pad_rows(row, cols, n, slots)))
+            with_hits = detect_rows_padded(*args, slots, trusted=True, hits=(scan.hit_kind, scan.hit_index))
+            _same_padded(with_hits, ((row, cols), pad_rows(row, cols, n, slots)))
             again = detect_rows_padded(*args, slots, trusted=True)  # fresh arrays on every call
             for a, b in zip(got[1][0].values(), again[1][0].values(), strict=True):
                 assert not np.shares_memory(a, b)
