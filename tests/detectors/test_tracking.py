@@ -634,6 +634,24 @@ def test_the_compiled_kin_decision_is_bitwise_the_models(hidden):
     assert seen == {"coasting", "young", "network"}
 
 
+@pytest.mark.parametrize("m", [1, 3, 8])
+def test_dense_layer_sums_each_output_in_the_inputs_order(m):
+    """``_dense_layer`` (a narrow output layer summed across rows, a wide one across units) gives every
+    output ``b[j] + h[r, 0] W[0, j] + h[r, 1] W[1, j] + ...`` left to right, as a Python loop: bitwise."""
+    from detectors.tracking import _dense_layer
+
+    rng = np.random.default_rng(m)
+    h, W, b = rng.normal(0, 1, (37, 8)), rng.normal(0, 1, (8, m)), rng.normal(0, 1, m)
+    want = np.empty((37, m))
+    for r in range(37):
+        for j in range(m):
+            acc = float(b[j])
+            for i in range(8):
+                acc += float(h[r, i]) * float(W[i, j])
+            want[r, j] = acc
+    assert np.array_equal(_dense_layer(h, W, b), want)
+
+
 def test_association_of_dense_clusters_is_bitwise_the_previous_kernel():
     """Objects packed within each other's gates (many gated pairs per candidate: the pair buffer grows,
     the Hungarian solves large components) and spread along x and y (the x-sorted search skips most
