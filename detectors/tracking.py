@@ -296,6 +296,15 @@ def _dense_layer(h, W, b):
     n, k = h.shape
     m = W.shape[1]
     out = np.empty((n, m))
+    if m < 4:  # the output layer: across rows instead (one row's chain of k dependent sums was ~8 us a frame)
+        for j in range(m):
+            for r in range(n):
+                out[r, j] = b[j]
+            for i in range(k):  # each sum in the same order as below: the same bits
+                w = W[i, j]
+                for r in range(n):
+                    out[r, j] += h[r, i] * w
+        return out
     for r in range(n):
         for j in range(m):
             out[r, j] = b[j]
@@ -621,6 +630,30 @@ def _segment_points_kernel(ranges, angles, rows, first, last, range_max):
     return pts[:m], owner[:m]
 
 
+#: the per-track scalar columns, packed by type: one (len, capacity) array each (``KinTracker._F``, ``_I``,
+#: ``_B``; the names are read-only properties of row views), so that the frame's compiled call takes 3
+#: state arrays instead of 31 (each argument of a compiled call costs its dispatch ~55 ns)
+_F_COLS = ("_exist", "_lo_score", "_lo_shape", "_lo_motion", "_static_t", "_anchor_var", "_anchor_odo",
+           "_anchor_rng", "_lo_resid", "_res_chi2", "_res_dof", "_score_sum", "_n_scored", "_f_lgsum",
+           "_f_lgsq", "_f_lgmax", "_f_lglast", "_f_accsum", "_f_acclast", "_f_beams", "_f_rng")  # fmt: skip
+_I_COLS = ("_id", "_obs", "_seen", "_age", "_npts", "_head")
+_B_COLS = ("_alive", "_moved", "_confirmed", "_hit")
+#: the other per-track arrays (capacity first), kept apart
+_ARRAYS = ("_x", "_P", "_anchor", "_fit_c", "_pts", "_pts_aux")
+
+
+@numba.njit(cache=True, nogil=True)
+def _f_cols(F, n):
+    """:data:`_F_COLS`' row views of ``F``, in that order, their first ``n`` rows."""
+    return (F[0][:n], F[1][:n], F[2][:n], F[3][:n], F[4][:n], F[5][:n], F[6][:n], F[7][:n], F[8][:n],
+            F[9][:n], F[10][:n], F[11][:n], F[12][:n], F[13][:n], F[14][:n], F[15][:n], F[16][:n],
+            F[17][:n], F[18][:n], F[19][:n], F[20][:n])  # fmt: skip
+
+
+def _column(pack: str, i: int, name: str) -> property:
+    return property(lambda self: getattr(self, pack)[i], doc=f"``{name}``: row {i} of ``{pack}`` (a view)")
+
+
 class KinTracker:
     """Kin tracks of ``n_observers`` robots at once, from their candidates and odometry (module docstring).
 
@@ -669,57 +702,30 @@ class KinTracker:
         self.time = 0.0
         self._next_id = 0
         cap, m = 8 * self.n_observers, int(self.params.max_points)
-        self._id = np.zeros(cap, np.int64)
-        self._obs = np.zeros(cap, np.int64)
+        # the per-track scalars, packed by type (:data:`_F_COLS`, ...): the track's existence, cue log-odds
+        # (score, outline, motion, per-frame residual), time static; where it was first seen (variance,
+        # the observer's odometer and the range then); the per-frame fits' summed chi-square and dof; the
+        # score cue's sum and count; the track-level classifier's per-frame inputs (TrackKinModel: clipped
+        # score logits summed, squared, max and last; accepted frames and the last flag; the last
+        # candidate's beams and range); id, observer, frames seen, age, the outline ring's count and head;
+        # alive, moved, confirmed and updated this frame (hit)
+        self._F = np.zeros((len(_F_COLS), cap))
+        self._I = np.zeros((len(_I_COLS), cap), np.int64)
+        self._B = np.zeros((len(_B_COLS), cap), np.bool_)
         self._x = np.zeros((cap, 4))
         self._P = np.zeros((cap, 4, 4))
-        self._exist = np.zeros(cap)
-        self._lo_score = np.zeros(cap)
-        self._lo_shape = np.zeros(cap)
-        self._lo_motion = np.zeros(cap)
-        self._seen = np.zeros(cap, np.int64)
-        self._age = np.zeros(cap, np.int64)
-        self._static_t = np.zeros(cap)
-        self._moved = np.zeros(cap, bool)
-        self._confirmed = np.zeros(cap, bool)
         self._anchor = np.zeros((cap, 2))  # where the track was first seen, odometry frame
-        self._anchor_var = np.zeros(cap)
-        self._anchor_odo = np.zeros(cap)  # the observer's odometer and the range when first seen
-        self._anchor_rng = np.zeros(cap)
-        self._alive = np.zeros(cap, bool)
-        # outline points, a ring: odometry-frame x, y; sensor sigma; range when seen; observer's odometer
-        # and the time then
+        # outline points, a ring: odometry-frame x, y
         self._pts = np.zeros((cap, m, 2))
         # sensor sigma, range when seen, the observer's odometer and the time then: read only by the outline
         # refit, so kept only when it is on (shape_clamp > 0); apart from x, y, whose ring is 3x smaller
         self._pts_aux = np.zeros((cap, m if self.params.shape_clamp > 0 else 0, 4))
         self.odometer = np.zeros(self.n_observers)  # wheel travel so far, m (ages ego-motion errors)
-        self._npts = np.zeros(cap, np.int64)
-        self._head = np.zeros(cap, np.int64)
         self._fit_c = np.zeros((cap, 2))  # the outline fit's centre, odometry frame (warm start)
-        # per-frame circle-fit residual cue: its log-odds, and the summed noise-normalised chi-square and
-        # its degrees of freedom (drift-free: each frame's points share one pose)
-        self._lo_resid = np.zeros(cap)
-        self._res_chi2 = np.zeros(cap)
-        self._res_dof = np.zeros(cap)
-        # the detector's score log-odds summed over the track's frames, and how many
-        self._score_sum = np.zeros(cap)
-        self._n_scored = np.zeros(cap)
-        # the track-level classifier's per-frame inputs (TrackKinModel): clipped score logits summed, max
-        # and last; accepted frames and the last frame's flag; the last candidate's beams and range; and
-        # whether the track was updated this frame
-        self._f_lgsum = np.zeros(cap)
-        self._f_lgsq = np.zeros(cap)
-        self._f_lgmax = np.zeros(cap)
-        self._f_lglast = np.zeros(cap)
-        self._f_accsum = np.zeros(cap)
-        self._f_acclast = np.zeros(cap)
-        self._f_beams = np.zeros(cap)
-        self._f_rng = np.zeros(cap)
-        self._hit = np.zeros(cap, bool)
         self._prm_of = None  # the params _prm was built from
         self._frame = 0  # frames since reset (keys the per-frame cache of the kin decision)
         self._kp_cache = (None, None)
+        self._pending = None  # the decision's compiled part from the last update
 
     @property
     def pose(self) -> np.ndarray:
@@ -830,28 +836,31 @@ class KinTracker:
         if n_alive + kept > self._alive.shape[0]:
             self._grow(n_alive + kept)
         poses = self.poses.copy()  # a new array per frame: earlier views of ``poses`` keep their values
+        # the kin decision's compiled part (its inputs and first layer) runs in the same call when the last
+        # frame's outputs were read (as an env does every step); track_arrays then finishes it
+        m = self.kin_model
+        dec = (self._kp_cache[0] is not None and self._kp_cache[0][0] == self._frame and m is not None
+               and TRACK_FEATURES == _KERNEL_FEATURES)  # fmt: skip
+        W, b = m.layers[0] if dec else (_NO_W, _NO_B)
         c_ = np.ascontiguousarray
         args = (c_(obs, np.int64), c_(xy), c_(scores), c_(accepted), c_(delta), float(dt), pts, c_(own),
-                points is not None, c_(noise), poses,
-                self.odometer, self.time + dt, self._next_id, self._prm, self._alive, self._obs, self._id,
-                self._x, self._P, self._exist, self._lo_score, self._lo_shape, self._lo_motion,
-                self._lo_resid, self._res_chi2, self._res_dof, self._score_sum, self._n_scored, self._seen,
-                self._age, self._static_t, self._moved, self._confirmed, self._npts, self._head, self._fit_c,
-                self._anchor, self._anchor_var, self._anchor_odo, self._anchor_rng, self._pts, self._pts_aux,
-                self._f_lgsum,
-                self._f_lgsq, self._f_lgmax, self._f_lglast, self._f_accsum, self._f_acclast, self._f_beams,
-                self._f_rng, self._hit)  # fmt: skip
-        status, next_id = _update_kernel(*args)
+                points is not None, c_(noise), poses, self.odometer, self.time + dt, self._next_id, self._prm,
+                self._F, self._I, self._B, self._x, self._P, self._anchor, self._fit_c, self._pts,
+                self._pts_aux, dec, m.mean if dec else _NO_B, m.scale if dec else _NO_B, W, b,
+                _log_min(m) if dec else 0.0, bool(dec and m.hit_only))  # fmt: skip
+        status, next_id, rows, kp, sel, h = _update_kernel(*args)
         if status == _BAD_SORT:  # points not grouped by candidate (segment_points gives them sorted)
             order = np.argsort(own, kind="stable")
             args = (*args[:6], np.ascontiguousarray(pts[order]), own[order], *args[8:])
-            status, next_id = _update_kernel(*args)
+            status, next_id, rows, kp, sel, h = _update_kernel(*args)
         if status:
             raise ValueError(_update_error(status, N, k, delta, xy, scores, obs, noise, pts))
         self.poses = poses
         self.time += dt
         self._next_id = int(next_id)
         self._frame += 1
+        # the decision's first layer, for track_arrays of this frame (with this model and params)
+        self._pending = ((self._frame, m, self.params), (rows, kp, sel, h)) if dec else None
 
     def update_from_result(self, result: DetectionResult, ranges, angles, odom_delta, dt: float) -> None:
         """:meth:`update` from a detector's :class:`DetectionResult` on scan ``(ranges, angles)``: each
@@ -899,17 +908,23 @@ class KinTracker:
         self.poses[observer] = other.poses[0]
         self.odometer[observer] = other.odometer[0]
         self._kp_cache = (None, None)
+        self._pending = None  # the decision's compiled part from the last update
         return other._id[src].copy()
 
     # -- steps ----------------------------------------------------------------------------------------
     def _grow(self, need: int) -> None:
-        cap = self._alive.shape[0]
+        cap0 = cap = self._alive.shape[0]
         while cap < need:
             cap *= 2
-        for name in self._FIELDS:
+        for name in ("_F", "_I", "_B"):
+            a = getattr(self, name)
+            b = np.zeros((a.shape[0], cap), a.dtype)
+            b[:, :cap0] = a
+            setattr(self, name, b)
+        for name in _ARRAYS:
             a = getattr(self, name)
             b = np.zeros((cap, *a.shape[1:]), a.dtype)
-            b[: a.shape[0]] = a
+            b[:cap0] = a
             setattr(self, name, b)
 
     # -- outputs -----------------------------------------------------------------------------------------
@@ -956,16 +971,17 @@ class KinTracker:
         if m is None or TRACK_FEATURES != _KERNEL_FEATURES:
             rows = np.flatnonzero(self._alive)
             return rows, self._kin_prob(rows) if rows.size else np.zeros(0)
-        pr = self.params
-        W, b = m.layers[0]
-        log_min = math.log(m.min_frames) - 1e-9 if m.min_frames > 0 else -math.inf
-        rows, kp, sel, h = _decide_kernel(
-            self.n_observers, self._alive, self._confirmed, self._obs, self._seen, self._x, self._P,
-            self._anchor, self._anchor_var, self._anchor_odo, self._anchor_rng, self.odometer, self._hit,
-            self._f_lgsum, self._f_lgsq, self._f_lgmax, self._f_lglast, self._f_accsum, self._f_acclast,
-            self._f_beams, self._f_rng, self._moved, self._exist, self._res_chi2, self._res_dof,
-            pr.odom_heading_rate**2, pr.odom_position_rate**2, m.mean, m.scale, W, b, log_min, m.hit_only,
-        )  # fmt: skip
+        pend, self._pending = self._pending, None
+        if pend is not None and pend[0][0] == self._frame and pend[0][1] is m and pend[0][2] is self.params:
+            rows, kp, sel, h = pend[1]  # computed in this frame's update call
+        else:
+            pr = self.params
+            W, b = m.layers[0]
+            rows, kp, sel, h = _decide_packed(
+                self.n_observers, self._F, self._I, self._B, self._x, self._P, self._anchor, self.odometer,
+                pr.odom_heading_rate**2, pr.odom_position_rate**2, m.mean, m.scale, W, b, _log_min(m),
+                m.hit_only,
+            )  # fmt: skip
         if sel.size:
             for W, b in m.layers[1:]:  # TrackKinModel.logit's later layers
                 h = _dense_layer(np.tanh(h), W, b)
@@ -1056,6 +1072,20 @@ class KinTracker:
                                          self._confirmed, self._x, self.poses, self._exist, self._seen,
                                          self._age)  # fmt: skip
         return {"tracks": out, "mask": mask, "count": count}
+
+for _pack, _cols in (("_F", _F_COLS), ("_I", _I_COLS), ("_B", _B_COLS)):
+    for _i, _name in enumerate(_cols):
+        setattr(KinTracker, _name, _column(_pack, _i, _name))
+assert set(KinTracker._FIELDS) == {*_F_COLS, *_I_COLS, *_B_COLS, *_ARRAYS}
+
+
+def _log_min(m: TrackKinModel) -> float:
+    """The model's ``min_frames`` as :func:`_decide_kernel` compares it (to ``log(frames)``)."""
+    return math.log(m.min_frames) - 1e-9 if m.min_frames > 0 else -math.inf
+
+
+_NO_W, _NO_B = np.zeros((0, 0)), np.zeros(0)
+
 
 def _kin_model(kin_model) -> TrackKinModel | None:
     if isinstance(kin_model, TrackKinModel):
@@ -1575,15 +1605,25 @@ def _finish_kernel(pre, hit, dt, alive, tobs, x, P, poses, exist, confirmed, mov
 
 
 @numba.njit(cache=True, nogil=True)
-def _feature_kernel(tracks, n_matched, scores, accepted, rng, beams, lgsum, lgsq, lgmax, lglast, accsum,
+def _score_logits(scores):
+    """The candidates' score log-odds, clipped (the score cue's and the classifier's per-frame input)."""
+    lgs = np.empty(scores.shape[0])
+    for j in range(scores.shape[0]):
+        p = min(max(scores[j], 1e-6), 1 - 1e-6)
+        lgs[j] = min(max(math.log(p / (1 - p)), -6.0), 6.0)
+    return lgs
+
+
+@numba.njit(cache=True, nogil=True)
+def _feature_kernel(tracks, n_matched, lgs, accepted, rng, beams, lgsum, lgsq, lgmax, lglast, accsum,
                     acclast, f_beams, f_rng, hit):  # fmt: skip
-    """The track classifier's running inputs of the updated tracks (``tracks[j]`` got candidate ``j``;
-    rows from ``n_matched`` on were born this frame and start afresh); ``hit`` marks them."""
+    """The track classifier's running inputs of the updated tracks (``tracks[j]`` got candidate ``j``, of
+    clipped score log-odds ``lgs[j]``, :func:`_score_logits`; rows from ``n_matched`` on were born this
+    frame and start afresh); ``hit`` marks them."""
     hit[:] = False
     for j in range(tracks.shape[0]):
         t = tracks[j]
-        p = min(max(scores[j], 1e-6), 1 - 1e-6)
-        lg = min(max(math.log(p / (1 - p)), -6.0), 6.0)
+        lg = lgs[j]
         a = (1.0 if accepted[j] else 0.0) if accepted.shape[0] else 0.5  # 0.5: decisions not given
         if j >= n_matched:
             lgsum[t] = lgsq[t] = accsum[t] = 0.0
@@ -1600,13 +1640,13 @@ def _feature_kernel(tracks, n_matched, scores, accepted, rng, beams, lgsum, lgsq
 
 
 @numba.njit(cache=True, nogil=True)
-def _score_kernel(ti, scores, accepted, rng, score_sum, n_scored, lo_score, bar1, per_metre, weight, acc_llr,
+def _score_kernel(ti, lgs, accepted, rng, score_sum, n_scored, lo_score, bar1, per_metre, weight, acc_llr,
                   rej_llr, n0, gain, clamp):  # fmt: skip
-    """The score cue of the updated tracks ``ti`` (candidate ``j`` of this frame for ``ti[j]``)."""
+    """The score cue of the updated tracks ``ti`` (candidate ``j`` of this frame for ``ti[j]``, its clipped
+    score log-odds ``lgs[j]``, :func:`_score_logits`)."""
     for j in range(ti.shape[0]):
         t = ti[j]
-        p = min(max(scores[j], 1e-6), 1 - 1e-6)
-        lg = min(max(math.log(p / (1 - p)), -6.0), 6.0)
+        lg = lgs[j]
         step = weight * (lg - (bar1 - per_metre * (rng[j] - 1.0)))
         if accepted.shape[0]:
             step += acc_llr if accepted[j] else rej_llr
@@ -1979,10 +2019,51 @@ def _update_error(status, N, k, delta, xy, scores, obs, noise, pts) -> str:
 
 @numba.njit(cache=True, nogil=True)
 def _update_kernel(obs, xy, scores, accepted, delta, dt, pts, owner, has_points, noise, poses, odometer, now,
-                   next_id, prm, alive, tobs, tid, x, P, exist, lo_score, lo_shape, lo_motion, lo_resid,
-                   res_chi2, res_dof, score_sum, n_scored, seen, age, static_t, moved, confirmed, npts, head,
-                   fit_c, anchor, anchor_var, anchor_odo, anchor_rng, buf, aux, f_lgsum, f_lgsq, f_lgmax,
-                   f_lglast, f_accsum, f_acclast, f_beams, f_rng, hit):  # fmt: skip
+                   next_id, prm, F, I, B, x, P, anchor, fit_c, buf, aux, dec, mean, scale, W, b, log_min,
+                   hit_only):  # fmt: skip
+    """One frame of every observer (:meth:`KinTracker.update_batch`) on the packed state (:data:`_F_COLS`,
+    :data:`_I_COLS`, :data:`_B_COLS`): :func:`_update_frame`, then (``dec``) the kin decision's compiled
+    part (:func:`_decide_kernel`) with the model's standardisation and first layer ``mean, scale, W, b``.
+    Returns ``(status, next_id, rows, kp, sel, h)`` (the decision's arrays empty unless ``dec``)."""
+    # the frame's steps see the rows below n only: the rows from the last live one up are free, and births
+    # (one per candidate at most) take the first free rows, so every row this frame reads or writes is below
+    # n (a swarm's arrays have about twice its tracks: their loops over every row would mostly skip)
+    cap = B.shape[1]
+    top = cap
+    while top > 0 and not B[0, top - 1]:
+        top -= 1
+    n = min(cap, top + xy.shape[0])
+    (exist, lo_score, lo_shape, lo_motion, static_t, anchor_var, anchor_odo, anchor_rng, lo_resid, res_chi2,
+     res_dof, score_sum, n_scored, f_lgsum, f_lgsq, f_lgmax, f_lglast, f_accsum, f_acclast, f_beams,
+     f_rng) = _f_cols(F, n)  # fmt: skip
+    tid, tobs, seen, age, npts, head = I[0][:n], I[1][:n], I[2][:n], I[3][:n], I[4][:n], I[5][:n]
+    alive, moved, confirmed, hit = B[0][:n], B[1][:n], B[2][:n], B[3][:n]
+    x, P, anchor, fit_c, buf, aux = x[:n], P[:n], anchor[:n], fit_c[:n], buf[:n], aux[:n]
+    status, next_id = _update_frame(
+        obs, xy, scores, accepted, delta, dt, pts, owner, has_points, noise, poses, odometer, now, next_id,
+        prm, alive, tobs, tid, x, P, exist, lo_score, lo_shape, lo_motion, lo_resid, res_chi2, res_dof,
+        score_sum, n_scored, seen, age, static_t, moved, confirmed, npts, head, fit_c, anchor, anchor_var,
+        anchor_odo, anchor_rng, buf, aux, f_lgsum, f_lgsq, f_lgmax, f_lglast, f_accsum, f_acclast, f_beams,
+        f_rng, hit,
+    )  # fmt: skip
+    if not status:
+        B[3][n:] = False  # "updated this frame" is cleared on every row (a row adopt() freed may hold it)
+    if status or not dec:
+        return status, next_id, np.empty(0, np.int64), np.zeros(0), np.empty(0, np.int64), np.empty((0, 0))
+    rows, kp, sel, h = _decide_kernel(
+        poses.shape[0], alive, confirmed, tobs, seen, x, P, anchor, anchor_var, anchor_odo, anchor_rng,
+        odometer, hit, f_lgsum, f_lgsq, f_lgmax, f_lglast, f_accsum, f_acclast, f_beams, f_rng, moved, exist,
+        res_chi2, res_dof, prm[21], prm[22], mean, scale, W, b, log_min, hit_only,
+    )  # fmt: skip
+    return status, next_id, rows, kp, sel, h
+
+
+@numba.njit(cache=True, nogil=True)
+def _update_frame(obs, xy, scores, accepted, delta, dt, pts, owner, has_points, noise, poses, odometer, now,
+                  next_id, prm, alive, tobs, tid, x, P, exist, lo_score, lo_shape, lo_motion, lo_resid,
+                  res_chi2, res_dof, score_sum, n_scored, seen, age, static_t, moved, confirmed, npts, head,
+                  fit_c, anchor, anchor_var, anchor_odo, anchor_rng, buf, aux, f_lgsum, f_lgsq, f_lgmax,
+                  f_lglast, f_accsum, f_acclast, f_beams, f_rng, hit):  # fmt: skip
     """One frame of every observer (:meth:`KinTracker.update_batch`) in one call: checks the inputs'
     values (a status code and no state change if one is bad), drops candidates below ``min_score``,
     moves each observer by its odometry, then runs the frame's steps in the staged order — association,
@@ -2091,7 +2172,8 @@ def _update_kernel(obs, xy, scores, accepted, delta, dt, pts, owner, has_points,
         sc[j], rg[j] = scores[cands[j]], rng[cands[j]]
         if accepted.shape[0]:
             ac[j] = accepted[cands[j]]
-    _score_kernel(tracks, sc, ac, rg, score_sum, n_scored, lo_score, prm[8], prm[9], prm[10], prm[11],
+    lgs = _score_logits(sc)  # once for both of its readers
+    _score_kernel(tracks, lgs, ac, rg, score_sum, n_scored, lo_score, prm[8], prm[9], prm[10], prm[11],
                   prm[12], prm[13], prm[14], prm[15])  # fmt: skip
     bm = np.zeros(n_t)
     if has_points and n_t:
@@ -2104,7 +2186,7 @@ def _update_kernel(obs, xy, scores, accepted, delta, dt, pts, owner, has_points,
                         prm[22])  # fmt: skip
         for j in range(n_t):
             bm[j] = cstart[cands[j] + 1] - cstart[cands[j]]
-    _feature_kernel(tracks, n_m, sc, ac, rg, bm, f_lgsum, f_lgsq, f_lgmax, f_lglast, f_accsum, f_acclast,
+    _feature_kernel(tracks, n_m, lgs, ac, rg, bm, f_lgsum, f_lgsq, f_lgmax, f_lglast, f_accsum, f_acclast,
                     f_beams, f_rng, hit)  # fmt: skip
     hit_t = np.zeros(alive.shape[0], np.bool_)
     for j in range(n_m):
@@ -2273,6 +2355,19 @@ def _decide_kernel(n_obs, alive, confirmed, obs, seen, x, P, anchor, anchor_var,
             for c in range(n_sel):
                 hj[c] += v[c] * w
     return rows, kp, sel[:n_sel], np.ascontiguousarray(ht.T)
+
+
+@numba.njit(cache=True, nogil=True)
+def _decide_packed(n_obs, F, I, B, x, P, anchor, odometer, head_rate2, pos_rate2, mean, scale, W, b, log_min,
+                   hit_only):  # fmt: skip
+    """:func:`_decide_kernel` on the packed state (:data:`_F_COLS`, ...)."""
+    (exist, _, _, _, _, anchor_var, anchor_odo, anchor_rng, _, res_chi2, res_dof, _, _, lgsum, lgsq, lgmax,
+     lglast, accsum, acclast, beams, f_rng) = _f_cols(F, F.shape[1])  # fmt: skip
+    alive, moved, confirmed, hit = B[0], B[1], B[2], B[3]
+    return _decide_kernel(n_obs, alive, confirmed, I[1], I[2], x, P, anchor, anchor_var, anchor_odo,
+                          anchor_rng, odometer, hit, lgsum, lgsq, lgmax, lglast, accsum, acclast, beams,
+                          f_rng, moved, exist, res_chi2, res_dof, head_rate2, pos_rate2, mean, scale, W, b,
+                          log_min, hit_only)  # fmt: skip
 
 
 @numba.njit(cache=True, nogil=True)

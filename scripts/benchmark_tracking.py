@@ -142,7 +142,11 @@ def report(results: list[dict], cost: dict | None = None) -> str:
             "the shipped detector's own batched call (`detect_arrays`, what an env calls) "
             f"{1e3 * cost['shipped_cpu_per_frame']:.2f} ms: the tracker is "
             f"**{100 * cost['ratio_shipped_cpu']:.0f} %** of it; `track_arrays` "
-            f"{1e3 * cost['outputs_cpu_per_frame']:.2f} ms.",
+            f"{1e3 * cost['outputs_cpu_per_frame']:.2f} ms. What an env pays per step with `tracker=True` "
+            "(the update and `track_arrays`; the kin decision's compiled part runs in the update's call "
+            "when the outputs of the frame before were read): "
+            f"**{100 * cost.get('ratio_total_shipped_cpu', math.nan):.0f} %** of `detect_arrays`, "
+            f"{100 * cost.get('ratio_total_cpu', math.nan):.0f} % of the permissive detector.",
         ]  # fmt: skip
         if "alt_cpu_per_frame" in cost:
             kw = ", ".join(f"{k}={v}" for k, v in cost["alt_params"].items())

@@ -1031,12 +1031,14 @@ def tracking_cost(
 
     Returns seconds per frame for both, their ratio, the warm-up and the mean candidates per frame, and
     ``outputs_per_frame``: :meth:`~detectors.tracking.KinTracker.track_arrays` (16 slots, what an env reads;
-    it evaluates ``kin_model``), timed apart (not in the ratio). Each is timed by the wall clock and by the
-    process's CPU clock (``*_cpu_*``: a loaded machine's other jobs do not count), and the shipped detector
-    itself (its batched array path, ``detect_arrays``, which an env calls) is timed on the same frames
-    (``shipped_*``, ``ratio_shipped_cpu``: the tracker's update against it). ``alt_params``: a second tracker
-    with these parameters is timed in the same passes on the same candidates (``alt_*``: e.g. the per-frame
-    fits warm-started, ``TrackerParams(frame_fit_iterations=2, frame_fit_warm_start=1)``)."""
+    it evaluates ``kin_model``), timed apart (not in the ratio; ``ratio_total_*``: update and outputs
+    together, what an env pays per step — the kin decision's compiled part runs in the update's call when the
+    frame before's outputs were read, so only the sum compares across versions). Each is timed by the wall
+    clock and by the process's CPU clock (``*_cpu_*``: a loaded machine's other jobs do not count), and the
+    shipped detector itself (its batched array path, ``detect_arrays``, which an env calls) is timed on the
+    same frames (``shipped_*``, ``ratio_shipped_cpu``: the tracker's update against it). ``alt_params``: a
+    second tracker with these parameters is timed in the same passes on the same candidates (``alt_*``: e.g.
+    the per-frame fits warm-started, ``TrackerParams(frame_fit_iterations=2, frame_fit_warm_start=1)``)."""
     if isinstance(n_robots, bool) or not isinstance(n_robots, int) or n_robots < 2:
         raise ValueError(f"n_robots must be an integer >= 2, got {n_robots!r}")
     if not 0 <= int(skip) < int(frames):
@@ -1103,6 +1105,9 @@ def tracking_cost(
             "ratio_cpu": best["trk", "cpu"] / max(best["det", "cpu"], 1e-12),
             "shipped_per_frame": best["ship", "wall"] / n, "shipped_cpu_per_frame": best["ship", "cpu"] / n,
             "ratio_shipped_cpu": best["trk", "cpu"] / max(best["ship", "cpu"], 1e-12),
+            "ratio_total_cpu": (best["trk", "cpu"] + best["out", "cpu"]) / max(best["det", "cpu"], 1e-12),
+            "ratio_total_shipped_cpu": (best["trk", "cpu"] + best["out", "cpu"])
+            / max(best["ship", "cpu"], 1e-12),
             "candidates_per_frame": n_cand / len(scans),
             **({} if alt_params is None else {
                 "alt_params": {k: getattr(alt_params, k)

@@ -27,6 +27,7 @@ from detectors.tracking import (
     _points_check,
     _points_prep,
     _score_kernel,
+    _score_logits,
 )
 
 
@@ -107,10 +108,10 @@ class StagedKinTracker(KinTracker):
         if points is not None and len(tracks):
             self._outline_cue(tracks, cands, points, owner, obs, noise, cos, sin, k, z)  # validates owner
             beams = np.bincount(np.asarray(owner, np.int64).reshape(-1), minlength=k).astype(np.float64)
-        _feature_kernel(tracks, len(ti), scores[cands], np.zeros(0, np.bool_) if accepted is None
-                        else accepted[cands], rng[cands], beams[cands], self._f_lgsum, self._f_lgsq,
-                        self._f_lgmax, self._f_lglast, self._f_accsum, self._f_acclast, self._f_beams,
-                        self._f_rng, self._hit)  # fmt: skip
+        _feature_kernel(tracks, len(ti), _score_logits(scores[cands]),
+                        np.zeros(0, np.bool_) if accepted is None else accepted[cands], rng[cands],
+                        beams[cands], self._f_lgsum, self._f_lgsq, self._f_lgmax, self._f_lglast,
+                        self._f_accsum, self._f_acclast, self._f_beams, self._f_rng, self._hit)  # fmt: skip
         hit = np.zeros(self._alive.shape[0], bool)
         hit[ti] = True
         self._finish(pre, hit, dt)
@@ -160,9 +161,10 @@ class StagedKinTracker(KinTracker):
         # score_gain: frames of one object are strongly correlated, so the evidence grows with their
         # consistency, not their count (one compiled loop over the updated tracks)
         acc = np.zeros(0, np.bool_) if accepted is None else np.asarray(accepted, np.bool_)
-        _score_kernel(ti, np.asarray(scores, np.float64), acc, rng, self._score_sum, self._n_scored,
-                      self._lo_score, float(_logit(pr.score_prior)), pr.score_per_metre, pr.score_weight,
-                      pr.accept_llr, pr.reject_llr, pr.score_n0, pr.score_gain, pr.score_clamp)  # fmt: skip
+        _score_kernel(ti, _score_logits(np.asarray(scores, np.float64)), acc, rng, self._score_sum,
+                      self._n_scored, self._lo_score, float(_logit(pr.score_prior)), pr.score_per_metre,
+                      pr.score_weight, pr.accept_llr, pr.reject_llr, pr.score_n0, pr.score_gain,
+                      pr.score_clamp)  # fmt: skip
 
     def _outline_cue(self, ti, ci, points, owner, obs, noise, cos, sin, k, z) -> None:
         # (b) the accumulated outline relative to the track centre (ego-motion compensated)

@@ -634,6 +634,58 @@ def test_the_compiled_kin_decision_is_bitwise_the_models(hidden):
     assert seen == {"coasting", "young", "network"}
 
 
+def test_packed_state_survives_growth_copies_and_reading_every_other_frame():
+    """The per-track scalars live in packed arrays (``_F``, ``_I``, ``_B``) whose rows the old names view:
+    after the capacity doubles, after a deepcopy and after a pickle round trip the views are the packed
+    rows, and a copy goes on bitwise as the original. Reading ``track_arrays`` every other frame (the kin
+    decision computed inside the next update, or lazily) gives what a tracker read every frame gives."""
+    import copy
+    import pickle
+
+    frames = list(_crowded_frames(11, n_obs=3, n_frames=16))
+    every, other = KinTracker(n_observers=3), KinTracker(n_observers=3)
+    cap0 = every._alive.shape[0]
+    for f, (obs, xy, sc, delta, pts, own) in enumerate(frames[:8]):
+        for tr in (every, other):
+            tr.update_batch(obs, xy, sc, delta, DT, pts, own, accepted=sc > 0.5)
+        a = every.track_arrays(8)
+        if f % 2:
+            b = other.track_arrays(8)
+            assert all(np.array_equal(a[k], b[k]) for k in ("tracks", "mask", "count"))
+    assert every._alive.shape[0] > cap0  # grown
+    copies = [copy.deepcopy(every), pickle.loads(pickle.dumps(every))]
+    for tr in (every, *copies):
+        assert np.shares_memory(tr._exist, tr._F) and np.shares_memory(tr._alive, tr._B)
+        assert np.shares_memory(tr._seen, tr._I)
+    for obs, xy, sc, delta, pts, own in frames[8:]:
+        outs = []
+        for tr in (every, *copies):
+            tr.update_batch(obs, xy, sc, delta, DT, pts, own, accepted=sc > 0.5)
+            outs.append(tr.track_arrays(8))
+        for tr in copies:
+            for name in KinTracker._FIELDS:
+                assert np.array_equal(getattr(tr, name), getattr(every, name)), name
+        assert all(np.array_equal(o[k], outs[0][k]) for o in outs[1:] for k in ("tracks", "mask", "count"))
+
+
+@pytest.mark.parametrize("m", [1, 3, 8])
+def test_dense_layer_sums_each_output_in_the_inputs_order(m):
+    """``_dense_layer`` (a narrow output layer summed across rows, a wide one across units) gives every
+    output ``b[j] + h[r, 0] W[0, j] + h[r, 1] W[1, j] + ...`` left to right, as a Python loop: bitwise."""
+    from detectors.tracking import _dense_layer
+
+    rng = np.random.default_rng(m)
+    h, W, b = rng.normal(0, 1, (37, 8)), rng.normal(0, 1, (8, m)), rng.normal(0, 1, m)
+    want = np.empty((37, m))
+    for r in range(37):
+        for j in range(m):
+            acc = float(b[j])
+            for i in range(8):
+                acc += float(h[r, i]) * float(W[i, j])
+            want[r, j] = acc
+    assert np.array_equal(_dense_layer(h, W, b), want)
+
+
 def test_association_of_dense_clusters_is_bitwise_the_previous_kernel():
     """Objects packed within each other's gates (many gated pairs per candidate: the pair buffer grows,
     the Hungarian solves large components) and spread along x and y (the x-sorted search skips most
