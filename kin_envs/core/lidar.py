@@ -966,8 +966,9 @@ def _circle_tests(x0, y0, hw, skip, reach, n_beams, inv_res, m, kx, ky, kr, kid,
         ri = max(r - e, f(0.0))
         d2 = dx * dx + dy * dy
         # in reach and the origin outside the circle (each with a margin: a circle that contains the origin is
-        # never hit, by the exact tests)
-        ok = (d2 <= (rcf + ro) * (rcf + ro) * f(1.0 + 1e-5)) & (d2 > ri * ri * f(1.0 - 1e-5))
+        # never hit, by the exact tests); d2 finite: a centre beyond float32's range (3e38 m) is out of reach
+        ok = ((d2 <= (rcf + ro) * (rcf + ro) * f(1.0 + 1e-5)) & (d2 > ri * ri * f(1.0 - 1e-5))
+              & (d2 < f(1e38)))  # fmt: skip
         phi, half, dlo = _circle_interval(dx, dy, ro)
         # an origin that may be inside the grown circle (within e of the exact one's rim) sees it anywhere
         half = f(math.pi + _EPS) if d2 <= ro * ro * f(1.0 + 1e-5) else half

@@ -10,7 +10,9 @@ import numba
 import numpy as np
 import pytest
 
-from kin_envs.core.lidar import _circle_tests, beam_tables
+from kin_envs import LidarSpec
+from kin_envs.core.lidar import _circle_tests, beam_tables, build_lidar_grid, cast_scan
+from tests.kin_envs.test_lidar_scaling import _reference
 
 
 @numba.njit(cache=False)
@@ -71,3 +73,25 @@ def test_float32_candidates_cover_every_exact_hit(offset, n_beams):
             assert np.all((beams - int(fb[q])) % n_beams < fc[q]), (x0, y0, q)
             assert fn[q] <= t[q, beams].min()
     assert hits > 2000
+
+
+def test_circles_beyond_float32_range_are_never_candidates():
+    # centres at 1e39 m (finite in float64, infinite in float32) and 1e300 m among ordinary circles: the
+    # scans are the reference kernel's (the float32 pass must not turn them into candidates with NaN beams)
+    rng = np.random.default_rng(5)
+    near = np.column_stack([rng.uniform(-8, 8, (30, 2)), rng.uniform(0.05, 0.5, 30)])
+    far = np.array([[1e39, 0.0, 1.0], [0.0, -1e39, 5.0], [1e300, 1e300, 1e3], [-3.5e38, 2.0, 0.5]])
+    circles = np.concatenate([near[:15], far, near[15:]])
+    segments = np.array([[-10.0, -10.0, 10.0, -10.0], [10.0, -10.0, 10.0, 10.0]])
+    origins = rng.uniform(-7, 7, (6, 2))
+    headings = rng.uniform(-math.pi, math.pi, 6)
+    spec = LidarSpec(range_max=12.0)
+    n_prim = len(circles) + len(segments)
+    skip = np.full(6, -1)
+    kind, index = np.zeros(n_prim + 1, np.int8), np.arange(-1, n_prim, dtype=np.int32)
+    ref = _reference(origins, headings, circles, segments, skip, spec, kind, index)
+    grid = build_lidar_grid(circles, segments, dynamic_circles=[15, 16, 17, 18], bounds=(-11, -11, 11, 11))
+    for g in (None, grid):
+        got = cast_scan(origins, headings, circles, segments, skip, kind, index, spec, grid=g)
+        for a, b in zip(got, ref, strict=True):
+            np.testing.assert_array_equal(a, b)
