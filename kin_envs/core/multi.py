@@ -428,10 +428,11 @@ def _multi_kernel(ox, oy, heading, tabs, range_min, range_max, circles, c_lo, c_
     best_d = np.empty(n_beams)
     best_p = np.empty(n_beams, dtype=np.int32)
     ws = _work(max(circles.shape[0], segments.shape[0]))
-    (cx, cy, cr), (sx1, sy1, sx2, sy2) = _columns(circles, segments)
+    (cx, cy, cr, fx, fy, fr), (sx1, sy1, sx2, sy2) = _columns(circles, segments)
     for n in range(ox.shape[0]):
         c0, c1, s0, s1 = c_lo[n], c_hi[n], s_lo[n], s_hi[n]
-        _cast_one(ox[n], oy[n], heading[n], skip[n], range_max, (cx[c0:c1], cy[c0:c1], cr[c0:c1]),
+        circ = (cx[c0:c1], cy[c0:c1], cr[c0:c1], fx[c0:c1], fy[c0:c1], fr[c0:c1])
+        _cast_one(ox[n], oy[n], heading[n], skip[n], range_max, circ,
                   (sx1[s0:s1], sy1[s0:s1], sx2[s0:s1], sy2[s0:s1]), cos_tab, sin_tab, best_d, best_p, ws)
         _write_row(n, best_d, best_p, p_lo[n], prim_kind, prim_index, range_min, range_max, out_ranges,
                    out_true, out_kind, out_index)
