@@ -611,6 +611,12 @@ def _housing_max_beams(d, scan, first, count, step, r, slack, margin, skip_upto,
             j += 1
             if j >= n_beams:
                 j = 0
-        dc = slack * dmin
-        half = _HALF_PI if dc <= r else math.asin(r / dc)
-        out[i] = math.floor(2.0 * half / step) + 1.0 + margin
+        out[i] = max_beams_of(dmin, step, r, slack, margin)
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def max_beams_of(dmin, step, r, slack, margin):
+    """:func:`housing_max_beams` of a segment whose nearest reading is ``dmin``."""
+    dc = slack * dmin
+    half = _HALF_PI if dc <= r else math.asin(r / dc)
+    return math.floor(2.0 * half / step) + 1.0 + margin

@@ -61,10 +61,13 @@ import numpy as np
 
 from . import _kernels as _k
 from .features import (
+    _C1_DELTA,
     _cascade_kernel,
     _cascade_one_beam_filter,
     _cascade_scores,
     _features_kernel,
+    _one_beam_bound,
+    _one_beam_scan_bins,
     _scan_columns,
     _scan_noise_kernel,
 )
@@ -242,6 +245,167 @@ def _front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_
             frames, fit_centre, min_beam, scan_cols, tan_tab,
         )  # fmt: skip
     return d, scan, first, count, prev, nxt, p_near, n_near, max_beams, rows, x, frames, scan_cols, cscore
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def _table_segments(d, d_th, d_max, circular, pre_gate, skip_upto, step, r_kin, slack, margin, cascade,
+                    scan_cols, tab, threshold, scan, first, count, prev, nxt, prev_nearer,
+                    next_nearer):  # fmt: skip
+    """:func:`detectors._kernels.segment_rows` writing only the segments that go on to stage 1 (or, without
+    the cascade, to the network) in :func:`_front`'s lean path: those the pre-gate keeps (of more than
+    ``skip_upto`` beams: ``count <= max_beams``) and, with the cascade, not one-beam segments whose bound
+    (:func:`detectors.features._cascade_one_beam_filter`) is below ``threshold``. The same tests with the
+    same expressions, in the same pass as the segmentation (the segment's beams and neighbours are in
+    cache, and the ~65 % of a swarm's segments dropped here are never written nor read again). Returns
+    how many, in segment order."""
+    n_rows, n = d.shape
+    hi = d_max + 2.0 * d_th
+    pos = np.empty(n + 1, dtype=np.int64)
+    d_flat = d.reshape(-1)
+    d_bits = d_flat.view(np.int64)
+    base, x7 = _one_beam_scan_bins(scan_cols, tab)
+    tab_flat = tab.reshape(-1)
+    lim = threshold - _C1_DELTA
+    s = 0
+    for b in range(n_rows):
+        row = d[b]
+        prev_e = row[n - 1] if row[n - 1] < d_max else hi
+        m = 0
+        n_valid = 0
+        for i in range(n):
+            v = row[i]
+            ok = v < d_max
+            e = v if ok else hi
+            pos[m] = i
+            m += abs(e - prev_e) > d_th or (i == 0 and not circular)
+            n_valid += ok
+            prev_e = e
+        if m == 0:
+            if n_valid == n:  # a ring without any break: one segment (the pre-gate decides)
+                scan[s] = b
+                first[s] = 0
+                count[s] = n
+                prev[s] = -1
+                nxt[s] = -1
+                prev_nearer[s] = False
+                next_nearer[s] = False
+                keep = True
+                if pre_gate and n > skip_upto:
+                    dmin = row[0]
+                    for j in range(n):
+                        dmin = row[j] if row[j] < dmin else dmin
+                    keep = n <= _k.max_beams_of(dmin, step, r_kin, slack, margin)
+                s += keep
+            continue
+        pos[m] = pos[0] + n if circular else n
+        for j in range(m):
+            f = pos[j]
+            c = pos[j + 1] - f
+            k = f + c - 1
+            if k >= n:
+                k -= n
+            if circular:
+                p = f - 1 if f > 0 else n - 1
+                q = k + 1 if k < n - 1 else 0
+            else:
+                p = f - 1
+                q = k + 1 if k < n - 1 else -1
+            df = row[f]
+            pn = p >= 0 and row[max(p, 0)] < df
+            nn = q >= 0 and row[max(q, 0)] < row[k]
+            scan[s] = b
+            first[s] = f
+            count[s] = c
+            prev[s] = p
+            nxt[s] = q
+            prev_nearer[s] = pn
+            next_nearer[s] = nn
+            keep = df < d_max  # its first beam has a return
+            if keep and pre_gate and c > skip_upto:
+                dmin = df
+                for t in range(f + 1, f + c):
+                    v = row[t if t < n else t - n]
+                    dmin = v if v < dmin else dmin
+                keep = c <= _k.max_beams_of(dmin, step, r_kin, slack, margin)
+            if keep and cascade and c == 1:
+                key = (1 if pn else 0) + (2 if nn else 0)
+                bound = _one_beam_bound(d_flat, d_bits, b * n, f, n, circular, d_max, key, base[b], x7[b],
+                                        tab_flat)  # fmt: skip
+                keep = not bound < lim
+            s += keep
+    return s
+
+
+@numba.njit(cache=True, nogil=True)
+def _front_table(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_ang, cos_a, sin_a,
+                 sweep, tan_tab, occlusion_unbounded, n_points, n_context, gn_iters, n_feat, cascade, c_w1t,
+                 c_b1, c_w2, c_b2, c_threshold, c_one_beam, ws):  # fmt: skip
+    """:func:`_front`'s lean path for :func:`fused_table` on the work arrays ``ws``: ``(d, scan, first,
+    count, rows, x, frames, scan_cols)`` where the segment columns hold only the segments that reach
+    stage 1 (:func:`_table_segments`), ``rows`` those of them that reach the network. The same network
+    rows, features and frames, in the same order, as ``_front(..., lean=True)``."""
+    wf, wi, wb, rf, rx, ri, need = ws
+    n_rows, n = r.shape
+    cells = n_rows * n
+    d = wf[:cells].reshape((n_rows, n))
+    _k.preprocess_rows(r, d_max, d_th, circular, False, d)
+    noise = np.empty(n_rows)
+    noise_n = np.empty(n_rows, dtype=np.int64)
+    _scan_noise_kernel(d, d_th, d_max, circular, noise, noise_n)
+    scan_cols = np.empty((n_rows, 2))
+    _scan_columns(noise, noise_n, scan_cols)
+    scan = wi[:cells]
+    first = wi[cells : 2 * cells]
+    count = wi[2 * cells : 3 * cells]
+    prev = wi[3 * cells : 4 * cells]
+    nxt = wi[4 * cells : 5 * cells]
+    p_near = wb[:cells]
+    n_near = wb[cells : 2 * cells]
+    # (as _front: the pre-gate's bound, >= 1 + margin, keeps segments of at most 1 + margin beams)
+    skip_upto = int(1.0 + math.floor(margin)) if step > 0.0 and margin >= 0.0 else 0
+    s = _table_segments(d, d_th, d_max, circular, pre_gate, skip_upto, step, r_kin, slack, margin, cascade,
+                        scan_cols, c_one_beam, c_threshold, scan, first, count, prev, nxt, p_near,
+                        n_near)  # fmt: skip
+    scan, first, count, prev, nxt = scan[:s], first[:s], count[:s], prev[:s], nxt[:s]
+    p_near, n_near = p_near[:s], n_near[:s]
+    rows = wi[5 * cells : 5 * cells + s]
+    for i in range(s):
+        rows[i] = i
+    d_flat = d.reshape(-1)
+    if cascade and s > 0:
+        xc = np.empty((_CAS_CHUNK, 12))
+        s1 = wf[3 * cells : 3 * cells + s]
+        for c0 in range(0, s, _CAS_CHUNK):
+            c1 = min(c0 + _CAS_CHUNK, s)
+            _cascade_kernel(d_flat, cos_a, sin_a, trig_ang, scan, first, count, prev, nxt, p_near, n_near, n,
+                            circular, sweep, r_kin, d_max, occlusion_unbounded, scan_cols, rows[c0:c1], xc,
+                            tan_tab)  # fmt: skip
+            _cascade_scores(xc[: c1 - c0], c_w1t, c_b1, c_w2, c_b2, s1[c0:c1])
+        n_keep = 0
+        for o in range(s):
+            if s1[o] >= c_threshold:
+                rows[n_keep] = o
+                n_keep += 1
+        rows = rows[:n_keep]
+    n_sel = rows.shape[0]
+    need[0] = n_sel
+    if _rows_fit(ws, n_sel, n_feat):
+        x = rx[: n_sel * n_feat].reshape((n_sel, n_feat))
+        frames = rf[: 4 * n_sel].reshape((n_sel, 4))
+        fit_centre = rf[4 * n_sel : 6 * n_sel].reshape((n_sel, 2))
+        min_beam = ri[:n_sel]
+    else:  # more network rows than the work arrays hold: this call's own
+        x = np.empty((n_sel, n_feat), dtype=np.float32)
+        frames = np.empty((n_sel, 4))
+        fit_centre = np.empty((n_sel, 2))
+        min_beam = np.empty(n_sel, dtype=np.int64)
+    if n_sel > 0:
+        _features_kernel(
+            d_flat, cos_a, sin_a, trig_ang, scan, first, count, prev, nxt, p_near, n_near, n, circular,
+            sweep, r_kin, d_max, occlusion_unbounded, n_points, n_context, gn_iters, noise, noise_n, rows, x,
+            frames, fit_centre, min_beam, scan_cols, tan_tab,
+        )  # fmt: skip
+    return d, scan, first, count, rows, x, frames, scan_cols
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
@@ -491,10 +655,10 @@ def fused_table(r, front_args, rows_max, mean, std, weights, weights_t, biases, 
     values need is skipped) and :func:`back_table` looks at the network's rows only; the same
     detections as :func:`fused_packed` (``tests/detectors/test_cascade_bound.py``). ``ws``: the work
     arrays (:func:`new_work`); both outputs are new arrays."""
-    fr = _front(r, *front_args, True, _checked_work(r, ws))
-    out = _network(fr[10], rows_max, mean, std, weights, weights_t, biases, sizes, ws)
+    d, scan, first, count, rows, x, frames, scan_cols = _front_table(r, *front_args, _checked_work(r, ws))
+    out = _network(x, rows_max, mean, std, weights, weights_t, biases, sizes, ws)
     # back_args: (ang, pre_gate, fixed_threshold, edges, values, regression, t_mean, t_std, r_kin, ...)
-    return back_table(out, fr[0], fr[1], fr[2], fr[3], fr[9], fr[11], fr[12], back_args[0], *back_args[2:])
+    return back_table(out, d, scan, first, count, rows, frames, scan_cols, back_args[0], *back_args[2:])
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
