@@ -84,7 +84,7 @@ WORK_MAX_CELLS = 1 << 18
 _W_F64 = 4  # float64 work values per beam of a batch: d, max_beams, cascade scores, stage-1 scores
 _W_I64 = 7  # int64: scan, first, count, prev, next (segments), pre-gate keep, stage-1 rows
 _W_BOOL = 2  # bool: prev_nearer, next_nearer
-_R_F64 = 9  # float64 per network row: frames (4), circle-fit centre (2), outputs (3)
+_R_F64 = 11  # float64 per network row: frames (4; 6 with cos, sin of phi), circle-fit centre (2), outputs (3)
 _R_I64 = 1  # int64 per network row: min_beam
 
 
@@ -391,12 +391,12 @@ def _front_table(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin,
     need[0] = n_sel
     if _rows_fit(ws, n_sel, n_feat):
         x = rx[: n_sel * n_feat].reshape((n_sel, n_feat))
-        frames = rf[: 4 * n_sel].reshape((n_sel, 4))
-        fit_centre = rf[4 * n_sel : 6 * n_sel].reshape((n_sel, 2))
+        frames = rf[: 6 * n_sel].reshape((n_sel, 6))
+        fit_centre = rf[6 * n_sel : 8 * n_sel].reshape((n_sel, 2))
         min_beam = ri[:n_sel]
     else:  # more network rows than the work arrays hold: this call's own
         x = np.empty((n_sel, n_feat), dtype=np.float32)
-        frames = np.empty((n_sel, 4))
+        frames = np.empty((n_sel, 6))  # (with phi's cos and sin for back_table: not computed twice)
         fit_centre = np.empty((n_sel, 2))
         min_beam = np.empty(n_sel, dtype=np.int64)
     if n_sel > 0:
@@ -512,8 +512,12 @@ def _table(out, d, scan, first, count, det, det_o, p_det, frames, ang, regressio
             u = t_mean[0] + t_std[0] * out[o, 1]
             v = t_mean[1] + t_std[1] * out[o, 2]
             ox, oy, phi, s = frames[o, 0], frames[o, 1], frames[o, 2], frames[o, 3]
-            c = math.cos(phi)
-            sn = math.sin(phi)
+            if frames.shape[1] >= 6:  # cos(phi), sin(phi) from the features kernel (the same calls)
+                c = frames[o, 4]
+                sn = frames[o, 5]
+            else:
+                c = math.cos(phi)
+                sn = math.sin(phi)
             centres[k, 0] = ox + u * c - s * v * sn
             centres[k, 1] = oy + u * sn + s * v * c
     else:
@@ -599,7 +603,7 @@ def _network(x, rows_max, mean, std, weights, weights_t, biases, sizes, ws):
     n_feat = x.shape[1]
     if _rows_fit(ws, n_sel, n_feat):
         out32 = rx[n_sel * n_feat : n_sel * (n_feat + 3)].reshape((n_sel, 3))
-        out = rf[6 * n_sel : 9 * n_sel].reshape((n_sel, 3))
+        out = rf[8 * n_sel : 11 * n_sel].reshape((n_sel, 3))
     else:
         out32 = np.empty((n_sel, 3), dtype=np.float32)
         out = np.empty((n_sel, 3))
@@ -649,7 +653,54 @@ def back_rest(out, fr, back_args):
 
 
 @numba.njit(cache=True, nogil=True)
-def fused_table(r, front_args, rows_max, mean, std, weights, weights_t, biases, sizes, back_args, ws):
+def duplicates_kernel(scan, x, y, p, radius, out):
+    n = scan.shape[0]
+    r2 = radius * radius
+    i = 0
+    while i < n:
+        e = i
+        while e < n and scan[e] == scan[i]:
+            e += 1
+        changed = True
+        while changed:  # a pass over the scan's kept detections, until none is dropped
+            changed = False
+            first = -1
+            prev = -1
+            for j in range(i, e + 1):
+                if j == e:  # wrap: the last kept one against the first
+                    if first < 0 or prev == first:
+                        break
+                    a, b = prev, first
+                else:
+                    if out[j] >= 0:
+                        continue
+                    if first < 0:
+                        first = j
+                        prev = j
+                        continue
+                    a, b = prev, j
+                if (x[a] - x[b]) ** 2 + (y[a] - y[b]) ** 2 < r2:
+                    lose_a = p[a] < p[b] or (p[a] == p[b] and a > b)
+                    loser, winner = (a, b) if lose_a else (b, a)
+                    out[loser] = winner
+                    changed = True
+                    if loser == first:
+                        first = winner
+                    if j < e:
+                        prev = winner
+                elif j < e:
+                    prev = j
+        i = e
+    for j in range(n):  # point at the detection that stayed
+        k = out[j]
+        while k >= 0 and out[k] >= 0:
+            k = out[k]
+        out[j] = k
+
+
+@numba.njit(cache=True, nogil=True)
+def fused_table(r, front_args, rows_max, mean, std, weights, weights_t, biases, sizes, back_args, dup_radius,
+                ws):  # fmt: skip
     """The detections alone, ``(scan row (D,), table (D, 8))``: what the envs read (fewer arrays
     cross back into Python). :func:`front` runs ``lean`` (what only the other segments' reported
     values need is skipped) and :func:`back_table` looks at the network's rows only; the same
@@ -658,7 +709,24 @@ def fused_table(r, front_args, rows_max, mean, std, weights, weights_t, biases, 
     d, scan, first, count, rows, x, frames, scan_cols = _front_table(r, *front_args, _checked_work(r, ws))
     out = _network(x, rows_max, mean, std, weights, weights_t, biases, sizes, ws)
     # back_args: (ang, pre_gate, fixed_threshold, edges, values, regression, t_mean, t_std, r_kin, ...)
-    return back_table(out, d, scan, first, count, rows, frames, scan_cols, back_args[0], *back_args[2:])
+    row, table = back_table(out, d, scan, first, count, rows, frames, scan_cols, back_args[0], *back_args[2:])
+    if dup_radius >= 0.0 and row.shape[0] > 1:
+        dup = np.full(row.shape[0], -1, dtype=np.int64)
+        duplicates_kernel(row, table[:, 2], table[:, 3], table[:, 4], dup_radius, dup)
+        n_keep = 0
+        for k in range(row.shape[0]):
+            n_keep += dup[k] < 0
+        if n_keep < row.shape[0]:  # (rare) the kept ones, in order
+            row_k = np.empty(n_keep, dtype=np.int64)
+            table_k = np.empty((n_keep, 8))
+            j = 0
+            for k in range(row.shape[0]):
+                if dup[k] < 0:
+                    row_k[j] = row[k]
+                    table_k[j] = table[k]
+                    j += 1
+            row, table = row_k, table_k
+    return row, table
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)

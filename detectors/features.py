@@ -679,6 +679,9 @@ def _features_kernel(
         frames[o, 1] = oy
         frames[o, 2] = phi
         frames[o, 3] = sweep
+        if frames.shape[1] >= 6:  # the learned driver's env entry: cos / sin of phi for the back end too
+            frames[o, 4] = cphi
+            frames[o, 5] = sphi
         # shape: resampled along the beam order
         for j in range(kp):
             lo = rs_lo[n, j]
