@@ -238,11 +238,12 @@ def _front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_
         frames = np.empty((n_sel, 4))
         fit_centre = np.empty((n_sel, 2))
         min_beam = np.empty(n_sel, dtype=np.int64)
+    pre = np.empty((0, 9), dtype=np.float32)
     if s > 0:
         _features_kernel(
             d.reshape(-1), cos_a, sin_a, trig_ang, scan, first, count, prev, nxt, p_near, n_near, n, circular,
             sweep, r_kin, d_max, occlusion_unbounded, n_points, n_context, gn_iters, noise, noise_n, rows, x,
-            frames, fit_centre, min_beam, scan_cols, tan_tab,
+            frames, fit_centre, min_beam, scan_cols, tan_tab, pre,
         )  # fmt: skip
     return d, scan, first, count, prev, nxt, p_near, n_near, max_beams, rows, x, frames, scan_cols, cscore
 
@@ -372,21 +373,29 @@ def _front_table(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin,
     for i in range(s):
         rows[i] = i
     d_flat = d.reshape(-1)
+    # the survivors' stage-1 values the features kernel would compute again (its `pre`)
+    use_pre = cascade and n_context == 2
+    pre = np.empty((s if use_pre else 0, 9), dtype=np.float32)
     if cascade and s > 0:
-        xc = np.empty((_CAS_CHUNK, 12))
+        xc = np.empty((_CAS_CHUNK, 13))  # (the 13th column: omega_in_range, for pre)
         s1 = wf[3 * cells : 3 * cells + s]
+        n_keep = 0
         for c0 in range(0, s, _CAS_CHUNK):
             c1 = min(c0 + _CAS_CHUNK, s)
             _cascade_kernel(d_flat, cos_a, sin_a, trig_ang, scan, first, count, prev, nxt, p_near, n_near, n,
                             circular, sweep, r_kin, d_max, occlusion_unbounded, scan_cols, rows[c0:c1], xc,
                             tan_tab)  # fmt: skip
             _cascade_scores(xc[: c1 - c0], c_w1t, c_b1, c_w2, c_b2, s1[c0:c1])
-        n_keep = 0
-        for o in range(s):
-            if s1[o] >= c_threshold:
-                rows[n_keep] = o
-                n_keep += 1
+            for o in range(c0, c1):  # (n_keep <= o: this chunk's rows were read above)
+                if s1[o] >= c_threshold:
+                    rows[n_keep] = o
+                    if use_pre:
+                        q = o - c0
+                        for j, k in enumerate((1, 2, 3, 12, 6, 8, 10, 9, 11)):
+                            pre[n_keep, j] = xc[q, k]
+                    n_keep += 1
         rows = rows[:n_keep]
+        pre = pre[:n_keep]
     n_sel = rows.shape[0]
     need[0] = n_sel
     if _rows_fit(ws, n_sel, n_feat):
@@ -403,7 +412,7 @@ def _front_table(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin,
         _features_kernel(
             d_flat, cos_a, sin_a, trig_ang, scan, first, count, prev, nxt, p_near, n_near, n, circular,
             sweep, r_kin, d_max, occlusion_unbounded, n_points, n_context, gn_iters, noise, noise_n, rows, x,
-            frames, fit_centre, min_beam, scan_cols, tan_tab,
+            frames, fit_centre, min_beam, scan_cols, tan_tab, pre,
         )  # fmt: skip
     return d, scan, first, count, rows, x, frames, scan_cols
 
