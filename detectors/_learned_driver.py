@@ -16,13 +16,14 @@ the stages run back to back inside compiled code and write the compact result co
   for one scan or a batch: each array that crosses back into Python costs ~1 us, and the large
   intermediate ones (ranges, features) ~0.9 ms per 64 dense-arena scans (freed outside the call,
   their pages come back fresh on the next);
-* :func:`fused_table`: the envs' entry, only the detections ``(row, table)``: ``front`` runs
-  ``lean`` (segments of at most ``1 + margin`` beams skip the pre-gate's bound, which always keeps
-  them, and one-beam segments the cascade's stage 1 where a bound proves their score below its
-  threshold: :func:`detectors.features.cascade_one_beam_table`) and :func:`back_table` looks only at
-  the rows that reached the network. The same detections as ``fused_packed``; what differs
-  (``max_beams`` of those short segments and ``cascade_score`` of one-beam ones, NaN) never leaves
-  the call.
+* :func:`fused_table`: the envs' entry, only the detections ``(row, table)``: :func:`_front_table`,
+  ``front``'s ``lean`` path (segments of at most ``1 + margin`` beams skip the pre-gate's bound, which
+  always keeps them, and one-beam segments the cascade's stage 1 where a bound proves their score below
+  its threshold: :func:`detectors.features.cascade_one_beam_table`) with the segmentation, the pre-gate
+  and that bound in one pass that writes only the segments going on to stage 1
+  (:func:`_table_segments`), the features kernel taking stage 1's values of the survivors; then
+  :func:`back_table` looks only at the rows that reached the network, and duplicates are dropped in the
+  same call. The same detections as ``fused_packed``; nothing else leaves the call.
 
 With ``inference="blas"`` / ``"torch"`` the detector calls ``front`` (not lean), runs the network in
 Python, then ``back_rest``.
@@ -663,6 +664,7 @@ def back_rest(out, fr, back_args):
 
 @numba.njit(cache=True, nogil=True)
 def duplicates_kernel(scan, x, y, p, radius, out):
+    # detectors.learned.duplicates' kernel (here so that fused_table can call it)
     n = scan.shape[0]
     r2 = radius * radius
     i = 0
@@ -711,10 +713,12 @@ def duplicates_kernel(scan, x, y, p, radius, out):
 def fused_table(r, front_args, rows_max, mean, std, weights, weights_t, biases, sizes, back_args, dup_radius,
                 ws):  # fmt: skip
     """The detections alone, ``(scan row (D,), table (D, 8))``: what the envs read (fewer arrays
-    cross back into Python). :func:`front` runs ``lean`` (what only the other segments' reported
-    values need is skipped) and :func:`back_table` looks at the network's rows only; the same
-    detections as :func:`fused_packed` (``tests/detectors/test_cascade_bound.py``). ``ws``: the work
-    arrays (:func:`new_work`); both outputs are new arrays."""
+    cross back into Python). :func:`_front_table` (``front``'s lean path: what only the other segments'
+    reported values need is skipped) and :func:`back_table` on the network's rows only, then the
+    duplicates dropped (:func:`duplicates_kernel`, ``dup_radius >= 0``; as ``detect_arrays`` does in
+    Python); the same detections as :func:`fused_packed` (``tests/detectors/test_cascade_bound.py``,
+    ``test_driver_table.py``). ``r``: float64, or the lidar's float32 ranges (read as float64: exact).
+    ``ws``: the work arrays (:func:`new_work`); both outputs are new arrays."""
     d, scan, first, count, rows, x, frames, scan_cols = _front_table(r, *front_args, _checked_work(r, ws))
     out = _network(x, rows_max, mean, std, weights, weights_t, biases, sizes, ws)
     # back_args: (ang, pre_gate, fixed_threshold, edges, values, regression, t_mean, t_std, r_kin, ...)
