@@ -1093,16 +1093,17 @@ class LearnedKinDetector(KinDetector):
         driver reads it as float64 (exact), without a float64 copy of the batch (~180 kB at 64 robots,
         written and read once more on every step; the compiled entry's float32 specialization is only
         compiled where float32 ranges come)."""
-        if (
-            angles is self._angles_src
-            and type(ranges) is np.ndarray
+        lidar = (
+            type(ranges) is np.ndarray
             and ranges.dtype == np.float32
             and ranges.ndim == 2
-            and ranges.shape[1] == angles.shape[0]
             and ranges.flags.c_contiguous
-        ):
+        )
+        if angles is self._angles_src and lidar and ranges.shape[1] == angles.shape[0]:
             return ranges
-        return self._driver_input(ranges, angles, True)
+        rb = self._driver_input(ranges, angles, True)  # checked in full (the first call validates the layout)
+        # (the float32 array itself once checked: the env's first step does not compile a float64 entry too)
+        return ranges if lidar and angles is self._angles_src else rb
 
     def _driver_input(self, ranges, angles, trusted: bool) -> np.ndarray:
         """Checked ranges as the driver takes them (C-contiguous float64, one compiled signature)."""

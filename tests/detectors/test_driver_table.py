@@ -111,11 +111,13 @@ def test_float32_ranges_go_in_as_they_are():
     det = LearnedKinDetector(reports=False)
     ranges, angles = CASES[2]
     r32 = ranges.astype(np.float32)
-    det._detect_table_trusted(r32, angles)  # the first call validates the layout
+    det._detect_table_trusted(r32, angles)  # the first call validates the layout (then reads the float32)
     assert det._table_input(r32, angles) is r32
-    # not C-contiguous, or another layout object: checked and converted as before
+    # not C-contiguous: converted as before; another layout object: checked in full, then passed on
     assert det._table_input(np.asfortranarray(r32), angles).dtype == np.float64
-    assert det._table_input(r32, angles.copy()).dtype == np.float64
+    assert det._table_input(r32.astype(np.float64), angles).dtype == np.float64
+    other = angles.copy()
+    assert det._table_input(r32, other) is r32 and det._angles_src is other
     got = det._detect_table_trusted(r32, angles)
     ref = LearnedKinDetector(reports=False)._detect_table_trusted(r32.astype(np.float64), angles)
     assert all(np.array_equal(a, b) for a, b in zip(got, ref, strict=True)) and got[0].shape[0] > 50
