@@ -242,7 +242,10 @@ def _lm_eval(px, py, n, r, rc, tc):
 @numba.njit(cache=True, error_model="numpy", inline="always")
 def wrap(a):
     """Angle to (-pi, pi] (as :func:`detectors.base.wrap_angle` on arrays)."""
-    w = (a + math.pi) % _TWO_PI - math.pi
+    x = a + math.pi
+    # x % 2 pi is x itself for 0 < x < 2 pi (fmod returns x exactly): the same value without fmod (an
+    # atan2's angle, the detections' bearings, always takes this branch)
+    w = x - math.pi if (x > 0.0 and x < _TWO_PI) else x % _TWO_PI - math.pi
     return w + _TWO_PI if w <= -math.pi else w
 
 
@@ -611,6 +614,12 @@ def _housing_max_beams(d, scan, first, count, step, r, slack, margin, skip_upto,
             j += 1
             if j >= n_beams:
                 j = 0
-        dc = slack * dmin
-        half = _HALF_PI if dc <= r else math.asin(r / dc)
-        out[i] = math.floor(2.0 * half / step) + 1.0 + margin
+        out[i] = max_beams_of(dmin, step, r, slack, margin)
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def max_beams_of(dmin, step, r, slack, margin):
+    """:func:`housing_max_beams` of a segment whose nearest reading is ``dmin``."""
+    dc = slack * dmin
+    half = _HALF_PI if dc <= r else math.asin(r / dc)
+    return math.floor(2.0 * half / step) + 1.0 + margin

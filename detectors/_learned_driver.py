@@ -16,13 +16,14 @@ the stages run back to back inside compiled code and write the compact result co
   for one scan or a batch: each array that crosses back into Python costs ~1 us, and the large
   intermediate ones (ranges, features) ~0.9 ms per 64 dense-arena scans (freed outside the call,
   their pages come back fresh on the next);
-* :func:`fused_table`: the envs' entry, only the detections ``(row, table)``: ``front`` runs
-  ``lean`` (segments of at most ``1 + margin`` beams skip the pre-gate's bound, which always keeps
-  them, and one-beam segments the cascade's stage 1 where a bound proves their score below its
-  threshold: :func:`detectors.features.cascade_one_beam_table`) and :func:`back_table` looks only at
-  the rows that reached the network. The same detections as ``fused_packed``; what differs
-  (``max_beams`` of those short segments and ``cascade_score`` of one-beam ones, NaN) never leaves
-  the call.
+* :func:`fused_table`: the envs' entry, only the detections ``(row, table)``: :func:`_front_table`,
+  ``front``'s ``lean`` path (segments of at most ``1 + margin`` beams skip the pre-gate's bound, which
+  always keeps them, and one-beam segments the cascade's stage 1 where a bound proves their score below
+  its threshold: :func:`detectors.features.cascade_one_beam_table`) with the segmentation, the pre-gate
+  and that bound in one pass that writes only the segments going on to stage 1
+  (:func:`_table_segments`), the features kernel taking stage 1's values of the survivors; then
+  :func:`back_table` looks only at the rows that reached the network, and duplicates are dropped in the
+  same call. The same detections as ``fused_packed``; nothing else leaves the call.
 
 With ``inference="blas"`` / ``"torch"`` the detector calls ``front`` (not lean), runs the network in
 Python, then ``back_rest``.
@@ -61,10 +62,13 @@ import numpy as np
 
 from . import _kernels as _k
 from .features import (
+    _C1_DELTA,
     _cascade_kernel,
     _cascade_one_beam_filter,
     _cascade_scores,
     _features_kernel,
+    _one_beam_bound,
+    _one_beam_scan_bins,
     _scan_columns,
     _scan_noise_kernel,
 )
@@ -81,7 +85,7 @@ WORK_MAX_CELLS = 1 << 18
 _W_F64 = 4  # float64 work values per beam of a batch: d, max_beams, cascade scores, stage-1 scores
 _W_I64 = 7  # int64: scan, first, count, prev, next (segments), pre-gate keep, stage-1 rows
 _W_BOOL = 2  # bool: prev_nearer, next_nearer
-_R_F64 = 9  # float64 per network row: frames (4), circle-fit centre (2), outputs (3)
+_R_F64 = 11  # float64 per network row: frames (4; 6 with cos, sin of phi), circle-fit centre (2), outputs (3)
 _R_I64 = 1  # int64 per network row: min_beam
 
 
@@ -235,13 +239,183 @@ def _front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_
         frames = np.empty((n_sel, 4))
         fit_centre = np.empty((n_sel, 2))
         min_beam = np.empty(n_sel, dtype=np.int64)
+    pre = np.empty((0, 9), dtype=np.float32)
     if s > 0:
         _features_kernel(
             d.reshape(-1), cos_a, sin_a, trig_ang, scan, first, count, prev, nxt, p_near, n_near, n, circular,
             sweep, r_kin, d_max, occlusion_unbounded, n_points, n_context, gn_iters, noise, noise_n, rows, x,
-            frames, fit_centre, min_beam, scan_cols, tan_tab,
+            frames, fit_centre, min_beam, scan_cols, tan_tab, pre,
         )  # fmt: skip
     return d, scan, first, count, prev, nxt, p_near, n_near, max_beams, rows, x, frames, scan_cols, cscore
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def _table_segments(d, d_th, d_max, circular, pre_gate, skip_upto, step, r_kin, slack, margin, cascade,
+                    scan_cols, tab, threshold, scan, first, count, prev, nxt, prev_nearer,
+                    next_nearer):  # fmt: skip
+    """:func:`detectors._kernels.segment_rows` writing only the segments that go on to stage 1 (or, without
+    the cascade, to the network) in :func:`_front`'s lean path: those the pre-gate keeps (of more than
+    ``skip_upto`` beams: ``count <= max_beams``) and, with the cascade, not one-beam segments whose bound
+    (:func:`detectors.features._cascade_one_beam_filter`) is below ``threshold``. The same tests with the
+    same expressions, in the same pass as the segmentation (the segment's beams and neighbours are in
+    cache, and the ~65 % of a swarm's segments dropped here are never written nor read again). Returns
+    how many, in segment order."""
+    n_rows, n = d.shape
+    hi = d_max + 2.0 * d_th
+    pos = np.empty(n + 1, dtype=np.int64)
+    d_flat = d.reshape(-1)
+    d_bits = d_flat.view(np.int64)
+    base, x7 = _one_beam_scan_bins(scan_cols, tab)
+    tab_flat = tab.reshape(-1)
+    lim = threshold - _C1_DELTA
+    s = 0
+    for b in range(n_rows):
+        row = d[b]
+        prev_e = row[n - 1] if row[n - 1] < d_max else hi
+        m = 0
+        n_valid = 0
+        for i in range(n):
+            v = row[i]
+            ok = v < d_max
+            e = v if ok else hi
+            pos[m] = i
+            m += abs(e - prev_e) > d_th or (i == 0 and not circular)
+            n_valid += ok
+            prev_e = e
+        if m == 0:
+            if n_valid == n:  # a ring without any break: one segment (the pre-gate decides)
+                scan[s] = b
+                first[s] = 0
+                count[s] = n
+                prev[s] = -1
+                nxt[s] = -1
+                prev_nearer[s] = False
+                next_nearer[s] = False
+                keep = True
+                if pre_gate and n > skip_upto:
+                    dmin = row[0]
+                    for j in range(n):
+                        dmin = row[j] if row[j] < dmin else dmin
+                    keep = n <= _k.max_beams_of(dmin, step, r_kin, slack, margin)
+                s += keep
+            continue
+        pos[m] = pos[0] + n if circular else n
+        for j in range(m):
+            f = pos[j]
+            c = pos[j + 1] - f
+            k = f + c - 1
+            if k >= n:
+                k -= n
+            if circular:
+                p = f - 1 if f > 0 else n - 1
+                q = k + 1 if k < n - 1 else 0
+            else:
+                p = f - 1
+                q = k + 1 if k < n - 1 else -1
+            df = row[f]
+            pn = p >= 0 and row[max(p, 0)] < df
+            nn = q >= 0 and row[max(q, 0)] < row[k]
+            scan[s] = b
+            first[s] = f
+            count[s] = c
+            prev[s] = p
+            nxt[s] = q
+            prev_nearer[s] = pn
+            next_nearer[s] = nn
+            keep = df < d_max  # its first beam has a return
+            if keep and pre_gate and c > skip_upto:
+                dmin = df
+                for t in range(f + 1, f + c):
+                    v = row[t if t < n else t - n]
+                    dmin = v if v < dmin else dmin
+                keep = c <= _k.max_beams_of(dmin, step, r_kin, slack, margin)
+            if keep and cascade and c == 1:
+                key = (1 if pn else 0) + (2 if nn else 0)
+                bound = _one_beam_bound(d_flat, d_bits, b * n, f, n, circular, d_max, key, base[b], x7[b],
+                                        tab_flat)  # fmt: skip
+                keep = not bound < lim
+            s += keep
+    return s
+
+
+@numba.njit(cache=True, nogil=True)
+def _front_table(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_ang, cos_a, sin_a,
+                 sweep, tan_tab, occlusion_unbounded, n_points, n_context, gn_iters, n_feat, cascade, c_w1t,
+                 c_b1, c_w2, c_b2, c_threshold, c_one_beam, ws):  # fmt: skip
+    """:func:`_front`'s lean path for :func:`fused_table` on the work arrays ``ws``: ``(d, scan, first,
+    count, rows, x, frames, scan_cols)`` where the segment columns hold only the segments that reach
+    stage 1 (:func:`_table_segments`), ``rows`` those of them that reach the network. The same network
+    rows, features and frames, in the same order, as ``_front(..., lean=True)``."""
+    wf, wi, wb, rf, rx, ri, need = ws
+    n_rows, n = r.shape
+    cells = n_rows * n
+    d = wf[:cells].reshape((n_rows, n))
+    _k.preprocess_rows(r, d_max, d_th, circular, False, d)
+    noise = np.empty(n_rows)
+    noise_n = np.empty(n_rows, dtype=np.int64)
+    _scan_noise_kernel(d, d_th, d_max, circular, noise, noise_n)
+    scan_cols = np.empty((n_rows, 2))
+    _scan_columns(noise, noise_n, scan_cols)
+    scan = wi[:cells]
+    first = wi[cells : 2 * cells]
+    count = wi[2 * cells : 3 * cells]
+    prev = wi[3 * cells : 4 * cells]
+    nxt = wi[4 * cells : 5 * cells]
+    p_near = wb[:cells]
+    n_near = wb[cells : 2 * cells]
+    # (as _front: the pre-gate's bound, >= 1 + margin, keeps segments of at most 1 + margin beams)
+    skip_upto = int(1.0 + math.floor(margin)) if step > 0.0 and margin >= 0.0 else 0
+    s = _table_segments(d, d_th, d_max, circular, pre_gate, skip_upto, step, r_kin, slack, margin, cascade,
+                        scan_cols, c_one_beam, c_threshold, scan, first, count, prev, nxt, p_near,
+                        n_near)  # fmt: skip
+    scan, first, count, prev, nxt = scan[:s], first[:s], count[:s], prev[:s], nxt[:s]
+    p_near, n_near = p_near[:s], n_near[:s]
+    rows = wi[5 * cells : 5 * cells + s]
+    for i in range(s):
+        rows[i] = i
+    d_flat = d.reshape(-1)
+    # the survivors' stage-1 values the features kernel would compute again (its `pre`)
+    use_pre = cascade and n_context == 2
+    pre = np.empty((s if use_pre else 0, 9), dtype=np.float32)
+    if cascade and s > 0:
+        xc = np.empty((_CAS_CHUNK, 13))  # (the 13th column: omega_in_range, for pre)
+        s1 = wf[3 * cells : 3 * cells + s]
+        n_keep = 0
+        for c0 in range(0, s, _CAS_CHUNK):
+            c1 = min(c0 + _CAS_CHUNK, s)
+            _cascade_kernel(d_flat, cos_a, sin_a, trig_ang, scan, first, count, prev, nxt, p_near, n_near, n,
+                            circular, sweep, r_kin, d_max, occlusion_unbounded, scan_cols, rows[c0:c1], xc,
+                            tan_tab)  # fmt: skip
+            _cascade_scores(xc[: c1 - c0], c_w1t, c_b1, c_w2, c_b2, s1[c0:c1])
+            for o in range(c0, c1):  # (n_keep <= o: this chunk's rows were read above)
+                if s1[o] >= c_threshold:
+                    rows[n_keep] = o
+                    if use_pre:
+                        q = o - c0
+                        for j, k in enumerate((1, 2, 3, 12, 6, 8, 10, 9, 11)):
+                            pre[n_keep, j] = xc[q, k]
+                    n_keep += 1
+        rows = rows[:n_keep]
+        pre = pre[:n_keep]
+    n_sel = rows.shape[0]
+    need[0] = n_sel
+    if _rows_fit(ws, n_sel, n_feat):
+        x = rx[: n_sel * n_feat].reshape((n_sel, n_feat))
+        frames = rf[: 6 * n_sel].reshape((n_sel, 6))
+        fit_centre = rf[6 * n_sel : 8 * n_sel].reshape((n_sel, 2))
+        min_beam = ri[:n_sel]
+    else:  # more network rows than the work arrays hold: this call's own
+        x = np.empty((n_sel, n_feat), dtype=np.float32)
+        frames = np.empty((n_sel, 6))  # (with phi's cos and sin for back_table: not computed twice)
+        fit_centre = np.empty((n_sel, 2))
+        min_beam = np.empty(n_sel, dtype=np.int64)
+    if n_sel > 0:
+        _features_kernel(
+            d_flat, cos_a, sin_a, trig_ang, scan, first, count, prev, nxt, p_near, n_near, n, circular,
+            sweep, r_kin, d_max, occlusion_unbounded, n_points, n_context, gn_iters, noise, noise_n, rows, x,
+            frames, fit_centre, min_beam, scan_cols, tan_tab, pre,
+        )  # fmt: skip
+    return d, scan, first, count, rows, x, frames, scan_cols
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
@@ -348,8 +522,12 @@ def _table(out, d, scan, first, count, det, det_o, p_det, frames, ang, regressio
             u = t_mean[0] + t_std[0] * out[o, 1]
             v = t_mean[1] + t_std[1] * out[o, 2]
             ox, oy, phi, s = frames[o, 0], frames[o, 1], frames[o, 2], frames[o, 3]
-            c = math.cos(phi)
-            sn = math.sin(phi)
+            if frames.shape[1] >= 6:  # cos(phi), sin(phi) from the features kernel (the same calls)
+                c = frames[o, 4]
+                sn = frames[o, 5]
+            else:
+                c = math.cos(phi)
+                sn = math.sin(phi)
             centres[k, 0] = ox + u * c - s * v * sn
             centres[k, 1] = oy + u * sn + s * v * c
     else:
@@ -435,7 +613,7 @@ def _network(x, rows_max, mean, std, weights, weights_t, biases, sizes, ws):
     n_feat = x.shape[1]
     if _rows_fit(ws, n_sel, n_feat):
         out32 = rx[n_sel * n_feat : n_sel * (n_feat + 3)].reshape((n_sel, 3))
-        out = rf[6 * n_sel : 9 * n_sel].reshape((n_sel, 3))
+        out = rf[8 * n_sel : 11 * n_sel].reshape((n_sel, 3))
     else:
         out32 = np.empty((n_sel, 3), dtype=np.float32)
         out = np.empty((n_sel, 3))
@@ -485,16 +663,83 @@ def back_rest(out, fr, back_args):
 
 
 @numba.njit(cache=True, nogil=True)
-def fused_table(r, front_args, rows_max, mean, std, weights, weights_t, biases, sizes, back_args, ws):
+def duplicates_kernel(scan, x, y, p, radius, out):
+    # detectors.learned.duplicates' kernel (here so that fused_table can call it)
+    n = scan.shape[0]
+    r2 = radius * radius
+    i = 0
+    while i < n:
+        e = i
+        while e < n and scan[e] == scan[i]:
+            e += 1
+        changed = True
+        while changed:  # a pass over the scan's kept detections, until none is dropped
+            changed = False
+            first = -1
+            prev = -1
+            for j in range(i, e + 1):
+                if j == e:  # wrap: the last kept one against the first
+                    if first < 0 or prev == first:
+                        break
+                    a, b = prev, first
+                else:
+                    if out[j] >= 0:
+                        continue
+                    if first < 0:
+                        first = j
+                        prev = j
+                        continue
+                    a, b = prev, j
+                if (x[a] - x[b]) ** 2 + (y[a] - y[b]) ** 2 < r2:
+                    lose_a = p[a] < p[b] or (p[a] == p[b] and a > b)
+                    loser, winner = (a, b) if lose_a else (b, a)
+                    out[loser] = winner
+                    changed = True
+                    if loser == first:
+                        first = winner
+                    if j < e:
+                        prev = winner
+                elif j < e:
+                    prev = j
+        i = e
+    for j in range(n):  # point at the detection that stayed
+        k = out[j]
+        while k >= 0 and out[k] >= 0:
+            k = out[k]
+        out[j] = k
+
+
+@numba.njit(cache=True, nogil=True)
+def fused_table(r, front_args, rows_max, mean, std, weights, weights_t, biases, sizes, back_args, dup_radius,
+                ws):  # fmt: skip
     """The detections alone, ``(scan row (D,), table (D, 8))``: what the envs read (fewer arrays
-    cross back into Python). :func:`front` runs ``lean`` (what only the other segments' reported
-    values need is skipped) and :func:`back_table` looks at the network's rows only; the same
-    detections as :func:`fused_packed` (``tests/detectors/test_cascade_bound.py``). ``ws``: the work
-    arrays (:func:`new_work`); both outputs are new arrays."""
-    fr = _front(r, *front_args, True, _checked_work(r, ws))
-    out = _network(fr[10], rows_max, mean, std, weights, weights_t, biases, sizes, ws)
+    cross back into Python). :func:`_front_table` (``front``'s lean path: what only the other segments'
+    reported values need is skipped) and :func:`back_table` on the network's rows only, then the
+    duplicates dropped (:func:`duplicates_kernel`, ``dup_radius >= 0``; as ``detect_arrays`` does in
+    Python); the same detections as :func:`fused_packed` (``tests/detectors/test_cascade_bound.py``,
+    ``test_driver_table.py``). ``r``: float64, or the lidar's float32 ranges (read as float64: exact).
+    ``ws``: the work arrays (:func:`new_work`); both outputs are new arrays."""
+    d, scan, first, count, rows, x, frames, scan_cols = _front_table(r, *front_args, _checked_work(r, ws))
+    out = _network(x, rows_max, mean, std, weights, weights_t, biases, sizes, ws)
     # back_args: (ang, pre_gate, fixed_threshold, edges, values, regression, t_mean, t_std, r_kin, ...)
-    return back_table(out, fr[0], fr[1], fr[2], fr[3], fr[9], fr[11], fr[12], back_args[0], *back_args[2:])
+    row, table = back_table(out, d, scan, first, count, rows, frames, scan_cols, back_args[0], *back_args[2:])
+    if dup_radius >= 0.0 and row.shape[0] > 1:
+        dup = np.full(row.shape[0], -1, dtype=np.int64)
+        duplicates_kernel(row, table[:, 2], table[:, 3], table[:, 4], dup_radius, dup)
+        n_keep = 0
+        for k in range(row.shape[0]):
+            n_keep += dup[k] < 0
+        if n_keep < row.shape[0]:  # (rare) the kept ones, in order
+            row_k = np.empty(n_keep, dtype=np.int64)
+            table_k = np.empty((n_keep, 8))
+            j = 0
+            for k in range(row.shape[0]):
+                if dup[k] < 0:
+                    row_k[j] = row[k]
+                    table_k[j] = table[k]
+                    j += 1
+            row, table = row_k, table_k
+    return row, table
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)

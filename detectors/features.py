@@ -563,10 +563,15 @@ def _features_kernel(
     min_beam,
     scan_cols,
     tan_tab,
+    pre,
 ):
     """One pass over the segments ``which``: row ``o`` of every output for segment ``which[o]``,
     and each scan's two noise features into ``scan_cols`` (B, 2). ``tan_tab``: :func:`beam_trig`'s
-    table (``(n, 0)``: none; the same outputs).
+    table (``(n, 0)``: none; the same outputs). ``pre`` ``(len(which), 9)`` float32: the values the
+    cascade's stage 1 already computed for these segments (:func:`_cascade_kernel` with a 13th column;
+    the learned driver's env entry, ``n_context == 2``): ``log_range_min``, ``omega_min``, ``omega_max``,
+    ``omega_in_range``, ``chord``, ``ctx_prev1, ctx_prev2, ctx_next1, ctx_next2`` (the same float32
+    values); ``(0, 9)``: computed here.
 
     Points are gathered into scratch buffers, then every feature is a short loop over them: with
     ~3-10 points per segment this is ~50x faster than the equivalent flat numpy expressions
@@ -625,6 +630,7 @@ def _features_kernel(
     l_px = np.empty(pt0[_FIT_LANES_MAX + 1])
     l_py = np.empty(pt0[_FIT_LANES_MAX + 1])
     col_g = 2 * kp + 2 * n_context
+    use_pre = pre.shape[0] > 0 and n_context == 2
     for o in range(n_sel):
         # the segments a few rows ahead are scattered over the batch's arrays: their reads requested now
         if o + 2 * _PREFETCH < n_sel:
@@ -679,6 +685,9 @@ def _features_kernel(
         frames[o, 1] = oy
         frames[o, 2] = phi
         frames[o, 3] = sweep
+        if frames.shape[1] >= 6:  # the learned driver's env entry: cos / sin of phi for the back end too
+            frames[o, 4] = cphi
+            frames[o, 5] = sphi
         # shape: resampled along the beam order
         for j in range(kp):
             lo = rs_lo[n, j]
@@ -689,13 +698,18 @@ def _features_kernel(
         col = 2 * kp
         # context beams
         last = f + n - 1
-        for side in range(2):
-            base = f if side == 0 else last
-            step = -1 if side == 0 else 1
-            d_edge = pd[0] if side == 0 else pd[n - 1]
-            for j in range(1, n_context + 1):
-                x[o, col] = _context_value(d_flat, row, base + step * j, n_beams, circular, d_edge, d_max)
-                col += 1
+        if use_pre:
+            for j in range(4):
+                x[o, col + j] = pre[o, 5 + j]
+            col += 4
+        else:
+            for side in range(2):
+                base = f if side == 0 else last
+                step = -1 if side == 0 else 1
+                d_edge = pd[0] if side == 0 else pd[n - 1]
+                for j in range(1, n_context + 1):
+                    x[o, col] = _context_value(d_flat, row, base + step * j, n_beams, circular, d_edge, d_max)
+                    col += 1
         # eqs. 2-5 (detectors.geometric.filter_by_diameter)
         bmin = _wrap_index(f + kmin, n_beams)
         min_beam[o] = bmin
@@ -706,11 +720,22 @@ def _features_kernel(
         unb_f = pb < 0 or (occlusion_unbounded and prev_nearer[i])
         unb_l = nb < 0 or (occlusion_unbounded and next_nearer[i])
         bl = _wrap_index(last, n_beams)
-        omega_min, omega_max = _omegas(
-            d_cest, bmin, f, bl, pb, nb, unb_f or unb_l, ang, sweep, n_beams, tan_tab
-        )
-        # min(chord, _LEN_CLIP) enters the float32 vector only
-        chord_f = _f32_clip_hypot(px[n - 1] - px[0], py[n - 1] - py[0], 0.0, 0.0, _LEN_CLIP)
+        if use_pre:  # stage 1's values of this segment (the same expressions, the same float32 values)
+            log_d_min = float(pre[o, 0])
+            omega_min_c = float(pre[o, 1])
+            omega_max_c = float(pre[o, 2])
+            omega_fits = float(pre[o, 3])
+            chord_f = float(pre[o, 4])
+        else:
+            omega_min, omega_max = _omegas(
+                d_cest, bmin, f, bl, pb, nb, unb_f or unb_l, ang, sweep, n_beams, tan_tab
+            )
+            log_d_min = math.log(d_min)
+            omega_min_c = min(omega_min, _LEN_CLIP)
+            omega_max_c = min(omega_max, _LEN_CLIP)
+            omega_fits = 1.0 if (omega_min <= 2.0 * r and 2.0 * r < omega_max) else 0.0
+            # min(chord, _LEN_CLIP) enters the float32 vector only
+            chord_f = _f32_clip_hypot(px[n - 1] - px[0], py[n - 1] - py[0], 0.0, 0.0, _LEN_CLIP)
         # known-radius circle fit (eqs. 6-7): Gauss-Newton from the eq. 7 centre
         grow = 1.0 + r / d_min
         cx = px[kmin] * grow
@@ -816,11 +841,11 @@ def _features_kernel(
         g = (
             _log1p_n(n),
             float(min(n, 40)),
-            math.log(d_min),
+            log_d_min,
             sd / n,
-            min(omega_min, _LEN_CLIP),
-            min(omega_max, _LEN_CLIP),
-            1.0 if (omega_min <= 2.0 * r and 2.0 * r < omega_max) else 0.0,
+            omega_min_c,
+            omega_max_c,
+            omega_fits,
             1.0 if prev_nearer[i] else 0.0,
             1.0 if next_nearer[i] else 0.0,
             chord_f,
@@ -1077,6 +1102,7 @@ def _segment_features(
         min_beam,
         scan_cols,
         tan_tab,
+        np.empty((0, 9), dtype=np.float32),
     )
     return SegmentFeatures(
         x=x, frames=frames, fit_centre=fit_centre, min_beam=min_beam, scan_x=scan_cols.astype(np.float32)
@@ -1219,6 +1245,8 @@ def _cascade_kernel(
         x[o, 5] = 1.0 if next_nearer[i] else 0.0
         x[o, 6] = chord  # (float32 value)
         x[o, 7] = np.float32(scan_cols[scan[i], 0])
+        if x.shape[1] > 12:  # for _features_kernel's pre (the learned driver's env entry)
+            x[o, 12] = 1.0 if (omega_min <= 2.0 * r and 2.0 * r < omega_max) else 0.0
 
 
 def cascade_features(

@@ -41,7 +41,6 @@ import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
-import numba
 import numpy as np
 import torch
 from torch import nn
@@ -172,50 +171,7 @@ def duplicates(scan, xy, score, radius: float) -> np.ndarray:
     return out
 
 
-@numba.njit(cache=True, nogil=True)
-def _duplicates_kernel(scan, x, y, p, radius, out):
-    n = scan.shape[0]
-    r2 = radius * radius
-    i = 0
-    while i < n:
-        e = i
-        while e < n and scan[e] == scan[i]:
-            e += 1
-        changed = True
-        while changed:  # a pass over the scan's kept detections, until none is dropped
-            changed = False
-            first = -1
-            prev = -1
-            for j in range(i, e + 1):
-                if j == e:  # wrap: the last kept one against the first
-                    if first < 0 or prev == first:
-                        break
-                    a, b = prev, first
-                else:
-                    if out[j] >= 0:
-                        continue
-                    if first < 0:
-                        first = j
-                        prev = j
-                        continue
-                    a, b = prev, j
-                if (x[a] - x[b]) ** 2 + (y[a] - y[b]) ** 2 < r2:
-                    lose_a = p[a] < p[b] or (p[a] == p[b] and a > b)
-                    loser, winner = (a, b) if lose_a else (b, a)
-                    out[loser] = winner
-                    changed = True
-                    if loser == first:
-                        first = winner
-                    if j < e:
-                        prev = winner
-                elif j < e:
-                    prev = j
-        i = e
-    for j in range(n):  # point at the detection that stayed
-        k = out[j]
-        while k >= 0 and out[k] >= 0:
-            k = out[k]
-        out[j] = k
+_duplicates_kernel = _drv.duplicates_kernel  # (compiled; the learned driver's env entry calls it too)
 
 
 def expected_beams(range_min, step: float, r: float = 0.035) -> np.ndarray:
@@ -1005,14 +961,15 @@ class LearnedKinDetector(KinDetector):
             a = self._detect_arrays_staged(ranges, angles, True)
             cols = (a.range, a.bearing, a.x, a.y, a.score, a.first_beam, a.last_beam, a.n_beams_on)
             return a.scan, np.stack(cols, axis=1).astype(np.float64).reshape(-1, 8)
-        rb = self._driver_input(ranges, angles, True)
+        rb = self._table_input(ranges, angles)
         # the whole call compiled, only the table returns (returning the driver's intermediate
         # arrays to Python costs ~0.9 ms per 64 dense-arena scans, measured)
-        if (res := self._call_driver(_drv.fused_table, rb, self._uses_cascade(rb))) is not None:
-            scan, table = res
-        else:
-            fr, bk = self._run_driver(rb)
-            scan, table = fr[1][bk[3]], bk[4]
+        # (duplicate suppression inside the compiled call: a radius < 0 turns it off)
+        radius = float(self._dup_radius) if self.suppress_duplicates else -1.0
+        if (res := self._call_driver(_drv.fused_table, rb, self._uses_cascade(rb), radius)) is not None:
+            return res
+        fr, bk = self._run_driver(np.ascontiguousarray(rb, dtype=np.float64))
+        scan, table = fr[1][bk[3]], bk[4]
         if self.suppress_duplicates and scan.shape[0] > 1:
             d = np.full(scan.shape[0], -1, np.int64)
             _duplicates_kernel(scan, table[:, 2], table[:, 3], table[:, 4], self._dup_radius, d)
@@ -1130,12 +1087,30 @@ class LearnedKinDetector(KinDetector):
             self._drv_args = cached = (key, *self._driver_args())
         return (cached[2] if cascade else cached[1]), cached[3]
 
+    def _table_input(self, ranges, angles) -> np.ndarray:
+        """:meth:`_driver_input` for :meth:`_detect_table_trusted`, except that a C-contiguous float32
+        ``(B, n)`` array on the validated ``angles`` (the lidar's own scans) is passed on as it is: the
+        driver reads it as float64 (exact), without a float64 copy of the batch (~180 kB at 64 robots,
+        written and read once more on every step; the compiled entry's float32 specialization is only
+        compiled where float32 ranges come)."""
+        lidar = (
+            type(ranges) is np.ndarray
+            and ranges.dtype == np.float32
+            and ranges.ndim == 2
+            and ranges.flags.c_contiguous
+        )
+        if angles is self._angles_src and lidar and ranges.shape[1] == angles.shape[0]:
+            return ranges
+        rb = self._driver_input(ranges, angles, True)  # checked in full (the first call validates the layout)
+        # (the float32 array itself once checked: the env's first step does not compile a float64 entry too)
+        return ranges if lidar and angles is self._angles_src else rb
+
     def _driver_input(self, ranges, angles, trusted: bool) -> np.ndarray:
         """Checked ranges as the driver takes them (C-contiguous float64, one compiled signature)."""
         rb, _ = self._check(ranges, angles, trusted)
         return np.ascontiguousarray(rb, dtype=np.float64)
 
-    def _call_driver(self, kernel, rb: np.ndarray, cascade: bool):
+    def _call_driver(self, kernel, rb: np.ndarray, cascade: bool, *extra):
         """``kernel`` (:func:`~detectors._learned_driver.fused_table` or
         :func:`~detectors._learned_driver.fused_packed`) on ``rb`` with this detector's arguments (the
         cascade if ``cascade``): its outputs, or None when the network does not run compiled
@@ -1147,7 +1122,7 @@ class LearnedKinDetector(KinDetector):
         n_feat = int(front_args[17])
         ws = _driver_work(rb.shape[0] * rb.shape[1], n_feat)
         res = kernel(rb, front_args, _DRIVER_ROWS_MAX, mean, std, w, self._numba_weights_t[2], b, sizes,
-                     back_args, ws)  # fmt: skip
+                     back_args, *extra, ws)  # fmt: skip
         _grow_driver_rows(ws, n_feat)
         return res
 

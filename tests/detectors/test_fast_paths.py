@@ -271,3 +271,32 @@ def _log_err(e):
 @numba.njit(error_model="numpy")
 def _clip_hypot(x, y, d):
     return slow(x, y, d, -F._OFF_CLIP, F._OFF_CLIP)
+
+
+@numba.njit(cache=False, error_model="numpy")
+def _wrap_fmod(a):
+    # _kernels.wrap as it was: always through Python's float modulo (fmod)
+    w = (a + math.pi) % (2.0 * math.pi) - math.pi
+    return w + 2.0 * math.pi if w <= -math.pi else w
+
+
+@numba.njit(cache=False, error_model="numpy")
+def _wrap_all(a, out):
+    for i in range(a.shape[0]):
+        out[i] = _k.wrap(a[i])
+
+
+def test_wrap_without_fmod_is_the_fmod_expression():
+    # _kernels.wrap skips the fmod where it returns its argument exactly (0 < a + pi < 2 pi): the same
+    # bits everywhere, at the edges (+-pi, +-0, the neighbours of the branch's limits), far out and NaN
+    rng = np.random.default_rng(3)
+    edges = [math.pi, -math.pi, 0.0, -0.0, 2 * math.pi, -2 * math.pi, 3 * math.pi, np.inf, -np.inf, np.nan]
+    edges += [np.nextafter(v, s) for v in (math.pi, -math.pi, 2 * math.pi - math.pi) for s in (-10.0, 10.0)]
+    a = np.concatenate([
+        np.array(edges), rng.uniform(-math.pi, math.pi, 200_000), rng.uniform(-50.0, 50.0, 50_000),
+        np.arctan2(rng.normal(size=50_000), rng.normal(size=50_000)), rng.normal(scale=1e-300, size=1000),
+    ])  # fmt: skip
+    got = np.empty_like(a)
+    _wrap_all(a, got)
+    ref = np.array([_wrap_fmod(v) for v in a])
+    assert np.array_equal(got.view(np.int64), ref.view(np.int64))
