@@ -86,22 +86,11 @@ def segment_rows(d, d_th, d_max, circular, scan, first, count, prev, nxt, prev_n
     noisy swarm scan breaks at ~1 beam in 3, unpredictably: a branch per beam and a walk per segment
     mispredicted)."""
     n_rows, n = d.shape
-    hi = d_max + 2.0 * d_th
     pos = np.empty(n + 1, dtype=np.int64)
     s = 0
     for b in range(n_rows):
         row = d[b]
-        prev_e = row[n - 1] if row[n - 1] < d_max else hi
-        m = 0
-        n_valid = 0
-        for i in range(n):
-            v = row[i]
-            ok = v < d_max
-            e = v if ok else hi
-            pos[m] = i
-            m += abs(e - prev_e) > d_th or (i == 0 and not circular)
-            n_valid += ok
-            prev_e = e
+        m, n_valid = row_breaks(row, d_th, d_max, circular, pos)
         if m == 0:
             if n_valid == n:  # a ring without any break (round room): one segment
                 scan[s] = b
@@ -113,30 +102,60 @@ def segment_rows(d, d_th, d_max, circular, scan, first, count, prev, nxt, prev_n
                 next_nearer[s] = False
                 s += 1
             continue
-        # the segment of the last break runs to the end (partial sweep) or around to the first break
-        pos[m] = pos[0] + n if circular else n
         for j in range(m):
-            f = pos[j]
-            c = pos[j + 1] - f
-            k = f + c - 1  # last beam, < 2 n
-            if k >= n:
-                k -= n
-            if circular:  # (f - 1) % n and (k + 1) % n for 0 <= f, k < n, without an integer division
-                p = f - 1 if f > 0 else n - 1
-                q = k + 1 if k < n - 1 else 0
-            else:
-                p = f - 1
-                q = k + 1 if k < n - 1 else -1
-            df = row[f]
+            f, c, p, q, pn, nn = break_segment(row, pos, j, circular)
             scan[s] = b
             first[s] = f
             count[s] = c
             prev[s] = p
             nxt[s] = q
-            prev_nearer[s] = p >= 0 and row[max(p, 0)] < df
-            next_nearer[s] = q >= 0 and row[max(q, 0)] < row[k]
-            s += df < d_max  # kept when its first beam has a return
+            prev_nearer[s] = pn
+            next_nearer[s] = nn
+            s += row[f] < d_max  # kept when its first beam has a return
     return s
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def row_breaks(row, d_th, d_max, circular, pos):
+    """:func:`segment_rows`' break pass over one row: the first beams of its segments compacted into
+    ``pos`` (``pos[m]`` the end of the last one: the row's end, partial sweep, or around to the first
+    break) and ``(m, number of beams with a return)``; ``m == 0``: no break (a ring if every beam
+    returned, else nothing)."""
+    n = row.shape[0]
+    hi = d_max + 2.0 * d_th
+    prev_e = row[n - 1] if row[n - 1] < d_max else hi
+    m = 0
+    n_valid = 0
+    for i in range(n):
+        v = row[i]
+        ok = v < d_max
+        e = v if ok else hi
+        pos[m] = i
+        m += abs(e - prev_e) > d_th or (i == 0 and not circular)
+        n_valid += ok
+        prev_e = e
+    if m > 0:
+        pos[m] = pos[0] + n if circular else n
+    return m, n_valid
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def break_segment(row, pos, j, circular):
+    """Segment ``j`` of :func:`row_breaks`' ``pos``: ``(first, count, prev, next, prev_nearer,
+    next_nearer)`` as :func:`segment_rows` writes them."""
+    n = row.shape[0]
+    f = pos[j]
+    c = pos[j + 1] - f
+    k = f + c - 1  # last beam, < 2 n
+    if k >= n:
+        k -= n
+    if circular:  # (f - 1) % n and (k + 1) % n for 0 <= f, k < n, without an integer division
+        p = f - 1 if f > 0 else n - 1
+        q = k + 1 if k < n - 1 else 0
+    else:
+        p = f - 1
+        q = k + 1 if k < n - 1 else -1
+    return f, c, p, q, p >= 0 and row[max(p, 0)] < row[f], q >= 0 and row[max(q, 0)] < row[k]
 
 
 def segment_arrays(d: np.ndarray, d_th: float, d_max: float, circular: bool) -> tuple[np.ndarray, ...]:

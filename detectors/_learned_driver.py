@@ -261,7 +261,6 @@ def _table_segments(d, d_th, d_max, circular, pre_gate, skip_upto, step, r_kin, 
     cache, and the ~65 % of a swarm's segments dropped here are never written nor read again). Returns
     how many, in segment order."""
     n_rows, n = d.shape
-    hi = d_max + 2.0 * d_th
     pos = np.empty(n + 1, dtype=np.int64)
     d_flat = d.reshape(-1)
     d_bits = d_flat.view(np.int64)
@@ -271,17 +270,7 @@ def _table_segments(d, d_th, d_max, circular, pre_gate, skip_upto, step, r_kin, 
     s = 0
     for b in range(n_rows):
         row = d[b]
-        prev_e = row[n - 1] if row[n - 1] < d_max else hi
-        m = 0
-        n_valid = 0
-        for i in range(n):
-            v = row[i]
-            ok = v < d_max
-            e = v if ok else hi
-            pos[m] = i
-            m += abs(e - prev_e) > d_th or (i == 0 and not circular)
-            n_valid += ok
-            prev_e = e
+        m, n_valid = _k.row_breaks(row, d_th, d_max, circular, pos)
         if m == 0:
             if n_valid == n:  # a ring without any break: one segment (the pre-gate decides)
                 scan[s] = b
@@ -299,22 +288,9 @@ def _table_segments(d, d_th, d_max, circular, pre_gate, skip_upto, step, r_kin, 
                     keep = n <= _k.max_beams_of(dmin, step, r_kin, slack, margin)
                 s += keep
             continue
-        pos[m] = pos[0] + n if circular else n
         for j in range(m):
-            f = pos[j]
-            c = pos[j + 1] - f
-            k = f + c - 1
-            if k >= n:
-                k -= n
-            if circular:
-                p = f - 1 if f > 0 else n - 1
-                q = k + 1 if k < n - 1 else 0
-            else:
-                p = f - 1
-                q = k + 1 if k < n - 1 else -1
+            f, c, p, q, pn, nn = _k.break_segment(row, pos, j, circular)
             df = row[f]
-            pn = p >= 0 and row[max(p, 0)] < df
-            nn = q >= 0 and row[max(q, 0)] < row[k]
             scan[s] = b
             first[s] = f
             count[s] = c
