@@ -120,6 +120,21 @@ def _rows_fit(ws, n_sel, n_feat):
     return n_sel * _R_I64 <= ri and n_sel * (n_feat + 3) <= rx and n_sel * _R_F64 <= rf
 
 
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _row_arrays(ws, n_sel, n_feat, n_frame):
+    # the network rows' features (float32), frames (n_frame columns), circle-fit centres and min beams: views
+    # of the work arrays when they hold n_sel rows (frames and centres below the outputs' 8 * n_sel: see
+    # _network), else this call's own
+    rf, rx, ri = ws[3], ws[4], ws[5]
+    if _rows_fit(ws, n_sel, n_feat):
+        x = rx[: n_sel * n_feat].reshape((n_sel, n_feat))
+        frames = rf[: n_frame * n_sel].reshape((n_sel, n_frame))
+        fit_centre = rf[n_frame * n_sel : (n_frame + 2) * n_sel].reshape((n_sel, 2))
+        return x, frames, fit_centre, ri[:n_sel]
+    return (np.empty((n_sel, n_feat), dtype=np.float32), np.empty((n_sel, n_frame)), np.empty((n_sel, 2)),
+            np.empty(n_sel, dtype=np.int64))  # fmt: skip
+
+
 @numba.njit(cache=True, nogil=True)
 def front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_ang, cos_a, sin_a, sweep,
           tan_tab, occlusion_unbounded, n_points, n_context, gn_iters, n_feat, cascade, c_w1t, c_b1, c_w2,
@@ -229,16 +244,7 @@ def _front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_
         rows = rows[:n_keep]
     n_sel = rows.shape[0]
     need[0] = n_sel
-    if _rows_fit(ws, n_sel, n_feat):
-        x = rx[: n_sel * n_feat].reshape((n_sel, n_feat))
-        frames = rf[: 4 * n_sel].reshape((n_sel, 4))
-        fit_centre = rf[4 * n_sel : 6 * n_sel].reshape((n_sel, 2))
-        min_beam = ri[:n_sel]
-    else:  # more network rows than the work arrays hold: this call's own
-        x = np.empty((n_sel, n_feat), dtype=np.float32)
-        frames = np.empty((n_sel, 4))
-        fit_centre = np.empty((n_sel, 2))
-        min_beam = np.empty(n_sel, dtype=np.int64)
+    x, frames, fit_centre, min_beam = _row_arrays(ws, n_sel, n_feat, 4)
     pre = np.empty((0, 9), dtype=np.float32)
     if s > 0:
         _features_kernel(
@@ -375,16 +381,8 @@ def _front_table(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin,
         pre = pre[:n_keep]
     n_sel = rows.shape[0]
     need[0] = n_sel
-    if _rows_fit(ws, n_sel, n_feat):
-        x = rx[: n_sel * n_feat].reshape((n_sel, n_feat))
-        frames = rf[: 6 * n_sel].reshape((n_sel, 6))
-        fit_centre = rf[6 * n_sel : 8 * n_sel].reshape((n_sel, 2))
-        min_beam = ri[:n_sel]
-    else:  # more network rows than the work arrays hold: this call's own
-        x = np.empty((n_sel, n_feat), dtype=np.float32)
-        frames = np.empty((n_sel, 6))  # (with phi's cos and sin for back_table: not computed twice)
-        fit_centre = np.empty((n_sel, 2))
-        min_beam = np.empty(n_sel, dtype=np.int64)
+    # (frames with phi's cos and sin for back_table: not computed twice)
+    x, frames, fit_centre, min_beam = _row_arrays(ws, n_sel, n_feat, 6)
     if n_sel > 0:
         _features_kernel(
             d_flat, cos_a, sin_a, trig_ang, scan, first, count, prev, nxt, p_near, n_near, n, circular,
