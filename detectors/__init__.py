@@ -2,10 +2,10 @@
 
 A library for any 2D scan, simulated or recorded on a real robot: it never imports ``kin_envs`` (or
 pymunk). ``import detectors`` stays light (numpy/scipy/numba): ``LearnedKinDetector`` (its compiled
-driver) is loaded on first access. Nothing runs on torch but training and ``inference="torch"``
-(:mod:`detectors.learned_torch`, the ``train`` extra). The dataset format and category names are in :mod:`detectors.samples`; generating
-labelled data and evaluating against the simulator's ground truth is on the simulator side
-(:mod:`kin_envs.detection`).
+driver) is loaded on first access. Only training and ``inference="torch"`` need torch
+(:mod:`detectors.learned_torch`, the ``train`` extra). The dataset format and category names are in
+:mod:`detectors.samples`; generating labelled data and evaluating against the simulator's ground truth
+is on the simulator side (:mod:`kin_envs.detection`).
 
 It reports through the ``detectors`` logger (``logging``; silent unless the application configures it).
 """

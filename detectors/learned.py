@@ -468,11 +468,11 @@ def load_npz_checkpoint(path) -> dict:
         nrm = meta["normalisation"]
         if not isinstance(nrm, dict) or sorted(nrm) != ["t_mean", "t_std", "x_mean", "x_std"]:
             raise ValueError(f"normalisation must hold x_mean, x_std, t_mean, t_std, got {nrm!r}")
-        _check_weights(state, nrm, digest)
         for name, n in (("x_mean", mc.n_features), ("x_std", mc.n_features), ("t_mean", 2), ("t_std", 2)):
             v = np.asarray(nrm[name], dtype=np.float64)
             if v.shape != (n,) or (name.endswith("std") and (v <= 0).any()):
                 raise ValueError(f"normalisation {name} must be {n} values (std > 0), got shape {v.shape}")
+        _check_weights(state, nrm, digest)
         if meta.get("positioning") not in POSITIONING:
             raise ValueError(f"positioning {meta.get('positioning')!r} is not one of {POSITIONING}")
         res = float(meta["angular_resolution"])
