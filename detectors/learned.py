@@ -29,8 +29,8 @@ Torch is not imported here: inference reads the checkpoint's torch-free form (``
 ``.pt``; :func:`load_inference_checkpoint`) and runs the network compiled or in numpy, so the base
 install runs this detector. The torch parts (:class:`SegmentNet`, :func:`save_checkpoint`,
 :func:`load_checkpoint`, :func:`export_checkpoint`, :func:`train_segment_net`, ``inference="torch"``)
-live in :mod:`detectors.learned_torch` (the ``train`` extra), the only module of ``detectors`` that
-imports torch; their names stay importable from here, which imports that module on first use.
+live in :mod:`detectors.learned_torch` (the ``train`` extra); their names stay importable from here,
+which imports that module on first use.
 """
 
 from __future__ import annotations

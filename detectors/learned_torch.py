@@ -1,8 +1,9 @@
 """The learned kin detector's torch parts: its network, checkpoints (``.pt``), training, torch inference.
 
 :mod:`detectors.learned` runs the detector without torch (the checkpoint's torch-free ``.npz`` form, the
-network compiled or in numpy); this module, the only one of ``detectors`` that imports torch (the
-``train`` extra), holds what needs it:
+network compiled or in numpy); this module, the learned detector's only one that imports torch (the
+``train`` extra; the beam detector's training, :mod:`detectors.beam_training`, is the other), holds what
+needs it:
 
 * :class:`SegmentNet`, the MLP, and :func:`train_segment_net`, its training loop;
 * :func:`save_checkpoint` / :func:`load_checkpoint`: the training format (``torch.save``), with the
