@@ -522,7 +522,7 @@ def load_inference_checkpoint(path=None) -> dict:
         raise ValueError(
             f"{p}: a torch checkpoint, and torch cannot be imported here ({e}); {why}. Export its "
             f"torch-free form once where torch is installed: python scripts/export_checkpoint.py {p} "
-            f"(writes {npz}), or install the train extra (pip install 'kin-envs[train]')"
+            f"(writes {npz}), or install the train extra (in the clone: pip install -e '.[train]')"
         ) from e
     if stale:
         warnings.warn(f"{p}: {stale}; loading the .pt through torch (re-export: python "
