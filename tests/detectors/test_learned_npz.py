@@ -34,12 +34,24 @@ from detectors.learned import (
     write_npz_checkpoint,
 )
 from kin_envs import LidarSpec, World, scenes
-from tests.detectors.test_learned_driver import assert_same
 
 ROOT = Path(__file__).resolve().parents[2]
 FIXTURE = ROOT / "tests" / "fixtures" / "paper_scenario2_0.8m_scan.npz"
 SHIPPED_NPZ = npz_path(DEFAULT_CHECKPOINT)
 N = len(feature_names())
+
+
+def assert_same(got, ref):
+    """Every array of two ``BatchDetections`` the same, bit for bit (the same code on the same weights)."""
+    assert (got.n_scans, got.n_beams) == (ref.n_scans, ref.n_beams)
+    fields = ("scan", "range", "bearing", "x", "y", "score", "first_beam", "last_beam", "n_beams_on",
+              "segment", "seg_scan", "seg_first", "seg_count", "seg_prev", "seg_next", "seg_prev_nearer",
+              "seg_next_nearer", "seg_stage")  # fmt: skip
+    pairs = [(f, getattr(got, f), getattr(ref, f)) for f in fields]
+    assert got.seg_values.keys() == ref.seg_values.keys()
+    pairs += [(k, got.seg_values[k], v) for k, v in ref.seg_values.items()]
+    for name, a, b in pairs:
+        assert a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes(), name
 
 
 def _torch():
@@ -75,9 +87,9 @@ def _scans():
 
 
 def test_shipped_npz_is_the_pt_bit_for_bit():
+    _torch()
     from detectors.learned_torch import load_checkpoint
 
-    _torch()
     npz = load_npz_checkpoint(SHIPPED_NPZ)
     _, pt = load_checkpoint(DEFAULT_CHECKPOINT)
     assert npz["source"] == {"file": DEFAULT_CHECKPOINT.name, "sha256": sha256_file(DEFAULT_CHECKPOINT)}
@@ -140,6 +152,7 @@ def _random_net(hidden=(16, 8), seed=0):
 
 
 def test_save_export_load_round_trip(tmp_path):
+    _torch()
     from detectors.learned_torch import export_checkpoint, load_checkpoint, save_checkpoint
 
     thr = {"noise_edges": [0.003], "values": [0.3, 0.6]}
@@ -176,6 +189,7 @@ def test_save_export_load_round_trip(tmp_path):
 
 
 def test_stale_npz_is_not_used_for_a_rewritten_pt(tmp_path):
+    _torch()
     from detectors.learned_torch import save_checkpoint
 
     pt = save_checkpoint(tmp_path / "m.pt", _random_net(seed=1), FeatureConfig())
@@ -281,6 +295,7 @@ def test_npz_writer_and_save_checkpoint_refuse_bad_names(tmp_path):
     ck = load_npz_checkpoint(SHIPPED_NPZ)
     with pytest.raises(ValueError, match=r"m\.pt must end in \.npz"):
         write_npz_checkpoint(tmp_path / "m.pt", ck)
+    _torch()
     from detectors.learned_torch import export_checkpoint, save_checkpoint
 
     with pytest.raises(ValueError, match=r"m\.npz is the name of the npz form; give the \.pt path"):
