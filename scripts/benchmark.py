@@ -31,6 +31,7 @@ Never assert wall-clock times in tests; this script is where speed targets are c
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import math
 import os
 import platform
@@ -244,6 +245,14 @@ def scaling_targets(rows: list[dict]) -> dict:
         min(r["default_scans_per_s"] / r["naive_scans_per_s"] for r in rows) if rows else None
     )  # >= 100
     return out
+def _importable(module: str) -> bool:
+    """Whether ``module`` can be imported (without importing it)."""
+    try:
+        return importlib.util.find_spec(module) is not None
+    except (ImportError, ValueError):
+        return False
+
+
 def _reference_detectors():
     """The pre-array-first implementations (tests/detectors/reference_detectors.py), or None
     outside a clone."""
@@ -298,16 +307,20 @@ def bench_detector(min_time: float) -> list[dict]:
     seek_rows, seek_angles = kin_seek_scans()
     n = ranges.shape[0]
     variants: dict[str, Callable[[], object]] = {"geometric": GeometricKinDetector}
+    has_torch = _importable("torch")
     try:
         from detectors.learned import LearnedKinDetector
 
-        # the default (inference="auto": BLAS on one thread for batches, the compiled kernel for
-        # single scans; pre-gate and cascade on), then each inference path alone, the pre-gate off and
+        # the default (inference="auto": the compiled network inside the fused driver; pre-gate and
+        # cascade on), then each inference path alone (BLAS and torch where their packages are
+        # installed: the base install runs the learned detector without them), the pre-gate off and
         # the cascade off
         variants["learned (default)"] = LearnedKinDetector
-        variants["learned (blas)"] = lambda: LearnedKinDetector(inference="blas")
+        if _importable("threadpoolctl"):
+            variants["learned (blas)"] = lambda: LearnedKinDetector(inference="blas")
         variants["learned (numba)"] = lambda: LearnedKinDetector(inference="numba")
-        variants["learned (torch, 1 thread)"] = lambda: LearnedKinDetector(inference="torch")
+        if has_torch:
+            variants["learned (torch, 1 thread)"] = lambda: LearnedKinDetector(inference="torch")
         variants["learned (default, no pre-gate)"] = lambda: LearnedKinDetector(pre_gate=False)
         variants["learned (default, no cascade)"] = lambda: LearnedKinDetector(cascade=False)
     except ImportError as e:
@@ -340,7 +353,7 @@ def bench_detector(min_time: float) -> list[dict]:
         if ref is not None and name == "geometric":
             old = ref.ReferenceGeometricKinDetector(reports=False)
             row["old"] = rate(lambda d=old: d.detect_batch(ranges, angles), min_time) * n
-        elif ref is not None and name in ("learned (default)", "learned (torch, 1 thread)"):
+        elif ref is not None and has_torch and name in ("learned (default)", "learned (torch, 1 thread)"):
             row["old"] = rate(lambda d=det: ref.reference_learned_predict(d, ranges, angles), min_time) * n
         row["speed_up"] = row["arrays"] / row["old"]
         rows.append(row)
