@@ -462,14 +462,12 @@ def _omegas(d_cest, bmin, f, bl, pb, nb, unbounded, ang, sweep, n_beams, tan_tab
 def _context_value(d_flat, row, idx, n_beams, circular, d_edge, d_max):
     """A context feature: beam ``idx``'s range minus the segment's edge range ``d_edge``, clipped to
     +-_CTX_CLIP; _CTX_CLIP where the beam is outside a partial sweep or has no return."""
-    if circular:
-        idx = _wrap_index(idx, n_beams)
-    elif idx < 0 or idx >= n_beams:
-        return _CTX_CLIP
-    dc = d_flat[row + idx]
-    if dc < d_max:
-        return min(max(dc - d_edge, -_CTX_CLIP), _CTX_CLIP)
-    return _CTX_CLIP
+    # (selects only, the range read at a clamped index: inlined in a loop, d_flat's reference count is then
+    # taken and dropped in one block and pruned; with branches it stayed, two atomic operations a call)
+    idx = _wrap_index(idx, n_beams) if circular else idx
+    ok = (idx >= 0) & (idx < n_beams)
+    dc = d_flat[row + (idx if ok else 0)]
+    return min(max(dc - d_edge, -_CTX_CLIP), _CTX_CLIP) if ok & (dc < d_max) else _CTX_CLIP
 
 
 #: :func:`_features_kernel` fits the circles of segments of 2 to this many beams with the segments in SIMD
@@ -1425,18 +1423,21 @@ def cascade_one_beam_table(w1t, b1, w2, b2) -> np.ndarray:
 @numba.njit(cache=True, error_model="numpy", inline="always")
 def _one_beam_bound(d_flat, d_bits, row, f, n_beams, circular, d_max, key, base, x7, tab_flat):
     # the bound B of the derivation above for the one-beam segment at beam f of the scan starting at
-    # d_flat[row]; inf when its range or scan noise (base < 0: _one_beam_scan_bins) is outside the table
+    # d_flat[row]; inf when its range or scan noise (base < 0: _one_beam_scan_bins) is outside the table.
+    # tab_flat: a full table (callers check). Selects only, the table read at a clamped index: inlined in a
+    # loop, the arrays' reference counts are then taken and dropped in one block and pruned (with branches
+    # they stayed: atomic operations on every one-beam segment)
     kd = (d_bits[row + f] >> _C1_SHIFT) - _C1_K0
-    if base < 0 or kd < 0 or kd >= _C1_ND:
-        return math.inf
     v = d_flat[row + f]
     c8 = np.float32(_context_value(d_flat, row, f - 1, n_beams, circular, v, d_max))
     c9 = np.float32(_context_value(d_flat, row, f + 1, n_beams, circular, v, d_max))
     c10 = np.float32(_context_value(d_flat, row, f - 2, n_beams, circular, v, d_max))
     c11 = np.float32(_context_value(d_flat, row, f + 2, n_beams, circular, v, d_max))
-    t = base + (key * _C1_ND + kd) * 6  # tab[k7, key, kd, :] in the flat table
-    return (tab_flat[t] + tab_flat[t + 1] * x7 + tab_flat[t + 2] * c8 + tab_flat[t + 3] * c9
-            + tab_flat[t + 4] * c10 + tab_flat[t + 5] * c11)  # fmt: skip
+    inside = (base >= 0) & (kd >= 0) & (kd < _C1_ND)
+    t = base + (key * _C1_ND + kd) * 6 if inside else 0  # tab[k7, key, kd, :] in the flat table
+    b = (tab_flat[t] + tab_flat[t + 1] * x7 + tab_flat[t + 2] * c8 + tab_flat[t + 3] * c9
+         + tab_flat[t + 4] * c10 + tab_flat[t + 5] * c11)  # fmt: skip
+    return b if inside else math.inf
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
@@ -1480,12 +1481,14 @@ def _cascade_one_beam_filter(d_flat, scan, first, count, prev_nearer, next_neare
     base, x7 = _one_beam_scan_bins(scan_cols, tab)
     d_bits = d_flat.view(np.int64)
     tab_flat = tab.reshape(-1)
+    full = base.shape[0] > 0 and base.max() >= 0  # (else every bound is inf)
     lim = threshold - _C1_DELTA
     m = 0
     for o in range(rows.shape[0]):
         i = rows[o]
-        if count[i] == 1 and _segment_bound(i, d_flat, d_bits, scan, first, prev_nearer, next_nearer, n_beams,
-                                            circular, d_max, base, x7, tab_flat) < lim:  # fmt: skip
+        if full and count[i] == 1 and _segment_bound(i, d_flat, d_bits, scan, first, prev_nearer, next_nearer,
+                                                     n_beams, circular, d_max, base, x7,
+                                                     tab_flat) < lim:  # fmt: skip
             continue
         out[m] = i
         m += 1
@@ -1499,6 +1502,9 @@ def _cascade_one_beam_bounds(d_flat, scan, first, prev_nearer, next_nearer, n_be
     base, x7 = _one_beam_scan_bins(scan_cols, tab)
     d_bits = d_flat.view(np.int64)
     tab_flat = tab.reshape(-1)
+    full = base.shape[0] > 0 and base.max() >= 0  # (else every bound is inf)
     for o in range(which.shape[0]):
-        out[o] = _segment_bound(which[o], d_flat, d_bits, scan, first, prev_nearer, next_nearer, n_beams,
-                                circular, d_max, base, x7, tab_flat)  # fmt: skip
+        out[o] = math.inf
+        if full:
+            out[o] = _segment_bound(which[o], d_flat, d_bits, scan, first, prev_nearer, next_nearer, n_beams,
+                                    circular, d_max, base, x7, tab_flat)  # fmt: skip
