@@ -143,19 +143,18 @@ def row_breaks(row, d_th, d_max, circular, pos):
 def break_segment(row, pos, j, circular):
     """Segment ``j`` of :func:`row_breaks`' ``pos``: ``(first, count, prev, next, prev_nearer,
     next_nearer)`` as :func:`segment_rows` writes them."""
+    # (selects only, no short-circuit branch: inlined in a loop, the row's reference count is then taken and
+    # dropped in one block, which numba's pruning removes; with branches it stayed, two atomic operations a
+    # segment)
     n = row.shape[0]
     f = pos[j]
     c = pos[j + 1] - f
     k = f + c - 1  # last beam, < 2 n
-    if k >= n:
-        k -= n
-    if circular:  # (f - 1) % n and (k + 1) % n for 0 <= f, k < n, without an integer division
-        p = f - 1 if f > 0 else n - 1
-        q = k + 1 if k < n - 1 else 0
-    else:
-        p = f - 1
-        q = k + 1 if k < n - 1 else -1
-    return f, c, p, q, p >= 0 and row[max(p, 0)] < row[f], q >= 0 and row[max(q, 0)] < row[k]
+    k = k - n if k >= n else k
+    # (f - 1) % n and (k + 1) % n for 0 <= f, k < n without an integer division; -1 past a partial sweep
+    p = f - 1 if (f > 0 or not circular) else n - 1
+    q = k + 1 if k < n - 1 else (0 if circular else -1)
+    return f, c, p, q, (p >= 0) & (row[max(p, 0)] < row[f]), (q >= 0) & (row[max(q, 0)] < row[k])
 
 
 def segment_arrays(d: np.ndarray, d_th: float, d_max: float, circular: bool) -> tuple[np.ndarray, ...]:

@@ -272,6 +272,8 @@ def _table_segments(d, d_th, d_max, circular, pre_gate, skip_upto, step, r_kin, 
     d_bits = d_flat.view(np.int64)
     base, x7 = _one_beam_scan_bins(scan_cols, tab)
     tab_flat = tab.reshape(-1)
+    # (base >= 0 only with a full table: _one_beam_bound reads it at a clamped index; else every bound is inf)
+    use_bound = cascade and n_rows > 0 and base.max() >= 0
     lim = threshold - _C1_DELTA
     s = 0
     for b in range(n_rows):
@@ -311,7 +313,7 @@ def _table_segments(d, d_th, d_max, circular, pre_gate, skip_upto, step, r_kin, 
                     v = row[t if t < n else t - n]
                     dmin = v if v < dmin else dmin
                 keep = c <= _k.max_beams_of(dmin, step, r_kin, slack, margin)
-            if keep and cascade and c == 1:
+            if keep and use_bound and c == 1:
                 key = (1 if pn else 0) + (2 if nn else 0)
                 bound = _one_beam_bound(d_flat, d_bits, b * n, f, n, circular, d_max, key, base[b], x7[b],
                                         tab_flat)  # fmt: skip

@@ -342,6 +342,50 @@ def _log_err(e):
     return math.log(min(e, _ERR_CLIP) + _ERR_FLOOR)
 
 
+# _log_err_f32's polynomial: log(a) for a in [_ERR_FLOOR, _ERR_CLIP + _ERR_FLOOR] as k ln 2 + 2 atanh(s),
+# s = (m - 1) / (m + 1), m = a 2**-k in (1/sqrt 2, sqrt 2] (|s| <= 0.1716), the series to s**17 (the rest
+# < 2 s**19 / 19 / (1 - s**2) < 4e-16). With the roundings of the reduction (exact), of s (~4e-17), of the
+# series and of the sum with k ln 2 (ln 2 in two parts, k * _LN2_HI exact; |log a| < 9.3: a few ulps of 9.3,
+# < 1e-14) and libm's own error (< 1 ulp, 2e-15), libm's log lies within _LOG_EPS (2**-40, ~9e-13: a 50x
+# margin) of the value computed.
+_LN2_HI = 6.93147180369123816490e-01  # (fdlibm's split of ln 2)
+_LN2_LO = 1.90821492927058770002e-10
+_LOG_EPS = 2.0**-40
+_SQRT2 = math.sqrt(2.0)
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _log_err_f32(e):
+    """The float32 value of :func:`_log_err` (what the features store), or NaN where :func:`_log_err` must
+    be called: when both ends of ``[y - _LOG_EPS, y + _LOG_EPS]`` around the polynomial value ``y`` (above)
+    round to the same float32, that is the float32 of libm's ``log``, which lies inside (rounding is
+    monotone); else (about one in 10**5) or outside the range (NaN) NaN. No branch and no call: a loop of
+    these compiles to SIMD (~1.5 ns a value against ~9 ns for libm's ``log`` called from the feature
+    loops; ``tests/detectors/test_fast_paths.py``)."""
+    a = min(e, _ERR_CLIP) + _ERR_FLOOR
+    bits = np.float64(a).view(np.int64)
+    k = (bits >> 52) - 1023
+    m = np.int64((bits & 0x000FFFFFFFFFFFFF) | 0x3FF0000000000000).view(np.float64)  # a 2**-k in [1, 2)
+    big = m > _SQRT2
+    m = m * 0.5 if big else m
+    k = k + 1 if big else k
+    s = (m - 1.0) / (m + 1.0)
+    z = s * s
+    r = z * (1.0 / 3 + z * (1.0 / 5 + z * (1.0 / 7 + z * (1.0 / 9 + z * (1.0 / 11 + z * (1.0 / 13 + z * (
+        1.0 / 15 + z * (1.0 / 17))))))))  # fmt: skip
+    fk = float(k)
+    y = fk * _LN2_HI + ((2.0 * s + 2.0 * s * r) + fk * _LN2_LO)
+    f_lo = np.float32(y - _LOG_EPS)
+    good = (f_lo == np.float32(y + _LOG_EPS)) & (a >= _ERR_FLOOR) & (a <= _ERR_CLIP + _ERR_FLOOR)
+    return np.float64(f_lo) if good else math.nan
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _log_err_or(v, e):
+    # v from _log_err_f32(e), or _log_err(e) where that is NaN (the same float32 value)
+    return v if v == v else _log_err(e)
+
+
 @numba.njit(cache=True, error_model="numpy", inline="always")
 def _log1p_n(n):
     # math.log1p(float(n)) for a segment length n >= 0, from _LOG1P_N when it is there
@@ -418,14 +462,12 @@ def _omegas(d_cest, bmin, f, bl, pb, nb, unbounded, ang, sweep, n_beams, tan_tab
 def _context_value(d_flat, row, idx, n_beams, circular, d_edge, d_max):
     """A context feature: beam ``idx``'s range minus the segment's edge range ``d_edge``, clipped to
     +-_CTX_CLIP; _CTX_CLIP where the beam is outside a partial sweep or has no return."""
-    if circular:
-        idx = _wrap_index(idx, n_beams)
-    elif idx < 0 or idx >= n_beams:
-        return _CTX_CLIP
-    dc = d_flat[row + idx]
-    if dc < d_max:
-        return min(max(dc - d_edge, -_CTX_CLIP), _CTX_CLIP)
-    return _CTX_CLIP
+    # (selects only, the range read at a clamped index: inlined in a loop, d_flat's reference count is then
+    # taken and dropped in one block and pruned; with branches it stayed, two atomic operations a call)
+    idx = _wrap_index(idx, n_beams) if circular else idx
+    ok = (idx >= 0) & (idx < n_beams)
+    dc = d_flat[row + (idx if ok else 0)]
+    return min(max(dc - d_edge, -_CTX_CLIP), _CTX_CLIP) if ok & (dc < d_max) else _CTX_CLIP
 
 
 #: :func:`_features_kernel` fits the circles of segments of 2 to this many beams with the segments in SIMD
@@ -504,6 +546,12 @@ def _fit_lanes(n, c, q0, p0, l_px, l_py, l_cx, l_cy, l_o, l_ox, l_oy, l_cphi, l_
             e = abs(pe[k, q])
             f_sum[q] += e
             e_max[q] = max(e_max[q], e)
+    lg = np.empty((4, c))  # the four log errors' float32 values in SIMD lanes (NaN: libm's log below)
+    for q in range(c):
+        lg[0, q] = _log_err_f32(f0[q])
+        lg[1, q] = _log_err_f32(f_sum[q])
+        lg[2, q] = _log_err_f32(f_sum[q] / n)
+        lg[3, q] = _log_err_f32(e_max[q])
     for q in range(c):
         o = l_o[q0 + q]
         fx = cx[q]
@@ -516,10 +564,10 @@ def _fit_lanes(n, c, q0, p0, l_px, l_py, l_cx, l_cy, l_o, l_ox, l_oy, l_cphi, l_
         sphi = l_sphi[q0 + q]
         fit_u = fdx * cphi + fdy * sphi
         fit_v = sweep * (-fdx * sphi + fdy * cphi)
-        x[o, col_g + 11] = _log_err(f0[q])
-        x[o, col_g + 12] = _log_err(f_sum[q])
-        x[o, col_g + 13] = _log_err(f_sum[q] / n)
-        x[o, col_g + 14] = _log_err(e_max[q])
+        x[o, col_g + 11] = _log_err_or(lg[0, q], f0[q])
+        x[o, col_g + 12] = _log_err_or(lg[1, q], f_sum[q])
+        x[o, col_g + 13] = _log_err_or(lg[2, q], f_sum[q] / n)
+        x[o, col_g + 14] = _log_err_or(lg[3, q], e_max[q])
         x[o, col_g + 15] = _f32_clip_hypot(fx, fy, l_dcest[q0 + q], -_OFF_CLIP, _OFF_CLIP)
         x[o, col_g + 16] = min(max(fit_u, -_OFF_CLIP), _OFF_CLIP)
         x[o, col_g + 17] = min(max(fit_v, -_OFF_CLIP), _OFF_CLIP)
@@ -631,6 +679,7 @@ def _features_kernel(
     l_py = np.empty(pt0[_FIT_LANES_MAX + 1])
     col_g = 2 * kp + 2 * n_context
     use_pre = pre.shape[0] > 0 and n_context == 2
+    l_rms = np.empty(n_sel)  # each row's line_rms, its log error written after the loop
     for o in range(n_sel):
         # the segments a few rows ahead are scattered over the batch's arrays: their reads requested now
         if o + 2 * _PREFETCH < n_sel:
@@ -837,6 +886,7 @@ def _features_kernel(
         half_tr = 0.5 * (suu + svv)
         lam_min = half_tr - math.sqrt(max(half_tr * half_tr - det, 0.0))
         line_rms = math.sqrt(max(lam_min, 0.0) / n)
+        l_rms[o] = line_rms
         # the geometric part, in _GEOMETRIC_NAMES order
         g = (
             _log1p_n(n),
@@ -860,7 +910,7 @@ def _features_kernel(
             1.0 if fit_ok else 0.0,
             curv,
             1.0 if kasa_ok else 0.0,
-            _log_err(line_rms),
+            0.0,  # (_log_err(line_rms): after this loop, in SIMD lanes)
             scan_cols[scan[i], 0],
             scan_cols[scan[i], 1],
         )
@@ -875,6 +925,11 @@ def _features_kernel(
                 w = rs_w[n, j]
                 e = pe[lo] * (1.0 - w) + pe[hi] * w if fit_ok else 0.0
                 x[o, col + j] = min(max(e, -_RES_CLIP), _RES_CLIP)
+    lg = np.empty(n_sel)
+    for o in range(n_sel):
+        lg[o] = _log_err_f32(l_rms[o])
+    for o in range(n_sel):
+        x[o, col_g + 21] = _log_err_or(lg[o], l_rms[o])
     for n in range(2, _FIT_LANES_MAX + 1):
         if lane_n[n] > 0:
             _fit_lanes(n, lane_n[n], lane0[n], pt0[n], l_px, l_py, l_cx, l_cy, l_o, l_ox, l_oy, l_cphi,
@@ -1368,18 +1423,21 @@ def cascade_one_beam_table(w1t, b1, w2, b2) -> np.ndarray:
 @numba.njit(cache=True, error_model="numpy", inline="always")
 def _one_beam_bound(d_flat, d_bits, row, f, n_beams, circular, d_max, key, base, x7, tab_flat):
     # the bound B of the derivation above for the one-beam segment at beam f of the scan starting at
-    # d_flat[row]; inf when its range or scan noise (base < 0: _one_beam_scan_bins) is outside the table
+    # d_flat[row]; inf when its range or scan noise (base < 0: _one_beam_scan_bins) is outside the table.
+    # tab_flat: a full table (callers check). Selects only, the table read at a clamped index: inlined in a
+    # loop, the arrays' reference counts are then taken and dropped in one block and pruned (with branches
+    # they stayed: atomic operations on every one-beam segment)
     kd = (d_bits[row + f] >> _C1_SHIFT) - _C1_K0
-    if base < 0 or kd < 0 or kd >= _C1_ND:
-        return math.inf
     v = d_flat[row + f]
     c8 = np.float32(_context_value(d_flat, row, f - 1, n_beams, circular, v, d_max))
     c9 = np.float32(_context_value(d_flat, row, f + 1, n_beams, circular, v, d_max))
     c10 = np.float32(_context_value(d_flat, row, f - 2, n_beams, circular, v, d_max))
     c11 = np.float32(_context_value(d_flat, row, f + 2, n_beams, circular, v, d_max))
-    t = base + (key * _C1_ND + kd) * 6  # tab[k7, key, kd, :] in the flat table
-    return (tab_flat[t] + tab_flat[t + 1] * x7 + tab_flat[t + 2] * c8 + tab_flat[t + 3] * c9
-            + tab_flat[t + 4] * c10 + tab_flat[t + 5] * c11)  # fmt: skip
+    inside = (base >= 0) & (kd >= 0) & (kd < _C1_ND)
+    t = base + (key * _C1_ND + kd) * 6 if inside else 0  # tab[k7, key, kd, :] in the flat table
+    b = (tab_flat[t] + tab_flat[t + 1] * x7 + tab_flat[t + 2] * c8 + tab_flat[t + 3] * c9
+         + tab_flat[t + 4] * c10 + tab_flat[t + 5] * c11)  # fmt: skip
+    return b if inside else math.inf
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
@@ -1423,12 +1481,14 @@ def _cascade_one_beam_filter(d_flat, scan, first, count, prev_nearer, next_neare
     base, x7 = _one_beam_scan_bins(scan_cols, tab)
     d_bits = d_flat.view(np.int64)
     tab_flat = tab.reshape(-1)
+    full = base.shape[0] > 0 and base.max() >= 0  # (else every bound is inf)
     lim = threshold - _C1_DELTA
     m = 0
     for o in range(rows.shape[0]):
         i = rows[o]
-        if count[i] == 1 and _segment_bound(i, d_flat, d_bits, scan, first, prev_nearer, next_nearer, n_beams,
-                                            circular, d_max, base, x7, tab_flat) < lim:  # fmt: skip
+        if full and count[i] == 1 and _segment_bound(i, d_flat, d_bits, scan, first, prev_nearer, next_nearer,
+                                                     n_beams, circular, d_max, base, x7,
+                                                     tab_flat) < lim:  # fmt: skip
             continue
         out[m] = i
         m += 1
@@ -1442,6 +1502,9 @@ def _cascade_one_beam_bounds(d_flat, scan, first, prev_nearer, next_nearer, n_be
     base, x7 = _one_beam_scan_bins(scan_cols, tab)
     d_bits = d_flat.view(np.int64)
     tab_flat = tab.reshape(-1)
+    full = base.shape[0] > 0 and base.max() >= 0  # (else every bound is inf)
     for o in range(which.shape[0]):
-        out[o] = _segment_bound(which[o], d_flat, d_bits, scan, first, prev_nearer, next_nearer, n_beams,
-                                circular, d_max, base, x7, tab_flat)  # fmt: skip
+        out[o] = math.inf
+        if full:
+            out[o] = _segment_bound(which[o], d_flat, d_bits, scan, first, prev_nearer, next_nearer, n_beams,
+                                    circular, d_max, base, x7, tab_flat)  # fmt: skip

@@ -300,3 +300,48 @@ def test_wrap_without_fmod_is_the_fmod_expression():
     _wrap_all(a, got)
     ref = np.array([_wrap_fmod(v) for v in a])
     assert np.array_equal(got.view(np.int64), ref.view(np.int64))
+
+
+@numba.njit(error_model="numpy")
+def _log_errs_fast(e, out, fell_back):
+    # as the feature kernels use them: the SIMD loop, then libm's log where it gave NaN
+    for i in range(e.shape[0]):
+        out[i] = F._log_err_f32(e[i])
+    for i in range(e.shape[0]):
+        fell_back[i] = out[i] != out[i]
+        out[i] = F._log_err_or(out[i], e[i])
+
+
+@numba.njit(error_model="numpy")
+def _log_errs_libm(e, out):
+    for i in range(e.shape[0]):
+        out[i] = math.log(min(e[i], F._ERR_CLIP) + F._ERR_FLOOR)  # the kernels' previous expression
+
+
+def test_log_error_without_libm_is_the_float32_of_libm_log():
+    # _log_err_f32 (a polynomial with an error interval, libm's log at float32 rounding edges) stores the
+    # float32 that libm's log gives, on random residuals, residuals whose log is a float32 midpoint, and edges
+    rng = np.random.default_rng(1)
+    mids = np.float32(rng.uniform(math.log(F._ERR_FLOOR), math.log(F._ERR_CLIP + F._ERR_FLOOR), 20_000))
+    mids = (mids.astype(np.float64) + np.nextafter(mids, np.float32(0)).astype(np.float64)) / 2
+    # residuals whose log(e + floor) is within ~1e-13 of a float32 midpoint
+    mids = np.exp(mids[np.exp(mids) - F._ERR_FLOOR >= 0]) - F._ERR_FLOOR
+    e = np.concatenate([
+        rng.uniform(0.0, 0.12, 2_000_000), 10.0 ** rng.uniform(-14, 0.5, 2_000_000), mids,
+        [0.0, -0.0, 5e-324, 1e-300, 0.1, np.nextafter(0.1, 1), np.nextafter(0.1, 0), 0.2, 1e300, np.inf,
+         np.nan],
+        np.sqrt(2.0) * 2.0 ** np.arange(-14, -3) - F._ERR_FLOOR, 2.0 ** np.arange(-14, -3) - F._ERR_FLOOR,
+    ])  # fmt: skip
+    fast, libm = np.empty_like(e), np.empty_like(e)
+    fell_back = np.zeros(e.size, dtype=np.bool_)
+    _log_errs_fast(e, fast, fell_back)
+    _log_errs_libm(e, libm)
+    f32, ref = fast.astype(np.float32), libm.astype(np.float32)
+    same = (f32.view(np.int32) == ref.view(np.int32)) | (np.isnan(f32) & np.isnan(ref))
+    assert same.all(), e[~same][:10]
+    n_mid = mids.size
+    mid_fb = fell_back[4_000_000 : 4_000_000 + n_mid]
+    # at a float32 midpoint the interval cannot decide: libm's log; elsewhere almost never
+    assert mid_fb.mean() > 0.99, mid_fb.mean()
+    assert fell_back[:4_000_000].mean() < 1e-4
+    assert fell_back[-(11 + 22) : -22][10]  # NaN (inf is clipped to _ERR_CLIP)
