@@ -548,16 +548,32 @@ def _write_row(n, best_d, best_p, base, prim_kind, prim_index, range_min, range_
     """Row ``n`` of the outputs from one origin's nearest hits (``best_p`` = -1: no hit). The owner tables
     are read from ``base`` (a world's offset in a batch of worlds). Readings below ``range_min`` and misses
     read ``range_max``, as the real lidar reports them; ``out_true`` keeps the true distance (inf: miss)."""
-    # the distances in a pass of their own, which the compiler vectorises, then the owner-table reads
-    # (gathers, scalar): in one loop the gathers kept it all scalar, ~25 instructions per beam (callgrind)
+    # unsigned owner-table indices (p >= 0: numba's negative-index wraparound made this loop scalar) and
+    # selects, not branches: the row was ~17 % of a 256-robot scan's kernel (perf)
+    for i in range(best_d.shape[0]):
+        p = best_p[i] + 1
+        d = best_d[i]
+        u = np.uint64(base + p)
+        out_kind[n, i] = prim_kind[u]
+        out_index[n, i] = prim_index[u]
+        out_true[n, i] = d if p != 0 else np.inf
+        out_ranges[n, i] = d if (p != 0) & (d >= range_min) else range_max
+
+
+@numba.njit(cache=True, nogil=True)
+def _write_row_split(n, best_d, best_p, prim_kind, prim_index, range_min, range_max, out_ranges, out_true,
+                     out_kind, out_index):  # fmt: skip
+    """:func:`_write_row` (``base`` 0) with the distances in a pass of their own, which the compiler
+    vectorises, and the owner-table reads apart (gathers, scalar): in one loop the gathers kept it all
+    scalar, ~25 instructions per beam in the grid kernel (callgrind). The grid kernel's only: the
+    brute-force kernel keeps the one loop (its speed is the swarm envs' detector-off step)."""
     for i in range(best_d.shape[0]):
         d = best_d[i]
         hit = best_p[i] >= 0
         out_true[n, i] = d if hit else np.inf
         out_ranges[n, i] = d if hit & (d >= range_min) else range_max
-    # unsigned owner-table indices (p >= 0: numba's negative-index wraparound costs a compare and select)
     for i in range(best_d.shape[0]):
-        u = np.uint64(base + (best_p[i] + 1))
+        u = np.uint64(best_p[i] + 1)
         out_kind[n, i] = prim_kind[u]
         out_index[n, i] = prim_index[u]
 
@@ -1368,8 +1384,8 @@ def _grid_cast(
                                              n_beams)  # fmt: skip
         _grid_pass2(x0, y0, n_c, mc, kx, ky, kr, kid, kb, kc, kn, cmany, cone, t_one, m, s1, s2, s3, s4, sb,
                     sc, sid, order, one, bux, buy, best_d, best_p)  # fmt: skip
-        _write_row(n, best_d, best_p, 0, prim_kind, prim_index, range_min, range_max, out_ranges, out_true,
-                   out_kind, out_index)
+        _write_row_split(n, best_d, best_p, prim_kind, prim_index, range_min, range_max, out_ranges, out_true,
+                         out_kind, out_index)  # fmt: skip
 
 
 def cast_scan(
