@@ -33,6 +33,7 @@ from kin_envs.core.lidar import (
     _world_scan_grid,
     beam_tables,
     build_lidar_grid,
+    compiled_entry,
     default_cell_size,
     polygon_edges,
     read_poses,
@@ -41,6 +42,9 @@ from kin_envs.core.lidar import (
 )
 from kin_envs.core.odometry import Odometry, OdometrySpec
 from kin_envs.core.scenes import Robot, Scene
+
+# World.scan's allocations and Scan construction, bound once (module attribute lookups per call add up)
+_empty, _new, _f32, _i8, _i32 = np.empty, object.__new__, np.float32, np.int8, np.int32
 
 __all__ = ["WorldConfig", "World", "Scan", "Contact", "LIDAR_QUERY_FILTER"]
 
@@ -487,6 +491,10 @@ class World:
         self._all_robots = np.arange(self.n_robots)
         self._all_robots_out = self._all_robots.view()
         self._all_robots_out.flags.writeable = False
+        # World.scan's constants in one tuple (attribute and global lookups were ~0.4 us of a one-robot scan)
+        self._scan_consts = (*self._lidar_call, (self.n_robots, 3), (self.n_robots, spec.n_beams),
+                             spec.noise_sigma > 0 or spec.dropout_prob > 0, spec.angles, spec.range_max)
+        self._scan_dispatch = True
 
     def _update_lidar_geometry(self, poses: np.ndarray) -> None:
         self._circles[: self.n_robots, :2] = poses[:, :2]
@@ -740,19 +748,26 @@ class World:
             robots: robot indices to scan (default all).
             noise: apply the lidar spec's range noise and dropouts, drawn from the world's RNG.
         """
-        spec = self.scene.lidar
-        # (all robots: a shared index array, a new one cost ~0.3 us)
-        idx = self._all_robots if robots is None else self._check_robots(robots)
+        kernel, wf, wi, shape3, shape, noisy, angles, range_max = self._scan_consts
+        # (all robots: a shared index array and shapes, new ones cost ~0.3 us)
+        if robots is None:
+            idx = self._all_robots
+        else:
+            idx = self._check_robots(robots)
+            shape3, shape = (idx.shape[0], 3), (idx.shape[0], shape[1])
         if self._movable:
             self._update_movable()
         # one compiled call: the poses read, heading wrap, housings moved, the kernel (into outputs made here)
-        kernel, wf, wi = self._lidar_call
-        n, nb = idx.shape[0], spec.n_beams
-        poses, ranges = np.empty((n, 3)), np.empty((n, nb), np.float32)
-        true_ranges = np.empty((n, nb), np.float32)
-        hit_kind, hit_index = np.empty((n, nb), np.int8), np.empty((n, nb), np.int32)
+        poses, ranges = _empty(shape3), _empty(shape, _f32)
+        true_ranges = _empty(shape, _f32)
+        hit_kind, hit_index = _empty(shape, _i8), _empty(shape, _i32)
         kernel(idx, wf, wi, poses, ranges, true_ranges, hit_kind, hit_index)
-        if noise and (spec.noise_sigma > 0 or spec.dropout_prob > 0):
+        if self._scan_dispatch:  # the first scan compiled or loaded the kernel: call it directly from now on
+            self._scan_dispatch = False
+            entry = compiled_entry(kernel, (idx, wf, wi, poses, ranges, true_ranges, hit_kind, hit_index))
+            self._scan_consts = (entry, *self._scan_consts[1:])
+        if noise and noisy:
+            spec = self.scene.lidar
             hit = np.isfinite(true_ranges)
             d = true_ranges[hit].astype(np.float64)
             if spec.noise_sigma > 0:
@@ -762,9 +777,16 @@ class World:
                 invalid |= self.rng.random(d.size) < spec.dropout_prob
             d[invalid] = spec.range_max
             ranges[hit] = d
-        # the frozen dataclass's __init__ (a checked setattr per field) cost ~2 µs of a ~15 µs one-robot scan
-        out = object.__new__(Scan)
-        out.__dict__.update(ranges=ranges, angles=spec.angles, hit_kind=hit_kind, hit_index=hit_index,
-                            true_ranges=true_ranges, robots=self._all_robots_out if robots is None else idx,
-                            poses=poses, range_max=spec.range_max)
+        # the frozen dataclass's __init__ (a checked setattr per field) cost ~2 µs of a ~15 µs one-robot scan;
+        # item by item into the new instance's dict: ~0.2 us less than dict.update with keywords
+        out = _new(Scan)
+        od = out.__dict__
+        od["ranges"] = ranges
+        od["angles"] = angles
+        od["hit_kind"] = hit_kind
+        od["hit_index"] = hit_index
+        od["true_ranges"] = true_ranges
+        od["robots"] = self._all_robots_out if robots is None else idx
+        od["poses"] = poses
+        od["range_max"] = range_max
         return out

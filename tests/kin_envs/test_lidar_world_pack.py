@@ -5,6 +5,7 @@ scan of every robot."""
 
 import math
 
+import numba
 import numpy as np
 import pymunk
 import pytest
@@ -12,7 +13,7 @@ from pymunk._chipmunk import ffi
 
 from kin_envs import World, scenes
 from kin_envs.core import world as world_mod
-from kin_envs.core.lidar import build_lidar_grid, cast_scan, grid_args, read_poses, world_pack
+from kin_envs.core.lidar import LidarSpec, build_lidar_grid, cast_scan, grid_args, read_poses, world_pack
 from kin_envs.core.multi import WorldBatch
 from kin_envs.core.world import WorldConfig
 from tests.kin_envs.oracle import oracle_scan
@@ -194,3 +195,27 @@ def test_pose_read_checked_once_per_process(monkeypatch):
     monkeypatch.undo()
     world_mod._check_getters()  # the real read passes
     assert world_mod._GETTERS_CHECKED == [True]
+
+
+@pytest.mark.parametrize("grid", [False, True])
+def test_scan_calls_the_compiled_entry_directly_with_the_same_results(grid):
+    """After its first scan a World calls the kernel's compiled entry without numba's dispatch
+    (``compiled_entry``): every later scan, of all robots, some, none or repeated ones, with noise, is the
+    one the dispatcher gives, bit for bit."""
+    scene = scenes.random_arena(5, 40, seed=3, size=26.0 if grid else 10.0,
+                                lidar=LidarSpec(noise_sigma=0.01, dropout_prob=0.05))  # fmt: skip
+    worlds = [World(scene, seed=1, config=WorldConfig(lidar_grid=grid)) for _ in range(2)]
+    worlds[1]._scan_dispatch = False  # keeps numba's dispatcher
+    kernel = worlds[1]._scan_consts[0]
+    assert isinstance(kernel, numba.core.registry.CPUDispatcher)
+    for robots in (None, [2], None, [], [4, 0, 4, 4, 1, 1, 3, 2], np.array([1], np.int8), None):
+        for w in worlds:
+            w.step(commands=np.tile([0.4, 0.7], (5, 1)))
+        a, b = (w.scan(robots) for w in worlds)
+        for name in (*NAMES, "poses", "robots"):
+            assert getattr(a, name).tobytes() == getattr(b, name).tobytes(), (robots, name)
+            assert getattr(a, name).dtype == getattr(b, name).dtype
+        assert a.range_max == b.range_max and a.angles is b.angles
+    entry = worlds[0]._scan_consts[0]
+    assert entry is not kernel and not isinstance(entry, numba.core.registry.CPUDispatcher)
+    assert worlds[1]._scan_consts[0] is kernel

@@ -55,6 +55,26 @@ def test_rates_interleaved_alternates_the_functions(bench):
     assert calls[:2] == ["off", "on"] and blocks == ["off", "on"] * 3
 
 
+def test_rate_batched_reads_the_clock_once_per_batch(bench, monkeypatch):
+    """A fast call is timed in batches (the clock, a system call for CPU time, is not counted as its cost):
+    with a clock that advances only when read, a per-call loop reports far fewer calls per second than
+    there are; the batched one reads it once per batch and reports the calls made. A slow call is timed as
+    rate times it."""
+    reads, calls = [], []
+
+    def clock():  # 1 ms per read, nothing for the calls themselves
+        reads.append(1)
+        return len(reads) * 1e-3
+
+    monkeypatch.setitem(bench.CLOCK, "now", clock)
+    fast = bench.rate_batched(lambda: calls.append(1), min_time=0.3)
+    per_batch = (len(calls) - 2) / (len(reads) - 3)  # after the two warm-up calls; 3 runs of rate
+    assert per_batch > 50 and fast > 20 * bench.rate(lambda: None, min_time=0.3)
+    monkeypatch.setitem(bench.CLOCK, "now", bench.time.perf_counter)
+    slow = bench.rate_batched(lambda: bench.time.sleep(0.003), min_time=0.03)
+    assert 100 < slow < 334  # batches of one: ~1/3 ms^-1 less the loop's overhead
+
+
 def test_paired_ratio_is_the_median_of_the_rounds_ratios(bench):
     # a slow phase in round 3 hits both functions: the paired ratio stays 0.5, the ratio of medians does not
     on, off = [50.0, 52.0, 20.0, 49.0, 51.0], [100.0, 104.0, 40.0, 98.0, 102.0]
