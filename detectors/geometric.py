@@ -913,10 +913,14 @@ class GeometricKinDetector(KinDetector):
         without a :class:`~detectors.base.BatchDetections` and the ~25 numpy calls that build it and stack
         it back into a table. The same values (``x``, ``y``: numpy's ``cos`` / ``sin`` of the same contiguous
         bearings, times the same ranges); fresh arrays on every call."""
-        rb, a, seg, stage, vals = self._stages(ranges, angles, True)
-        row, table, rc, bearing = _accepted_table(
-            stage, seg[0], seg[1], seg[2], vals["r_c"], vals["theta_c"], vals["F"],
-            float(self.params.F_threshold), a.shape[0],
+        rb, a = self._check_batch(ranges, angles, True)
+        p = self.params
+        # the stages of _stages and the gather in one compiled call (for one scan, the ~12 allocations and
+        # four calls from Python cost about as much as the scan's detection, measured)
+        row, table, rc, bearing = _detect_table(
+            np.ascontiguousarray(rb), np.ascontiguousarray(a), float(p.d_max), float(p.d_th), self._circular,
+            p.noise_filter, self._sweep, float(p.r), float(p.F_threshold), p.shape_metric == "mean",
+            p.occlusion_unbounded, p.min_points, p.lm_max_iter, _LM_XTOL, _LM_LAMBDA0, _LM_LAMBDA_MAX,
         )  # fmt: skip
         if row.shape[0]:
             np.multiply(rc, np.cos(bearing), out=table[:, 2])
@@ -1036,6 +1040,31 @@ class GeometricKinDetector(KinDetector):
         objects of :meth:`detect_arrays`, one :class:`DetectionResult` per scan, same as
         :meth:`detect` per row."""
         return self.results(self.detect_arrays(ranges, angles))
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def _detect_table(rb, a, d_max, d_th, circular, noise_filter, sweep, r, F_threshold, mean_metric,
+                  occlusion_unbounded, min_points, lm_max_iter, xtol, lam0, lam_max):  # fmt: skip
+    """:meth:`GeometricKinDetector._stages` (the same compiled stages, in the same order, on the same
+    arguments) then :func:`_accepted_table`, in one call."""
+    d = np.empty(rb.shape)
+    _k.preprocess_rows(rb, d_max, d_th, circular, noise_filter, d)
+    scan, first, count, prev, nxt, p_near, n_near = _k._segment_views(d, d_th, d_max, circular)
+    S = scan.shape[0]
+    stage = np.empty(S, dtype=np.int8)
+    min_beam = np.empty(S, dtype=np.int64)
+    d_cest = np.empty(S)
+    omega_min = np.empty(S)
+    omega_max = np.empty(S)
+    F = np.empty(S)
+    r_c = np.empty(S)
+    theta_c = np.empty(S)
+    _k.geometric_segments(
+        d, a, sweep, scan, first, count, prev, nxt, p_near, n_near, r, F_threshold, mean_metric,
+        occlusion_unbounded, min_points, lm_max_iter, xtol, lam0, lam_max, stage, min_beam, d_cest, omega_min,
+        omega_max, F, r_c, theta_c,
+    )  # fmt: skip
+    return _accepted_table(stage, scan, first, count, r_c, theta_c, F, F_threshold, a.shape[0])
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
