@@ -589,8 +589,8 @@ _RANK_SORT_MAX = 64
 def _rank_sort_by_range(tab, order, lo, hi, keys, idx):
     """:func:`_sort_by_range` of ``order[lo:hi]`` by ranks counted without branches: a detection's place is
     the number of others before it in the stable order (``<=`` for the ones before it, ``<`` after), so no
-    comparison's outcome steers the flow (the insertion sort mispredicts about one per detection: ~60 % of
-    a swarm step's match-and-pad call, measured). A row with a NaN range takes :func:`_sort_by_range`
+    comparison's outcome steers the flow (the insertion sort's exits mispredict: the 64-robot learned call
+    46-53 -> 39-47 µs in a warm loop, measured). A row with a NaN range takes :func:`_sort_by_range`
     (NaN last), and so does a row of more than :data:`_RANK_SORT_MAX` detections (the ranks' quadratic
     count). ``keys``, ``idx``: scratch of at least ``min(hi - lo, _RANK_SORT_MAX)``."""
     m = hi - lo
@@ -677,7 +677,8 @@ def _match_pad_kernel(
     tab, owner, observers, poses, tol2, n_rows, slots, int_pads, hit_kind, hit_index, robot_kind, flat=True
 ):
     """:func:`detect_rows_padded`'s work: ``(row (D,), floats (5, D), ints (4, D), padded floats (5,
-    n_rows, slots), padded ints (4, n_rows, slots), count (n_rows,))``.
+    n_rows, slots), padded ints (4, n_rows, slots), count (n_rows,))``; ``flat=False``: the flat three empty
+    (``D = 0``) and each row's detections past its ``slots`` skipped (neither matched nor copied).
 
     Detections grouped by ``owner`` (a stable counting sort: any order of rows is accepted), each row's
     sorted by range as :func:`_match_one_row_kernel` sorts them (stable, NaN last) and matched as it
