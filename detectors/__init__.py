@@ -1,10 +1,11 @@
 """Lidar kin detectors: the paper's geometric detector, the learned one and the shared interface.
 
 A library for any 2D scan, simulated or recorded on a real robot: it never imports ``kin_envs`` (or
-pymunk). ``import detectors`` stays light (numpy/scipy/numba): ``LearnedKinDetector`` (torch) is loaded
-on first access. The dataset format and category names are in :mod:`detectors.samples`; generating
-labelled data and evaluating against the simulator's ground truth is on the simulator side
-(:mod:`kin_envs.detection`).
+pymunk). ``import detectors`` stays light (numpy/scipy/numba): ``LearnedKinDetector`` (its compiled
+driver) is loaded on first access. Only training and ``inference="torch"`` need torch
+(:mod:`detectors.learned_torch`, the ``train`` extra). The dataset format and category names are in
+:mod:`detectors.samples`; generating labelled data and evaluating against the simulator's ground truth
+is on the simulator side (:mod:`kin_envs.detection`).
 
 It reports through the ``detectors`` logger (``logging``; silent unless the application configures it).
 """
@@ -52,7 +53,7 @@ from .tracking import KinTracker, Track, TrackerParams  # noqa: E402
 
 
 def __getattr__(name: str):
-    # torch is imported only when the learned detector is asked for
+    # the learned detector's module (its compiled driver's cache) is loaded only when it is asked for
     if name == "LearnedKinDetector":
         from .learned import LearnedKinDetector
 

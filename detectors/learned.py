@@ -25,7 +25,12 @@ Pipeline (same interface and output types as :class:`detectors.GeometricKinDetec
 per scan or batch, the network inside it unless it goes to BLAS or torch); ``_predict`` keeps the
 stages as separate calls, the readable reference the driver is tested against bit for bit.
 
-This is the only module of ``detectors`` that imports torch.
+Torch is not imported here: inference reads the checkpoint's torch-free form (``.npz``, beside the
+``.pt``; :func:`load_inference_checkpoint`) and runs the network compiled or in numpy, so the base
+install runs this detector. The torch parts (:class:`SegmentNet`, :func:`save_checkpoint`,
+:func:`load_checkpoint`, :func:`export_checkpoint`, :func:`train_segment_net`, ``inference="torch"``)
+live in :mod:`detectors.learned_torch` (the ``train`` extra); their names stay importable from here,
+which imports that module on first use.
 """
 
 from __future__ import annotations
@@ -36,14 +41,11 @@ import hashlib
 import json
 import math
 import threading
-import time
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import torch
-from torch import nn
 
 from . import _kernels as _k
 from . import _learned_driver as _drv
@@ -77,7 +79,7 @@ from .features import (
     scan_noise,
     segment_features,
 )
-from .fileio import atomic_write
+from .fileio import atomic_write, sha256_file
 from .geometric import _LM_LAMBDA0, _LM_LAMBDA_MAX, _LM_XTOL, is_circular_sweep
 
 __all__ = [
@@ -86,18 +88,36 @@ __all__ = [
     "DEFAULT_CHECKPOINT",
     "LearnedKinDetector",
     "ModelConfig",
-    "SegmentNet",
     "TrainConfig",
     "cascade_path",
     "check_thresholds",
     "duplicates",
     "expected_beams",
     "load_cascade",
-    "load_checkpoint",
+    "load_inference_checkpoint",
+    "load_npz_checkpoint",
+    "npz_path",
     "sample_weights",
-    "save_checkpoint",
-    "train_segment_net",
+    "weights_digest",
+    "write_npz_checkpoint",
 ]
+
+#: the names of :mod:`detectors.learned_torch` (torch) that this module still provides, imported on first
+#: use (``from detectors.learned import SegmentNet`` keeps working; ``import detectors.learned`` and a
+#: star import stay torch-free, so they are not in ``__all__``)
+_TORCH_NAMES = frozenset({
+    "SegmentNet", "save_checkpoint", "load_checkpoint", "export_checkpoint", "train_segment_net",
+    "model_from_checkpoint", "load_checkpoint_arrays", "_check_device", "_torch_threads", "_losses",
+})  # fmt: skip
+
+
+def __getattr__(name: str):
+    if name in _TORCH_NAMES:
+        from . import learned_torch
+
+        return getattr(learned_torch, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 CHECKPOINT_FORMAT = "kin-envs/learned-kin-detector"
 CHECKPOINT_FORMAT_VERSION = 1
@@ -216,50 +236,6 @@ class ModelConfig:
         return cls(**d)
 
 
-class SegmentNet(nn.Module):
-    """MLP on standardised segment features → ``(logit of p(kin), u, v)``.
-
-    ``u, v`` is the kin centre in the segment's local frame (:mod:`detectors.features`), in units
-    of the training targets' spread (``target_mean + target_std * output``). Normalisation stats
-    are buffers set from the checkpoint, not learned.
-    """
-
-    def __init__(self, config: ModelConfig) -> None:
-        super().__init__()
-        self.config = config
-        layers: list[nn.Module] = []
-        d = config.n_features
-        for h in config.hidden:
-            layers += [nn.Linear(d, h), nn.ReLU()]
-            d = h
-        self.body = nn.Sequential(*layers)
-        self.head = nn.Linear(d, 3)
-        self.register_buffer("x_mean", torch.zeros(config.n_features), persistent=False)
-        self.register_buffer("x_std", torch.ones(config.n_features), persistent=False)
-        self.register_buffer("t_mean", torch.zeros(2), persistent=False)
-        self.register_buffer("t_std", torch.ones(2), persistent=False)
-
-    def set_normalisation(self, x_mean, x_std, t_mean, t_std) -> None:
-        for name, v, n in (
-            ("x_mean", x_mean, self.config.n_features),
-            ("x_std", x_std, self.config.n_features),
-            ("t_mean", t_mean, 2),
-            ("t_std", t_std, 2),
-        ):
-            t = torch.as_tensor(np.asarray(v, dtype=np.float32))
-            if t.shape != (n,) or not torch.isfinite(t).all() or (name.endswith("std") and (t <= 0).any()):
-                raise ValueError(
-                    f"SegmentNet: {name} must be {n} finite values (std > 0), got shape {tuple(t.shape)}"
-                )
-            getattr(self, name).copy_(t)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.head(self.body((x - self.x_mean) / self.x_std))
-
-    def normalisation(self) -> dict[str, list[float]]:
-        return {k: getattr(self, k).tolist() for k in ("x_mean", "x_std", "t_mean", "t_std")}
-
-
 # --------------------------------------------------------------------------- checkpoints
 
 
@@ -269,88 +245,30 @@ def _plain(obj):
     return json.loads(json.dumps(obj, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
 
 
+def _param_array(name: str, v) -> np.ndarray:
+    """A parameter as a numpy array: a numpy array as it is, a torch tensor (anything with ``detach``)
+    copied to the CPU; anything else is a corrupt checkpoint."""
+    if isinstance(v, np.ndarray):
+        return v
+    if hasattr(v, "detach"):  # a torch tensor (this module never imports torch)
+        return v.detach().cpu().contiguous().numpy()
+    raise _CorruptWeights(f"parameter {name!r} is a {type(v).__name__}, not a tensor or array")
+
+
 def weights_digest(state_dict: dict, normalisation: dict) -> str:
     """SHA-256 over every parameter (name, dtype, shape, bytes) and the normalisation statistics: what
-    decides the detections. Stored in the checkpoint and checked on load (a flipped bit is refused)."""
+    decides the detections. Stored in the checkpoint and checked on load (a flipped bit is refused).
+    The parameters may be torch tensors or numpy arrays: both give the same digest (the dtype is
+    named as torch names it, ``torch.float32``, as in every checkpoint written so far)."""
     h = hashlib.sha256()
     for name in sorted(state_dict):
-        t = state_dict[name].detach().cpu().contiguous()
-        h.update(f"{name}|{t.dtype}|{tuple(t.shape)}|".encode())
-        h.update(t.numpy().tobytes())
+        a = _param_array(name, state_dict[name])
+        h.update(f"{name}|torch.{a.dtype.name}|{tuple(a.shape)}|".encode())
+        h.update(np.ascontiguousarray(a).tobytes())
     for name in sorted(normalisation):
         h.update(f"{name}|".encode())
         h.update(np.asarray(normalisation[name], dtype=np.float64).tobytes())
     return h.hexdigest()
-
-
-def _check_device(device) -> torch.device:
-    try:
-        dev = torch.device(device)
-    except (RuntimeError, TypeError, ValueError) as e:
-        raise ValueError(f"device must be a torch device such as 'cpu' or 'cuda', got {device!r}") from e
-    if dev.type == "cuda" and not torch.cuda.is_available():
-        raise ValueError(f"device={device!r}: this torch build or machine has no CUDA device; use 'cpu'")
-    if dev.type not in ("cpu", "cuda"):
-        raise ValueError(f"device must be 'cpu' or 'cuda', got {device!r}")
-    return dev
-
-
-def save_checkpoint(
-    path,
-    model: SegmentNet,
-    feature_config: FeatureConfig,
-    *,
-    positioning: str = "regression",
-    angular_resolution: float = 2 * math.pi / 360,
-    thresholds: dict | None = None,
-    info: dict | None = None,
-) -> Path:
-    """Write ``model`` with everything needed to use it (see :func:`load_checkpoint`).
-
-    ``thresholds``: the calibrated ``p(kin)`` thresholds per estimated scan-noise level,
-    ``{"noise_edges": [e_1, ..., e_k], "values": [t_0, ..., t_k]}`` (a scan whose noise estimate
-    :func:`detectors.features.scan_noise` lies in ``[e_j, e_{j+1})`` uses ``t_j``); default 0.5 for all.
-    Optionally also by the beams a housing would return at the segment's range (:func:`expected_beams`):
-    ``"beam_edges": [b_1, ..., b_m]`` (increasing) and ``"table"``, ``k + 1`` rows of ``m + 1``
-    thresholds (row: noise bin, column: expected-beams bin, ``[b_i, b_{i+1})``); ``"values"`` then
-    stays as the per-noise summary that older code reads.
-    """
-    if positioning not in POSITIONING:
-        raise ValueError(f"positioning must be one of {POSITIONING}, got {positioning!r}")
-    thresholds = check_thresholds(thresholds)
-    names = feature_names(feature_config)
-    if model.config.n_features != len(names):
-        raise ValueError(
-            f"save_checkpoint: model takes {model.config.n_features} features, the feature config gives "
-            f"{len(names)}"
-        )
-    path = Path(path)
-    if path.is_dir():
-        raise ValueError(f"save_checkpoint: {path} is a directory; expected a file path (e.g. {path}/m.pt)")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    state = {k: v.detach().cpu().clone() for k, v in model.state_dict().items()}
-    bad = [k for k, v in state.items() if v.is_floating_point() and not bool(torch.isfinite(v).all())]
-    if bad:
-        raise ValueError(f"save_checkpoint: parameter(s) {bad} hold NaN or inf; refusing to write {path}")
-    nrm = model.normalisation()
-    payload = {
-            "format": CHECKPOINT_FORMAT,
-            "format_version": CHECKPOINT_FORMAT_VERSION,
-            "feature_version": FEATURE_VERSION,
-            "feature_config": feature_config.to_dict(),
-            "feature_names": names,
-            "model_config": model.config.to_dict(),
-            "state_dict": state,
-            "normalisation": nrm,
-            "weights_sha256": weights_digest(state, nrm),
-            "positioning": positioning,
-            "angular_resolution": float(angular_resolution),
-            "thresholds": thresholds,
-            "info": _plain(info or {}),
-    }
-    with atomic_write(path) as f:  # a crash or Ctrl-C never leaves half a checkpoint under the name
-        torch.save(payload, f)
-    return path
 
 
 def check_thresholds(thresholds) -> dict:
@@ -396,73 +314,6 @@ def check_thresholds(thresholds) -> dict:
     return out
 
 
-def load_checkpoint(path=None, device="cpu") -> tuple[SegmentNet, dict]:
-    """Load a checkpoint written by :func:`save_checkpoint` → ``(model in eval mode, checkpoint dict)``.
-
-    Raises ``FileNotFoundError`` if there is no file at ``path`` and ``ValueError`` naming the path
-    if it is not a torch checkpoint, not a learned-detector checkpoint, of another
-    ``FEATURE_VERSION``, or if the weights do not fit the stated input size.
-    """
-    path = Path(DEFAULT_CHECKPOINT if path is None else path)
-    dev = _check_device(device)
-    expected = (
-        f"expected a learned kin detector checkpoint written by scripts/train_classifier.py "
-        f"(format {CHECKPOINT_FORMAT!r}, feature version {FEATURE_VERSION})"
-    )
-    if path.is_dir():
-        raise ValueError(f"learned detector checkpoint {path} is a directory, not a file; {expected}")
-    if not path.is_file():
-        raise FileNotFoundError(f"learned detector checkpoint {path} does not exist; {expected}")
-    try:
-        ck = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as e:  # torch raises many types for a file that is not a checkpoint
-        raise ValueError(
-            f"{path}: not a readable torch checkpoint ({type(e).__name__}: {e}); {expected}"
-        ) from e
-    if not isinstance(ck, dict) or ck.get("format") != CHECKPOINT_FORMAT:
-        raise ValueError(f"{path}: not a learned kin detector checkpoint; {expected}")
-    if ck.get("format_version") != CHECKPOINT_FORMAT_VERSION:
-        raise ValueError(
-            f"{path}: checkpoint format version {ck.get('format_version')!r} is not "
-            f"{CHECKPOINT_FORMAT_VERSION}; {expected}"
-        )
-    if ck.get("feature_version") != FEATURE_VERSION:
-        raise ValueError(
-            f"{path}: checkpoint was trained on feature version {ck.get('feature_version')!r}, but this code "
-            f"computes feature version {FEATURE_VERSION}; retrain it with scripts/train_classifier.py"
-        )
-    try:
-        fc = FeatureConfig.from_dict(ck["feature_config"])
-        mc = ModelConfig.from_dict(ck["model_config"])
-        names = feature_names(fc)
-        if ck.get("feature_names") != names:
-            raise ValueError(f"feature names {ck.get('feature_names')!r} differ from {names!r}")
-        if mc.n_features != len(names):
-            raise ValueError(
-                f"the model takes {mc.n_features} input features but feature version {FEATURE_VERSION} with "
-                f"{fc} gives {len(names)}"
-            )
-        nrm = ck["normalisation"]
-        model = SegmentNet(mc)
-        model.load_state_dict(ck["state_dict"])
-        _check_weights(ck["state_dict"], nrm, ck.get("weights_sha256"))
-        model.set_normalisation(nrm["x_mean"], nrm["x_std"], nrm["t_mean"], nrm["t_std"])
-        if ck.get("positioning") not in POSITIONING:
-            raise ValueError(f"positioning {ck.get('positioning')!r} is not one of {POSITIONING}")
-        res = float(ck["angular_resolution"])
-        thresholds = check_thresholds(ck.get("thresholds"))
-    except _CorruptWeights as e:
-        raise ValueError(f"{path}: corrupt checkpoint: {e}; refusing to load it") from e
-    except (KeyError, TypeError, ValueError, RuntimeError) as e:
-        raise ValueError(f"{path}: inconsistent checkpoint ({type(e).__name__}: {e}); {expected}") from e
-    ck["feature_config"] = fc
-    ck["model_config"] = mc
-    ck["angular_resolution"] = res
-    ck["thresholds"] = thresholds
-    ck["path"] = str(path)
-    return model.to(dev).eval(), ck
-
-
 class _CorruptWeights(ValueError):
     pass
 
@@ -471,17 +322,246 @@ def _check_weights(state: dict, nrm: dict, digest: str | None) -> None:
     """Non-finite parameters or statistics, or weights that do not match the stored checksum, raise.
 
     Checkpoints written before the checksum existed carry none; they are only checked for
-    non-finite values."""
+    non-finite values. ``state``: torch tensors or numpy arrays."""
     for k, v in state.items():
-        if not isinstance(v, torch.Tensor):
-            raise _CorruptWeights(f"parameter {k!r} is a {type(v).__name__}, not a tensor")
-        if v.is_floating_point() and not bool(torch.isfinite(v).all()):
+        a = _param_array(k, v)
+        if a.dtype.kind == "f" and not np.isfinite(a).all():
             raise _CorruptWeights(f"parameter {k!r} holds NaN or inf")
     for k, v in nrm.items():
         if not np.all(np.isfinite(np.asarray(v, dtype=np.float64))):
             raise _CorruptWeights(f"normalisation statistic {k!r} holds NaN or inf")
     if digest is not None and weights_digest(state, nrm) != digest:
         raise _CorruptWeights("the weights do not match their stored SHA-256 (the file is corrupt)")
+
+
+# ------------------------------------------------------------- checkpoints: the torch-free form (npz)
+
+#: the checkpoint entries an npz carries besides its arrays (in its JSON ``meta``)
+_NPZ_META = (
+    "format", "format_version", "feature_version", "feature_config", "feature_names", "model_config",
+    "normalisation", "weights_sha256", "positioning", "angular_resolution", "thresholds", "info",
+)  # fmt: skip
+_NPZ_PARAM = "param:"  # prefix of the parameters' array names
+
+
+def npz_path(checkpoint) -> Path:
+    """Where a checkpoint's torch-free form lives: ``<checkpoint without .pt>.npz`` beside it (written
+    by :func:`~detectors.learned_torch.save_checkpoint` and
+    :func:`~detectors.learned_torch.export_checkpoint`); an ``.npz`` path is its own."""
+    p = Path(DEFAULT_CHECKPOINT if checkpoint is None else checkpoint)
+    return p if p.suffix == ".npz" else p.with_name(p.stem + ".npz")
+
+
+def _expected(what: str = "checkpoint") -> str:
+    return (
+        f"expected a learned kin detector {what} written by scripts/train_classifier.py "
+        f"(format {CHECKPOINT_FORMAT!r}, feature version {FEATURE_VERSION})"
+    )
+
+
+def _param_shapes(mc: ModelConfig) -> dict[str, tuple[int, ...]]:
+    """The parameters of a ``mc`` network by name (the names of :class:`SegmentNet`'s
+    ``state_dict``: ``body.0``, ``body.2``, ... the hidden layers, ``head`` the output) and shape."""
+    shapes, d = {}, mc.n_features
+    for i, h in enumerate(mc.hidden):
+        shapes[f"body.{2 * i}.weight"], shapes[f"body.{2 * i}.bias"] = (h, d), (h,)
+        d = h
+    shapes["head.weight"], shapes["head.bias"] = (3, d), (3,)
+    return shapes
+
+
+def write_npz_checkpoint(path, checkpoint: dict, source: dict | None = None) -> Path:
+    """Write a checkpoint's torch-free form to ``path`` atomically (a temporary name, then a rename):
+    the parameters as float32 arrays and the rest (:data:`_NPZ_META`: configs, normalisation,
+    thresholds, ``weights_sha256``, ...) as UTF-8 JSON in the byte array ``meta``. ``checkpoint``: a
+    checkpoint dict (as :func:`~detectors.learned_torch.load_checkpoint` returns; tensors or arrays,
+    configs as objects or dicts). ``source``: ``{"file": name, "sha256": hex}`` of the ``.pt`` it was
+    made from, checked by :func:`load_inference_checkpoint` before it uses the npz for that ``.pt``."""
+    path = Path(path)
+    if path.suffix != ".npz":
+        raise ValueError(f"write_npz_checkpoint: {path} must end in .npz")
+    meta = {}
+    for k in _NPZ_META:
+        v = checkpoint.get(k)
+        meta[k] = v.to_dict() if hasattr(v, "to_dict") else v
+    state = {k: np.ascontiguousarray(_param_array(k, v)) for k, v in checkpoint["state_dict"].items()}
+    if meta["weights_sha256"] is None:  # a checkpoint from before the checksum: the npz gets one
+        meta["weights_sha256"] = weights_digest(state, meta["normalisation"])
+    meta = {**_plain(meta), "form": "npz", "source": _plain(source)}
+    arrays = {"meta": np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8)}  # UTF-8 JSON
+    arrays.update({_NPZ_PARAM + k: v for k, v in state.items()})
+    with atomic_write(path) as f:  # a crash or Ctrl-C never leaves half a file under the name
+        np.savez(f, **arrays)
+    return path
+
+
+def load_npz_checkpoint(path) -> dict:
+    """Read a checkpoint's torch-free form (:func:`write_npz_checkpoint`) → the checkpoint dict of
+    :func:`~detectors.learned_torch.load_checkpoint` with numpy arrays as ``state_dict`` (and
+    ``npz``: the file read, ``source``: the ``.pt`` it was made from). No torch.
+
+    Raises ``FileNotFoundError`` if there is no file at ``path`` and ``ValueError`` naming the path
+    and what is expected if it is not such an npz, of another ``FEATURE_VERSION``, has parameters of
+    the wrong names, dtypes or shapes for its model config, or weights that do not match their
+    ``weights_sha256`` (a flipped bit)."""
+    path = Path(path)
+    expected = _expected("checkpoint's npz form") + " (save_checkpoint or scripts/export_checkpoint.py)"
+    if path.is_dir():
+        raise ValueError(f"learned detector checkpoint {path} is a directory, not a file; {expected}")
+    if not path.is_file():
+        raise FileNotFoundError(f"learned detector checkpoint {path} does not exist; {expected}")
+    try:
+        z = np.load(path, allow_pickle=False)
+        if not isinstance(z, np.lib.npyio.NpzFile):
+            raise ValueError(f"a single {type(z).__name__}, not an npz archive")
+        with z:
+            arrays = {k: z[k] for k in z.files}
+    except Exception as e:  # zipfile, numpy and OS errors for a file that is not an intact npz
+        raise ValueError(
+            f"{path}: not a readable npz checkpoint ({type(e).__name__}: {e}); {expected}"
+        ) from e
+    raw = arrays.pop("meta", None)
+    try:
+        ok = raw is not None and raw.ndim == 1 and raw.dtype == np.uint8
+        meta = json.loads(raw.tobytes()) if ok else None
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise ValueError(f"{path}: unreadable metadata ({e}); {expected}") from e
+    if not isinstance(meta, dict) or meta.get("format") != CHECKPOINT_FORMAT or meta.get("form") != "npz":
+        raise ValueError(f"{path}: not a learned kin detector checkpoint; {expected}")
+    if meta.get("format_version") != CHECKPOINT_FORMAT_VERSION:
+        raise ValueError(
+            f"{path}: checkpoint format version {meta.get('format_version')!r} is not "
+            f"{CHECKPOINT_FORMAT_VERSION}; {expected}"
+        )
+    if meta.get("feature_version") != FEATURE_VERSION:
+        raise ValueError(
+            f"{path}: checkpoint was trained on feature version {meta.get('feature_version')!r}, but this "
+            f"code computes feature version {FEATURE_VERSION}; retrain it with scripts/train_classifier.py"
+        )
+    try:
+        fc = FeatureConfig.from_dict(meta["feature_config"])
+        mc = ModelConfig.from_dict(meta["model_config"])
+        names = feature_names(fc)
+        if meta.get("feature_names") != names:
+            raise ValueError(f"feature names {meta.get('feature_names')!r} differ from {names!r}")
+        if mc.n_features != len(names):
+            raise ValueError(
+                f"the model takes {mc.n_features} input features but feature version {FEATURE_VERSION} with "
+                f"{fc} gives {len(names)}"
+            )
+        other = sorted(k for k in arrays if not k.startswith(_NPZ_PARAM))
+        if other:
+            raise ValueError(f"unexpected arrays {other}")
+        state = {k[len(_NPZ_PARAM) :]: v for k, v in arrays.items()}
+        shapes = _param_shapes(mc)
+        if sorted(state) != sorted(shapes):
+            raise ValueError(f"parameters {sorted(state)} are not those of a {mc} network, {sorted(shapes)}")
+        for k, shape in shapes.items():
+            if state[k].dtype != np.float32 or state[k].shape != shape:
+                raise ValueError(
+                    f"parameter {k!r} is {state[k].dtype} {state[k].shape}, expected float32 {shape} "
+                    f"(model config {mc})"
+                )
+        digest = meta["weights_sha256"]
+        if not isinstance(digest, str) or len(digest) != 64:
+            raise ValueError(f"weights_sha256 must be a SHA-256 hex digest, got {digest!r}")
+        nrm = meta["normalisation"]
+        if not isinstance(nrm, dict) or sorted(nrm) != ["t_mean", "t_std", "x_mean", "x_std"]:
+            raise ValueError(f"normalisation must hold x_mean, x_std, t_mean, t_std, got {nrm!r}")
+        for name, n in (("x_mean", mc.n_features), ("x_std", mc.n_features), ("t_mean", 2), ("t_std", 2)):
+            v = np.asarray(nrm[name], dtype=np.float64)
+            if v.shape != (n,) or (name.endswith("std") and (v <= 0).any()):
+                raise ValueError(f"normalisation {name} must be {n} values (std > 0), got shape {v.shape}")
+        _check_weights(state, nrm, digest)
+        if meta.get("positioning") not in POSITIONING:
+            raise ValueError(f"positioning {meta.get('positioning')!r} is not one of {POSITIONING}")
+        res = float(meta["angular_resolution"])
+        thresholds = check_thresholds(meta.get("thresholds"))
+    except _CorruptWeights as e:
+        raise ValueError(f"{path}: corrupt checkpoint: {e}; refusing to load it") from e
+    except (KeyError, TypeError, ValueError) as e:
+        raise ValueError(f"{path}: inconsistent checkpoint ({type(e).__name__}: {e}); {expected}") from e
+    meta.update(feature_config=fc, model_config=mc, state_dict=state, angular_resolution=res,
+                thresholds=thresholds, path=str(path), npz=str(path))  # fmt: skip
+    return meta
+
+
+def load_inference_checkpoint(path=None) -> dict:
+    """The checkpoint at ``path`` (default: the shipped one) with numpy arrays as ``state_dict``, for
+    inference; without torch where its npz form exists (``path`` stays the name given):
+
+    * an ``.npz`` path: :func:`load_npz_checkpoint`;
+    * a ``.pt`` path whose npz beside it (:func:`npz_path`) was written for these exact bytes (the npz
+      records the ``.pt``'s SHA-256; the shipped one's is), or only the npz: the npz;
+    * otherwise the ``.pt`` through torch (:func:`~detectors.learned_torch.load_checkpoint`); without
+      torch a ``ValueError`` that says how to export it (``scripts/export_checkpoint.py``). A stale
+      npz (the ``.pt`` rewritten by other means) is ignored with a warning.
+    """
+    p = Path(DEFAULT_CHECKPOINT if path is None else path)
+    if p.suffix == ".npz":
+        return load_npz_checkpoint(p)
+    if p.is_dir():
+        raise ValueError(f"learned detector checkpoint {p} is a directory, not a file; {_expected()}")
+    npz, stale = npz_path(p), None
+    if npz.is_file():
+        ck = load_npz_checkpoint(npz)
+        src = ck.get("source") if isinstance(ck.get("source"), dict) else {}
+        if not p.exists() or src.get("sha256") == sha256_file(p):
+            ck["path"] = str(p)
+            return ck
+        stale = (
+            f"{npz.name} beside it was exported from other bytes (its recorded .pt SHA-256 "
+            f"{src.get('sha256')!r} is not this file's)"
+        )
+    if not p.exists():
+        raise FileNotFoundError(f"learned detector checkpoint {p} does not exist; {_expected()}")
+    try:
+        from . import learned_torch
+    except ImportError as e:
+        why = stale or f"there is no {npz.name} beside it"
+        raise ValueError(
+            f"{p}: a torch checkpoint, and torch cannot be imported here ({e}); {why}. Export its "
+            f"torch-free form once where torch is installed: python scripts/export_checkpoint.py {p} "
+            f"(writes {npz}), or install the train extra (in the clone: pip install -e '.[train]')"
+        ) from e
+    if stale:
+        warnings.warn(f"{p}: {stale}; loading the .pt through torch (re-export: python "
+                      f"scripts/export_checkpoint.py {p})", stacklevel=3)  # fmt: skip
+    return learned_torch.load_checkpoint_arrays(p)
+
+
+def _numba_weights(ck: dict) -> tuple:
+    """The network of checkpoint ``ck`` (numpy ``state_dict``) as arguments of
+    :func:`detectors._kernels.mlp_forward`: ``(mean, std, weights, biases, sizes)``, float32, the layers'
+    ``(out, in)`` matrices zero-padded into one array (head last)."""
+    state, mc = ck["state_dict"], ck["model_config"]
+    names = [f"body.{2 * i}" for i in range(len(mc.hidden))] + ["head"]
+    mats = [(state[n + ".weight"], state[n + ".bias"]) for n in names]
+    sizes = np.array([mc.n_features] + [w.shape[0] for w, _ in mats], dtype=np.int64)
+    w = int(sizes.max())
+    weights = np.zeros((len(mats), w, w), dtype=np.float32)
+    biases = np.zeros((len(mats), w), dtype=np.float32)
+    for i, (wi, bi) in enumerate(mats):
+        weights[i, : wi.shape[0], : wi.shape[1]] = wi
+        biases[i, : bi.shape[0]] = bi
+    nrm = ck["normalisation"]  # float32, as the torch module's buffers hold them
+    mean = np.asarray(nrm["x_mean"], dtype=np.float32)
+    std = np.asarray(nrm["x_std"], dtype=np.float32)
+    return mean, std, weights, biases, sizes
+
+
+def _blas_weights(numba_weights: tuple) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The network as float32 ``(W (in, out), b)`` per layer (head last) for :func:`_blas_forward`,
+    the input standardisation folded into the first layer (computed in float64), from
+    :func:`_numba_weights`' arrays."""
+    mean, std, weights, biases, sizes = numba_weights
+    f64 = lambda a: a.astype(np.float64)  # noqa: E731
+    layers = [(f64(weights[i, : sizes[i + 1], : sizes[i]]).T, f64(biases[i, : sizes[i + 1]]))
+              for i in range(len(sizes) - 1)]  # fmt: skip
+    mean, std = mean.astype(np.float64), std.astype(np.float64)
+    w0, b0 = layers[0]
+    layers[0] = (w0 / std[:, None], b0 - (mean / std) @ w0)
+    return [(np.ascontiguousarray(w, dtype=np.float32), b.astype(np.float32)) for w, b in layers]
 
 
 # --------------------------------------------------------------------------- cascade
@@ -556,11 +636,14 @@ class LearnedKinDetector(KinDetector):
     """Kin detector with a learned segment classifier (see the module docstring).
 
     Args:
-        checkpoint: path of a checkpoint (default: the shipped ``learned_default.pt``).
+        checkpoint: path of a checkpoint (default: the shipped ``learned_default.pt``): a ``.pt``, read
+            from the torch-free ``.npz`` beside it when that was written for it, or an ``.npz``
+            (:func:`load_inference_checkpoint`). Only ``inference="torch"`` imports torch.
         threshold: a segment is a kin if ``p(kin) >= threshold``; ``None`` (default): the
             checkpoint's thresholds, calibrated on validation scenes per estimated scan-noise level
             (:func:`detectors.features.scan_noise`; 0.5 if the checkpoint has none).
-        device: torch device for the forward pass (``"cpu"``).
+        device: torch device for the forward pass of ``inference="torch"`` (``"cpu"`` or ``"cuda"``);
+            the other inference modes run on the CPU.
         positioning: ``"regression"`` or ``"fit"``; default: the checkpoint's choice.
         reports: build one :class:`SegmentReport` per segment in ``detect`` / ``detect_batch``
             (pass False when only detections are needed; ``reports`` is then empty).
@@ -571,7 +654,8 @@ class LearnedKinDetector(KinDetector):
             BLAS at every batch size since its block kernel keeps partial sums in registers,
             README, Performance; ``"blas"`` agrees to float32 rounding, ~1e-6 in ``p(kin)``) or
             ``"torch"`` (the checkpoint's module, run on ``torch_threads`` threads inside each call,
-            the caller's torch setting restored afterwards). Only ``"torch"`` runs on ``device``.
+            the caller's torch setting restored afterwards; needs the ``train`` extra). Only
+            ``"torch"`` runs on ``device``.
         torch_threads: torch intra-op threads during inference (``"torch"``).
         pre_gate: drop segments that cannot be a housing from their geometry alone before the
             features and the network (default True): a segment with more beams than a circle of
@@ -647,11 +731,22 @@ class LearnedKinDetector(KinDetector):
             raise ValueError(
                 f"LearnedKinDetector: threshold must be a probability in [0, 1], got {threshold!r}"
             )
-        try:
-            self.device = torch.device(device)
-        except (RuntimeError, TypeError) as e:
-            raise ValueError(f"LearnedKinDetector: invalid torch device {device!r} ({e})") from e
-        self.model, self.checkpoint = load_checkpoint(checkpoint, self.device)
+        if inference == "torch":
+            from . import learned_torch
+
+            self.device = learned_torch._check_device(device)
+        else:
+            dev = getattr(device, "type", device)  # a torch.device or its name
+            if not isinstance(dev, str) or dev.split(":")[0] not in ("cpu", "cuda"):
+                raise ValueError(f"LearnedKinDetector: device must be 'cpu' or 'cuda', got {device!r}")
+            if dev.split(":")[0] != "cpu":
+                raise ValueError(
+                    f"LearnedKinDetector: inference={inference!r} runs on the CPU, got device {device!r}; "
+                    "use inference='torch' for a CUDA device"
+                )
+            self.device = device
+        self._model = None
+        self.checkpoint = load_inference_checkpoint(checkpoint)
         self.feature_config: FeatureConfig = self.checkpoint["feature_config"]
         self._dup_radius = 2.0 * float(self.feature_config.r)  # two housings' centres are never closer
         self.threshold = None if threshold is None else float(threshold)
@@ -673,19 +768,16 @@ class LearnedKinDetector(KinDetector):
         self.inference = inference
         self.torch_threads = torch_threads
         # the compiled network's weights also serve the fused driver's signature with torch inference
-        self._numba_weights = _export_weights(self.model)
+        self._numba_weights = _numba_weights(self.checkpoint)
         mean, std, w, b, sizes = self._numba_weights
         self._numba_weights_t = (mean, std, np.ascontiguousarray(w.transpose(0, 2, 1)), b, sizes)
         #: the fused driver runs the network itself (else ``_run_driver``)
         self._network_compiled = inference in ("auto", "numba")
         self._drv_args = None
-        if inference != "torch":
-            if self.device.type != "cpu":
-                raise ValueError(
-                    f"LearnedKinDetector: inference={inference!r} runs on the CPU, got device {device!r}; "
-                    "use inference='torch'"
-                )
-            self._blas_weights = _export_blas_weights(self.model)
+        if inference == "torch":
+            _ = self.model  # built now: a bad device or checkpoint fails here, not in the first call
+        else:
+            self._blas_weights = _blas_weights(self._numba_weights)
             if inference == "blas" and _blas_controller() is None:
                 raise ImportError(
                     "LearnedKinDetector: inference='blas' needs threadpoolctl (pip install threadpoolctl) "
@@ -701,6 +793,19 @@ class LearnedKinDetector(KinDetector):
         nrm = self.checkpoint["normalisation"]
         self._t_mean = np.asarray(nrm["t_mean"], dtype=np.float64)
         self._t_std = np.asarray(nrm["t_std"], dtype=np.float64)
+
+    @property
+    def model(self):
+        """The network as a torch module (:class:`~detectors.learned_torch.SegmentNet`, eval mode, on
+        ``device``), built on first access: only ``inference="torch"`` runs it, so that the others never
+        import torch."""
+        if self._model is None:
+            from . import learned_torch
+
+            self._model = learned_torch.model_from_checkpoint(
+                self.checkpoint, self.device if self.inference == "torch" else "cpu"
+            )
+        return self._model
 
     @property
     def cascade(self) -> bool:
@@ -829,10 +934,9 @@ class LearnedKinDetector(KinDetector):
             else:
                 _k.mlp_forward(np.ascontiguousarray(x), *self._numba_weights, out)
             return out.astype(np.float64)
-        with torch.inference_mode(), _torch_threads(self.torch_threads):
-            xt = torch.from_numpy(x).to(self.device)
-            # row chunks keep the activations in cache (2x faster than one 26k-row chain)
-            return torch.cat([self.model(c) for c in xt.split(_CHUNK)]).cpu().numpy().astype(np.float64)
+        from . import learned_torch
+
+        return learned_torch.forward(self.model, x, self.device, self.torch_threads)
 
     def gate(self, batch: SegmentBatch) -> np.ndarray:
         """``(S,)`` the pre-gate's bound: the most beams a housing can return at each segment's range
@@ -1280,36 +1384,6 @@ class LearnedKinDetector(KinDetector):
         return self.results(self.detect_arrays(ranges, angles))
 
 
-def _export_weights(model: SegmentNet) -> tuple:
-    """The network as arguments of :func:`detectors._kernels.mlp_forward`: ``(mean, std, weights,
-    biases, sizes)``, float32, the layers' ``(out, in)`` matrices zero-padded into one array (head
-    last)."""
-    linears = [m for m in model.body if isinstance(m, nn.Linear)] + [model.head]
-    sizes = np.array([linears[0].in_features] + [lin.out_features for lin in linears], dtype=np.int64)
-    w = int(sizes.max())
-    weights = np.zeros((len(linears), w, w), dtype=np.float32)
-    biases = np.zeros((len(linears), w), dtype=np.float32)
-    for i, lin in enumerate(linears):
-        weights[i, : lin.out_features, : lin.in_features] = lin.weight.detach().cpu().numpy()
-        biases[i, : lin.out_features] = lin.bias.detach().cpu().numpy()
-    mean = model.x_mean.detach().cpu().numpy().astype(np.float32)
-    std = model.x_std.detach().cpu().numpy().astype(np.float32)
-    return mean, std, weights, biases, sizes
-
-
-def _export_blas_weights(model: SegmentNet) -> list[tuple[np.ndarray, np.ndarray]]:
-    """The network as float32 ``(W (in, out), b)`` per layer (head last) for :func:`_blas_forward`,
-    the input standardisation folded into the first layer (computed in float64)."""
-    linears = [m for m in model.body if isinstance(m, nn.Linear)] + [model.head]
-    f64 = lambda t: t.detach().cpu().numpy().astype(np.float64)  # noqa: E731
-    layers = [(f64(lin.weight).T, f64(lin.bias)) for lin in linears]
-    mean = model.x_mean.detach().cpu().numpy().astype(np.float64)
-    std = model.x_std.detach().cpu().numpy().astype(np.float64)
-    w0, b0 = layers[0]
-    layers[0] = (w0 / std[:, None], b0 - (mean / std) @ w0)
-    return [(np.ascontiguousarray(w, dtype=np.float32), b.astype(np.float32)) for w, b in layers]
-
-
 def _blas_forward(x: np.ndarray, layers) -> np.ndarray:
     """``(S, 3)`` float64 outputs: float32 matrix products in row chunks, BLAS on one thread."""
     out = np.empty((x.shape[0], layers[-1][0].shape[1]))
@@ -1376,23 +1450,6 @@ def _one_blas_thread():
                 for lib, n in _BLAS["saved"]:
                     lib.set_num_threads(n)
                 _BLAS["saved"] = []
-
-
-@contextlib.contextmanager
-def _torch_threads(n: int):
-    """Run torch ops on ``n`` intra-op threads, restoring the caller's setting afterwards.
-
-    The network is tiny: on a busy machine each extra thread only adds contention (2 threads on a
-    shared 2-core machine made a forward pass 10-30x slower than 1).
-    """
-    prev = torch.get_num_threads()
-    if prev != n:
-        torch.set_num_threads(n)
-    try:
-        yield
-    finally:
-        if prev != n:
-            torch.set_num_threads(prev)
 
 
 # --------------------------------------------------------------------------- training
@@ -1470,154 +1527,3 @@ def sample_weights(labels, categories, config: TrainConfig) -> np.ndarray:
     w[y] = config.pos_weight
     w[hard] = config.hard_weight
     return w
-
-
-def _losses(model: SegmentNet, x, y, t, tm, reg_weight: float, w=None):
-    out = model(x)
-    if w is None:
-        bce = nn.functional.binary_cross_entropy_with_logits(out[:, 0], y)
-    else:
-        bce = (
-            nn.functional.binary_cross_entropy_with_logits(out[:, 0], y, reduction="none") * w
-        ).sum() / w.sum()
-    if tm.any():
-        tn = (t[tm] - model.t_mean) / model.t_std
-        reg = nn.functional.smooth_l1_loss(out[tm, 1:3], tn)
-    else:
-        reg = out.new_zeros(())
-    return bce, reg, out
-
-
-def train_segment_net(
-    train: dict[str, np.ndarray],
-    val: dict[str, np.ndarray],
-    config: TrainConfig | None = None,
-    seed: int = 0,
-    log=None,
-    progress: bool = True,
-) -> tuple[SegmentNet, list[dict]]:
-    """Train a :class:`SegmentNet`.
-
-    Args:
-        train, val: ``x`` (N, F) float32 features, ``y`` (N,) 0/1 labels, ``target`` (N, 2) kin
-            centre in the local frame (NaN for non-kin; those rows get no centre loss); optional
-            ``weight`` (N,) per-segment classification loss weights (:func:`sample_weights`).
-        config: hyper-parameters.
-        seed: seeds torch (initialisation, shuffling).
-        log: called with each epoch's record (dict) as it completes.
-        progress: tqdm progress bars.
-
-    Returns the model with the weights of the best validation epoch (eval mode) and the per-epoch
-    records: ``epoch, train_loss, train_bce, train_reg, val_loss, val_bce, val_reg, val_accuracy,
-    val_f1, seconds``.
-    """
-    from tqdm import tqdm
-
-    cfg = config or TrainConfig()
-    torch.manual_seed(seed)
-    gen = torch.Generator().manual_seed(seed)
-
-    def tensors(d, name):
-        x = np.asarray(d["x"], dtype=np.float32)
-        y = np.asarray(d["y"], dtype=np.float32).reshape(-1)
-        t = np.asarray(d["target"], dtype=np.float32).reshape(-1, 2)
-        if x.ndim != 2 or x.shape[0] != y.shape[0] or t.shape[0] != y.shape[0] or x.shape[0] == 0:
-            raise ValueError(
-                f"train_segment_net: {name} needs x (N, F), y (N,), target (N, 2) with N >= 1, got "
-                f"{x.shape}, {y.shape}, {t.shape}"
-            )
-        if not np.isfinite(x).all():
-            raise ValueError(f"train_segment_net: {name} features contain non-finite values")
-        tm = np.isfinite(t).all(axis=1) & (y > 0.5)
-        w = d.get("weight")
-        if w is not None:
-            w = np.asarray(w, dtype=np.float32).reshape(-1)
-            if w.shape != y.shape or not (np.isfinite(w).all() and (w > 0).all()):
-                raise ValueError(f"train_segment_net: {name} weight must be (N,) finite values > 0")
-            w = torch.from_numpy(w)
-        return (
-            torch.from_numpy(x),
-            torch.from_numpy(y),
-            torch.from_numpy(np.nan_to_num(t)),
-            torch.from_numpy(tm),
-            w,
-        )
-
-    xt, yt, tt, mt, wt = tensors(train, "train")
-    xv, yv, tv, mv, wv = tensors(val, "val")
-    if xv.shape[1] != xt.shape[1]:
-        raise ValueError(f"train_segment_net: train has {xt.shape[1]} features, val {xv.shape[1]}")
-    if cfg.batch_size > xt.shape[0]:
-        # one step per epoch on less than a batch: almost surely a config meant for another dataset
-        raise ValueError(
-            f"train_segment_net: TrainConfig.batch_size={cfg.batch_size} is larger than the "
-            f"{xt.shape[0]} training segments; use batch_size <= {xt.shape[0]} or more data"
-        )
-    model = SegmentNet(ModelConfig(int(xt.shape[1]), cfg.hidden))
-    x_mean, x_std = xt.mean(0), xt.std(0)
-    x_std = torch.where(x_std > 1e-6, x_std, torch.ones_like(x_std))  # constant features pass through
-    if mt.any():
-        t_mean, t_std = tt[mt].mean(0), tt[mt].std(0).clamp_min(1e-3)
-    else:
-        t_mean, t_std = torch.zeros(2), torch.ones(2)
-    model.set_normalisation(x_mean, x_std, t_mean, t_std)
-    opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
-    steps_per_epoch = math.ceil(xt.shape[0] / cfg.batch_size)
-    total_steps = cfg.epochs * steps_per_epoch
-    # OneCycleLR divides by pct_start * total_steps - 1: 0.1 x 10 steps is a ZeroDivisionError
-    sched = torch.optim.lr_scheduler.OneCycleLR(
-        opt, max_lr=cfg.lr, total_steps=total_steps, pct_start=0.1 if total_steps != 10 else 0.2,
-        final_div_factor=20,
-    )  # fmt: skip
-    best, best_state, bad_epochs, history = math.inf, None, 0, []
-    t0 = time.perf_counter()
-    epochs = tqdm(range(1, cfg.epochs + 1), desc="epochs", disable=not progress)
-    for epoch in epochs:
-        model.train()
-        perm = torch.randperm(xt.shape[0], generator=gen)
-        sums = np.zeros(3)
-        for k in tqdm(range(steps_per_epoch), desc=f"epoch {epoch}", leave=False, disable=not progress):
-            i = perm[k * cfg.batch_size : (k + 1) * cfg.batch_size]
-            bce, reg, _ = _losses(
-                model, xt[i], yt[i], tt[i], mt[i], cfg.reg_weight, None if wt is None else wt[i]
-            )
-            loss = bce + cfg.reg_weight * reg
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            opt.step()
-            sched.step()
-            sums += (loss.item(), bce.item(), reg.item())
-        model.eval()
-        with torch.inference_mode():
-            vb, vr, out = _losses(model, xv, yv, tv, mv, cfg.reg_weight, wv)
-            pred = out[:, 0] > 0
-            tp = float((pred & (yv > 0.5)).sum())
-            fp = float((pred & (yv < 0.5)).sum())
-            fn = float((~pred & (yv > 0.5)).sum())
-        vloss = float(vb) + cfg.reg_weight * float(vr)
-        rec = {
-            "epoch": epoch,
-            "train_loss": sums[0] / steps_per_epoch,
-            "train_bce": sums[1] / steps_per_epoch,
-            "train_reg": sums[2] / steps_per_epoch,
-            "val_loss": vloss,
-            "val_bce": float(vb),
-            "val_reg": float(vr),
-            "val_accuracy": float((pred == (yv > 0.5)).float().mean()),
-            "val_f1": 2 * tp / max(2 * tp + fp + fn, 1.0),
-            "seconds": time.perf_counter() - t0,
-        }
-        history.append(rec)
-        if log is not None:
-            log(rec)
-        epochs.set_postfix(val_loss=f"{vloss:.4f}", val_f1=f"{rec['val_f1']:.4f}")
-        if vloss < best - 1e-5:
-            best, bad_epochs = vloss, 0
-            best_state = {k: v.detach().clone() for k, v in model.state_dict().items()}
-        else:
-            bad_epochs += 1
-        if bad_epochs >= cfg.patience or (cfg.max_seconds and rec["seconds"] > cfg.max_seconds):
-            break
-    if best_state is not None:
-        model.load_state_dict(best_state)
-    return model.eval(), history

@@ -51,7 +51,8 @@ __all__ = ["ANCHORS", "WindowConfig", "Windows", "candidate_windows", "wide_segm
 
 ANCHORS = ("local", "span")
 #: the learned detector's pre-gate constants (``detectors.learned.PRE_GATE_SLACK`` / ``_MARGIN``;
-#: not imported: ``detectors.learned`` needs torch, the dataset writer must not; a test ties them)
+#: not imported: ``detectors.learned`` loads its compiled driver, the dataset writer need not; a test ties
+#: them)
 PRE_GATE_SLACK = 0.8
 PRE_GATE_MARGIN = 2
 

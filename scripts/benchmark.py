@@ -31,11 +31,13 @@ Never assert wall-clock times in tests; this script is where speed targets are c
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import math
 import os
 import platform
 import sys
 import time
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 
@@ -67,13 +69,13 @@ def rate(fn: Callable[[], object], min_time: float) -> float:
     return best
 
 
-def rates_interleaved(
+def interleaved_samples(
     fns: dict[str, Callable[[], object]], min_time: float, rounds: int = 9
-) -> dict[str, float]:
-    """Calls per second of each of ``fns``, timed round robin in ``rounds`` blocks of at least
-    ``min_time / rounds`` s each; the median block per function. A change in the machine's speed during the
-    run (other jobs, clock) then hits every function alike, so their ratios hold: timing them one after the
-    other, minutes apart, moved the envs' detector-on / off ratios by 10-30 points between runs."""
+) -> dict[str, list[float]]:
+    """Calls per second of each of ``fns`` in each of ``rounds`` round-robin blocks of at least
+    ``min_time / rounds`` s each (one list per function, in round order). A change in the machine's speed
+    during the run (other jobs, clock) then hits every function alike, so their ratios hold: timing them one
+    after the other, minutes apart, moved the envs' detector-on / off ratios by 10-30 points between runs."""
     for fn in fns.values():
         fn()  # warm-up (numba JIT, caches)
     now = CLOCK["now"]
@@ -88,7 +90,33 @@ def rates_interleaved(
                 if dt >= min_time / rounds:
                     break
             samples[k].append(n / dt)
-    return {k: float(np.median(v)) for k, v in samples.items()}
+    return samples
+
+
+def rates_interleaved(
+    fns: dict[str, Callable[[], object]], min_time: float, rounds: int = 9
+) -> dict[str, float]:
+    """The median block's calls per second of each of ``fns`` (:func:`interleaved_samples`)."""
+    return {k: float(np.median(v)) for k, v in interleaved_samples(fns, min_time, rounds).items()}
+
+
+def paired_ratio(num: list[float], den: list[float], confidence: float = 0.95) -> tuple[float, float, float]:
+    """The median over rounds of ``num[i] / den[i]`` (two functions' rates timed in the same round of
+    :func:`interleaved_samples`, seconds apart) and its percentile-bootstrap interval (scipy), as
+    ``(median, low, high)``. Pairing by round cancels the machine's slow phases that outlast a round,
+    which the ratio of the two medians (:func:`rates_interleaved`) does not; the percentile interval of a
+    median stays inside the observed ratios."""
+    from scipy import stats
+
+    r = np.asarray(num, dtype=float) / np.asarray(den, dtype=float)
+    med = float(np.median(r))
+    if r.size < 3 or np.ptp(r) == 0:
+        return med, med, med
+    with warnings.catch_warnings():  # (scipy >= 1.15 renames random_state; the base install allows 1.10)
+        warnings.simplefilter("ignore")
+        res = stats.bootstrap((r,), np.median, confidence_level=confidence, n_resamples=2000,
+                              method="percentile", random_state=np.random.default_rng(0))  # fmt: skip
+    return med, float(res.confidence_interval.low), float(res.confidence_interval.high)
 
 
 def naive_scan(world: World, robot: int) -> np.ndarray:
@@ -217,6 +245,14 @@ def scaling_targets(rows: list[dict]) -> dict:
         min(r["default_scans_per_s"] / r["naive_scans_per_s"] for r in rows) if rows else None
     )  # >= 100
     return out
+def _importable(module: str) -> bool:
+    """Whether ``module`` can be imported (without importing it)."""
+    try:
+        return importlib.util.find_spec(module) is not None
+    except (ImportError, ValueError):
+        return False
+
+
 def _reference_detectors():
     """The pre-array-first implementations (tests/detectors/reference_detectors.py), or None
     outside a clone."""
@@ -271,16 +307,20 @@ def bench_detector(min_time: float) -> list[dict]:
     seek_rows, seek_angles = kin_seek_scans()
     n = ranges.shape[0]
     variants: dict[str, Callable[[], object]] = {"geometric": GeometricKinDetector}
+    has_torch = _importable("torch")
     try:
         from detectors.learned import LearnedKinDetector
 
-        # the default (inference="auto": BLAS on one thread for batches, the compiled kernel for
-        # single scans; pre-gate and cascade on), then each inference path alone, the pre-gate off and
+        # the default (inference="auto": the compiled network inside the fused driver; pre-gate and
+        # cascade on), then each inference path alone (BLAS and torch where their packages are
+        # installed: the base install runs the learned detector without them), the pre-gate off and
         # the cascade off
         variants["learned (default)"] = LearnedKinDetector
-        variants["learned (blas)"] = lambda: LearnedKinDetector(inference="blas")
+        if _importable("threadpoolctl"):
+            variants["learned (blas)"] = lambda: LearnedKinDetector(inference="blas")
         variants["learned (numba)"] = lambda: LearnedKinDetector(inference="numba")
-        variants["learned (torch, 1 thread)"] = lambda: LearnedKinDetector(inference="torch")
+        if has_torch:
+            variants["learned (torch, 1 thread)"] = lambda: LearnedKinDetector(inference="torch")
         variants["learned (default, no pre-gate)"] = lambda: LearnedKinDetector(pre_gate=False)
         variants["learned (default, no cascade)"] = lambda: LearnedKinDetector(cascade=False)
     except ImportError as e:
@@ -313,7 +353,7 @@ def bench_detector(min_time: float) -> list[dict]:
         if ref is not None and name == "geometric":
             old = ref.ReferenceGeometricKinDetector(reports=False)
             row["old"] = rate(lambda d=old: d.detect_batch(ranges, angles), min_time) * n
-        elif ref is not None and name in ("learned (default)", "learned (torch, 1 thread)"):
+        elif ref is not None and has_torch and name in ("learned (default)", "learned (torch, 1 thread)"):
             row["old"] = rate(lambda d=det: ref.reference_learned_predict(d, ranges, angles), min_time) * n
         row["speed_up"] = row["arrays"] / row["old"]
         rows.append(row)
@@ -375,13 +415,16 @@ def bench_envs(min_time: float, robots=(16, 64, 256)) -> list[dict]:
     rows = []
     for env_id, n in [("KinSeek-v1", 1)] + [("aggregation_v1", n) for n in robots]:
         steps = {str(d): (_seek_step(d) if env_id == "KinSeek-v1" else _agg_step(n, d)) for d in dets}
-        rates = rates_interleaved(steps, min_time * len(dets))
+        samples = interleaved_samples(steps, min_time * len(dets))
+        rates = {k: float(np.median(v)) for k, v in samples.items()}
         for d in dets:
             r = rates[str(d)]
+            paired, lo, hi = paired_ratio(samples[str(d)], samples["None"])
             rows.append({"env": env_id, "robots": n, "detector": str(d), "steps_per_s": r,
-                         "of_detector_off": r / rates["None"]})
-            print(f"  {env_id} N={n:3d} detector={d!s:9s} {r:8.1f} steps/s ({r / rates['None']:.0%} of off)",
-                  flush=True)
+                         "of_detector_off": r / rates["None"], "of_detector_off_paired": paired,
+                         "of_detector_off_paired_ci": [lo, hi]})
+            print(f"  {env_id} N={n:3d} detector={d!s:9s} {r:8.1f} steps/s ({r / rates['None']:.0%} of off; "
+                  f"paired by round {paired:.0%} [{lo:.0%}, {hi:.0%}])", flush=True)
         del steps  # free the 256-robot worlds before the next size
     return rows
 
@@ -639,14 +682,17 @@ def to_markdown(results: dict) -> str:
         lines += [
             "Env steps/s as a user gets them (no thread settings), 1 % noise, "
             f"{results.get('config', {}).get('clock', 'wall')} clock; an env's detector settings timed "
-            "interleaved (median of 9 blocks each):",
+            "interleaved (median of 9 blocks each); \"of detector off\" is the ratio of the two medians, "
+            "\"paired\" the median of the 9 rounds' own ratios with its 95 % percentile-bootstrap interval "
+            "(scipy; a round's blocks run seconds apart, so the machine's slow phases cancel):",
             "",
-            "| env | robots | detector | steps/s | of detector off |",
-            "|---|---:|---|---:|---:|",
+            "| env | robots | detector | steps/s | of detector off | paired by round [95 % CI] |",
+            "|---|---:|---|---:|---:|---:|",
         ]
         lines += [
             f"| {r['env']} | {r['robots']} | {r['detector']} | {r['steps_per_s']:,.1f} | "
-            f"{r['of_detector_off']:.0%} |"
+            f"{r['of_detector_off']:.0%} | {r['of_detector_off_paired']:.0%} "
+            f"[{r['of_detector_off_paired_ci'][0]:.0%}, {r['of_detector_off_paired_ci'][1]:.0%}] |"
             for r in results["envs"]
         ]
         lines.append("")

@@ -195,7 +195,8 @@ def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("checkpoint", type=Path, help="learned checkpoint whose thresholds are re-chosen")
     ap.add_argument("--out", type=Path, required=True,
-                    help="checkpoint to write (not in the shipped models' folder)")
+                    help="checkpoint to write, a .pt (its torch-free .npz form goes beside it; not in the "
+                    "shipped models' folder)")
     ap.add_argument("--scenes", type=int, default=30, help="scenes of the benchmark's swarm generator")
     ap.add_argument("--first-seed", type=int, default=610_000,
                     help="seed of scene 0 (a training seed < 1,000,000; the benchmark's are refused)")
@@ -230,6 +231,8 @@ def main(argv=None) -> dict:
 
     if args.out.resolve().parent == (Path(detectors.__file__).resolve().parent / "checkpoints"):
         ap.error(f"--out {args.out} is in the shipped models' folder: write elsewhere and copy it on purpose")
+    if args.out.suffix == ".npz":
+        ap.error(f"--out {args.out}: give the .pt path (its torch-free .npz form is written beside it)")
     try:
         check_output_dir(args.out.parent, "--out's directory")
         det = LearnedKinDetector(args.checkpoint, threshold=0.0, reports=False)

@@ -20,8 +20,9 @@ Steps (all seeded by ``--seed``):
    kin-level precision / recall / F1 per distance bin x noise level, same-radius cylinders apart,
    false positives per distractor kind, centre errors, throughput (``eval.json``, ``eval.md``);
 6. the checkpoint (``--checkpoint``, default ``OUT/learned.pt``; positioning: the better option on the
-   sweep, or ``--positioning``) and ``<checkpoint>.json`` next to it (command, configs, data, training
-   and evaluation summary); ``run.json`` in ``--out``.
+   sweep, or ``--positioning``), its torch-free form ``<checkpoint>.npz`` (what ``LearnedKinDetector``
+   reads; ``detectors.learned_torch.save_checkpoint``) and ``<checkpoint>.json`` next to it (command,
+   configs, data, training and evaluation summary); ``run.json`` in ``--out``.
 
 Everything goes to ``--out`` (default ``outputs/train_classifier``). The shipped model
 (``detectors/checkpoints/learned_default.pt``) is replaced only with ``--replace-shipped``; any other
@@ -95,6 +96,9 @@ def checkpoint_path(out: Path, checkpoint: Path | None, replace_shipped: bool) -
                              f"{checkpoint}")
         return SHIPPED_CHECKPOINT
     ckpt = checkpoint if checkpoint is not None else out / "learned.pt"
+    if ckpt.suffix == ".npz":
+        raise ValueError(f"--checkpoint {ckpt}: give the .pt path (its torch-free .npz form is written "
+                         "beside it)")  # fmt: skip
     if ckpt.resolve().parent == SHIPPED_DIR:
         raise ValueError(f"--checkpoint {ckpt} is in the shipped models' folder {SHIPPED_DIR}: write it "
                          "elsewhere (default: OUT/learned.pt), or pass --replace-shipped to replace the "
@@ -646,12 +650,8 @@ def main(argv=None) -> dict:
         ap.error(str(e))
     import torch
 
-    from detectors.learned import (
-        TrainConfig,
-        sample_weights,
-        save_checkpoint,
-        train_segment_net,
-    )
+    from detectors.learned import TrainConfig, npz_path, sample_weights
+    from detectors.learned_torch import save_checkpoint, train_segment_net
 
     try:
         tcfg = TrainConfig.from_dict(parse_json_object(args.config, "--config") or {})
@@ -668,7 +668,6 @@ def main(argv=None) -> dict:
     torch.set_num_threads(args.threads)
     progress = not args.no_progress
     command = [sys.executable, *sys.argv] if argv is None else ["train_classifier.py", *map(str, argv)]
-    ckpt = args.checkpoint or args.out / "learned.pt"
     write_run_info(args.out, args, config=tcfg, seed=args.seed,
                    argv=argv, script=__file__, checkpoint=ckpt)
     t_start = time.perf_counter()
@@ -791,6 +790,7 @@ def main(argv=None) -> dict:
             ev = evaluate(provisional, args, progress)
         finally:
             provisional.unlink(missing_ok=True)
+            npz_path(provisional).unlink(missing_ok=True)  # its torch-free form, written beside it
         write_json(args.out / "eval.json", ev)
         write_text(args.out / "eval.md", markdown(ev))
         if args.positioning == "auto":

@@ -95,7 +95,8 @@ def test_sdist_carries_tests_licence_and_changelog(built):
         pkg_info = t.extractfile(next(n for n in t.getnames() if n.endswith("/PKG-INFO"))).read().decode()
     for must in ("LICENSE", "CHANGELOG.md", "README.md", "tests/conftest.py", "tests/test_packaging.py",
                  "tests/fixtures/paper_scenario2_0.8m_scan.npz", "scripts/main_job.py",
-                 "detectors/checkpoints/learned_default.pt", *(f"{p}/py.typed" for p in PACKAGES)):
+                 "detectors/checkpoints/learned_default.pt", "detectors/checkpoints/learned_default.npz",
+                 *(f"{p}/py.typed" for p in PACKAGES)):
         assert must in names, must
     assert not any("__pycache__" in n for n in names)
     assert "License-Expression: MIT" in pkg_info

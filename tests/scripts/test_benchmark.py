@@ -55,6 +55,18 @@ def test_rates_interleaved_alternates_the_functions(bench):
     assert calls[:2] == ["off", "on"] and blocks == ["off", "on"] * 3
 
 
+def test_paired_ratio_is_the_median_of_the_rounds_ratios(bench):
+    # a slow phase in round 3 hits both functions: the paired ratio stays 0.5, the ratio of medians does not
+    on, off = [50.0, 52.0, 20.0, 49.0, 51.0], [100.0, 104.0, 40.0, 98.0, 102.0]
+    med, lo, hi = bench.paired_ratio(on, off)
+    assert med == lo == hi == 0.5
+    on = [50.0, 55.0, 20.0, 49.0, 60.0, 45.0, 51.0]
+    off = [100.0, 100.0, 50.0, 100.0, 100.0, 100.0, 100.0]
+    med, lo, hi = bench.paired_ratio(on, off)
+    ratios = [a / b for a, b in zip(on, off, strict=True)]
+    assert med == sorted(ratios)[3] and min(ratios) <= lo <= med <= hi <= max(ratios) and lo < hi
+
+
 def test_env_and_memory_sections(bench, tmp_path):
     pytest.importorskip("torch")
     argv = ["--sections", "envs,memory", "--min-time", "0.03", "--env-robots", "4", "--memory-steps", "4"]
@@ -67,6 +79,10 @@ def test_env_and_memory_sections(bench, tmp_path):
     }
     assert all(r["steps_per_s"] > 0 for r in rows.values())
     assert rows[("aggregation_v1", 4, "None")]["of_detector_off"] == 1.0
+    assert rows[("aggregation_v1", 4, "None")]["of_detector_off_paired_ci"] == [1.0, 1.0]
+    for r in rows.values():
+        lo, hi = r["of_detector_off_paired_ci"]
+        assert 0 < lo <= r["of_detector_off_paired"] <= hi
     (mem,) = res["memory"]
     assert mem["steps"] == 4 and mem["peak_rss_mb"] > 0 and mem["rss_end_mb"] > 0
     # growth is the second half's (half-time to end), settling the first half's (warm to half-time)

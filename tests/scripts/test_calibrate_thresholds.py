@@ -57,6 +57,8 @@ def test_recalibrated_copy_keeps_the_weights(tmp_path):
     assert "table" not in th  # per noise level by default
     new, old = LearnedKinDetector(out, reports=False), LearnedKinDetector(reports=False)
     assert new.checkpoint["thresholds"]["values"] == th["values"]  # loaded from the checkpoint
+    assert new.checkpoint["npz"] == str(tmp_path / "cal.npz")  # its torch-free form, written beside it
+    assert new.checkpoint["weights_sha256"] == old.checkpoint["weights_sha256"]
     scan = World(scenes.paper_scenario(2, distance=0.8), seed=0).scan()
     _, _, p_new, _ = new.predict_segments(scan.ranges, scan.angles)
     _, _, p_old, _ = old.predict_segments(scan.ranges, scan.angles)
@@ -75,6 +77,9 @@ def test_refuses_benchmark_seeds_and_the_shipped_folder(tmp_path, capsys):
     with pytest.raises(SystemExit):
         mod.main([str(DEFAULT_CHECKPOINT), "--out", str(DEFAULT_CHECKPOINT.with_name("x.pt"))])
     assert "shipped" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        mod.main([str(DEFAULT_CHECKPOINT), "--out", str(tmp_path / "c.npz")])
+    assert "give the .pt path" in capsys.readouterr().err
 
 
 def test_by_beams_table_is_deterministic_and_read_by_the_detector(tmp_path):

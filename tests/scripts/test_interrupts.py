@@ -154,7 +154,12 @@ def _check_complete_outputs(out: Path) -> None:
                 assert z.testzip() is None, f"{f}: corrupt zip"
         elif f.suffix == ".npz":
             with np.load(f) as d:
-                assert len(d["timesteps"]) >= 1
+                learned = "meta" in d.files  # a learned checkpoint's torch-free form, else SB3's eval log
+                assert learned or len(d["timesteps"]) >= 1
+            if learned:
+                from detectors.learned import load_npz_checkpoint
+
+                load_npz_checkpoint(f)
         elif f.suffix == ".json":
             json.loads(raw)
         elif f.suffix == ".png":

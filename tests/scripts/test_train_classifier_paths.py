@@ -37,6 +37,19 @@ def test_replace_shipped_is_explicit_and_exclusive(tmp_path):
     assert tc.checkpoint_path(tmp_path, None, replace_shipped=False) == tmp_path / "learned.pt"
     with pytest.raises(ValueError, match="do not also give --checkpoint"):
         tc.checkpoint_path(tmp_path, tmp_path / "x.pt", replace_shipped=True)
+    with pytest.raises(ValueError, match=r"x\.npz: give the \.pt path"):  # the npz goes beside the .pt
+        tc.checkpoint_path(tmp_path, tmp_path / "x.npz", replace_shipped=False)
+
+
+def test_replace_shipped_run_records_the_shipped_checkpoint(tmp_path):
+    pytest.importorskip("torch")
+    before = sha256_file(SHIPPED)
+    with pytest.raises(SystemExit, match="no such|not found|does not exist|manifest"):
+        tc.main(["--data", str(tmp_path / "none"), "--out", str(tmp_path), "--replace-shipped",
+                 "--no-progress"])  # fmt: skip
+    # (it once recorded, and would have written, OUT/learned.pt)
+    assert Path(json.loads((tmp_path / "run.json").read_text())["checkpoint"]) == SHIPPED
+    assert sha256_file(SHIPPED) == before
 
 
 def test_default_output_is_under_outputs(tmp_path, monkeypatch):
