@@ -32,6 +32,7 @@ import math
 from dataclasses import dataclass
 from typing import Literal, NamedTuple
 
+import numba
 import numpy as np
 
 from . import _kernels as _k
@@ -905,7 +906,30 @@ class GeometricKinDetector(KinDetector):
         :meth:`detectors.learned.LearnedKinDetector._detect_arrays_trusted`. Outputs are identical."""
         return self._detect_arrays(ranges, angles, True)
 
-    def _detect_arrays(self, ranges, angles, trusted: bool) -> BatchDetections:
+    def _detect_table_trusted(self, ranges, angles) -> tuple[np.ndarray, np.ndarray]:
+        """The detections of :meth:`_detect_arrays_trusted` (same input contract) as ``(scan row (D,) int64,
+        table (D, 8) float64)``, the columns ``range, bearing, x, y, score, first_beam, last_beam, n_beams``:
+        what ``kin_envs.envs.common.detection_arrays`` reads (as the learned detector's entry of that name),
+        without a :class:`~detectors.base.BatchDetections` and the ~25 numpy calls that build it and stack
+        it back into a table. The same values (``x``, ``y``: numpy's ``cos`` / ``sin`` of the same contiguous
+        bearings, times the same ranges); fresh arrays on every call."""
+        rb, a = self._check_batch(ranges, angles, True)
+        p = self.params
+        # the stages of _stages and the gather in one compiled call (for one scan, the ~12 allocations and
+        # four calls from Python cost about as much as the scan's detection, measured)
+        row, table, rc, bearing = _detect_table(
+            np.ascontiguousarray(rb), np.ascontiguousarray(a), float(p.d_max), float(p.d_th), self._circular,
+            p.noise_filter, self._sweep, float(p.r), float(p.F_threshold), p.shape_metric == "mean",
+            p.occlusion_unbounded, p.min_points, p.lm_max_iter, _LM_XTOL, _LM_LAMBDA0, _LM_LAMBDA_MAX,
+        )  # fmt: skip
+        if row.shape[0]:
+            np.multiply(rc, np.cos(bearing), out=table[:, 2])
+            np.multiply(rc, np.sin(bearing), out=table[:, 3])
+        return row, table
+
+    def _stages(self, ranges, angles, trusted: bool):
+        """Segments and stages of every segment: ``(ranges, angles, segments (scan, first, count, prev, next,
+        prev_nearer, next_nearer), stage (S,), values {d_cest, omega_min, omega_max, F, r_c, theta_c})``."""
         rb, a = self._check_batch(ranges, angles, trusted)
         rb, a = np.ascontiguousarray(rb), np.ascontiguousarray(a)  # one compiled signature
         p = self.params
@@ -935,6 +959,11 @@ class GeometricKinDetector(KinDetector):
             min_beam,
             *vals.values(),
         )
+        return rb, a, seg, stage, vals
+
+    def _detect_arrays(self, ranges, angles, trusted: bool) -> BatchDetections:
+        rb, a, seg, stage, vals = self._stages(ranges, angles, trusted)
+        p = self.params
         idx = np.flatnonzero(stage == _k.ACCEPTED)
         rc, bearing, F = vals["r_c"][idx], vals["theta_c"][idx], vals["F"][idx]
         first, count = seg[1][idx], seg[2][idx]
@@ -1011,6 +1040,59 @@ class GeometricKinDetector(KinDetector):
         objects of :meth:`detect_arrays`, one :class:`DetectionResult` per scan, same as
         :meth:`detect` per row."""
         return self.results(self.detect_arrays(ranges, angles))
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def _detect_table(rb, a, d_max, d_th, circular, noise_filter, sweep, r, F_threshold, mean_metric,
+                  occlusion_unbounded, min_points, lm_max_iter, xtol, lam0, lam_max):  # fmt: skip
+    """:meth:`GeometricKinDetector._stages` (the same compiled stages, in the same order, on the same
+    arguments) then :func:`_accepted_table`, in one call."""
+    d = np.empty(rb.shape)
+    _k.preprocess_rows(rb, d_max, d_th, circular, noise_filter, d)
+    scan, first, count, prev, nxt, p_near, n_near = _k._segment_views(d, d_th, d_max, circular)
+    S = scan.shape[0]
+    stage = np.empty(S, dtype=np.int8)
+    min_beam = np.empty(S, dtype=np.int64)
+    d_cest = np.empty(S)
+    omega_min = np.empty(S)
+    omega_max = np.empty(S)
+    F = np.empty(S)
+    r_c = np.empty(S)
+    theta_c = np.empty(S)
+    _k.geometric_segments(
+        d, a, sweep, scan, first, count, prev, nxt, p_near, n_near, r, F_threshold, mean_metric,
+        occlusion_unbounded, min_points, lm_max_iter, xtol, lam0, lam_max, stage, min_beam, d_cest, omega_min,
+        omega_max, F, r_c, theta_c,
+    )  # fmt: skip
+    return _accepted_table(stage, scan, first, count, r_c, theta_c, F, F_threshold, a.shape[0])
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def _accepted_table(stage, scan, first, count, r_c, theta_c, F, F_threshold, n):
+    """:meth:`GeometricKinDetector._detect_table_trusted`'s gather of the accepted segments, in segment order:
+    ``(scan row (D,), table (D, 8): range, bearing, (x, y left for the caller), score, first_beam, last_beam,
+    n_beams; the ranges (D,) and bearings (D,) as contiguous arrays)``, each value the expression
+    :meth:`GeometricKinDetector._detect_arrays` evaluates in numpy (the same IEEE operations)."""
+    n_det = 0
+    for i in range(stage.shape[0]):
+        n_det += stage[i] == _k.ACCEPTED
+    row = np.empty(n_det, dtype=np.int64)
+    table = np.empty((n_det, 8))
+    rc = np.empty(n_det)
+    bearing = np.empty(n_det)
+    k = 0
+    for i in range(stage.shape[0]):
+        if stage[i] != _k.ACCEPTED:
+            continue
+        row[k] = scan[i]
+        rc[k] = table[k, 0] = r_c[i]
+        bearing[k] = table[k, 1] = theta_c[i]
+        table[k, 4] = F_threshold / (F_threshold + F[i])
+        table[k, 5] = first[i]
+        table[k, 6] = (first[i] + count[i] - 1) % n
+        table[k, 7] = count[i]
+        k += 1
+    return row, table, rc, bearing
 
 
 def _check_negative_rows(rb: np.ndarray, a: np.ndarray) -> None:

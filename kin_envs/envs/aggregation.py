@@ -331,9 +331,12 @@ class AggregationEnv(ParallelEnv):
         elif self.detector is not None and self.padded_info:
             # sorted, matched and padded in one compiled call (pad_rows' values)
             # the lidar's robot hits settle most matches without a search
+            # the flat columns only for what reads them: the tracker, the observation's detection channel and
+            # rendering (otherwise a row's detections past its slots are not matched)
+            flat = self.tracker is not None or cfg.obs_detections is not None or self.render_mode is not None
             dets, padded = detect_rows_padded(self.detector, scan.ranges, scan.angles, scan.robots, poses,
                                               cfg.max_detections, trusted=True,
-                                              hits=(scan.hit_kind, scan.hit_index))  # fmt: skip
+                                              hits=(scan.hit_kind, scan.hit_index), flat=flat)  # fmt: skip
         elif self.detector is not None:
             dets = detect_rows(self.detector, scan.ranges, scan.angles, scan.robots, poses, trusted=True)
         self._last_detections = dets
@@ -347,9 +350,9 @@ class AggregationEnv(ParallelEnv):
         frame = self._obs.frame(scan.ranges, dets)
         if self.padded_info:
             entries["kin_truth"] = truth
-            if dets is not None:
-                if padded is None:
-                    padded = pad_rows(*dets, n, cfg.max_detections)
+            if padded is None and dets is not None:
+                padded = pad_rows(*dets, n, cfg.max_detections)
+            if padded is not None:
                 entries["kin_detections"] = padded
             # each agent's entries as row views of the (n, slots) columns; one shape on every step
             later = itertools.repeat(None)

@@ -21,6 +21,7 @@ from kin_envs.envs.common import (
     ObservationLayout,
     check_render_mode,
     config_from_kwargs,
+    detect_one_padded,
     detect_rows,
     kin_truth_rows,
     resolve_detector,
@@ -56,6 +57,12 @@ class SingleRobotEnv(gym.Env):
 
             self._feeder = PermissiveFeed(self.detector, self.tracker.params.range_noise)
         self._feed = None
+        # the step's detections, padded for the info (fixed-shape info, no permissive feed: see _detect)
+        self._padded_dets: tuple[dict[str, np.ndarray], int] | None = None
+        # the flat detections are read only by the tracker, the observation's detection channel and rendering
+        self._flat_dets = (
+            self.tracker is not None or self.config.obs_detections is not None or self.render_mode is not None
+        )
         self._lidar = self.config.lidar_spec()
         self._world_config = WorldConfig(control_dt=self.config.control_dt)
         self.layout = ObservationLayout(
@@ -160,12 +167,25 @@ class SingleRobotEnv(gym.Env):
         return self._wheels
 
     def _detect(self, scan: Scan, poses: np.ndarray):
-        """The learner's detections as flat ``(row, cols)`` (:func:`detect_rows`), or ``None``."""
+        """The learner's detections as flat ``(row, cols)`` (:func:`detect_rows`), or ``None`` (no detector,
+        or nothing reads them: ``_flat_dets``). The fixed-shape info's padded detections, matched and padded
+        in the same compiled call (:func:`detect_one_padded`), are kept in ``_padded_dets`` for
+        :meth:`_kin_info`."""
+        self._padded_dets = None
         if self.detector is None:
             return None
         if self._feeder is not None:
             dets, self._feed = self._feeder.detect(scan.ranges[:1], scan.angles, scan.robots[:1], poses,
                                                    range_max=scan.range_max)  # fmt: skip
+            return dets
+        if self.padded_info:
+            # the lidar's robot hits settle the match without a search (the same values)
+            dets, cols, count = detect_one_padded(
+                self.detector, scan.ranges[:1], scan.angles, int(scan.robots[0]), poses,
+                self.config.max_detections,
+                hits=(scan.hit_kind[:1], scan.hit_index[:1]), flat=self._flat_dets,
+            )  # fmt: skip
+            self._padded_dets = cols, count
             return dets
         return detect_rows(self.detector, scan.ranges[:1], scan.angles, scan.robots[:1], poses, trusted=True)
 
@@ -214,7 +234,10 @@ class SingleRobotEnv(gym.Env):
             return info
         cols, count = pad_rows(truth_row, truth, 1, self.world.n_robots - 1)
         info = {"kin_truth": {k: v[0] for k, v in cols.items()}, "kin_truth_count": int(count[0])}
-        if dets is not None:
+        if self._padded_dets is not None:
+            info["kin_detections"], info["kin_detections_count"] = self._padded_dets
+            self._padded_dets = None  # handed out: never given twice
+        elif dets is not None:
             cols, count = pad_rows(dets[0], dets[1], 1, self.config.max_detections)
             info["kin_detections"] = {k: v[0] for k, v in cols.items()}
             info["kin_detections_count"] = int(count[0])

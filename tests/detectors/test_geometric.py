@@ -832,3 +832,31 @@ def test_non_circular_scan_does_not_wrap():
     assert rep.segment.beams.tolist() == [0, 1, 2]
     assert rep.segment.prev_beam is None
     assert rep.metrics["omega_max"] == math.inf  # no outside beam on that side
+
+
+@pytest.mark.parametrize(
+    "params",
+    [GeometricParams(), GeometricParams(shape_metric="mean", F_threshold=2),
+     GeometricParams(F_threshold=0.02)],  # fmt: skip
+)
+def test_table_entry_is_the_batch_arrays_stacked(params):
+    # _detect_table_trusted (the envs' entry: accepted segments gathered in one compiled call) against
+    # detect_arrays' columns stacked into the table the envs read, bit for bit, on random swarm arenas
+    # (noise, dropouts, an int threshold) and a batch without any detection
+    from kin_envs import LidarSpec, World, scenes
+
+    det = GeometricKinDetector(params, reports=False)
+    n_det = 0
+    for seed in range(5):
+        lidar = LidarSpec(noise_sigma=0.004 * seed, dropout_prob=0.02 * (seed % 2))
+        scan = World(scenes.random_arena(20, 16, seed=seed).replace(lidar=lidar), seed=seed).scan()
+        for ranges in (scan.ranges, scan.ranges[:1], np.full((3, scan.ranges.shape[1]), np.inf)):
+            b = det.detect_arrays(ranges, scan.angles)
+            cols = (b.range, b.bearing, b.x, b.y, b.score, b.first_beam, b.last_beam, b.n_beams_on)
+            ref = np.stack(cols, axis=1).astype(np.float64).reshape(-1, 8)
+            row, table = det._detect_table_trusted(ranges, scan.angles)
+            assert row.dtype == np.int64 and table.dtype == np.float64 and table.shape == ref.shape
+            assert np.array_equal(row, b.scan)
+            assert table.tobytes() == ref.tobytes()
+            n_det += row.size
+    assert n_det > 40

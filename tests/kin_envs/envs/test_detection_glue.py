@@ -379,3 +379,153 @@ def test_detect_rows_padded_is_detect_rows_then_pad_rows(detector):
                 assert not np.shares_memory(a, b)
             n_det += row.size
     assert n_det > 50
+
+
+def test_rank_sort_is_the_stable_sort_by_range():
+    # the match-and-pad kernel's per-row sort (ranks counted without branches; NaN rows and rows longer than
+    # _RANK_SORT_MAX insertion-sorted) against numpy's stable argsort (NaN last), on rows with ties,
+    # -0.0 / 0.0, inf and NaN ranges, from empty to past the bound
+    from kin_envs.envs.common import _RANK_SORT_MAX, _rank_sort_by_range
+
+    rng = np.random.default_rng(11)
+    lengths = [0, 1, 2, 3, 15, _RANK_SORT_MAX - 1, _RANK_SORT_MAX, _RANK_SORT_MAX + 1, 150]
+    for trial in range(300):
+        m = lengths[trial % len(lengths)]
+        lo = int(rng.integers(0, 5))
+        tab = np.zeros((lo + m + 3, 8))
+        keys = rng.uniform(0, 3, m)
+        if trial % 3 == 0:
+            keys = np.round(keys, 1)  # ties
+        if trial % 5 == 0 and m > 2:
+            keys[:2] = [-0.0, 0.0]
+            keys[-1] = np.inf
+        if trial % 7 == 0 and m > 1:
+            keys[rng.integers(m, size=2)] = np.nan
+        tab[lo : lo + m, 0] = keys
+        order = np.arange(tab.shape[0])
+        rng.shuffle(order[lo : lo + m])
+        ref = order.copy()
+        seg = ref[lo : lo + m]
+        ref[lo : lo + m] = seg[np.argsort(tab[seg, 0], kind="stable")]
+        scratch = min(m, _RANK_SORT_MAX)
+        _rank_sort_by_range(tab, order, lo, lo + m, np.empty(scratch), np.empty(scratch, dtype=np.int64))
+        assert np.array_equal(order, ref), (trial, m)
+
+
+def test_padded_only_match_gives_the_same_padded_columns():
+    # _match_pad_kernel(flat=False) (what a step that reads no flat columns asks for: rows past their slots
+    # neither matched nor copied) gives flat=True's padded blocks and counts, bit for bit, with and without
+    # the lidar's candidates, on the random edge cases (overfull rows included)
+    from kin_envs.envs.common import _INT_PADS, _NO_HITS, _ROBOT_HIT, KIN_MATCH_TOLERANCE, _match_pad_kernel
+
+    rng = np.random.default_rng(5)
+    n_over = 0
+    for trial in range(300):
+        case = _touching_case(rng, trial) if trial % 2 else _random_glue_case(rng, trial)
+        tab, owner, observers, poses, n_rows, slots = case
+        hits = _random_hits(rng, tab, owner, observers, poses, n_rows) if trial % 3 else _NO_HITS
+        args = (tab, owner, observers, poses, KIN_MATCH_TOLERANCE**2, n_rows, slots, _INT_PADS, *hits,
+                _ROBOT_HIT)  # fmt: skip
+        full = _match_pad_kernel(*args, True)
+        lean = _match_pad_kernel(*args, False)
+        assert lean[0].shape == (0,) and lean[1].shape == (5, 0) and lean[2].shape == (4, 0)
+        for a, b in zip(full[3:], lean[3:], strict=True):
+            assert a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
+        n_over += int((np.bincount(owner, minlength=n_rows) > slots).sum())
+    assert n_over > 20  # rows past their slots were compared
+
+
+class _DetectOnly:
+    """A user's detector object with ``detect`` alone (the envs' slowest reading path)."""
+
+    def __init__(self, inner):
+        self.inner = inner
+
+    def detect(self, ranges, angles):
+        return self.inner.detect(ranges, angles)
+
+
+@pytest.mark.parametrize("detector", ["geometric", "learned", "beam", "detect-only"])
+def test_one_row_match_and_pad_is_detect_rows_then_pad_rows(detector):
+    # detect_one_padded (KinSeek / KinFollow v1 every step) against the previous path, detect_rows then
+    # pad_rows and each padded field's one row, bit for bit: the flat columns, the padded slots and the
+    # count, with and without the lidar's candidates and the flat columns, over-full and empty rows
+    if detector == "learned":
+        pytest.importorskip("torch")
+    from kin_envs import LidarSpec, World, scenes
+    from kin_envs.envs.common import detect_one_padded, resolve_detector
+    from kin_envs.envs.info import pad_rows
+
+    det = resolve_detector("geometric" if detector == "detect-only" else detector)
+    if detector == "detect-only":
+        det = _DetectOnly(det)
+    n_det = n_empty = n_over = 0
+    for seed in range(3):
+        scene = scenes.random_arena(24, 4, seed=seed, size=5.0).replace(lidar=LidarSpec(noise_sigma=0.01))
+        w = World(scene, seed=seed)
+        scan, poses = w.scan(), w.poses
+        empty = np.full_like(scan.ranges[:1], scan.range_max)  # no return anywhere: no detection
+        for i in range(25):
+            r = slice(i % 24, i % 24 + 1)
+            ranges = scan.ranges[r] if i < 24 else empty
+            row, cols = detect_rows(det, ranges, scan.angles, scan.robots[r], poses, trusted=True)
+            for slots in (1, 16):
+                padded, count = pad_rows(row, cols, 1, slots)
+                ref_padded = {k: v[0] for k, v in padded.items()}
+                for hits in (None, (scan.hit_kind[r], scan.hit_index[r])):
+                    for flat in (True, False):
+                        got_flat, got, got_count = detect_one_padded(
+                            det, ranges, scan.angles, int(scan.robots[r][0]), poses, slots, hits=hits,
+                            flat=flat,
+                        )  # fmt: skip
+                        _same_cols(got, ref_padded)
+                        assert type(got_count) is int and got_count == int(count[0])
+                        if flat:
+                            assert np.array_equal(got_flat[0], row) and got_flat[0].dtype == row.dtype
+                            _same_cols(got_flat[1], cols)
+                        else:
+                            assert got_flat is None
+            n_det += row.size
+            n_empty += row.size == 0
+            n_over += row.size > 1  # past the one slot of slots=1
+    assert n_empty > 0 and n_det > 40 and n_over > 5
+
+
+@pytest.mark.parametrize("detector", ["geometric", "learned"])
+def test_envs_without_flat_detections_give_the_same_outputs(detector):
+    # with nothing reading the flat detections (no tracker, no detection channel, no rendering) the envs skip
+    # them: every output equals the same env's with rendering on (flat columns kept), bit for bit and in the
+    # same key order, through an episode end
+    if detector == "learned":
+        pytest.importorskip("torch")
+    import gymnasium as gym
+
+    from kin_envs.envs.aggregation import AggregationEnv
+
+    from .test_swarm_step_equivalence import assert_same_ordered
+
+    lean = gym.make("kin_envs/KinSeek-v1", detector=detector, noise_sigma=0.01, max_steps=60)
+    full = gym.make("kin_envs/KinSeek-v1", detector=detector, noise_sigma=0.01, max_steps=60,
+                    render_mode="rgb_array")  # fmt: skip
+    assert not lean.unwrapped._flat_dets and full.unwrapped._flat_dets
+    rng = np.random.default_rng(2)
+    n_det = 0
+    for episode in range(2):
+        assert_same_ordered(lean.reset(seed=episode), full.reset(seed=episode))
+        done = False
+        while not done:
+            a = rng.uniform(-1, 1, 2).astype(np.float32)
+            out = lean.step(a)
+            assert_same_ordered(out, full.step(a))
+            assert lean.unwrapped._last_detections is None
+            n_det += out[4]["kin_detections_count"]
+            done = out[2] or out[3]
+    swarm = [AggregationEnv(n_robots=16, detector=detector, noise_sigma=0.01, max_cycles=25, render_mode=m)
+             for m in (None, "rgb_array")]  # fmt: skip
+    assert_same_ordered(swarm[0].reset(seed=4), swarm[1].reset(seed=4))
+    while swarm[0].agents:
+        acts = {a: rng.uniform(-1, 1, 2).astype(np.float32) for a in swarm[0].agents}
+        out = swarm[0].step(acts)
+        assert_same_ordered(out, swarm[1].step(acts))
+        n_det += sum(i["kin_detections_count"] for i in out[4].values())
+    assert n_det > 20
