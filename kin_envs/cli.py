@@ -178,7 +178,7 @@ def detector_from_name(name: str, *, checkpoint=None, reports: bool = False, wha
     ``checkpoint`` (a path; default: the shipped one) applies to ``learned`` and ``beam`` only.
     ``reports`` builds the per-segment reports of the geometric and learned detectors (they cost time
     and no script scores them). Raises ``ValueError`` naming ``what`` for an unknown name, a detector
-    that cannot be imported or built (no torch, no or a bad checkpoint), or an object without
+    that cannot be imported or built (no or a bad checkpoint; a ``.pt`` without its ``.npz`` and no torch), or an object without
     ``detect_batch``.
     """
     if not isinstance(name, str):
@@ -192,7 +192,7 @@ def detector_from_name(name: str, *, checkpoint=None, reports: bool = False, wha
     if name == "learned":
         try:
             from detectors.learned import LearnedKinDetector
-        except ImportError as e:  # torch missing (the train extra)
+        except ImportError as e:  # a broken install (the learned detector needs no torch)
             raise ValueError(
                 f"detector 'learned' is unavailable: cannot import detectors.learned ({e})"
             ) from e

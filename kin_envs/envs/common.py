@@ -310,7 +310,7 @@ def resolve_detector(spec: Any, where: str = "kin_envs"):
 
     ``"geometric"`` → ``detectors.GeometricKinDetector(reports=False)`` (the env only needs the
     detections, and per-segment reports cost most of the detector's time); ``"learned"`` →
-    ``detectors.LearnedKinDetector()`` if that exists (it needs the ``train`` extra); ``"beam"`` →
+    ``detectors.LearnedKinDetector()`` (the shipped checkpoint's ``.npz`` form: no torch needed); ``"beam"`` →
     ``detectors.beam_detector.BeamKinDetector()`` (numpy only). The
     ``detectors`` package is imported here, lazily, so ``import kin_envs`` stays light.
     """
@@ -326,7 +326,7 @@ def resolve_detector(spec: Any, where: str = "kin_envs"):
         except ImportError as e:
             raise ValueError(
                 f"{where}: detector='learned' needs detectors.LearnedKinDetector, which is not "
-                f"available ({e}); install the train extra (pip install kin-envs[train]) or pass "
+                f"available ({e}); reinstall kin-envs (its base install runs the learned detector) or pass "
                 "detector='geometric', None or a detector object"
             ) from e
         return LearnedKinDetector()
