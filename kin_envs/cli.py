@@ -178,8 +178,8 @@ def detector_from_name(name: str, *, checkpoint=None, reports: bool = False, wha
     ``checkpoint`` (a path; default: the shipped one) applies to ``learned`` and ``beam`` only.
     ``reports`` builds the per-segment reports of the geometric and learned detectors (they cost time
     and no script scores them). Raises ``ValueError`` naming ``what`` for an unknown name, a detector
-    that cannot be imported or built (no or a bad checkpoint; a ``.pt`` without its ``.npz`` and no torch), or an object without
-    ``detect_batch``.
+    that cannot be imported or built (no or a bad checkpoint; a ``.pt`` without its ``.npz`` and no
+    torch), or an object without ``detect_batch``.
     """
     if not isinstance(name, str):
         raise TypeError(f"{what}: expected a detector name (str), got {type(name).__name__}")
