@@ -395,6 +395,38 @@ def write_npz_checkpoint(path, checkpoint: dict, source: dict | None = None) -> 
     return path
 
 
+def _check_versions(meta: dict, path, expected: str) -> None:
+    """A checkpoint's format and feature versions against this code's (``ValueError`` naming ``path``);
+    shared by the npz loader and :func:`detectors.learned_torch.load_checkpoint`."""
+    if meta.get("format_version") != CHECKPOINT_FORMAT_VERSION:
+        raise ValueError(
+            f"{path}: checkpoint format version {meta.get('format_version')!r} is not "
+            f"{CHECKPOINT_FORMAT_VERSION}; {expected}"
+        )
+    if meta.get("feature_version") != FEATURE_VERSION:
+        raise ValueError(
+            f"{path}: checkpoint was trained on feature version {meta.get('feature_version')!r}, but this "
+            f"code computes feature version {FEATURE_VERSION}; retrain it with scripts/train_classifier.py"
+        )
+
+
+def _checked_configs(meta: dict) -> tuple[FeatureConfig, ModelConfig]:
+    """A checkpoint's ``(FeatureConfig, ModelConfig)``, its feature names and the model's input size
+    checked against what this code computes (``ValueError``, ``KeyError`` or ``TypeError``: the callers
+    name the file)."""
+    fc = FeatureConfig.from_dict(meta["feature_config"])
+    mc = ModelConfig.from_dict(meta["model_config"])
+    names = feature_names(fc)
+    if meta.get("feature_names") != names:
+        raise ValueError(f"feature names {meta.get('feature_names')!r} differ from {names!r}")
+    if mc.n_features != len(names):
+        raise ValueError(
+            f"the model takes {mc.n_features} input features but feature version {FEATURE_VERSION} with "
+            f"{fc} gives {len(names)}"
+        )
+    return fc, mc
+
+
 def load_npz_checkpoint(path) -> dict:
     """Read a checkpoint's torch-free form (:func:`write_npz_checkpoint`) → the checkpoint dict of
     :func:`~detectors.learned_torch.load_checkpoint` with numpy arrays as ``state_dict`` (and
@@ -428,27 +460,9 @@ def load_npz_checkpoint(path) -> dict:
         raise ValueError(f"{path}: unreadable metadata ({e}); {expected}") from e
     if not isinstance(meta, dict) or meta.get("format") != CHECKPOINT_FORMAT or meta.get("form") != "npz":
         raise ValueError(f"{path}: not a learned kin detector checkpoint; {expected}")
-    if meta.get("format_version") != CHECKPOINT_FORMAT_VERSION:
-        raise ValueError(
-            f"{path}: checkpoint format version {meta.get('format_version')!r} is not "
-            f"{CHECKPOINT_FORMAT_VERSION}; {expected}"
-        )
-    if meta.get("feature_version") != FEATURE_VERSION:
-        raise ValueError(
-            f"{path}: checkpoint was trained on feature version {meta.get('feature_version')!r}, but this "
-            f"code computes feature version {FEATURE_VERSION}; retrain it with scripts/train_classifier.py"
-        )
+    _check_versions(meta, path, expected)
     try:
-        fc = FeatureConfig.from_dict(meta["feature_config"])
-        mc = ModelConfig.from_dict(meta["model_config"])
-        names = feature_names(fc)
-        if meta.get("feature_names") != names:
-            raise ValueError(f"feature names {meta.get('feature_names')!r} differ from {names!r}")
-        if mc.n_features != len(names):
-            raise ValueError(
-                f"the model takes {mc.n_features} input features but feature version {FEATURE_VERSION} with "
-                f"{fc} gives {len(names)}"
-            )
+        fc, mc = _checked_configs(meta)
         other = sorted(k for k in arrays if not k.startswith(_NPZ_PARAM))
         if other:
             raise ValueError(f"unexpected arrays {other}")

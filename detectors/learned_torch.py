@@ -37,7 +37,9 @@ from .learned import (
     POSITIONING,
     ModelConfig,
     TrainConfig,
+    _check_versions,
     _check_weights,
+    _checked_configs,
     _CorruptWeights,
     _plain,
     check_thresholds,
@@ -236,27 +238,9 @@ def load_checkpoint(path=None, device="cpu") -> tuple[SegmentNet, dict]:
         ) from e
     if not isinstance(ck, dict) or ck.get("format") != CHECKPOINT_FORMAT:
         raise ValueError(f"{path}: not a learned kin detector checkpoint; {expected}")
-    if ck.get("format_version") != CHECKPOINT_FORMAT_VERSION:
-        raise ValueError(
-            f"{path}: checkpoint format version {ck.get('format_version')!r} is not "
-            f"{CHECKPOINT_FORMAT_VERSION}; {expected}"
-        )
-    if ck.get("feature_version") != FEATURE_VERSION:
-        raise ValueError(
-            f"{path}: checkpoint was trained on feature version {ck.get('feature_version')!r}, but this code "
-            f"computes feature version {FEATURE_VERSION}; retrain it with scripts/train_classifier.py"
-        )
+    _check_versions(ck, path, expected)
     try:
-        fc = FeatureConfig.from_dict(ck["feature_config"])
-        mc = ModelConfig.from_dict(ck["model_config"])
-        names = feature_names(fc)
-        if ck.get("feature_names") != names:
-            raise ValueError(f"feature names {ck.get('feature_names')!r} differ from {names!r}")
-        if mc.n_features != len(names):
-            raise ValueError(
-                f"the model takes {mc.n_features} input features but feature version {FEATURE_VERSION} with "
-                f"{fc} gives {len(names)}"
-            )
+        fc, mc = _checked_configs(ck)
         nrm = ck["normalisation"]
         model = SegmentNet(mc)
         model.load_state_dict(ck["state_dict"])
