@@ -497,14 +497,20 @@ def detect_rows_padded(
     channel in the observation, no rendering): a row's detections past its ``slots`` are then neither
     matched nor copied."""
     owner, tab = detection_arrays(detector, ranges, angles, trusted)
-    hit_kind, hit_index = _NO_HITS if hits is None else hits
-    row, flo, ints, pf, pi, count = _match_pad_kernel(
-        np.ascontiguousarray(tab, dtype=np.float64), np.ascontiguousarray(owner, dtype=np.int64),
-        np.ascontiguousarray(observers, dtype=np.int64), np.ascontiguousarray(poses, dtype=np.float64),
-        KIN_MATCH_TOLERANCE**2, len(ranges), slots, _INT_PADS, hit_kind, hit_index, _ROBOT_HIT, bool(flat),
-    )  # fmt: skip
+    row, flo, ints, pf, pi, count = _match_pad(owner, tab, observers, poses, len(ranges), slots, hits, flat)
     padded = (_detection_cols(pf, pi), count)
     return ((row, _detection_cols(flo, ints)) if flat else None), padded
+
+
+def _match_pad(owner, tab, observers, poses, n_rows: int, slots: int, hits, flat: bool):
+    """:func:`_match_pad_kernel` on a detector's ``(owner, table)`` with the env's constants (one compiled
+    signature: contiguous float64 / int64 inputs; no lidar hits when ``hits`` is None)."""
+    hit_kind, hit_index = _NO_HITS if hits is None else hits
+    return _match_pad_kernel(
+        np.ascontiguousarray(tab, dtype=np.float64), np.ascontiguousarray(owner, dtype=np.int64),
+        np.ascontiguousarray(observers, dtype=np.int64), np.ascontiguousarray(poses, dtype=np.float64),
+        KIN_MATCH_TOLERANCE**2, n_rows, slots, _INT_PADS, hit_kind, hit_index, _ROBOT_HIT, bool(flat),
+    )  # fmt: skip
 
 
 def detect_one_padded(
@@ -532,12 +538,8 @@ def detect_one_padded(
             return None, padded, 0
         empty = _detection_cols(np.zeros((5, 0)), np.zeros((4, 0), dtype=np.int64))
         return (np.zeros(0, dtype=np.int64), empty), padded, 0
-    hit_kind, hit_index = _NO_HITS if hits is None else hits
-    row, flo, ints, pf, pi, count = _match_pad_kernel(
-        np.ascontiguousarray(tab, dtype=np.float64), np.ascontiguousarray(owner, dtype=np.int64),
-        np.array([observer], dtype=np.int64), np.ascontiguousarray(poses, dtype=np.float64),
-        KIN_MATCH_TOLERANCE**2, 1, slots, _INT_PADS, hit_kind, hit_index, _ROBOT_HIT, bool(flat),
-    )  # fmt: skip
+    observers = np.array([observer], dtype=np.int64)
+    row, flo, ints, pf, pi, count = _match_pad(owner, tab, observers, poses, 1, slots, hits, flat)
     padded = dict(zip(DETECTION_FIELDS, (*pf.reshape(5, slots), *pi.reshape(4, slots)), strict=True))
     return ((row, _detection_cols(flo, ints)) if flat else None), padded, int(count[0])
 
