@@ -427,6 +427,14 @@ def _checked_configs(meta: dict) -> tuple[FeatureConfig, ModelConfig]:
     return fc, mc
 
 
+def _checked_operating_point(meta: dict) -> tuple[float, dict]:
+    """A checkpoint's ``(angular_resolution, thresholds)``, its positioning checked (``ValueError`` /
+    ``KeyError`` / ``TypeError``: the callers name the file); shared like :func:`_checked_configs`."""
+    if meta.get("positioning") not in POSITIONING:
+        raise ValueError(f"positioning {meta.get('positioning')!r} is not one of {POSITIONING}")
+    return float(meta["angular_resolution"]), check_thresholds(meta.get("thresholds"))
+
+
 def load_npz_checkpoint(path) -> dict:
     """Read a checkpoint's torch-free form (:func:`write_npz_checkpoint`) → the checkpoint dict of
     :func:`~detectors.learned_torch.load_checkpoint` with numpy arrays as ``state_dict`` (and
@@ -487,10 +495,7 @@ def load_npz_checkpoint(path) -> dict:
             if v.shape != (n,) or (name.endswith("std") and (v <= 0).any()):
                 raise ValueError(f"normalisation {name} must be {n} values (std > 0), got shape {v.shape}")
         _check_weights(state, nrm, digest)
-        if meta.get("positioning") not in POSITIONING:
-            raise ValueError(f"positioning {meta.get('positioning')!r} is not one of {POSITIONING}")
-        res = float(meta["angular_resolution"])
-        thresholds = check_thresholds(meta.get("thresholds"))
+        res, thresholds = _checked_operating_point(meta)
     except _CorruptWeights as e:
         raise ValueError(f"{path}: corrupt checkpoint: {e}; refusing to load it") from e
     except (KeyError, TypeError, ValueError) as e:

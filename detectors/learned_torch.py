@@ -40,6 +40,7 @@ from .learned import (
     _check_versions,
     _check_weights,
     _checked_configs,
+    _checked_operating_point,
     _CorruptWeights,
     _plain,
     check_thresholds,
@@ -246,10 +247,7 @@ def load_checkpoint(path=None, device="cpu") -> tuple[SegmentNet, dict]:
         model.load_state_dict(ck["state_dict"])
         _check_weights(ck["state_dict"], nrm, ck.get("weights_sha256"))
         model.set_normalisation(nrm["x_mean"], nrm["x_std"], nrm["t_mean"], nrm["t_std"])
-        if ck.get("positioning") not in POSITIONING:
-            raise ValueError(f"positioning {ck.get('positioning')!r} is not one of {POSITIONING}")
-        res = float(ck["angular_resolution"])
-        thresholds = check_thresholds(ck.get("thresholds"))
+        res, thresholds = _checked_operating_point(ck)
     except _CorruptWeights as e:
         raise ValueError(f"{path}: corrupt checkpoint: {e}; refusing to load it") from e
     except (KeyError, TypeError, ValueError, RuntimeError) as e:
