@@ -121,6 +121,14 @@ def _rows_fit(ws, n_sel, n_feat):
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
+def _segment_columns(wi, wb, cells):
+    # the segmentation's columns (scan, first, count, prev, next, prev_nearer, next_nearer) as views of the
+    # int64 and bool work arrays, room for ``cells`` segments each
+    return (wi[:cells], wi[cells : 2 * cells], wi[2 * cells : 3 * cells], wi[3 * cells : 4 * cells],
+            wi[4 * cells : 5 * cells], wb[:cells], wb[cells : 2 * cells])  # fmt: skip
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def _row_arrays(ws, n_sel, n_feat, n_frame):
     # the network rows' features (float32), frames (n_frame columns), circle-fit centres and min beams: views
     # of the work arrays when they hold n_sel rows (frames and centres below the outputs' 8 * n_sel: see
@@ -182,13 +190,7 @@ def _front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_
     d = wf[:cells].reshape((n_rows, n))
     _k.preprocess_rows(r, d_max, d_th, circular, False, d)
     # the segmentation's columns are views of the work arrays (no copies)
-    scan = wi[:cells]
-    first = wi[cells : 2 * cells]
-    count = wi[2 * cells : 3 * cells]
-    prev = wi[3 * cells : 4 * cells]
-    nxt = wi[4 * cells : 5 * cells]
-    p_near = wb[:cells]
-    n_near = wb[cells : 2 * cells]
+    scan, first, count, prev, nxt, p_near, n_near = _segment_columns(wi, wb, cells)
     s = _k.segment_rows(d, d_th, d_max, circular, scan, first, count, prev, nxt, p_near, n_near)
     scan, first, count, prev, nxt = scan[:s], first[:s], count[:s], prev[:s], nxt[:s]
     p_near, n_near = p_near[:s], n_near[:s]
@@ -340,13 +342,7 @@ def _front_table(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin,
     _scan_noise_kernel(d, d_th, d_max, circular, noise, noise_n)
     scan_cols = np.empty((n_rows, 2))
     _scan_columns(noise, noise_n, scan_cols)
-    scan = wi[:cells]
-    first = wi[cells : 2 * cells]
-    count = wi[2 * cells : 3 * cells]
-    prev = wi[3 * cells : 4 * cells]
-    nxt = wi[4 * cells : 5 * cells]
-    p_near = wb[:cells]
-    n_near = wb[cells : 2 * cells]
+    scan, first, count, prev, nxt, p_near, n_near = _segment_columns(wi, wb, cells)
     # (as _front: the pre-gate's bound, >= 1 + margin, keeps segments of at most 1 + margin beams)
     skip_upto = int(1.0 + math.floor(margin)) if step > 0.0 and margin >= 0.0 else 0
     s = _table_segments(d, d_th, d_max, circular, pre_gate, skip_upto, step, r_kin, slack, margin, cascade,
