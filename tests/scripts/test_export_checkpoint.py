@@ -39,3 +39,16 @@ def test_export_and_check(tmp_path, capsys):
     with pytest.raises(SystemExit) as e:
         mod.main([str(a), str(DEFAULT_CHECKPOINT), "--out", str(out)])
     assert e.value.code == 2 and "--out takes exactly one checkpoint" in capsys.readouterr().err
+
+
+def test_bad_checkpoints_are_named(tmp_path):
+    pytest.importorskip("torch")
+    missing = tmp_path / "missing.pt"
+    with pytest.raises(FileNotFoundError, match="missing.pt does not exist"):
+        mod.main([str(missing), "-q"])
+    junk = tmp_path / "junk.pt"
+    junk.write_bytes(b"not a checkpoint")
+    with pytest.raises(ValueError, match="junk.pt: not a readable torch checkpoint"):
+        mod.main([str(junk), "-q"])
+    assert not (tmp_path / "junk.npz").exists()
+    assert "junk.npz does not exist" in mod.check(junk)
