@@ -58,11 +58,14 @@ EXIT_INTERRUPTED = 130
 MAX_NOISE = 0.5
 
 
-def run_main(main: Callable[[], object], bad_input: tuple[type[BaseException], ...] = (ValueError,)) -> None:
+def run_main(
+    main: Callable[[], object],
+    bad_input: tuple[type[BaseException], ...] = (ValueError, FileNotFoundError),
+) -> None:
     """Run a script's ``main()``; Ctrl-C ends it with one line on stderr and exit status 130, and bad
-    input (a ``ValueError``, e.g. ``--env-kwargs '{bad'``) with one line and exit status 2, like argparse.
-    ``KIN_ENVS_TRACEBACK=1`` re-raises the ``ValueError`` with its traceback; ``bad_input=()`` leaves
-    errors to the script.
+    input (a ``ValueError``, e.g. ``--env-kwargs '{bad'``, or a ``FileNotFoundError``: an input file
+    that does not exist) with one line and exit status 2, like argparse. ``KIN_ENVS_TRACEBACK=1``
+    re-raises it with its traceback; ``bad_input=()`` leaves errors to the script.
 
     Inside the world's build and step (and scene validation) Ctrl-C is deferred to the end of that
     unit of work (:mod:`kin_envs.core.interrupts`), so the stop is always clean; outputs are written

@@ -192,6 +192,13 @@ def test_run_main_bad_input_and_other_errors(capsys, no_sigint_handler):
         cli.run_main(bad)
     assert stop.value.code == 2 and "--noise must be" in capsys.readouterr().err
 
+    def missing():  # a missing input file is bad input too: one line naming it, not a traceback
+        raise FileNotFoundError("learned detector checkpoint /tmp/x.pt does not exist")
+
+    with pytest.raises(SystemExit) as stop:
+        cli.run_main(missing)
+    assert stop.value.code == 2 and "/tmp/x.pt does not exist" in capsys.readouterr().err
+
     def broken():
         raise RuntimeError("a real bug")
 
