@@ -12,8 +12,8 @@ writes to ``--out``:
   point marked);
 * ``run.json``: command, arguments, benchmark version, split configs and seeds, versions, timing.
 
-Sizes: ``--size reduced`` (default; what the main job runs), ``--full`` (the benchmark's full
-size) or ``--scenes N`` per split. Detectors: ``geometric``, ``learned`` or ``module:Class``
+Sizes: the reduced size (default; what the main job runs), ``--full`` (the benchmark's full size)
+or ``--scenes N`` per split. Detectors: ``geometric``, ``learned``, ``beam`` or ``module:Class``
 (as ``scripts/evaluate_detectors.py``).
 
 Example::

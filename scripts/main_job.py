@@ -7,7 +7,7 @@
    detection benchmark (``paper``, ``swarm``, ``lookalike`` splits x noise / dropout; AP, P / R / F1
    with bootstrap intervals, PR curves) at its reduced size (``--full``: the full size) ->
    ``outputs/benchmark_detectors/``. It supersedes the former ``scripts/evaluate_detectors.py`` sweep
-   in the main job; that script stays for large seeded sweeps (``--backend ray``).
+   in the main job; that script stays for large seeded sweeps (``evaluate_detectors.py --backend ray``).
 3. ``scripts/benchmark_tracking.py``: the sequence benchmark (``swarm`` and ``lookalike`` episodes with
    moving observers and kin, 0 and 1 % range noise): the multi-frame ``KinTracker`` vs the single-scan
    detectors, at its reduced size (``--full``: the full size), and the tracking cost at 64 observers
