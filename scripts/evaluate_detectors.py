@@ -378,7 +378,7 @@ def main(argv: list[str] | None = None) -> dict:
         "--detectors",
         nargs="+",
         default=["geometric"],
-        help="geometric, learned or module:Class (default: geometric)",
+        help="geometric, learned, beam or module:Class (default: geometric)",
     )
     ap.add_argument("--scenes", type=int, default=DEFAULT_SCENES, help="random scenes in the sweep")
     ap.add_argument(
