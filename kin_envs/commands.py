@@ -3,7 +3,8 @@
 ``kin-envs detect BAG --topic /scan [--detector geometric|learned|beam] [--odom /odom] [--track]
 [--out FILE.jsonl|.csv] [--markers OUT_BAG]`` runs a detector on every ``sensor_msgs/LaserScan`` of a ROS 1
 or ROS 2 bag and writes the detections per scan with their stamps (with ``--track``, also the multi-frame
-``detectors.KinTracker``'s tracks, fed with the detections and the odometry between scans);
+``detectors.KinTracker``'s tracks, fed with the detections and the odometry between scans) and beside them
+the run record ``FILE.run.json``;
 ``kin-envs record OUT --env ID`` records one env episode to a bag (:func:`kin_envs.ros.record_episode`).
 Run ``kin-envs COMMAND --help`` for the options. Also runnable as ``python -m kin_envs.commands``.
 """
