@@ -313,6 +313,7 @@ def run_sequences(
     record: int | None = None,
     diagnose: bool = False,
     kin_model="learned",
+    mot: bool = True,
 ) -> dict:
     """Run the sequence benchmark on one split at one noise level (see the module docstring).
 
@@ -329,11 +330,14 @@ def run_sequences(
             >= 10 frames at 0.3-2 m, by cause (:func:`_diagnose`).
         kin_model: the tracker's kin decision (:class:`detectors.tracking.KinTracker`): ``"learned"``
             (the shipped track classifier), ``"hand"`` (the hand-tuned fusion), a model or its path.
+        mot: score CLEAR MOT (needs ``motmetrics``, the ``tracking`` extra); ``False``: ``"mot"`` is
+            ``{}``.
 
     Returns a plain dict (JSON-serialisable) of tables; ``"frames"`` holds the recording if asked.
     """
     recorded = record_sequences(detector, split, n_episodes, noise, baselines, progress)  # checks arguments
-    return evaluate_sequences(recorded, tracker_params, record=record, diagnose=diagnose, kin_model=kin_model)
+    return evaluate_sequences(recorded, tracker_params, record=record, diagnose=diagnose, kin_model=kin_model,
+                              mot=mot)  # fmt: skip
 
 
 @dataclass
