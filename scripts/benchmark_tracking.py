@@ -41,6 +41,7 @@ from kin_envs.cli import (
     add_logging_args,
     check_output_dir,
     detector_from_name,
+    progress,
     script_logger,
     setup_logging,
     write_run_info,
@@ -279,7 +280,9 @@ def main(argv: list[str] | None = None) -> list[dict]:
         KinTracker(kin_model=args.kin_model)  # a bad --kin-model fails before the episodes
     except (ValueError, TypeError) as e:
         p.error(str(e))
-    if "torch" in sys.modules or args.detector == "learned" or "learned" in args.baselines:
+    # the learned detector runs without torch (its npz): set torch's threads only where torch is installed
+    wants_torch = "torch" in sys.modules or args.detector == "learned" or "learned" in args.baselines
+    if wants_torch and importlib.util.find_spec("torch") is not None:
         import torch
 
         torch.set_num_threads(args.torch_threads)
@@ -290,15 +293,16 @@ def main(argv: list[str] | None = None) -> list[dict]:
     mot = importlib.util.find_spec("motmetrics") is not None
     if not mot:
         logger.warning(f"CLEAR MOT (MOTA / IDF1) not scored: {_NO_MOT}")
-    from tqdm import tqdm
-
+    figures = importlib.util.find_spec("matplotlib") is not None  # the viz extra; tables without it
+    if not figures:
+        logger.warning("no f1_vs_frames.png / tracks.gif: matplotlib is not installed (kin-envs[viz])")
     t0 = time.perf_counter()
     results, recording = [], None
     jobs = [(s, nz) for s in args.splits for nz in (args.noise or SEQUENCE_SPLITS[s].noise)]
-    for split, nz in tqdm(jobs, desc="sequence benchmark"):
+    for split, nz in progress(jobs, desc="sequence benchmark"):  # a bar with tqdm (train / ros extras)
         spec = SEQUENCE_SPLITS[split]
         n = spec.n_episodes if args.full else args.episodes
-        want_gif = not args.no_gif and recording is None and split == "lookalike" and nz > 0
+        want_gif = figures and not args.no_gif and recording is None and split == "lookalike" and nz > 0
         r = run_sequences(detector, split, n, nz, baselines=baselines, record=0 if want_gif else None,
                           kin_model=args.kin_model, diagnose=True, mot=mot)  # fmt: skip
         if want_gif:
@@ -313,7 +317,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
     with atomic_write(args.out / "results.md", "w") as f:
         f.write(report(results, cost))
     write_json(args.out / "results.json", {"results": results, "cost": cost}, default=float)
-    plot_f1(results, args.out / "f1_vs_frames.png")
+    if figures:
+        plot_f1(results, args.out / "f1_vs_frames.png")
     if recording:
         animate(recording, args.out / "tracks.gif")
 

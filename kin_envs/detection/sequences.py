@@ -393,10 +393,10 @@ def record_sequences(
     episodes = []
     seeds = spec.seeds(n)
     it = seeds
-    if progress:
-        from tqdm import tqdm
+    if progress:  # a bar with tqdm (train / ros extras), silent on the core install
+        from kin_envs.cli import progress as _bar
 
-        it = tqdm(seeds, desc=f"sequences {spec.name} noise {100 * noise:g} %", leave=False)
+        it = _bar(seeds, desc=f"sequences {spec.name} noise {100 * noise:g} %", leave=False)
     for seed in it:
         ep = episode(spec, seed, noise)
         w = ep.world
@@ -1000,9 +1000,9 @@ def tune_tracker(
     steps = [(n, v) for _ in range(passes) for n in grid for v in grid[n]]
     it = steps
     if progress:
-        from tqdm import tqdm
+        from kin_envs.cli import progress as _bar
 
-        it = tqdm(steps, desc="tune tracker", leave=False)
+        it = _bar(steps, desc="tune tracker", leave=False)
     for name, value in it:
         try:
             cand = replace(best, **{name: value})
