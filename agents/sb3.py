@@ -162,6 +162,14 @@ def _seeded_wrapper_class():
             self._pending_seed = None if seed is None else int(seed)
             return [seed] * self.num_envs
 
+        def get_attr(self, attr_name: str, indices=None) -> list:
+            if attr_name == "render_mode":
+                # SuperSuit's vec envs have none: every SB3 wrapper on top (VecMonitor in train_swarm.py)
+                # warned "The `render_mode` attribute is not defined" and took None, as here
+                n = 1 if isinstance(indices, int) else len(list(indices)) if indices is not None else None
+                return [None] * (self.num_envs if n is None else n)
+            return super().get_attr(attr_name, indices)
+
         def reset(self, seed: int | None = None, options: dict | None = None):
             if seed is not None:
                 self._pending_seed = int(seed)

@@ -1094,10 +1094,13 @@ def _kin_model(kin_model) -> TrackKinModel | None:
         return None
     if isinstance(kin_model, str) and kin_model == "learned":
         return _default_kin_model()
+    expected = "'hand', 'learned', a model JSON path or a TrackKinModel"
     if isinstance(kin_model, str | Path):
+        if not Path(kin_model).is_file():  # a misspelt name reads as a path: say what else it could be
+            raise ValueError(f"KinTracker: kin_model must be {expected}, got {str(kin_model)!r} "
+                             "(no such file)")  # fmt: skip
         return TrackKinModel.load(kin_model)
-    raise TypeError(f"KinTracker: kin_model must be 'hand', 'learned', a model JSON path or a TrackKinModel, "
-                    f"got {kin_model!r}")  # fmt: skip
+    raise TypeError(f"KinTracker: kin_model must be {expected}, got {kin_model!r}")
 
 
 _DEFAULT_MODEL: list = []

@@ -58,11 +58,28 @@ EXIT_INTERRUPTED = 130
 MAX_NOISE = 0.5
 
 
-def run_main(main: Callable[[], object], bad_input: tuple[type[BaseException], ...] = (ValueError,)) -> None:
+#: The extra of pyproject.toml that installs each optional top-level package a script may import.
+EXTRA_OF = {
+    **dict.fromkeys(("torch", "stable_baselines3", "supersuit", "tensorboard", "threadpoolctl"), "train"),
+    "tqdm": "train",  # (also in ros and distributed)
+    **dict.fromkeys(("matplotlib", "pygame", "PIL"), "viz"),
+    "imageio_ffmpeg": "video",
+    "rosbags": "ros",
+    "motmetrics": "tracking",
+    "ray": "distributed",
+    **dict.fromkeys(("pytest", "hypothesis", "filterpy"), "dev"),
+}
+
+
+def run_main(
+    main: Callable[[], object],
+    bad_input: tuple[type[BaseException], ...] = (ValueError, FileNotFoundError),
+) -> None:
     """Run a script's ``main()``; Ctrl-C ends it with one line on stderr and exit status 130, and bad
-    input (a ``ValueError``, e.g. ``--env-kwargs '{bad'``) with one line and exit status 2, like argparse.
-    ``KIN_ENVS_TRACEBACK=1`` re-raises the ``ValueError`` with its traceback; ``bad_input=()`` leaves
-    errors to the script.
+    input (a ``ValueError``, e.g. ``--env-kwargs '{bad'``, or a ``FileNotFoundError``: an input file
+    that does not exist) with one line and exit status 2, like argparse; so does a missing optional
+    package (:data:`EXTRA_OF`), naming the extra to install. ``KIN_ENVS_TRACEBACK=1`` re-raises it with
+    its traceback; ``bad_input=()`` leaves errors to the script.
 
     Inside the world's build and step (and scene validation) Ctrl-C is deferred to the end of that
     unit of work (:mod:`kin_envs.core.interrupts`), so the stop is always clean; outputs are written
@@ -82,11 +99,16 @@ def run_main(main: Callable[[], object], bad_input: tuple[type[BaseException], .
             # ... or a C extension replaced the KeyboardInterrupt with its own error (matplotlib's Agg
             # renderer: "Invalid bounding box"), leaving no trace of it in the exception
             _interrupted()
-        if not isinstance(e, bad_input):
+        missing = (e.name or "").split(".")[0] if isinstance(e, ModuleNotFoundError) else ""
+        if not (isinstance(e, bad_input) or missing in EXTRA_OF):
             raise
         if os.environ.get("KIN_ENVS_TRACEBACK"):
             raise
         name = os.path.basename(sys.argv[0]) or "script"
+        if missing in EXTRA_OF:  # a training script on the core install: say which extra, not a traceback
+            print(f"{name}: error: this needs {missing}, which is not installed: "
+                  f"pip install 'kin-envs[{EXTRA_OF[missing]}]'", file=sys.stderr)  # fmt: skip
+            raise SystemExit(2) from None
         what = "an option is not valid JSON: " if isinstance(e, json.JSONDecodeError) else ""
         print(f"{name}: error: {what}{e}", file=sys.stderr)
         raise SystemExit(2) from None

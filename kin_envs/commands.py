@@ -3,7 +3,8 @@
 ``kin-envs detect BAG --topic /scan [--detector geometric|learned|beam] [--odom /odom] [--track]
 [--out FILE.jsonl|.csv] [--markers OUT_BAG]`` runs a detector on every ``sensor_msgs/LaserScan`` of a ROS 1
 or ROS 2 bag and writes the detections per scan with their stamps (with ``--track``, also the multi-frame
-``detectors.KinTracker``'s tracks, fed with the detections and the odometry between scans);
+``detectors.KinTracker``'s tracks, fed with the detections and the odometry between scans) and beside them
+the run record ``FILE.run.json``;
 ``kin-envs record OUT --env ID`` records one env episode to a bag (:func:`kin_envs.ros.record_episode`).
 Run ``kin-envs COMMAND --help`` for the options. Also runnable as ``python -m kin_envs.commands``.
 """
@@ -14,6 +15,7 @@ import argparse
 import contextlib
 import csv
 import json
+import math
 import shlex
 import sys
 from pathlib import Path
@@ -69,6 +71,8 @@ def detect(args: argparse.Namespace) -> int:
     from detectors import ros
 
     fmt = _output_format(args.out)
+    if not (math.isfinite(args.truth_gate) and args.truth_gate > 0):
+        raise ValueError(f"--truth-gate must be a distance > 0 m, got {args.truth_gate}")
     detector = _make_detector(args.detector, args.checkpoint)
     bag = Path(args.bag)
     for out in (args.out, args.markers):
@@ -159,6 +163,18 @@ def detect(args: argparse.Namespace) -> int:
             n_dets += len(recs)
             bar.update(1)
         bar.close()
+    record_path = args.out or args.markers  # the run record beside the output (none for stdout alone)
+    if record_path:
+        run = {
+            "command": shlex.join(["kin-envs", *args.argv]),
+            **{k: getattr(args, k) for k in ("bag", "topic", "detector", "checkpoint", "odom", "base_frame")},
+            **{k: getattr(args, k) for k in ("truth", "truth_gate", "track", "out", "markers")},
+            "scans": n_scans,
+            "detections": n_dets,
+            **({"within_truth_gate": n_true} if truth is not None else {}),
+            **({"kin_tracks": n_tracks} if tracker is not None else {}),
+        }
+        write_json(str(record_path).rstrip("/") + ".run.json", run)
     if truth is not None:
         print(f"{n_true} of {n_dets} detections within {args.truth_gate} m of a true kin", file=sys.stderr)
     print(
@@ -281,8 +297,10 @@ def record(args: argparse.Namespace) -> int:
 
         try:
             env = gym.make(args.env, **kwargs)
-        except gym.error.Error as e:  # unknown / misspelt id
-            raise ValueError(f"--env {args.env!r}: {e}") from e
+        except gym.error.Error as e:  # unknown / misspelt id: say which ids there are
+            ids = sorted(k for k in gym.registry if k.startswith("kin_envs/"))
+            raise ValueError(f"--env {args.env!r}: {e} Expected one of {', '.join(ids)}, "
+                             f"{', '.join(swarms)}") from e  # fmt: skip
     detector = None if args.detector == "none" else _make_detector(args.detector, args.checkpoint)
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     storage = args.storage or ("ros1" if args.out.lower().endswith(".bag") else "mcap")
@@ -344,13 +362,15 @@ def build_parser() -> argparse.ArgumentParser:
         "--out",
         default=None,
         help="output FILE.jsonl (one line per scan) or FILE.csv (one row per "
-        "detection); default: JSON Lines on stdout",
+        "detection), with its run record FILE.run.json (command, options, counts) beside it; "
+        "default: JSON Lines on stdout",
     )
     d.add_argument(
         "--markers",
         default=None,
         help="also write a bag with the scans and the detections as "
-        "visualization_msgs/MarkerArray on TOPIC/kin_detections (OUT.bag: ROS 1, else ROS 2 MCAP)",
+        "visualization_msgs/MarkerArray on TOPIC/kin_detections (OUT.bag: ROS 1, else ROS 2 MCAP; "
+        "without --out, the run record is OUT.run.json)",
     )
     d.add_argument(
         "--truth",

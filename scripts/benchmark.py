@@ -792,16 +792,23 @@ def main(argv: list[str] | None = None) -> dict:
     unknown = sorted(set(sections) - set(SECTIONS))
     if unknown:
         p.error(f"unknown section(s) {unknown}; expected some of {sorted(SECTIONS)}")
-    if args.min_time <= 0 or min(args.robots) < 1 or min(args.env_robots) < 2 or args.memory_steps < 1:
-        p.error("--min-time must be > 0, --robots >= 1, --env-robots >= 2 and --memory-steps >= 1")
+    # each bad option named with its value (one message for four options named none of them)
+    for bad, opt, want, got in (
+        (not args.min_time > 0, "--min-time", "> 0 s", args.min_time),
+        (min(args.robots) < 1, "--robots", ">= 1", args.robots),
+        (min(args.env_robots) < 2, "--env-robots", ">= 2", args.env_robots),
+        (args.memory_steps < 1, "--memory-steps", ">= 1", args.memory_steps),
+        (min(args.scaling_robots) < 1, "--scaling-robots", ">= 1", args.scaling_robots),
+        (min(args.scaling_obstacles) < 0, "--scaling-obstacles", ">= 0", args.scaling_obstacles),
+    ):
+        if bad:
+            p.error(f"{opt} must be {want}, got {got}")
     if not 2 <= args.memory_robots <= 256:
         p.error(f"--memory-robots must be in 2..256, got {args.memory_robots}")
     if args.vec_envs < 1:
         p.error(f"--vec-envs must be >= 1, got {args.vec_envs}")
     if args.vec_steps < 1:
         p.error(f"--vec-steps must be >= 1, got {args.vec_steps}")
-    if min(args.scaling_robots) < 1 or min(args.scaling_obstacles) < 0:
-        p.error("--scaling-robots must be >= 1 and --scaling-obstacles >= 0")
     from detectors.fileio import write_json, write_text
     from kin_envs.cli import check_output_dir
 

@@ -12,8 +12,8 @@ writes to ``--out``:
   point marked);
 * ``run.json``: command, arguments, benchmark version, split configs and seeds, versions, timing.
 
-Sizes: ``--size reduced`` (default; what the main job runs), ``--full`` (the benchmark's full
-size) or ``--scenes N`` per split. Detectors: ``geometric``, ``learned`` or ``module:Class``
+Sizes: the reduced size (default; what the main job runs), ``--full`` (the benchmark's full size)
+or ``--scenes N`` per split. Detectors: ``geometric``, ``learned``, ``beam`` or ``module:Class``
 (as ``scripts/evaluate_detectors.py``).
 
 Example::
@@ -26,6 +26,7 @@ Example::
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import math
 import platform
 import sys
@@ -35,7 +36,14 @@ from pathlib import Path
 import numpy as np
 
 from detectors.fileio import atomic_write, write_json
-from kin_envs.cli import add_logging_args, check_output_dir, detector_from_name, noise_level, setup_logging
+from kin_envs.cli import (
+    add_logging_args,
+    check_output_dir,
+    detector_from_name,
+    noise_level,
+    script_logger,
+    setup_logging,
+)
 from kin_envs.detection.benchmark import (
     BENCHMARK_VERSION,
     CONDITIONS,
@@ -226,9 +234,13 @@ def main(argv: list[str] | None = None) -> BenchmarkResults:
     args = p.parse_args(argv)
     setup_logging(args)
     if args.scenes is not None and args.scenes < 1:
-        p.error("--scenes must be >= 1")
+        p.error(f"--scenes must be >= 1, got {args.scenes}")
     if args.resamples < 0 or args.seed_offset < 0:
-        p.error("--resamples and --seed-offset must be >= 0")
+        p.error(f"--resamples and --seed-offset must be >= 0, got {args.resamples} and {args.seed_offset}")
+    if not args.no_plots and importlib.util.find_spec("matplotlib") is None:
+        # the viz extra draws the PR curves; the tables and JSON do not need it (as reproduce_paper.py)
+        script_logger(__file__).warning("no PR plots: matplotlib is not installed (kin-envs[viz])")
+        args.no_plots = True
     try:
         detectors = {
             name.rsplit(":", 1)[-1] if ":" in name else name: detector_from_name(name, what="--detectors")
@@ -240,7 +252,7 @@ def main(argv: list[str] | None = None) -> BenchmarkResults:
         check_output_dir(args.out)
     except ValueError as e:
         p.error(str(e))
-    if "torch" in sys.modules:
+    if sys.modules.get("torch") is not None:  # (None: an import that failed or was blocked)
         sys.modules["torch"].set_num_threads(args.torch_threads)
     conditions = tuple(Condition(float(n)) for n in args.noise) if args.noise else CONDITIONS
     size_arg = "full" if args.full else (args.scenes if args.scenes is not None else "reduced")

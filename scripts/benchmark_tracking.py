@@ -28,6 +28,7 @@ Example::
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import math
 import sys
 import time
@@ -36,7 +37,15 @@ from pathlib import Path
 import numpy as np
 
 from detectors.fileio import atomic_write, write_json
-from kin_envs.cli import add_logging_args, check_output_dir, detector_from_name, setup_logging, write_run_info
+from kin_envs.cli import (
+    add_logging_args,
+    check_output_dir,
+    detector_from_name,
+    progress,
+    script_logger,
+    setup_logging,
+    write_run_info,
+)
 from kin_envs.detection.sequences import (
     AGE_EDGES,
     SEQUENCE_SPLITS,
@@ -45,6 +54,9 @@ from kin_envs.detection.sequences import (
     target_window,
     tracking_cost,
 )
+
+logger = script_logger(__file__)
+_NO_MOT = "motmetrics is not installed: pip install kin-envs[tracking]"
 
 _AGE_NAMES = [
     f"{a}" if b - a == 1 else f"{a}-{b - 1}" for a, b in zip(AGE_EDGES[:-1], AGE_EDGES[1:], strict=True)
@@ -115,8 +127,9 @@ def report(results: list[dict], cost: dict | None = None) -> str:
             f"- time to confirm a kin: median {_f(r['confirm_frames']['median'])} frames, mean "
             f"{_f(r['confirm_frames']['mean'])} ({r['confirm_frames']['n']} kin)",
             f"- false kin tracks per minute of observation: {_f(r['false_tracks_per_minute'])}",
-            f"- CLEAR MOT (tracker): MOTA {_f(mot['mota'])}, IDF1 {_f(mot['idf1'])}, "
-            f"identity switches {mot['num_switches']}",
+            (f"- CLEAR MOT (tracker): MOTA {_f(mot['mota'])}, IDF1 {_f(mot['idf1'])}, "
+             f"identity switches {mot['num_switches']}" if mot
+             else f"- CLEAR MOT (tracker): not scored ({_NO_MOT})"),
             f"- same-radius cylinders rejected once every kin in view moved >= 0.2 m: {sr}",
             f"- look-alikes in view >= 20 frames at 0.3-2 m, share of frames not reported, by kind: {lk}",
             *_diagnosis_lines(r.get("diagnosis")),
@@ -267,23 +280,31 @@ def main(argv: list[str] | None = None) -> list[dict]:
         KinTracker(kin_model=args.kin_model)  # a bad --kin-model fails before the episodes
     except (ValueError, TypeError) as e:
         p.error(str(e))
-    if "torch" in sys.modules or args.detector == "learned" or "learned" in args.baselines:
+    # the learned detector runs without torch (its npz): set torch's threads only where torch is installed
+    wants_torch = "torch" in sys.modules or args.detector == "learned" or "learned" in args.baselines
+    if wants_torch and importlib.util.find_spec("torch") is not None:
         import torch
 
         torch.set_num_threads(args.torch_threads)
     detector = detector_from_name(args.detector)
     baselines = {n: detector_from_name(n, what="--baselines") for n in args.baselines if n != args.detector}
-    from tqdm import tqdm
-
+    # CLEAR MOT needs the tracking extra: without it, the rest of the benchmark (not a traceback at the end
+    # of the first split, minutes into `make run`'s step 3 after an install without that extra)
+    mot = importlib.util.find_spec("motmetrics") is not None
+    if not mot:
+        logger.warning(f"CLEAR MOT (MOTA / IDF1) not scored: {_NO_MOT}")
+    figures = importlib.util.find_spec("matplotlib") is not None  # the viz extra; tables without it
+    if not figures:
+        logger.warning("no f1_vs_frames.png / tracks.gif: matplotlib is not installed (kin-envs[viz])")
     t0 = time.perf_counter()
     results, recording = [], None
     jobs = [(s, nz) for s in args.splits for nz in (args.noise or SEQUENCE_SPLITS[s].noise)]
-    for split, nz in tqdm(jobs, desc="sequence benchmark"):
+    for split, nz in progress(jobs, desc="sequence benchmark"):  # a bar with tqdm (train / ros extras)
         spec = SEQUENCE_SPLITS[split]
         n = spec.n_episodes if args.full else args.episodes
-        want_gif = not args.no_gif and recording is None and split == "lookalike" and nz > 0
+        want_gif = figures and not args.no_gif and recording is None and split == "lookalike" and nz > 0
         r = run_sequences(detector, split, n, nz, baselines=baselines, record=0 if want_gif else None,
-                          kin_model=args.kin_model, diagnose=True)  # fmt: skip
+                          kin_model=args.kin_model, diagnose=True, mot=mot)  # fmt: skip
         if want_gif:
             recording = r.pop("recording")
         results.append(r)
@@ -296,7 +317,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
     with atomic_write(args.out / "results.md", "w") as f:
         f.write(report(results, cost))
     write_json(args.out / "results.json", {"results": results, "cost": cost}, default=float)
-    plot_f1(results, args.out / "f1_vs_frames.png")
+    if figures:
+        plot_f1(results, args.out / "f1_vs_frames.png")
     if recording:
         animate(recording, args.out / "tracks.gif")
 

@@ -378,7 +378,7 @@ def main(argv: list[str] | None = None) -> dict:
         "--detectors",
         nargs="+",
         default=["geometric"],
-        help="geometric, learned or module:Class (default: geometric)",
+        help="geometric, learned, beam or module:Class (default: geometric)",
     )
     ap.add_argument("--scenes", type=int, default=DEFAULT_SCENES, help="random scenes in the sweep")
     ap.add_argument(
@@ -552,6 +552,8 @@ if __name__ == "__main__":
 
     try:
         run_main(main, bad_input=())
-    # bad input, Ray not installed, no cluster at --address: a message, not a traceback
-    except (ValueError, ImportError, ConnectionError) as e:
-        sys.exit(f"evaluate_detectors: error: {e}")
+    # bad input, Ray not installed, no cluster at --address: a message, not a traceback; exit status 2
+    # as every script's bad input (argparse's convention)
+    except (ValueError, ImportError, ConnectionError, FileNotFoundError) as e:
+        print(f"evaluate_detectors: error: {e}", file=sys.stderr)
+        sys.exit(2)

@@ -40,7 +40,7 @@ def _fmt(v: float) -> str:
 def main(argv: list[str] | None = None) -> dict:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--detector", default="learned",
-                   help="detector feeding the tracker (geometric, learned, module:Class)")  # fmt: skip
+                   help="detector feeding the tracker (geometric, learned, beam, module:Class)")  # fmt: skip
     p.add_argument("--swarm-episodes", type=int, default=4, help="training swarm episodes")
     p.add_argument("--lookalike-episodes", type=int, default=24, help="training lookalike episodes")
     p.add_argument("--first-seed", type=int, default=1000, help="first training seed (not a reserved one)")

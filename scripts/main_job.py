@@ -1,4 +1,4 @@
-"""The main job (``make run``): the paper reproduction and the detection benchmark, shipped defaults.
+"""The main job (``make run``): the paper reproduction, the detection and the sequence benchmarks.
 
 1. ``scripts/reproduce_paper.py``: the paper's Scenario I and II at 0.5, 0.8 and 1.2 m with the
    geometric detector, the layout sensitivity and the noise study (0.5 % and 1 % range noise), and
@@ -7,7 +7,7 @@
    detection benchmark (``paper``, ``swarm``, ``lookalike`` splits x noise / dropout; AP, P / R / F1
    with bootstrap intervals, PR curves) at its reduced size (``--full``: the full size) ->
    ``outputs/benchmark_detectors/``. It supersedes the former ``scripts/evaluate_detectors.py`` sweep
-   in the main job; that script stays for large seeded sweeps (``--backend ray``).
+   in the main job; that script stays for large seeded sweeps (``evaluate_detectors.py --backend ray``).
 3. ``scripts/benchmark_tracking.py``: the sequence benchmark (``swarm`` and ``lookalike`` episodes with
    moving observers and kin, 0 and 1 % range noise): the multi-frame ``KinTracker`` vs the single-scan
    detectors, at its reduced size (``--full``: the full size), and the tracking cost at 64 observers
@@ -26,7 +26,7 @@ SCRIPTS = Path(__file__).resolve().parent
 if str(SCRIPTS.parent) not in sys.path:  # run as a file: make kin_envs importable from the checkout
     sys.path.insert(0, str(SCRIPTS.parent))
 
-from kin_envs.cli import add_logging_args, setup_logging, write_run_info  # noqa: E402
+from kin_envs.cli import add_logging_args, check_output_dir, setup_logging, write_run_info  # noqa: E402
 
 
 def _load(name: str):
@@ -41,16 +41,23 @@ def main(argv: list[str] | None = None) -> dict:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--out", type=Path, default=Path("outputs"), help="parent output directory")
     p.add_argument(
-        "--scenes", type=int, default=None, help="benchmark scenes per split (default: its reduced size)"
-    )
-    p.add_argument("--full", action="store_true", help="run the benchmark at its full size")
+        "--scenes", type=int, default=None,
+        help="detection benchmark: scenes per split (default: its reduced size)",
+    )  # fmt: skip
+    p.add_argument("--full", action="store_true", help="run both benchmarks at their full size")
     p.add_argument("--quick", action="store_true", help="tiny sizes, for smoke tests")
     add_logging_args(p)
     args = p.parse_args(argv)
     setup_logging(args)
     if args.full and args.scenes is not None:
         p.error("--full and --scenes are exclusive")
-    args.out.mkdir(parents=True, exist_ok=True)
+    # refused here, not by the detection benchmark after the paper reproduction's minutes of work
+    if args.scenes is not None and args.scenes < 1:
+        p.error(f"--scenes must be >= 1, got {args.scenes}")
+    try:
+        check_output_dir(args.out)
+    except ValueError as e:
+        p.error(str(e))
     write_run_info(args.out, args, argv=argv, script=__file__)
     results = {}
     t0 = time.perf_counter()

@@ -601,6 +601,13 @@ def main(argv: list[str] | None = None) -> dict:
     range_max = LidarSpec().range_max
     if any(d >= range_max for d in args.distances):
         ap.error(f"--distances must be within the lidar's range (< {range_max:g} m), got {args.distances}")
+    for d in args.distances:  # too near, the paper's arc of objects overlaps: say so before any work
+        for number in (1, 2):
+            try:
+                scenes.paper_scenario(number, distance=d)
+            except ValueError as e:
+                ap.error(f"--distances {d:g}: Scenario {'I' * number}'s objects do not fit on an arc of that "
+                         f"radius ({e}); use a larger distance (the paper: 0.5 m)")  # fmt: skip
     if args.repeats < 1 or args.draws < 0 or args.seed < 0:
         ap.error("--repeats must be >= 1, --draws >= 0 and --seed >= 0")
     try:  # before any computation: an unwritable --out must not cost a whole run

@@ -54,7 +54,8 @@ def tables(samples: list[dict], frames=(10, 20)) -> list[str]:
 
 def main(argv: list[str] | None = None) -> dict:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--detector", default="learned", help="detector feeding the tracker (geometric, learned)")
+    p.add_argument("--detector", default="learned",
+                   help="detector feeding the tracker (geometric, learned, beam, module:Class)")
     p.add_argument("--swarm-episodes", type=int, default=4,
                    help="swarm episodes (with --benchmark-seeds: the reduced benchmark's 3)")
     p.add_argument("--lookalike-episodes", type=int, default=24,

@@ -40,8 +40,8 @@ def _fmt(v: float) -> str:
 def main(argv: list[str] | None = None) -> dict:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--detectors", nargs="+", default=["learned", "geometric"],
-                   help="detectors feeding the tracker (geometric, learned, module:Class); one parameter set "
-                        "is tuned for all of them")  # fmt: skip
+                   help="detectors feeding the tracker (geometric, learned, beam, module:Class); one "
+                        "parameter set is tuned for all of them")  # fmt: skip
     p.add_argument("--swarm-episodes", type=int, default=2, help="training swarm episodes per detector")
     p.add_argument("--lookalike-episodes", type=int, default=10, help="training lookalike episodes per det.")
     p.add_argument("--first-seed", type=int, default=1000, help="first training seed (not a reserved one)")

@@ -12,6 +12,8 @@ import math
 import numbers
 from typing import Any
 
+import numpy as np
+
 #: Largest magnitude accepted for a length, coordinate or mass (SI units). Far beyond any arena, and
 #: small enough that products of a few such values never overflow float64 inside pymunk.
 MAX_MAGNITUDE = 1e6
@@ -34,6 +36,24 @@ def dataclass_from_dict(cls: type, d: Any, where: str) -> Any:
             f"{where}: unknown key(s) {unknown} for {cls.__name__}; expected a subset of {sorted(names)}"
         )
     return cls(**d)
+
+
+def make_rng(seed: Any, where: str) -> np.random.Generator:
+    """The RNG of ``seed``: ``None``, an integer >= 0, a ``SeedSequence`` or a ``Generator`` (used as is,
+    shared with the caller). Anything else raises naming ``where`` and the value, before numpy's own
+    message ("expected non-negative integer"), which names neither."""
+    if isinstance(seed, np.random.Generator):
+        return seed
+    if seed is None or isinstance(seed, np.random.SeedSequence):
+        return np.random.default_rng(seed)
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer):
+        raise FieldTypeError(
+            f"{where}: seed must be None, an integer >= 0 or a numpy Generator, "
+            f"got {type(seed).__name__} {seed!r}"
+        )
+    if seed < 0:
+        raise ValueError(f"{where}: seed must be >= 0, got {seed}")
+    return np.random.default_rng(int(seed))
 
 
 def _is_real(v: Any) -> bool:

@@ -34,6 +34,7 @@ from kin_envs.core._validate import (
     check_sequence,
     check_weights,
     dataclass_from_dict,
+    make_rng,
 )
 from kin_envs.core.lidar import HitKind, LidarSpec
 
@@ -808,7 +809,7 @@ def random_arena(
         raise ValueError(f"random_arena: n_robots must be an integer >= 0, got {n_robots!r}")
     if not isinstance(n_obstacles, int | np.integer) or n_obstacles < 0:
         raise ValueError(f"random_arena: n_obstacles must be an integer >= 0, got {n_obstacles!r}")
-    rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+    rng = make_rng(seed, "random_arena")
     w, h = (size, size) if np.isscalar(size) else size
     arena = Arena(float(w), float(h), walls=True)
     hx, hy = arena.half_extents
@@ -953,7 +954,7 @@ def detection_scene(
     """
     cfg = dataclass_from_dict(DetectionSceneConfig, {} if config is None else config, "detection_scene")
     spec = robot or RobotSpec()
-    rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+    rng = make_rng(seed, "detection_scene")
     side = 2 * cfg.distance[1] + 2 * cfg.arena_margin
     arena = Arena(side, side, walls=True)
     placer = _Placer(arena, cfg.clearance, cfg.max_attempts, spec, "detection_scene")

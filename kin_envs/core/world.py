@@ -25,7 +25,7 @@ import pymunk.batch as pmbatch
 from pymunk._chipmunk import ffi as _ffi
 from pymunk._chipmunk import lib as _cp
 
-from kin_envs.core._validate import FieldTypeError, check_number, dataclass_from_dict
+from kin_envs.core._validate import FieldTypeError, check_number, dataclass_from_dict, make_rng
 from kin_envs.core.interrupts import atomic
 from kin_envs.core.lidar import (
     HitKind,
@@ -48,22 +48,6 @@ _empty, _new, _f32, _i8, _i32 = np.empty, object.__new__, np.float32, np.int8, n
 
 __all__ = ["WorldConfig", "World", "Scan", "Contact", "LIDAR_QUERY_FILTER"]
 
-
-def _make_rng(seed) -> np.random.Generator:
-    """The world's RNG from ``seed``: ``None``, an integer >= 0, a ``SeedSequence`` or a ``Generator``
-    (used as is, shared with the caller)."""
-    if isinstance(seed, np.random.Generator):
-        return seed
-    if seed is None or isinstance(seed, np.random.SeedSequence):
-        return np.random.default_rng(seed)
-    if isinstance(seed, bool) or not isinstance(seed, int | np.integer):
-        raise FieldTypeError(
-            f"World: seed must be None, an integer >= 0 or a numpy Generator, "
-            f"got {type(seed).__name__} {seed!r}"
-        )
-    if seed < 0:
-        raise ValueError(f"World: seed must be >= 0, got {seed}")
-    return np.random.default_rng(int(seed))
 
 # Shape-filter categories. Lidar queries use category _QUERY and see housings, obstacles, walls
 # but never robot bodies (beams pass above them).
@@ -260,7 +244,7 @@ class World:
             raise FieldTypeError(f"World: config must be a WorldConfig or None, got {type(config).__name__}")
         self.scene = scene
         self.config = config or WorldConfig()
-        self.rng = _make_rng(seed)
+        self.rng = make_rng(seed, "World")
         with atomic():
             self._build(scene)
 

@@ -490,10 +490,10 @@ def generate_split(
         raise ValueError(f"n_scenes must be an integer >= 1, got {n_scenes!r}")
     seeds = spec.seeds(n, seed_offset)
     it = seeds
-    if progress:
-        from tqdm import tqdm
+    if progress:  # a bar with tqdm (train / ros extras), silent on the core install
+        from kin_envs.cli import progress as _bar
 
-        it = tqdm(seeds, desc=f"generate {spec.name}", leave=False)
+        it = _bar(seeds, desc=f"generate {spec.name}", leave=False)
     return [_sample(spec, s) for s in it]
 
 

@@ -313,6 +313,7 @@ def run_sequences(
     record: int | None = None,
     diagnose: bool = False,
     kin_model="learned",
+    mot: bool = True,
 ) -> dict:
     """Run the sequence benchmark on one split at one noise level (see the module docstring).
 
@@ -329,11 +330,14 @@ def run_sequences(
             >= 10 frames at 0.3-2 m, by cause (:func:`_diagnose`).
         kin_model: the tracker's kin decision (:class:`detectors.tracking.KinTracker`): ``"learned"``
             (the shipped track classifier), ``"hand"`` (the hand-tuned fusion), a model or its path.
+        mot: score CLEAR MOT (needs ``motmetrics``, the ``tracking`` extra); ``False``: ``"mot"`` is
+            ``{}``.
 
     Returns a plain dict (JSON-serialisable) of tables; ``"frames"`` holds the recording if asked.
     """
     recorded = record_sequences(detector, split, n_episodes, noise, baselines, progress)  # checks arguments
-    return evaluate_sequences(recorded, tracker_params, record=record, diagnose=diagnose, kin_model=kin_model)
+    return evaluate_sequences(recorded, tracker_params, record=record, diagnose=diagnose, kin_model=kin_model,
+                              mot=mot)  # fmt: skip
 
 
 @dataclass
@@ -389,10 +393,10 @@ def record_sequences(
     episodes = []
     seeds = spec.seeds(n)
     it = seeds
-    if progress:
-        from tqdm import tqdm
+    if progress:  # a bar with tqdm (train / ros extras), silent on the core install
+        from kin_envs.cli import progress as _bar
 
-        it = tqdm(seeds, desc=f"sequences {spec.name} noise {100 * noise:g} %", leave=False)
+        it = _bar(seeds, desc=f"sequences {spec.name} noise {100 * noise:g} %", leave=False)
     for seed in it:
         ep = episode(spec, seed, noise)
         w = ep.world
@@ -996,9 +1000,9 @@ def tune_tracker(
     steps = [(n, v) for _ in range(passes) for n in grid for v in grid[n]]
     it = steps
     if progress:
-        from tqdm import tqdm
+        from kin_envs.cli import progress as _bar
 
-        it = tqdm(steps, desc="tune tracker", leave=False)
+        it = _bar(steps, desc="tune tracker", leave=False)
     for name, value in it:
         try:
             cand = replace(best, **{name: value})

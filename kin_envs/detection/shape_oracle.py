@@ -279,9 +279,9 @@ def oracle_samples(recorded, frames=(10, 20), distance=(0.3, 2.0), still: float 
     seeds = list(recorded.spec.seeds(len(recorded.episodes)))
     it = zip(seeds, recorded.episodes, strict=True)
     if progress:
-        from tqdm import tqdm
+        from kin_envs.cli import progress as _bar
 
-        it = tqdm(list(it), desc=f"oracle {recorded.spec.name}", leave=False)
+        it = _bar(list(it), desc=f"oracle {recorded.spec.name}", leave=False)
     for seed, (n_obs, _n_robots, _n_obst, _kinds, _parked, rec) in it:
         ep = S.episode(recorded.spec, seed, recorded.noise)
         w = ep.world

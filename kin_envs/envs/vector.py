@@ -467,12 +467,104 @@ def _widen(info: dict[str, Any], ids: list[int], k: int) -> dict[str, Any]:
 
 
 class KinSeekVectorEnv(KinVectorEnv):
-    """K ``KinSeek-v1`` envs stepped together (``gymnasium.make_vec("kin_envs/KinSeek-v1", K)``)."""
+    """K ``KinSeek-v1`` envs stepped together (``gymnasium.make_vec("kin_envs/KinSeek-v1", K)``).
+
+    ## Description
+
+    The task of :class:`kin_envs.envs.kin_seek.KinSeekEnv` K times, with one batch of physics,
+    one lidar call and one detector call per step for all K sub-envs (the module docstring says how).
+    Returns exactly what
+    ``make_vec("kin_envs/KinSeek-v1", K, vectorization_mode="sync")`` returns for the same seeds and
+    actions (tested across autoresets).
+
+    ## Action Space
+
+    ``batch_space`` of the single env's: ``Box(-1, 1, (K, 2), float32)`` (normalised left / right
+    wheel speeds per sub-env), or ``MultiDiscrete([5] * K)`` with ``action_type="discrete"``;
+    ``single_action_space`` is one sub-env's.
+
+    ## Observation Space
+
+    ``batch_space`` of the single env's: float32 ``(K, D)``, row ``i`` sub-env ``i``'s observation as
+    in ``KinSeekEnv`` (same bounds; ``D`` = 360 per frame plus the detector channel, times
+    ``frame_stack``); ``single_observation_space`` is one row.
+
+    ## Rewards
+
+    ``(K,)`` float64: each sub-env's reward as in ``KinSeekEnv`` (0 on the step that autoresets it).
+
+    ## Starting State
+
+    ``reset(seed=s)`` seeds sub-env ``i`` with ``s + i`` (or takes a list of K seeds), each starting
+    as in ``KinSeekEnv``; ``options={"reset_mask": mask}`` (a ``(K,)`` bool array) resets only those
+    sub-envs (the first reset resets all).
+
+    ## Episode End
+
+    ``(K,)`` terminations and truncations as in ``KinSeekEnv``. Autoreset is Gymnasium's ``NEXT_STEP``:
+    the step after a sub-env ends resets it (its action ignored, reward 0, not done).
+
+    ## Arguments
+
+    ``num_envs`` (K >= 1), ``render_mode`` (``None`` or ``"rgb_array"``: ``render()`` returns K
+    frames) and every argument of ``KinSeekEnv``, the same for all sub-envs (one detector object is
+    shared). The info is the single env's, stacked with ``_key`` masks (``(K, slots)`` columns).
+
+    ## Version History
+
+    * v1: the native vector env of ``KinSeek-v1``, with the single env's version and behaviour.
+    """
 
     env_class: ClassVar[type[SingleRobotEnv]] = KinSeekEnv
 
 
 class KinFollowVectorEnv(KinVectorEnv):
-    """K ``KinFollow-v1`` envs stepped together (``gymnasium.make_vec("kin_envs/KinFollow-v1", K)``)."""
+    """K ``KinFollow-v1`` envs stepped together (``gymnasium.make_vec("kin_envs/KinFollow-v1", K)``).
+
+    ## Description
+
+    The task of :class:`kin_envs.envs.kin_follow.KinFollowEnv` K times, with one batch of physics,
+    one lidar call and one detector call per step for all K sub-envs (the module docstring says how).
+    Returns exactly what
+    ``make_vec("kin_envs/KinFollow-v1", K, vectorization_mode="sync")`` returns for the same seeds and
+    actions (tested across autoresets).
+
+    ## Action Space
+
+    ``batch_space`` of the single env's: ``Box(-1, 1, (K, 2), float32)`` (normalised left / right
+    wheel speeds per sub-env), or ``MultiDiscrete([5] * K)`` with ``action_type="discrete"``;
+    ``single_action_space`` is one sub-env's.
+
+    ## Observation Space
+
+    ``batch_space`` of the single env's: float32 ``(K, D)``, row ``i`` sub-env ``i``'s observation as
+    in ``KinFollowEnv`` (same bounds; ``D`` = 360 per frame plus the detector channel, times
+    ``frame_stack``); ``single_observation_space`` is one row.
+
+    ## Rewards
+
+    ``(K,)`` float64: each sub-env's reward as in ``KinFollowEnv`` (0 on the step that autoresets it).
+
+    ## Starting State
+
+    ``reset(seed=s)`` seeds sub-env ``i`` with ``s + i`` (or takes a list of K seeds), each starting
+    as in ``KinFollowEnv``; ``options={"reset_mask": mask}`` (a ``(K,)`` bool array) resets only those
+    sub-envs (the first reset resets all).
+
+    ## Episode End
+
+    ``(K,)`` terminations and truncations as in ``KinFollowEnv``. Autoreset is Gymnasium's ``NEXT_STEP``:
+    the step after a sub-env ends resets it (its action ignored, reward 0, not done).
+
+    ## Arguments
+
+    ``num_envs`` (K >= 1), ``render_mode`` (``None`` or ``"rgb_array"``: ``render()`` returns K
+    frames) and every argument of ``KinFollowEnv``, the same for all sub-envs (one detector object is
+    shared). The info is the single env's, stacked with ``_key`` masks (``(K, slots)`` columns).
+
+    ## Version History
+
+    * v1: the native vector env of ``KinFollow-v1``, with the single env's version and behaviour.
+    """
 
     env_class: ClassVar[type[SingleRobotEnv]] = KinFollowEnv

@@ -160,3 +160,18 @@ def test_scan_conv_extractor_trains_saves_and_reloads(tmp_path):
         ScanConvExtractor(env.observation_space, frame_stack=3)
     with pytest.raises(ValueError, match="module:Class"):
         resolve_policy_kwargs({"features_extractor_class": "agents.sb3:Nope"})
+
+
+def test_sb3_wrappers_on_the_shared_vec_env_build_without_warnings():
+    # SB3 warned "The `render_mode` attribute is not defined in your environment" on every
+    # train_swarm.py run (its VecMonitor): noise a newcomer takes for a problem
+    import warnings
+
+    from stable_baselines3.common.vec_env import VecMonitor
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        venv = VecMonitor(shared_vec_env(aggregation_v1.parallel_env(n_robots=2, detector=None), n_copies=2))
+    assert venv.render_mode is None and venv.num_envs == 4
+    assert venv.get_attr("render_mode", [0, 3]) == [None, None]
+    venv.close()

@@ -192,6 +192,31 @@ def test_run_main_bad_input_and_other_errors(capsys, no_sigint_handler):
         cli.run_main(bad)
     assert stop.value.code == 2 and "--noise must be" in capsys.readouterr().err
 
+    def missing():  # a missing input file is bad input too: one line naming it, not a traceback
+        raise FileNotFoundError("learned detector checkpoint /tmp/x.pt does not exist")
+
+    with pytest.raises(SystemExit) as stop:
+        cli.run_main(missing)
+    assert stop.value.code == 2 and "/tmp/x.pt does not exist" in capsys.readouterr().err
+
+    def no_torch():  # a training script on the core install: the extra to install, not a traceback
+        import importlib
+
+        importlib.import_module("torch.definitely_not_installed_here")
+
+    with pytest.raises(SystemExit) as stop:
+        cli.run_main(no_torch)
+    assert stop.value.code == 2
+    assert "needs torch, which is not installed: pip install 'kin-envs[train]'" in capsys.readouterr().err
+
+    def unknown_module():  # not an optional dependency of ours: a real error, kept
+        import importlib
+
+        importlib.import_module("no_such_module_anywhere")
+
+    with pytest.raises(ModuleNotFoundError):
+        cli.run_main(unknown_module)
+
     def broken():
         raise RuntimeError("a real bug")
 
@@ -206,3 +231,10 @@ def test_check_distance_bins_names_the_option(edges):
     with pytest.raises(ValueError, match=r"--bins must be >= 2 increasing distances >= 0"):
         check_distance_bins(edges)
     assert check_distance_bins([0, 1, 2.5]) == [0.0, 1.0, 2.5]
+
+
+def test_every_optional_package_maps_to_an_extra_of_pyproject():
+    tomllib = pytest.importorskip("tomllib")  # Python >= 3.11
+    extras = tomllib.loads((Path(__file__).resolve().parents[2] / "pyproject.toml").read_text())
+    extras = extras["project"]["optional-dependencies"]
+    assert set(cli.EXTRA_OF.values()) <= set(extras)

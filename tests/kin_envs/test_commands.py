@@ -76,6 +76,12 @@ def test_detect_jsonl_matches_the_detector_on_the_bag(swarm_bag, tmp_path):
             # no obstacles, no noise: every detection is a robot's housing, found to the micrometre
             assert d["truth_error"] < 1e-5
     assert sum(len(r["detections"]) for r in rows) >= 1  # robots 0 and 2 are in view in this arena
+    # the run record beside the output, as `kin-envs record` writes one beside its bag
+    run = json.loads(Path(str(out) + ".run.json").read_text())
+    assert run["command"].startswith("kin-envs detect") and run["topic"] == "/robot_1/scan"
+    assert run["detector"] == "geometric" and run["scans"] == 5
+    assert run["detections"] == sum(len(r["detections"]) for r in rows)
+    assert run["within_truth_gate"] == run["detections"] and run["truth_gate"] == 0.05
 
 
 def test_detect_csv_tf_and_markers(swarm_bag, tmp_path):
@@ -209,6 +215,8 @@ def test_detect_beam_has_the_same_fields_and_matches_the_detector(swarm_bag, tmp
             "--checkpoint applies to --detector learned or beam",
         ),
         (["--topic", "/robot_0/scan", "--truth", "/ground_truth/kin"], "--truth needs --odom"),
+        (["--topic", "/robot_0/scan", "--truth-gate", "-0.05"], "--truth-gate must be a distance > 0 m"),
+        (["--topic", "/robot_0/scan", "--truth-gate", "nan"], "must be a distance > 0 m, got nan"),
         (["--topic", "/robot_0/scan", "--track"], "--track needs --odom"),
         (
             ["--topic", "/robot_0/scan", "--odom", "/tf", "--truth", "/tf"],
@@ -237,6 +245,11 @@ def test_record_errors(tmp_path, capsys, swarm_bag):
     assert "already exists" in capsys.readouterr().err
     assert main(["record", str(tmp_path / "x"), "--env", "kin_envs/Nope-v0", "--quiet"]) == 2
     assert "--env 'kin_envs/Nope-v0'" in capsys.readouterr().err
+    # the id without its namespace (as the README's table spells the names): the message lists the ids
+    assert main(["record", str(tmp_path / "x"), "--env", "KinSeek-v1", "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "--env 'KinSeek-v1'" in err and "Expected one of kin_envs/KinFollow-v0" in err
+    assert "kin_envs/KinSeek-v1" in err and "aggregation_v1" in err
     assert not list(tmp_path.iterdir())
 
 

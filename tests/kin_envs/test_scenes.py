@@ -269,3 +269,18 @@ def test_detection_scene_config_errors():
         scenes.DetectionSceneConfig.from_dict({"n_robots": 3})
     with pytest.raises(ValueError, match="could not place"):
         scenes.detection_scene(0, scenes.DetectionSceneConfig(n_kin=40, distance=(0.3, 0.4)))
+
+
+@pytest.mark.parametrize(
+    "make", [lambda s: scenes.random_arena(4, 3, seed=s), lambda s: scenes.detection_scene(s)]
+)
+@pytest.mark.parametrize("seed, exc, match", [(-1, ValueError, "seed must be >= 0, got -1"),
+                                              (1.5, TypeError, "seed must be None, an integer >= 0"),
+                                              ("0", TypeError, "got str '0'")])  # fmt: skip
+def test_scene_generators_name_a_bad_seed(make, seed, exc, match):
+    # numpy's own message ("expected non-negative integer") names neither the generator nor the value
+    with pytest.raises(exc, match=rf"(random_arena|detection_scene): .*{match}"):
+        make(seed)
+    # every seed form the World takes still works, with the same scenes as before
+    assert make(np.int64(3)) == make(3) == make(np.random.default_rng(3)) == make(np.random.SeedSequence(3))
+    make(None)

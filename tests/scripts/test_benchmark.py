@@ -154,11 +154,18 @@ def test_naive_baseline_matches_the_world_scan(bench):
     np.testing.assert_allclose(bench.naive_scan(world, 1), world.scan().ranges[1], atol=1e-5)
 
 
-def test_bad_arguments(bench, tmp_path):
+def test_bad_arguments(bench, tmp_path, capsys):
     with pytest.raises(SystemExit):
         bench.main(["--sections", "gpu", "--out", str(tmp_path)])
-    with pytest.raises(SystemExit):
-        bench.main(["--min-time", "0", "--out", str(tmp_path)])
+    # each refused option is named with its value
+    for argv, message in ((["--min-time", "0"], "--min-time must be > 0 s, got 0.0"),
+                          (["--min-time", "nan"], "--min-time must be > 0 s, got nan"),
+                          (["--robots", "8", "0"], "--robots must be >= 1, got [8, 0]"),
+                          (["--env-robots", "1"], "--env-robots must be >= 2, got [1]"),
+                          (["--scaling-obstacles", "-5"], "must be >= 0, got [-5]")):  # fmt: skip
+        with pytest.raises(SystemExit) as e:
+            bench.main([*argv, "--out", str(tmp_path)])
+        assert e.value.code == 2 and message in capsys.readouterr().err
 
 
 def test_lidar_scaling_section(bench, tmp_path):

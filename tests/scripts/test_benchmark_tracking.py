@@ -53,3 +53,23 @@ def test_bad_arguments(argv, tmp_path):
     mod = load_script("benchmark_tracking")
     with pytest.raises(SystemExit):
         mod.main([*argv, "--out", str(tmp_path)])
+
+
+def test_runs_on_the_core_install(tmp_path, monkeypatch, caplog):
+    # an install without the tracking extra (README's ".[train,viz]") ended `make run` with a motmetrics
+    # traceback at the sequence benchmark, and the core install with tqdm's, torch's or matplotlib's; now
+    # the tables, a warning and a line saying why CLEAR MOT is missing
+    import sys
+
+    for name in ("motmetrics", "tqdm", "matplotlib", "torch"):  # import -> ImportError, find_spec -> None
+        monkeypatch.setitem(sys.modules, name, None)
+    mod = load_script("benchmark_tracking")
+    argv = ["--splits", "lookalike", "--episodes", "1", "--noise", "0.01"]  # the learned detector feeds it
+    results = mod.main([*argv, "--baselines", "--cost-robots", "0", "--out", str(tmp_path)])
+    assert results[0]["mot"] == {} and results[0]["by_age"]
+    md = (tmp_path / "results.md").read_text()
+    assert "CLEAR MOT (tracker): not scored (motmetrics is not installed: pip install kin-envs[tracking])" \
+        in md
+    assert "Target window" in md and "CLEAR MOT (MOTA / IDF1) not scored" in caplog.text
+    assert "no f1_vs_frames.png / tracks.gif: matplotlib is not installed" in caplog.text
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["results.json", "results.md", "run.json"]

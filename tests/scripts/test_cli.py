@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -63,6 +64,8 @@ for script in sys.argv[3:]:
         "no_help": [a.option_strings[0] if a.option_strings else a.dest for a in opts
                     if not a.help or a.help == argparse.SUPPRESS],
         "options": sorted(s for a in opts for s in a.option_strings),
+        "help": buf.getvalue(),
+        "option_help": {s: a.help for a in opts for s in a.option_strings if isinstance(a.help, str)},
     }
 print("RESULTS " + json.dumps(results))
 """
@@ -70,7 +73,8 @@ print("RESULTS " + json.dumps(results))
 
 @pytest.fixture(scope="module")
 def core_help():
-    env = {**os.environ, "PYTHONHASHSEED": "0", "PYTHONPATH": str(ROOT)}  # rllib script re-execs without it
+    # rllib script re-execs without PYTHONPATH; a wide terminal: argparse does not wrap "--opt" in two
+    env = {**os.environ, "PYTHONHASHSEED": "0", "PYTHONPATH": str(ROOT), "COLUMNS": "1000"}
     out = subprocess.run(
         [sys.executable, "-c", _CODE, str(ROOT), ",".join(OPTIONAL),
          *(str(ROOT / "scripts" / s) for s in SCRIPTS)],
@@ -96,6 +100,29 @@ def test_every_option_has_help_text(core_help, script):
 def test_verbose_and_quiet_flags(core_help, script):
     opts = core_help[script]["options"]
     assert {"--verbose", "--quiet", "-v", "-q"} <= set(opts)
+
+
+@pytest.mark.parametrize("script", SCRIPTS)
+def test_help_names_only_options_the_script_has(core_help, script):
+    # the docstring and option help are the script's spec: an option they name must exist (the
+    # benchmark's docstring offered a "--size reduced" it never had); "other.py --opt" is a reference
+    r = core_help[script]
+    text = re.sub(r"[\w/]+\.py (--[a-z][\w-]*)", "", r["help"])
+    named = set(re.findall(r"(?<![\w-])(--[a-z][\w-]*)", text))
+    assert named <= {*r["options"], "--help"}, sorted(named - {*r["options"], "--help"})
+
+
+NAMED_DETECTORS = [s for s in SCRIPTS if "detector_from_name" in (ROOT / "scripts" / s).read_text()]
+
+
+@pytest.mark.parametrize("script", NAMED_DETECTORS)
+def test_detector_options_name_every_detector(core_help, script):
+    # kin_envs.cli.detector_from_name takes geometric, learned, beam and module:Class; the help of
+    # evaluate_detectors.py (and three tracker scripts) left beam out, or module:Class
+    helps = {o: h for o, h in core_help[script]["option_help"].items() if o in ("--detector", "--detectors")}
+    assert helps, script
+    for opt, text in helps.items():
+        assert all(name in text for name in ("geometric", "learned", "beam", "module:Class")), (opt, text)
 
 
 def test_scripts_write_run_json_through_the_shared_helper():

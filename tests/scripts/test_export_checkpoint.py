@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import shutil
+import subprocess
+import sys
 
 import pytest
 
 from detectors.learned import DEFAULT_CHECKPOINT, LearnedKinDetector, load_npz_checkpoint, npz_path
-from tests.scripts.helpers import load_script
+from tests.scripts.helpers import SCRIPTS, load_script
 
 mod = load_script("export_checkpoint")
 
@@ -52,3 +54,14 @@ def test_bad_checkpoints_are_named(tmp_path):
         mod.main([str(junk), "-q"])
     assert not (tmp_path / "junk.npz").exists()
     assert "junk.npz does not exist" in mod.check(junk)
+
+
+def test_missing_checkpoint_is_one_line_and_exit_2(tmp_path):
+    # as every script's bad input: a message naming the file, exit status 2, no traceback
+    pytest.importorskip("torch")
+    missing = tmp_path / "missing.pt"
+    p = subprocess.run([sys.executable, str(SCRIPTS / "export_checkpoint.py"), str(missing)],
+                       capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert p.returncode == 2, p.stderr
+    assert f"export_checkpoint.py: error: learned detector checkpoint {missing} does not exist" in p.stderr
+    assert "Traceback" not in p.stderr and not (tmp_path / "missing.npz").exists()

@@ -34,3 +34,23 @@ def test_full_flag_reaches_both_benchmarks(tmp_path, monkeypatch):
     from kin_envs.detection.benchmark import SPLITS, _sizes
 
     assert [_sizes("full", SPLITS[s]) for s in ("paper", "swarm", "lookalike")] == [400, 300, 600]
+
+
+def test_bad_options_refused_before_the_first_step(tmp_path, monkeypatch, capsys):
+    """``--scenes 0`` used to fail in the detection benchmark, after the paper reproduction's minutes of
+    work; an ``--out`` that is a file, at its ``mkdir`` with a traceback. Both are one-line errors now."""
+    import pytest
+
+    mod = load_script("main_job")
+
+    def computing(name):
+        raise AssertionError(f"{name} ran before the options were checked")
+
+    monkeypatch.setattr(mod, "_load", computing)
+    a_file = tmp_path / "a_file"
+    a_file.write_text("x")
+    for argv, message in ((["--scenes", "0", "--out", str(tmp_path)], "--scenes must be >= 1, got 0"),
+                          (["--out", str(a_file)], "is a file, not a directory")):  # fmt: skip
+        with pytest.raises(SystemExit) as e:
+            mod.main([*argv, "-q"])
+        assert e.value.code == 2 and message in capsys.readouterr().err

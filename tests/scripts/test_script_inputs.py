@@ -158,3 +158,15 @@ def test_unwritable_out_train_beam_detector(blocked, capsys, monkeypatch):
     mod = load_script("train_beam_detector")
     monkeypatch.setattr(mod, "make_data", _computing)
     _assert_refused(lambda: mod.main(["--out", str(blocked)]), capsys, blocked)
+
+
+def test_reproduce_paper_distance_too_near_is_an_argparse_error(tmp_path, capsys, monkeypatch):
+    # at 0.3 m the paper's arc of objects overlaps: refused up front naming the option, not by the scene
+    # validation in the middle of the run
+    mod = load_script("reproduce_paper")
+    monkeypatch.setattr(mod, "run_scene", _computing)
+    with pytest.raises(SystemExit) as e:
+        mod.main(["--distances", "0.5", "0.3", "--draws", "0", "--no-figures", "--out", str(tmp_path)])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and "--distances 0.3: Scenario I's objects do not fit" in err
+    assert "overlaps" in err
