@@ -83,6 +83,8 @@ def _swarm_scans():
 
     env = aggregation_v1.parallel_env(n_robots=64, detector=None, noise_sigma=0.01)
     env.reset(seed=5)
+    for i, a in enumerate(env.agents):  # seeded: the duplicates counted below must not vary between runs
+        env.action_space(a).seed(100 + i)
     acts = {a: env.action_space(a).sample() for a in env.agents}
     out = []
     for t in range(1, 61):
