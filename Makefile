@@ -18,7 +18,7 @@ PY_RAY    = $(VENV_RAY)/bin/python
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PIP) install --upgrade pip setuptools wheel
-	# torch first, pinned: the local CPU wheel. Anything else pulls CUDA (see DEVELOPERS.md).
+	# torch first, pinned: the local CPU wheel. Anything else pulls CUDA (README, "Install by hand").
 	$(PIP) $(PIP_INSTALL) torch==2.13.0
 	$(PIP) $(PIP_INSTALL) -e ".[all]"
 	touch $@
