@@ -269,22 +269,32 @@ def _cut_windows(d, scan, first, count, prev, nxt, p_near, n_near, wide, sigma, 
         c = count[i]
         row = d[b]
         for pos in range(c):
-            bj = (f + pos) % n
+            bj = f + pos if f + pos < n else f + pos - n
             dj = row[bj]
+            # a local minimum first (cheap; most beams are not one), then the housing's span
+            # ("span": a beam more than depth * r nearer is another object in front, not a lower point)
+            if pos > 0:
+                dl = row[bj - 1 if bj > 0 else n - 1]
+                if dl < dj and (not span or dj - dl <= tol):
+                    continue
+            if pos + 1 < c:
+                dr = row[bj + 1 if bj + 1 < n else 0]
+                if dr <= dj and (not span or dj - dr <= tol):
+                    continue
             w = int(math.floor(math.asin(min(r / (dj + r), 1.0)) / step)) + 1
             is_min = True
-            reach = w if span else 1
-            for k in range(1, reach + 1):
-                if pos - k >= 0:
-                    dl = row[(f + pos - k) % n]
-                    if dl < dj and (not span or dj - dl <= tol):
-                        is_min = False
-                        break
-                if pos + k < c:
-                    dr = row[(f + pos + k) % n]
-                    if dr <= dj and (not span or dj - dr <= tol):
-                        is_min = False
-                        break
+            if span:
+                for k in range(2, w + 1):
+                    if pos - k >= 0:
+                        dl = row[(f + pos - k) % n]
+                        if dl < dj and dj - dl <= tol:
+                            is_min = False
+                            break
+                    if pos + k < c:
+                        dr = row[(f + pos + k) % n]
+                        if dr <= dj and dj - dr <= tol:
+                            is_min = False
+                            break
             if not is_min:
                 continue
             left = 0
