@@ -234,7 +234,7 @@ def _front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_
     if s > 0:
         _scan_noise_kernel(d, d_th, d_max, circular, noise, noise_n)
     n_win = 0
-    w_parent = np.empty(0, dtype=np.int64)
+    w_parent = keep[:0]  # (no window: a view, no allocation per call)
     if windows and pre_gate and s > 0:
         n_win, w_parent = _add_windows(d, cols, s, _wide(count, max_beams, s), noise, cos_a, sin_a, step,
                                        r_kin, slack, margin, w_span, w_depth, w_sag, w_sag_noise)  # fmt: skip
@@ -463,14 +463,18 @@ def _front_table(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin,
     p_near, n_near = p_near[:n_x], n_near[:n_x]
     # the candidates: the segments but the wide ones, then the windows
     rows = wi[5 * cells : 5 * cells + n_x - n_wide]
-    q = 0
-    k = 0
-    for i in range(n_x):
-        if k < n_wide and wide[k] == i:
-            k += 1
-        else:
-            rows[q] = i
-            q += 1
+    if n_wide == 0:  # (always without windows)
+        for i in range(n_x):
+            rows[i] = i
+    else:
+        q = 0
+        k = 0
+        for i in range(n_x):
+            if k < n_wide and wide[k] == i:
+                k += 1
+            else:
+                rows[q] = i
+                q += 1
     n_cand = rows.shape[0]
     d_flat = d.reshape(-1)
     # the survivors' stage-1 values the features kernel would compute again (its `pre`)
@@ -577,8 +581,11 @@ def back(out, d, scan, first, count, max_beams, rows, frames, scan_cols, wins, a
             k += 1
     table = _table(out, d, scan, first, count, det, det_o, p[det], frames, ang, regression, t_mean, t_std,
                    r_kin, max_iter, xtol, lam0, lam_max)  # fmt: skip
-    wd = _window_dets(out, d, wins, n_seg, rows, n_srow, frames, scan_cols, thr_scan, w_edges, w_values, ang,
-                      regression, t_mean, t_std, r_kin, max_iter, xtol, lam0, lam_max)  # fmt: skip
+    if n_srow == rows.shape[0]:  # no window reached the network (always without windows): no allocation
+        wd = (rows[:0], rows[:0], table[:0])
+    else:
+        wd = _window_dets(out, d, wins, n_seg, rows, n_srow, frames, scan_cols, thr_scan, w_edges, w_values,
+                          ang, regression, t_mean, t_std, r_kin, max_iter, xtol, lam0, lam_max)  # fmt: skip
     return p, thr, stage, det, table, wd
 
 
@@ -707,10 +714,11 @@ def back_table(out, d, scan, first, count, rows, frames, scan_cols, n_seg, ang, 
     det = rows[det_o]
     table = _table(out, d, scan, first, count, det, det_o, p_o[:n_det], frames, ang, regression, t_mean,
                    t_std, r_kin, max_iter, xtol, lam0, lam_max)  # fmt: skip
-    w_scan, _, w_table = _window_dets(out, d, (scan, first, count, np.empty(0, dtype=np.int64)), n_seg, rows,
-                                      n_srow, frames, scan_cols, thr_scan, w_edges, w_values, ang,
-                                      regression, t_mean,
-                                      t_std, r_kin, max_iter, xtol, lam0, lam_max)  # fmt: skip
+    if n_srow == rows.shape[0]:  # no window reached the network (always without windows): no allocation
+        return scan[det], table, rows[:0], table[:0]
+    w_scan, _, w_table = _window_dets(out, d, (scan, first, count, rows[:0]), n_seg, rows, n_srow, frames,
+                                      scan_cols, thr_scan, w_edges, w_values, ang, regression, t_mean, t_std,
+                                      r_kin, max_iter, xtol, lam0, lam_max)  # fmt: skip
     return scan[det], table, w_scan, w_table
 
 

@@ -12,6 +12,10 @@ Pipeline (same interface and output types as :class:`detectors.GeometricKinDetec
    cheap quantities (:data:`detectors.features.CASCADE_FEATURES`) drops the segments it scores
    below its threshold, fitted on training seeds to keep >= 99.9 % of the kin segments the full
    model accepts (``scripts/fit_cascade.py``); stage ``"learned"``;
+2c. **candidate windows** (``windows``, on when the checkpoint has window settings: a network trained on
+   them): housing-sized windows cut out of the segments the pre-gate dropped (:mod:`detectors.windows`),
+   going on with the segments as more rows (cascade, features, network), accepted at max(segment, window
+   threshold), dropped near a kept detection;
 3. one feature vector per segment (:mod:`detectors.features`, ``FEATURE_VERSION``);
 4. **classification** (replaces the paper's diameter and shape filters, 4.3): an MLP gives
    ``p(kin)`` for every segment of every scan of a batch in one pass (the checkpoint's weights as

@@ -1,4 +1,4 @@
-"""Candidate windows inside segments too wide for a housing (issue 11, rounds 5-6: an experiment).
+"""Candidate windows inside segments too wide for a housing (issue 11, rounds 5-7).
 
 The paper's segmentation (``d_th`` = 0.1 m) merges a kin touching a wall or another robot into one
 segment wider than a housing; the learned detector's pre-gate drops that segment and the kin has no
@@ -34,7 +34,9 @@ On 30 swarm scenes (training seeds 610,000+) round 6 cuts 7.1 / 6.2 / 4.8 window
 round 6".
 
 Pure numpy over all windows at once (loops over beam offsets, at most a housing's span, never over
-beams); only the segments given are searched.
+beams); only the segments given are searched. :func:`_cut_windows` is the same function compiled, which
+the learned detector's driver runs on the segments its pre-gate drops (round 7,
+``LearnedKinDetector(windows=...)``; :func:`cut_windows` calls it from Python; tested equal).
 """
 
 from __future__ import annotations

@@ -37,6 +37,8 @@ def _cases():
     rng = np.random.default_rng(11)
     for _ in range(2):  # no-returns of every kind, alternating near / far beams
         yield adversarial_scans(rng)
+    ranges, angles = arena_scans(410, 0.01, 32, 20)
+    yield ranges[:1], angles  # one scan: without the cascade
 
 
 CASES = list(_cases())
