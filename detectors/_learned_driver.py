@@ -72,6 +72,7 @@ from .features import (
     _scan_columns,
     _scan_noise_kernel,
 )
+from .windows import _cut_windows
 
 _CAS_CHUNK = 256  # segments per chunk of the cascade's stage 1 in :func:`front`
 
@@ -146,7 +147,7 @@ def _row_arrays(ws, n_sel, n_feat, n_frame):
 @numba.njit(cache=True, nogil=True)
 def front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_ang, cos_a, sin_a, sweep,
           tan_tab, occlusion_unbounded, n_points, n_context, gn_iters, n_feat, cascade, c_w1t, c_b1, c_w2,
-          c_b2, c_threshold, c_one_beam, lean):  # fmt: skip
+          c_b2, c_threshold, c_one_beam, windows, w_span, w_depth, w_sag, w_sag_noise, lean):  # fmt: skip
     """Stages 1-3 for ``B`` scans ``r`` (B, n) (float32 or float64 readings, not validated here).
 
     ``cascade``: run the cascade's stage 1 (``c_w1t, c_b1, c_w2, c_b2``, the model of
@@ -161,13 +162,22 @@ def front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_a
     here). Which segments reach the network, and so every detection and stage code, is the same as
     without ``lean``.
 
+    ``windows`` (with ``pre_gate``; issue 11, round 7): candidate windows
+    (:func:`detectors.windows._cut_windows`; ``WindowConfig(anchor="span" if w_span, depth=w_depth,
+    sag=w_sag, sag_noise=w_sag_noise)``) are cut out of the segments the pre-gate drops, those with
+    more beams than the pre-gate's bound at their own range dropped (:func:`_add_windows`); they go
+    through the cascade, the features and the network as more rows after the segments' (segment-column
+    index ``S + k`` for window ``k``).
+
     Returns ``(d, scan, first, count, prev, next, prev_nearer, next_nearer, max_beams, rows, x,
-    frames, scan_cols, cascade_score)``: the pre-processed ranges, the segments (as
+    frames, scan_cols, cascade_score, wins)``: the pre-processed ranges, the segments (as
     :func:`detectors._kernels.segment_arrays`), the pre-gate bound of every segment (NaN without the
     gate), the segments ``rows`` that reach the network, their ``(R, F)`` float32 features and local
-    frames, each scan's float64 noise features (:func:`detectors.features._features_kernel`) and
-    every segment's stage-1 score (NaN where not scored). Arrays of this call's own (work arrays made
-    for it; :func:`_front` is the driver's version on kept ones).
+    frames, each scan's float64 noise features (:func:`detectors.features._features_kernel`),
+    every segment's stage-1 score (NaN where not scored) and the windows ``(scan, first, count)``
+    (the segment columns followed by the windows': rows ``>= S`` index them) and ``parent`` (the segment
+    each window was cut from). Arrays of this call's own (work arrays made for it; :func:`_front` is the
+    driver's version on kept ones).
     """
     cells = r.shape[0] * r.shape[1]
     ws = (np.empty(_W_F64 * cells), np.empty(_W_I64 * cells, dtype=np.int64),
@@ -175,13 +185,16 @@ def front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_a
           np.empty(0, dtype=np.int64), np.zeros(1, dtype=np.int64))  # fmt: skip
     return _front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_ang, cos_a, sin_a,
                   sweep, tan_tab, occlusion_unbounded, n_points, n_context, gn_iters, n_feat, cascade, c_w1t,
-                  c_b1, c_w2, c_b2, c_threshold, c_one_beam, lean, ws)  # fmt: skip
+                  c_b1, c_w2, c_b2, c_threshold, c_one_beam, windows, w_span, w_depth, w_sag, w_sag_noise,
+                  lean,
+                  ws)  # fmt: skip
 
 
 @numba.njit(cache=True, nogil=True)
 def _front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_ang, cos_a, sin_a, sweep,
            tan_tab, occlusion_unbounded, n_points, n_context, gn_iters, n_feat, cascade, c_w1t, c_b1, c_w2,
-           c_b2, c_threshold, c_one_beam, lean, ws):  # fmt: skip
+           c_b2, c_threshold, c_one_beam, windows, w_span, w_depth, w_sag, w_sag_noise, lean,
+           ws):  # fmt: skip
     # front on the work arrays ws (new_work; the caller checked _work_fits for this batch): the arrays it
     # returns are views of them, except where ws holds too few network rows (then this call's own)
     wf, wi, wb, rf, rx, ri, need = ws
@@ -190,12 +203,13 @@ def _front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_
     d = wf[:cells].reshape((n_rows, n))
     _k.preprocess_rows(r, d_max, d_th, circular, False, d)
     # the segmentation's columns are views of the work arrays (no copies)
-    scan, first, count, prev, nxt, p_near, n_near = _segment_columns(wi, wb, cells)
+    cols = _segment_columns(wi, wb, cells)
+    scan, first, count, prev, nxt, p_near, n_near = cols
     s = _k.segment_rows(d, d_th, d_max, circular, scan, first, count, prev, nxt, p_near, n_near)
     scan, first, count, prev, nxt = scan[:s], first[:s], count[:s], prev[:s], nxt[:s]
     p_near, n_near = p_near[:s], n_near[:s]
     max_beams = wf[cells : cells + s]
-    keep = wi[5 * cells : 5 * cells + s]
+    keep = wi[5 * cells : 6 * cells]  # the kept segments' indices (then the windows')
     if pre_gate:
         # the bound floor(2 asin(.) / step) + 1 + margin is >= 1 + margin for step > 0 (asin >= 0): segments
         # of at most 1 + margin beams are always kept, and the lean path does not compute their asin
@@ -211,7 +225,7 @@ def _front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_
         max_beams[:] = np.nan
         for i in range(s):
             keep[i] = i
-        rows = keep
+        rows = keep[:s]
     scan_cols = np.empty((n_rows, 2))
     cscore = wf[2 * cells : 2 * cells + s]
     cscore[:] = np.nan
@@ -219,27 +233,43 @@ def _front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_
     noise_n = np.empty(n_rows, dtype=np.int64)
     if s > 0:
         _scan_noise_kernel(d, d_th, d_max, circular, noise, noise_n)
+    n_win = 0
+    w_parent = keep[:0]  # (no window: a view, no allocation per call)
+    if windows and pre_gate and s > 0:
+        n_win, w_parent = _add_windows(d, cols, s, _wide(count, max_beams, s), noise, cos_a, sin_a, step,
+                                       r_kin, slack, margin, w_span, w_depth, w_sag, w_sag_noise)  # fmt: skip
+        n_keep = rows.shape[0]
+        for k in range(n_win):
+            keep[n_keep + k] = s + k
+        rows = keep[: n_keep + n_win]
+    # the segment columns with the windows' after them (what the rows index)
+    n_x = s + n_win
+    scan_x, first_x, count_x = cols[0][:n_x], cols[1][:n_x], cols[2][:n_x]
+    prev_x, nxt_x = cols[3][:n_x], cols[4][:n_x]
+    p_near_x, n_near_x = cols[5][:n_x], cols[6][:n_x]
     if cascade and s > 0:
         # stage 1 on the pre-gate's survivors; only those scoring >= c_threshold go on
         _scan_columns(noise, noise_n, scan_cols)
         d_flat = d.reshape(-1)
         if lean:  # the one-beam segments the bound rejects drop out here (the others keep their order)
             todo = wi[6 * cells : 6 * cells + rows.shape[0]]
-            n_todo = _cascade_one_beam_filter(d_flat, scan, first, count, p_near, n_near, n, circular, d_max,
-                                              scan_cols, c_one_beam, c_threshold, rows, todo)  # fmt: skip
+            n_todo = _cascade_one_beam_filter(d_flat, scan_x, first_x, count_x, p_near_x, n_near_x, n,
+                                              circular, d_max, scan_cols, c_one_beam, c_threshold, rows,
+                                              todo)  # fmt: skip
             rows = todo[:n_todo]
         # in chunks: the inputs stay in cache (a row's score does not depend on its chunk)
         xc = np.empty((_CAS_CHUNK, 12))
         s1 = wf[3 * cells : 3 * cells + rows.shape[0]]
         for c0 in range(0, rows.shape[0], _CAS_CHUNK):
             c1 = min(c0 + _CAS_CHUNK, rows.shape[0])
-            _cascade_kernel(d_flat, cos_a, sin_a, trig_ang, scan, first, count, prev, nxt, p_near, n_near, n,
-                            circular, sweep, r_kin, d_max, occlusion_unbounded, scan_cols, rows[c0:c1], xc,
-                            tan_tab)  # fmt: skip
+            _cascade_kernel(d_flat, cos_a, sin_a, trig_ang, scan_x, first_x, count_x, prev_x, nxt_x, p_near_x,
+                            n_near_x, n, circular, sweep, r_kin, d_max, occlusion_unbounded, scan_cols,
+                            rows[c0:c1], xc, tan_tab)  # fmt: skip
             _cascade_scores(xc[: c1 - c0], c_w1t, c_b1, c_w2, c_b2, s1[c0:c1])
         n_keep = 0
         for o in range(rows.shape[0]):
-            cscore[rows[o]] = s1[o]
+            if rows[o] < s:  # (a window's score is not reported)
+                cscore[rows[o]] = s1[o]
             if s1[o] >= c_threshold:
                 rows[n_keep] = rows[o]
                 n_keep += 1
@@ -250,24 +280,82 @@ def _front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_
     pre = np.empty((0, 9), dtype=np.float32)
     if s > 0:
         _features_kernel(
-            d.reshape(-1), cos_a, sin_a, trig_ang, scan, first, count, prev, nxt, p_near, n_near, n, circular,
-            sweep, r_kin, d_max, occlusion_unbounded, n_points, n_context, gn_iters, noise, noise_n, rows, x,
-            frames, fit_centre, min_beam, scan_cols, tan_tab, pre,
+            d.reshape(-1), cos_a, sin_a, trig_ang, scan_x, first_x, count_x, prev_x, nxt_x, p_near_x,
+            n_near_x, n, circular, sweep, r_kin, d_max, occlusion_unbounded, n_points, n_context, gn_iters,
+            noise, noise_n, rows, x, frames, fit_centre, min_beam, scan_cols, tan_tab, pre,
         )  # fmt: skip
-    return d, scan, first, count, prev, nxt, p_near, n_near, max_beams, rows, x, frames, scan_cols, cscore
+    wins = (scan_x, first_x, count_x, w_parent)
+    return (d, scan, first, count, prev, nxt, p_near, n_near, max_beams, rows, x, frames, scan_cols, cscore,
+            wins)
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def _wide(count, max_beams, s):
+    # the segments the pre-gate drops
+    n_wide = 0
+    for i in range(s):
+        n_wide += count[i] > max_beams[i]
+    wide = np.empty(n_wide, dtype=np.int64)
+    k = 0
+    for i in range(s):
+        if count[i] > max_beams[i]:
+            wide[k] = i
+            k += 1
+    return wide
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def _add_windows(d, cols, s, wide, noise, cos_a, sin_a, step, r_kin, slack, margin, w_span, w_depth, w_sag,
+                 w_sag_noise):  # fmt: skip
+    """The candidate windows of the segments ``wide`` (those the pre-gate dropped) written after the
+    ``s`` segments into the segment columns ``cols`` (:func:`_segment_columns`; a wide segment has >= 4
+    beams and at most half of them anchor a window, so segments and windows fit in one column per beam),
+    those with more beams than the pre-gate's bound at their own nearest reading dropped (as a segment;
+    round 6's ``scripts/experiment_split_windows.py``). Returns ``(W, parent (W,))``."""
+    scan, first, count, prev, nxt, p_near, n_near = cols
+    room = 0
+    for q in range(wide.shape[0]):
+        room += (count[wide[q]] + 1) // 2
+    if s + room > scan.shape[0]:  # (never with a margin >= 0: wide segments have >= 4 beams)
+        raise ValueError("learned driver: no room for the candidate windows (pre-gate margin < 0?)")
+    parent = np.empty(room, dtype=np.int64)
+    anchor = np.empty(room, dtype=np.int64)
+    sag = np.empty(room)
+    n_win = _cut_windows(d, scan, first, count, prev, nxt, p_near, n_near, wide, noise, cos_a, sin_a, step,
+                         r_kin,
+                         w_span, w_depth, w_sag, w_sag_noise, scan, first, count, prev, nxt, p_near,
+                         n_near, s,
+                         parent, anchor, sag)  # fmt: skip
+    n = d.shape[1]
+    m = 0
+    for k in range(n_win):  # the pre-gate's test on the window itself
+        o = s + k
+        b = scan[o]
+        dmin = d[b, first[o]]
+        for t in range(1, count[o]):
+            v = d[b, (first[o] + t) % n]
+            dmin = v if v < dmin else dmin
+        if count[o] <= _k.max_beams_of(dmin, step, r_kin, slack, margin):
+            q = s + m
+            scan[q], first[q], count[q], prev[q], nxt[q] = scan[o], first[o], count[o], prev[o], nxt[o]
+            p_near[q], n_near[q] = p_near[o], n_near[o]
+            parent[m] = parent[k]
+            m += 1
+    return m, parent[:m]
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
 def _table_segments(d, d_th, d_max, circular, pre_gate, skip_upto, step, r_kin, slack, margin, cascade,
                     scan_cols, tab, threshold, scan, first, count, prev, nxt, prev_nearer,
-                    next_nearer):  # fmt: skip
+                    next_nearer, windows, wide):  # fmt: skip
     """:func:`detectors._kernels.segment_rows` writing only the segments that go on to stage 1 (or, without
     the cascade, to the network) in :func:`_front`'s lean path: those the pre-gate keeps (of more than
     ``skip_upto`` beams: ``count <= max_beams``) and, with the cascade, not one-beam segments whose bound
     (:func:`detectors.features._cascade_one_beam_filter`) is below ``threshold``. The same tests with the
     same expressions, in the same pass as the segmentation (the segment's beams and neighbours are in
-    cache, and the ~65 % of a swarm's segments dropped here are never written nor read again). Returns
-    how many, in segment order."""
+    cache, and the ~65 % of a swarm's segments dropped here are never written nor read again). With
+    ``windows`` the segments the pre-gate drops are written too, their indices into ``wide``. Returns
+    ``(how many, how many of them wide)``, in segment order."""
     n_rows, n = d.shape
     pos = np.empty(n + 1, dtype=np.int64)
     d_flat = d.reshape(-1)
@@ -278,6 +366,7 @@ def _table_segments(d, d_th, d_max, circular, pre_gate, skip_upto, step, r_kin, 
     use_bound = cascade and n_rows > 0 and base.max() >= 0
     lim = threshold - _C1_DELTA
     s = 0
+    n_wide = 0
     for b in range(n_rows):
         row = d[b]
         m, n_valid = _k.row_breaks(row, d_th, d_max, circular, pos)
@@ -296,6 +385,10 @@ def _table_segments(d, d_th, d_max, circular, pre_gate, skip_upto, step, r_kin, 
                     for j in range(n):
                         dmin = row[j] if row[j] < dmin else dmin
                     keep = n <= _k.max_beams_of(dmin, step, r_kin, slack, margin)
+                    if windows and not keep:
+                        wide[n_wide] = s
+                        n_wide += 1
+                        keep = True
                 s += keep
             continue
         for j in range(m):
@@ -315,23 +408,31 @@ def _table_segments(d, d_th, d_max, circular, pre_gate, skip_upto, step, r_kin, 
                     v = row[t if t < n else t - n]
                     dmin = v if v < dmin else dmin
                 keep = c <= _k.max_beams_of(dmin, step, r_kin, slack, margin)
+                if windows and not keep:
+                    wide[n_wide] = s
+                    n_wide += 1
+                    s += 1
+                    continue
             if keep and use_bound and c == 1:
                 key = (1 if pn else 0) + (2 if nn else 0)
                 bound = _one_beam_bound(d_flat, d_bits, b * n, f, n, circular, d_max, key, base[b], x7[b],
                                         tab_flat)  # fmt: skip
                 keep = not bound < lim
             s += keep
-    return s
+    return s, n_wide
 
 
 @numba.njit(cache=True, nogil=True)
 def _front_table(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_ang, cos_a, sin_a,
                  sweep, tan_tab, occlusion_unbounded, n_points, n_context, gn_iters, n_feat, cascade, c_w1t,
-                 c_b1, c_w2, c_b2, c_threshold, c_one_beam, ws):  # fmt: skip
+                 c_b1, c_w2, c_b2, c_threshold, c_one_beam, windows, w_span, w_depth, w_sag, w_sag_noise,
+                 ws):  # fmt: skip
     """:func:`_front`'s lean path for :func:`fused_table` on the work arrays ``ws``: ``(d, scan, first,
-    count, rows, x, frames, scan_cols)`` where the segment columns hold only the segments that reach
-    stage 1 (:func:`_table_segments`), ``rows`` those of them that reach the network. The same network
-    rows, features and frames, in the same order, as ``_front(..., lean=True)``."""
+    count, rows, x, frames, scan_cols, n_seg)`` where the segment columns hold only the segments that reach
+    stage 1 (:func:`_table_segments`; with ``windows`` also those the pre-gate drops, then after the
+    ``n_seg`` segments the candidate windows cut from them, :func:`_add_windows`), ``rows`` those of them
+    that reach the network. The same network rows, features and frames, in the same order, as
+    ``_front(..., lean=True)``."""
     wf, wi, wb, rf, rx, ri, need = ws
     n_rows, n = r.shape
     cells = n_rows * n
@@ -342,34 +443,56 @@ def _front_table(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin,
     _scan_noise_kernel(d, d_th, d_max, circular, noise, noise_n)
     scan_cols = np.empty((n_rows, 2))
     _scan_columns(noise, noise_n, scan_cols)
-    scan, first, count, prev, nxt, p_near, n_near = _segment_columns(wi, wb, cells)
+    cols = _segment_columns(wi, wb, cells)
+    scan, first, count, prev, nxt, p_near, n_near = cols
     # (as _front: the pre-gate's bound, >= 1 + margin, keeps segments of at most 1 + margin beams)
     skip_upto = int(1.0 + math.floor(margin)) if step > 0.0 and margin >= 0.0 else 0
-    s = _table_segments(d, d_th, d_max, circular, pre_gate, skip_upto, step, r_kin, slack, margin, cascade,
-                        scan_cols, c_one_beam, c_threshold, scan, first, count, prev, nxt, p_near,
-                        n_near)  # fmt: skip
-    scan, first, count, prev, nxt = scan[:s], first[:s], count[:s], prev[:s], nxt[:s]
-    p_near, n_near = p_near[:s], n_near[:s]
-    rows = wi[5 * cells : 5 * cells + s]
-    for i in range(s):
-        rows[i] = i
+    windows = windows and pre_gate
+    wide = wi[6 * cells : 7 * cells]  # (a wide segment has >= 4 beams: at most cells / 4 of them)
+    s, n_wide = _table_segments(d, d_th, d_max, circular, pre_gate, skip_upto, step, r_kin, slack, margin,
+                                cascade, scan_cols, c_one_beam, c_threshold, scan, first, count, prev, nxt,
+                                p_near,
+                                n_near, windows, wide)  # fmt: skip
+    n_win = 0
+    if n_wide > 0:
+        n_win, _ = _add_windows(d, cols, s, wide[:n_wide], noise, cos_a, sin_a, step, r_kin, slack, margin,
+                                w_span,
+                                w_depth, w_sag, w_sag_noise)  # fmt: skip
+    n_x = s + n_win
+    scan, first, count, prev, nxt = scan[:n_x], first[:n_x], count[:n_x], prev[:n_x], nxt[:n_x]
+    p_near, n_near = p_near[:n_x], n_near[:n_x]
+    # the candidates: the segments but the wide ones, then the windows
+    rows = wi[5 * cells : 5 * cells + n_x - n_wide]
+    if n_wide == 0:  # (always without windows)
+        for i in range(n_x):
+            rows[i] = i
+    else:
+        q = 0
+        k = 0
+        for i in range(n_x):
+            if k < n_wide and wide[k] == i:
+                k += 1
+            else:
+                rows[q] = i
+                q += 1
+    n_cand = rows.shape[0]
     d_flat = d.reshape(-1)
     # the survivors' stage-1 values the features kernel would compute again (its `pre`)
     use_pre = cascade and n_context == 2
-    pre = np.empty((s if use_pre else 0, 9), dtype=np.float32)
-    if cascade and s > 0:
+    pre = np.empty((n_cand if use_pre else 0, 9), dtype=np.float32)
+    if cascade and n_cand > 0:
         xc = np.empty((_CAS_CHUNK, 13))  # (the 13th column: omega_in_range, for pre)
-        s1 = wf[3 * cells : 3 * cells + s]
+        s1 = wf[3 * cells : 3 * cells + n_cand]
         n_keep = 0
-        for c0 in range(0, s, _CAS_CHUNK):
-            c1 = min(c0 + _CAS_CHUNK, s)
+        for c0 in range(0, n_cand, _CAS_CHUNK):
+            c1 = min(c0 + _CAS_CHUNK, n_cand)
             _cascade_kernel(d_flat, cos_a, sin_a, trig_ang, scan, first, count, prev, nxt, p_near, n_near, n,
                             circular, sweep, r_kin, d_max, occlusion_unbounded, scan_cols, rows[c0:c1], xc,
                             tan_tab)  # fmt: skip
             _cascade_scores(xc[: c1 - c0], c_w1t, c_b1, c_w2, c_b2, s1[c0:c1])
             for o in range(c0, c1):  # (n_keep <= o: this chunk's rows were read above)
                 if s1[o] >= c_threshold:
-                    rows[n_keep] = o
+                    rows[n_keep] = rows[o]
                     if use_pre:
                         q = o - c0
                         for j, k in enumerate((1, 2, 3, 12, 6, 8, 10, 9, 11)):
@@ -387,7 +510,7 @@ def _front_table(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin,
             sweep, r_kin, d_max, occlusion_unbounded, n_points, n_context, gn_iters, noise, noise_n, rows, x,
             frames, fit_centre, min_beam, scan_cols, tan_tab, pre,
         )  # fmt: skip
-    return d, scan, first, count, rows, x, frames, scan_cols
+    return d, scan, first, count, rows, x, frames, scan_cols, s
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
@@ -418,14 +541,16 @@ def _scan_thresholds(scan_cols, n_seg, fixed, edges, values):
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
-def back(out, d, scan, first, count, max_beams, rows, frames, scan_cols, ang, pre_gate, fixed_threshold,
-         edges, values, regression, t_mean, t_std, r_kin, max_iter, xtol, lam0, lam_max):  # fmt: skip
+def back(out, d, scan, first, count, max_beams, rows, frames, scan_cols, wins, ang, pre_gate, fixed_threshold,
+         edges, values, w_edges, w_values, regression, t_mean, t_std, r_kin, max_iter, xtol, lam0,
+         lam_max):  # fmt: skip
     """Stages 4-5 from the network outputs ``out`` (R, 3) float64 of the segments ``rows``.
 
     ``fixed_threshold`` < 0: the per-noise thresholds ``values`` over ``edges``. Returns ``(p,
-    thr, stage, det, table)``: ``p(kin)`` of every segment (NaN where the pre-gate dropped it), its
+    thr, stage, det, table, windows)``: ``p(kin)`` of every segment (NaN where the pre-gate dropped it), its
     threshold and stage code, the accepted segments' indices and their ``(D, 8)`` detection table
-    (:data:`TABLE_FIELDS`: the centre's range, bearing, ``x``, ``y``, the score and the beams).
+    (:data:`TABLE_FIELDS`: the centre's range, bearing, ``x``, ``y``, the score and the beams), and the
+    accepted windows (rows ``>= S``, :func:`_front`'s ``wins``), :func:`_window_dets`.
     """
     n_seg = scan.shape[0]
     thr_scan = _scan_thresholds(scan_cols, n_seg, fixed_threshold, edges, values)
@@ -433,7 +558,8 @@ def back(out, d, scan, first, count, max_beams, rows, frames, scan_cols, ang, pr
     p = np.full(n_seg, np.nan)
     for i in range(n_seg):
         thr[i] = thr_scan[scan[i]]
-    for o in range(rows.shape[0]):
+    n_srow = _segment_rows(rows, n_seg)
+    for o in range(n_srow):
         p[rows[o]] = 1.0 / (1.0 + math.exp(-out[o, 0]))
     stage = np.empty(n_seg, dtype=np.int8)
     n_det = 0
@@ -448,26 +574,137 @@ def back(out, d, scan, first, count, max_beams, rows, frames, scan_cols, ang, pr
     det = np.empty(n_det, dtype=np.int64)
     det_o = np.empty(n_det, dtype=np.int64)
     k = 0
-    for o in range(rows.shape[0]):
+    for o in range(n_srow):
         if stage[rows[o]] == _k.ACCEPTED:  # (only rows have a p(kin); rows ascend)
             det[k] = rows[o]
             det_o[k] = o
             k += 1
     table = _table(out, d, scan, first, count, det, det_o, p[det], frames, ang, regression, t_mean, t_std,
                    r_kin, max_iter, xtol, lam0, lam_max)  # fmt: skip
-    return p, thr, stage, det, table
+    if n_srow == rows.shape[0]:  # no window reached the network (always without windows): no allocation
+        wd = (rows[:0], rows[:0], table[:0])
+    else:
+        wd = _window_dets(out, d, wins, n_seg, rows, n_srow, frames, scan_cols, thr_scan, w_edges, w_values,
+                          ang, regression, t_mean, t_std, r_kin, max_iter, xtol, lam0, lam_max)  # fmt: skip
+    return p, thr, stage, det, table, wd
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _segment_rows(rows, n_seg):
+    # how many of the ascending rows are segments (the windows' rows, >= n_seg, come after them)
+    k = rows.shape[0]
+    while k > 0 and rows[k - 1] >= n_seg:
+        k -= 1
+    return k
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
-def back_table(out, d, scan, first, count, rows, frames, scan_cols, ang, fixed_threshold, edges, values,
-               regression, t_mean, t_std, r_kin, max_iter, xtol, lam0, lam_max):  # fmt: skip
+def _window_dets(out, d, wins, n_seg, rows, n_srow, frames, scan_cols, thr_scan, w_edges, w_values, ang,
+                 regression, t_mean, t_std, r_kin, max_iter, xtol, lam0, lam_max):  # fmt: skip
+    """The accepted candidate windows: rows ``n_srow..`` (windows) whose ``p(kin)`` is at least
+    max(their scan's segment threshold ``thr_scan``, the window threshold ``w_values`` over ``w_edges`` of
+    its noise) -> ``(scan (W,), parent (W,), table (W, 8))`` in row order (duplicates not dropped yet:
+    :func:`window_merge`). ``wins``: ``(scan, first, count, parent)``, the segment columns with the
+    windows' after the ``n_seg`` segments, and each window's parent segment (empty: -1)."""
+    scan_x, first_x, count_x, parent = wins
+    n_w = rows.shape[0] - n_srow
+    det = np.empty(n_w, dtype=np.int64)
+    det_o = np.empty(n_w, dtype=np.int64)
+    p_det = np.empty(n_w)
+    k = 0
+    for o in range(n_srow, rows.shape[0]):
+        b = scan_x[rows[o]]
+        thr = max(thr_scan[b], _scan_threshold(scan_cols[b, 0], -1.0, w_edges, w_values))
+        p = 1.0 / (1.0 + math.exp(-out[o, 0]))
+        if p >= thr:
+            det[k] = rows[o]
+            det_o[k] = o
+            p_det[k] = p
+            k += 1
+    det, det_o = det[:k], det_o[:k]
+    table = _table(out, d, scan_x, first_x, count_x, det, det_o, p_det[:k], frames, ang, regression, t_mean,
+                   t_std, r_kin, max_iter, xtol, lam0, lam_max)  # fmt: skip
+    w_scan = np.empty(k, dtype=np.int64)
+    w_parent = np.empty(k, dtype=np.int64)
+    for j in range(k):
+        w_scan[j] = scan_x[det[j]]
+        w_parent[j] = parent[det[j] - n_seg] if parent.shape[0] > 0 else -1
+    return w_scan, w_parent, table
+
+
+@numba.njit(cache=True, nogil=True)
+def window_merge(seg_scan, seg_x, seg_y, win_scan, win_x, win_y, win_p, radius):
+    """Where the accepted windows go among a batch's detections: per scan (both inputs in scan order), the
+    segments' detections (duplicates already dropped) in their order, then the windows by descending
+    score (ties: the earlier first), a window dropped when its centre lies within ``radius`` of a kept
+    detection of its scan (a segment's or a window's; round 6's ``split_detector``). Returns ``(src,
+    idx)``: per output detection 0 (segment) or 1 (window) and its index in that input."""
+    n_s = seg_scan.shape[0]
+    n_w = win_scan.shape[0]
+    src = np.empty(n_s + n_w, dtype=np.int8)
+    idx = np.empty(n_s + n_w, dtype=np.int64)
+    order = np.empty(n_w, dtype=np.int64)
+    m = 0
+    i = 0
+    j = 0
+    while i < n_s or j < n_w:
+        if j >= n_w or (i < n_s and seg_scan[i] < win_scan[j]):
+            b = seg_scan[i]
+        else:
+            b = win_scan[j]
+        i0 = i
+        while i < n_s and seg_scan[i] == b:
+            src[m] = 0
+            idx[m] = i
+            m += 1
+            i += 1
+        j0 = j
+        while j < n_w and win_scan[j] == b:
+            j += 1
+        # this scan's windows by descending score, stable (insertion sort: a few per scan)
+        n_o = 0
+        for t in range(j0, j):
+            q = n_o
+            while q > 0 and win_p[order[q - 1]] < win_p[t]:
+                order[q] = order[q - 1]
+                q -= 1
+            order[q] = t
+            n_o += 1
+        m0 = m
+        for u in range(n_o):
+            t = order[u]
+            near = False
+            for a in range(i0, i):
+                if math.hypot(win_x[t] - seg_x[a], win_y[t] - seg_y[a]) < radius:
+                    near = True
+                    break
+            if not near:
+                for a in range(m0, m):
+                    q = idx[a]
+                    if math.hypot(win_x[t] - win_x[q], win_y[t] - win_y[q]) < radius:
+                        near = True
+                        break
+            if not near:
+                src[m] = 1
+                idx[m] = t
+                m += 1
+    return src[:m], idx[:m]
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def back_table(out, d, scan, first, count, rows, frames, scan_cols, n_seg, ang, fixed_threshold, edges,
+               values,
+               w_edges, w_values, regression, t_mean, t_std, r_kin, max_iter, xtol, lam0,
+               lam_max):  # fmt: skip
     """:func:`back`'s ``(scan row (D,), table)`` of the detections alone (the env's entry): only the
-    segments ``rows`` that reached the network are looked at, with the same expressions."""
+    segments ``rows`` that reached the network are looked at, with the same expressions; and the accepted
+    windows (rows ``>= n_seg``, :func:`_window_dets`) as ``(scan row, table)``."""
     thr_scan = _scan_thresholds(scan_cols, scan.shape[0], fixed_threshold, edges, values)
-    det_o = np.empty(rows.shape[0], dtype=np.int64)
-    p_o = np.empty(rows.shape[0])
+    n_srow = _segment_rows(rows, n_seg)
+    det_o = np.empty(n_srow, dtype=np.int64)
+    p_o = np.empty(n_srow)
     n_det = 0
-    for o in range(rows.shape[0]):
+    for o in range(n_srow):
         p = 1.0 / (1.0 + math.exp(-out[o, 0]))
         if p >= thr_scan[scan[rows[o]]]:
             det_o[n_det] = o
@@ -477,7 +714,12 @@ def back_table(out, d, scan, first, count, rows, frames, scan_cols, ang, fixed_t
     det = rows[det_o]
     table = _table(out, d, scan, first, count, det, det_o, p_o[:n_det], frames, ang, regression, t_mean,
                    t_std, r_kin, max_iter, xtol, lam0, lam_max)  # fmt: skip
-    return scan[det], table
+    if n_srow == rows.shape[0]:  # no window reached the network (always without windows): no allocation
+        return scan[det], table, rows[:0], table[:0]
+    w_scan, _, w_table = _window_dets(out, d, (scan, first, count, rows[:0]), n_seg, rows, n_srow, frames,
+                                      scan_cols, thr_scan, w_edges, w_values, ang, regression, t_mean, t_std,
+                                      r_kin, max_iter, xtol, lam0, lam_max)  # fmt: skip
+    return scan[det], table, w_scan, w_table
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True, inline="always")
@@ -631,7 +873,7 @@ def fused(r, front_args, rows_max, mean, std, weights, weights_t, biases, sizes,
 @numba.njit(cache=True, error_model="numpy", nogil=True)
 def back_rest(out, fr, back_args):
     """:func:`back` on the outputs ``fr`` of :func:`front` (``back_args``: its arguments from ``ang``)."""
-    return back(out, fr[0], fr[1], fr[2], fr[3], fr[8], fr[9], fr[11], fr[12], *back_args)
+    return back(out, fr[0], fr[1], fr[2], fr[3], fr[8], fr[9], fr[11], fr[12], fr[14], *back_args)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -683,18 +925,22 @@ def duplicates_kernel(scan, x, y, p, radius, out):
 
 @numba.njit(cache=True, nogil=True)
 def fused_table(r, front_args, rows_max, mean, std, weights, weights_t, biases, sizes, back_args, dup_radius,
-                ws):  # fmt: skip
+                w_radius, ws):  # fmt: skip
     """The detections alone, ``(scan row (D,), table (D, 8))``: what the envs read (fewer arrays
     cross back into Python). :func:`_front_table` (``front``'s lean path: what only the other segments'
     reported values need is skipped) and :func:`back_table` on the network's rows only, then the
     duplicates dropped (:func:`duplicates_kernel`, ``dup_radius >= 0``; as ``detect_arrays`` does in
     Python); the same detections as :func:`fused_packed` (``tests/detectors/test_cascade_bound.py``,
     ``test_driver_table.py``). ``r``: float64, or the lidar's float32 ranges (read as float64: exact).
-    ``ws``: the work arrays (:func:`new_work`); both outputs are new arrays."""
-    d, scan, first, count, rows, x, frames, scan_cols = _front_table(r, *front_args, _checked_work(r, ws))
+    ``ws``: the work arrays (:func:`new_work`); both outputs are new arrays. With candidate windows
+    (``front_args``), the accepted ones follow each scan's segment detections (:func:`window_merge`,
+    ``w_radius``), as in :meth:`detectors.learned.LearnedKinDetector.detect_arrays`."""
+    d, scan, first, count, rows, x, frames, scan_cols, n_seg = _front_table(r, *front_args,
+                                                                            _checked_work(r, ws))
     out = _network(x, rows_max, mean, std, weights, weights_t, biases, sizes, ws)
-    # back_args: (ang, pre_gate, fixed_threshold, edges, values, regression, t_mean, t_std, r_kin, ...)
-    row, table = back_table(out, d, scan, first, count, rows, frames, scan_cols, back_args[0], *back_args[2:])
+    # back_args: (ang, pre_gate, fixed_threshold, edges, values, w_edges, w_values, regression, t_mean, ...)
+    row, table, w_row, w_table = back_table(out, d, scan, first, count, rows, frames, scan_cols, n_seg,
+                                            back_args[0], *back_args[2:])  # fmt: skip
     if dup_radius >= 0.0 and row.shape[0] > 1:
         dup = np.full(row.shape[0], -1, dtype=np.int64)
         duplicates_kernel(row, table[:, 2], table[:, 3], table[:, 4], dup_radius, dup)
@@ -711,6 +957,20 @@ def fused_table(r, front_args, rows_max, mean, std, weights, weights_t, biases, 
                     table_k[j] = table[k]
                     j += 1
             row, table = row_k, table_k
+    if w_row.shape[0] > 0:  # the accepted windows after each scan's segment detections
+        src, idx = window_merge(row, table[:, 2], table[:, 3], w_row, w_table[:, 2], w_table[:, 3],
+                                w_table[:, 4],
+                                w_radius)  # fmt: skip
+        row_m = np.empty(src.shape[0], dtype=np.int64)
+        table_m = np.empty((src.shape[0], 8))
+        for k in range(src.shape[0]):
+            if src[k] == 0:
+                row_m[k] = row[idx[k]]
+                table_m[k] = table[idx[k]]
+            else:
+                row_m[k] = w_row[idx[k]]
+                table_m[k] = w_table[idx[k]]
+        row, table = row_m, table_m
     return row, table
 
 
@@ -720,10 +980,11 @@ def pack(fr, bk):
     as a few blocks (each column a row of one; fewer arrays to hand back to Python): ``(seg_i (5, S)
     int64: scan, first, count, prev, next; seg_b (2, S) bool: prev_nearer, next_nearer; seg_f (4, S):
     p_kin, threshold, max_beams, cascade_score; stage (S,) int8; det (D,) int64; det_f (5, D): range,
-    bearing, x, y, score; det_i (4, D) int64: scan, first_beam, last_beam, n_beams)``."""
+    bearing, x, y, score; det_i (4, D) int64: scan, first_beam, last_beam, n_beams; win (W, 10): the
+    accepted candidate windows, :data:`TABLE_FIELDS`, scan and parent segment, duplicates not dropped)``."""
     n_beams = fr[0].shape[1]
     scan, first, count = fr[1], fr[2], fr[3]
-    p, thr, stage, det, table = bk
+    p, thr, stage, det, table, wd = bk
     n_seg = scan.shape[0]
     n_det = det.shape[0]
     seg_i = np.empty((5, n_seg), dtype=np.int64)
@@ -751,12 +1012,19 @@ def pack(fr, bk):
         det_i[1, k] = first[i]
         det_i[2, k] = (first[i] + count[i] - 1) % n_beams
         det_i[3, k] = count[i]
-    return seg_i, seg_b, seg_f, stage, det, det_f, det_i
+    w_scan, w_parent, w_table = wd
+    win = np.empty((w_scan.shape[0], 10))
+    for k in range(w_scan.shape[0]):
+        for c in range(8):
+            win[k, c] = w_table[k, c]
+        win[k, 8] = w_scan[k]
+        win[k, 9] = w_parent[k]
+    return seg_i, seg_b, seg_f, stage, det, det_f, det_i, win
 
 
 @numba.njit(cache=True, nogil=True)
 def fused_packed(r, front_args, rows_max, mean, std, weights, weights_t, biases, sizes, back_args, ws):
-    """:func:`fused` returning :func:`pack` of its outputs: ``detect_arrays`` hands 7 arrays back to
+    """:func:`fused` returning :func:`pack` of its outputs: ``detect_arrays`` hands 8 arrays back to
     Python instead of 19 (~1 us each) and none of the intermediate ones (nor any view of ``ws``)."""
     fr, _, bk = fused(r, front_args, rows_max, mean, std, weights, weights_t, biases, sizes, back_args, ws)
     return pack(fr, bk)

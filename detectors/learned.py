@@ -12,6 +12,10 @@ Pipeline (same interface and output types as :class:`detectors.GeometricKinDetec
    cheap quantities (:data:`detectors.features.CASCADE_FEATURES`) drops the segments it scores
    below its threshold, fitted on training seeds to keep >= 99.9 % of the kin segments the full
    model accepts (``scripts/fit_cascade.py``); stage ``"learned"``;
+2c. **candidate windows** (``windows``, on when the checkpoint has window settings: a network trained on
+   them): housing-sized windows cut out of the segments the pre-gate dropped (:mod:`detectors.windows`),
+   going on with the segments as more rows (cascade, features, network), accepted at max(segment, window
+   threshold), dropped near a kept detection;
 3. one feature vector per segment (:mod:`detectors.features`, ``FEATURE_VERSION``);
 4. **classification** (replaces the paper's diameter and shape filters, 4.3): an MLP gives
    ``p(kin)`` for every segment of every scan of a batch in one pass (the checkpoint's weights as
@@ -81,6 +85,7 @@ from .features import (
 )
 from .fileio import atomic_write, sha256_file
 from .geometric import _LM_LAMBDA0, _LM_LAMBDA_MAX, _LM_XTOL, is_circular_sweep
+from .windows import WindowConfig
 
 __all__ = [
     "CASCADE_FORMAT",
@@ -99,6 +104,7 @@ __all__ = [
     "npz_path",
     "sample_weights",
     "weights_digest",
+    "window_settings",
     "write_npz_checkpoint",
 ]
 
@@ -648,6 +654,32 @@ def load_cascade(path, weights_sha256: str | None = None) -> dict:
             "path": str(path)}  # fmt: skip
 
 
+# --------------------------------------------------------------------------- candidate windows
+
+
+def window_settings(checkpoint: dict) -> tuple[WindowConfig, dict] | None:
+    """A checkpoint's candidate-window settings (issue 11, rounds 6-7): ``(WindowConfig, thresholds)``
+    when its ``info`` has the window thresholds that ``scripts/train_classifier.py`` calibrates for a
+    network trained on windows (``window_thresholds``: ``noise_edges`` and ``values``) and the config its
+    datasets' windows were cut with (``window_config``, or the one config all of ``windows`` name: the
+    datasets' manifests), else None (a checkpoint trained without windows). Malformed settings raise a
+    ``ValueError`` naming what is wrong."""
+    info = checkpoint.get("info") or {}
+    wt = info.get("window_thresholds")
+    if wt is None:
+        return None
+    cfg = info.get("window_config")
+    if cfg is None:
+        named = [w for w in (info.get("windows") or []) if w is not None]
+        if not named or any(w != named[0] for w in named):
+            raise ValueError(f"window thresholds but no single window config (info windows: {named!r})")
+        cfg = named[0]
+    if not isinstance(wt, dict):
+        raise ValueError(f"window_thresholds must be a dict with noise_edges and values, got {wt!r}")
+    th = check_thresholds({"noise_edges": wt.get("noise_edges", []), "values": wt.get("values", [])})
+    return WindowConfig.from_dict(cfg), th
+
+
 # --------------------------------------------------------------------------- detector
 
 
@@ -697,6 +729,15 @@ class LearnedKinDetector(KinDetector):
             (stage ``"learned"``, ``p_kin`` NaN, ``seg_values["cascade_score"]``). Fitted by
             ``scripts/fit_cascade.py`` on training seeds to keep >= 99.9 % of the kin segments the
             full model accepts (README, "The learned segment classifier").
+        windows: candidate windows (issue 11, round 7; :mod:`detectors.windows`): housing-sized windows
+            cut out of the segments the pre-gate drops (a kin merged with a wall or a touching neighbour),
+            scored by the same network after the same cascade, accepted at max(the segment threshold,
+            the checkpoint's window threshold for the scan's noise); a window whose centre lies within
+            ``2 r`` of a kept detection of its scan is dropped (best first). ``None`` (default): on when
+            the checkpoint has window settings (:func:`window_settings`: a network trained on windows);
+            ``True``: required; ``False``: off. Needs the pre-gate and per-noise thresholds (not the
+            expected-beams table). A window's detection follows its scan's segment detections, with the
+            window's beams and ``segment`` = the segment it was cut from (its stage stays ``"diameter"``).
         suppress_duplicates: of two accepted segments of one scan, next to each other among the
             accepted ones, whose kin centres lie within a housing's diameter (``2 r``: two housings
             cannot be closer), keep the higher-scored one (default True). A housing right next to the
@@ -728,6 +769,7 @@ class LearnedKinDetector(KinDetector):
         pre_gate: bool = True,
         cascade: bool | str | Path | None = None,
         suppress_duplicates: bool = True,
+        windows: bool | None = None,
     ) -> None:
         if not isinstance(suppress_duplicates, bool):
             raise ValueError(
@@ -804,6 +846,7 @@ class LearnedKinDetector(KinDetector):
                 )
         self.pre_gate = pre_gate
         self._cascade = self._load_cascade(cascade)
+        self._load_windows(windows)
         self._angles_key: np.ndarray | None = None
         self._angles_src: np.ndarray | None = None
         self._circular = True
@@ -825,6 +868,35 @@ class LearnedKinDetector(KinDetector):
                 self.checkpoint, self.device if self.inference == "torch" else "cpu"
             )
         return self._model
+
+    def _load_windows(self, windows) -> None:
+        if windows is not None and not isinstance(windows, bool):
+            raise ValueError(f"LearnedKinDetector: windows must be None, True or False, got {windows!r}")
+        try:
+            ws = window_settings(self.checkpoint)
+        except (TypeError, ValueError) as e:
+            raise ValueError(
+                f"LearnedKinDetector: {self.checkpoint['path']}: bad window settings: {e}"
+            ) from None
+        if windows is True and ws is None:
+            raise ValueError(
+                f"LearnedKinDetector: windows=True, but the checkpoint {self.checkpoint['path']} has no "
+                "window settings (train one on windows: make_dataset.py --windows, train_classifier.py)"
+            )
+        on = ws is not None and windows is not False
+        if on and windows is True and (not self.pre_gate or self._beam_table is not None):
+            raise ValueError("LearnedKinDetector: windows=True needs pre_gate=True and per-noise thresholds")
+        on = on and self.pre_gate and (self._beam_table is None or self.threshold is not None)
+        #: the window config, or None (windows off)
+        self.window_config: WindowConfig | None = ws[0] if on else None
+        th = ws[1] if on else {"noise_edges": [], "values": [1.0]}
+        self._win_edges = np.asarray(th["noise_edges"], dtype=np.float64)
+        self._win_values = np.asarray(th["values"], dtype=np.float64)
+
+    @property
+    def windows(self) -> bool:
+        """Whether candidate windows are cut and scored (see ``windows``)."""
+        return self.window_config is not None
 
     @property
     def cascade(self) -> bool:
@@ -1089,7 +1161,8 @@ class LearnedKinDetector(KinDetector):
         # arrays to Python costs ~0.9 ms per 64 dense-arena scans, measured)
         # (duplicate suppression inside the compiled call: a radius < 0 turns it off)
         radius = float(self._dup_radius) if self.suppress_duplicates else -1.0
-        if (res := self._call_driver(_drv.fused_table, rb, self._uses_cascade(rb), radius)) is not None:
+        res = self._call_driver(_drv.fused_table, rb, self._uses_cascade(rb), radius, float(self._dup_radius))
+        if res is not None:
             return res
         fr, bk = self._run_driver(np.ascontiguousarray(rb, dtype=np.float64))
         scan, table = fr[1][bk[3]], bk[4]
@@ -1099,6 +1172,12 @@ class LearnedKinDetector(KinDetector):
             if (d >= 0).any():
                 keep = d < 0
                 scan, table = scan[keep], table[keep]
+        w_scan, _, w_table = bk[5]
+        if w_scan.shape[0] > 0:  # the accepted windows after each scan's segment detections
+            src, idx = _drv.window_merge(scan, table[:, 2], table[:, 3], w_scan, w_table[:, 2], w_table[:, 3],
+                                         w_table[:, 4], float(self._dup_radius))  # fmt: skip
+            scan = _merged(src, idx, scan, w_scan)
+            table = _merged(src, idx, table, w_table)
         return scan, table
 
     def _detect_arrays(self, ranges, angles, trusted: bool) -> BatchDetections:
@@ -1113,7 +1192,7 @@ class LearnedKinDetector(KinDetector):
         packed = self._call_driver(_drv.fused_packed, rb, cascade)
         if packed is None:
             packed = _drv.pack(*self._run_driver(rb))
-        seg_i, seg_b, seg_f, stage, det, det_f, det_i = packed
+        seg_i, seg_b, seg_f, stage, det, det_f, det_i, win = packed
         n_seg = seg_i.shape[1]
         dup = None
         if self.suppress_duplicates and det.shape[0] > 1:
@@ -1127,6 +1206,8 @@ class LearnedKinDetector(KinDetector):
                 dup[det[drop]] = det[d[drop]]
                 keep = ~drop
                 det, det_f, det_i = det[keep], det_f[:, keep], det_i[:, keep]
+        if win.shape[0] > 0:
+            det, det_f, det_i = self._with_windows(det, det_f, det_i, win)
         values = {"p_kin": seg_f[0], "threshold": seg_f[1]}
         if n_seg > 0:  # (the staged pipeline's values of an empty batch: p_kin and threshold only)
             if self.pre_gate:
@@ -1159,6 +1240,18 @@ class LearnedKinDetector(KinDetector):
             seg_values=values,
         )
 
+    def _with_windows(self, det, det_f, det_i, win) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The detection columns with the accepted windows ``win`` (:func:`~detectors._learned_driver.pack`)
+        after each scan's segment detections, those within ``2 r`` of a kept one dropped
+        (:func:`~detectors._learned_driver.window_merge`); a window's ``segment`` is its parent's."""
+        w_scan = win[:, 8].astype(np.int64)
+        src, idx = _drv.window_merge(det_i[0], det_f[2], det_f[3], w_scan, win[:, 2], win[:, 3], win[:, 4],
+                                     float(self._dup_radius))  # fmt: skip
+        w_i = np.stack([w_scan, win[:, 5].astype(np.int64), win[:, 6].astype(np.int64), win[:,
+                                                                                            7].astype(np.int64)])
+        return (_merged(src, idx, det, win[:, 9].astype(np.int64)), _merged(src, idx, det_f.T, win[:, :5]).T,
+                _merged(src, idx, det_i.T, w_i.T).T)  # fmt: skip
+
     def _uses_cascade(self, rb: np.ndarray) -> bool:
         """Whether a call on the checked ranges ``rb`` runs the cascade: on batches (>= 2 scans) when
         it is on. One-scan calls (a single-agent env's ~30 segments) go without: there it costs
@@ -1180,6 +1273,9 @@ class LearnedKinDetector(KinDetector):
         )  # fmt: skip
         # the cascade's model, or empty stand-ins of the same types (one compiled signature)
         off = (False, np.zeros((0, 0)), np.zeros(0), np.zeros(0), 0.0, 0.0, np.zeros((0, 4, 0, 6)))
+        wc = self.window_config
+        win = (False, False, 1.0, 0.0, 0.0) if wc is None else (
+            True, wc.anchor == "span", float(wc.depth), float(wc.sag), float(wc.sag_noise))
         front_cas = None
         if self._cascade is not None:
             w1t, b1, w2, b2 = self._cascade["model"]
@@ -1187,14 +1283,15 @@ class LearnedKinDetector(KinDetector):
                 self._cascade["one_beam_table"] = cascade_one_beam_table(w1t, b1, w2, b2)
             front_cas = (
                 *front, True, w1t, b1, w2, float(b2), float(self._cascade["threshold"]),
-                self._cascade["one_beam_table"],
+                self._cascade["one_beam_table"], *win,
             )  # fmt: skip
         back = (
-            ang, self.pre_gate, float(fixed), self._noise_edges, self._noise_thresholds,
-            self.positioning == "regression", self._t_mean, self._t_std, float(c.r), 200, _LM_XTOL,
+            ang, self.pre_gate, float(fixed), self._noise_edges, self._noise_thresholds, self._win_edges,
+            self._win_values, self.positioning == "regression", self._t_mean, self._t_std, float(c.r), 200,
+            _LM_XTOL,
             _LM_LAMBDA0, _LM_LAMBDA_MAX,
         )  # fmt: skip
-        return (*front, *off), front_cas, back
+        return (*front, *off, *win), front_cas, back
 
     def _driver_consts(self, cascade: bool = False) -> tuple[tuple, tuple]:
         """``(front_args, back_args)`` of :meth:`_driver_args` (with the cascade if ``cascade``),
@@ -1204,9 +1301,9 @@ class LearnedKinDetector(KinDetector):
         if (
             cached is None
             or cached[0][0] is not self._trig
-            or cached[0][1:] != (self.threshold, self.pre_gate, self.positioning)
+            or cached[0][1:] != (self.threshold, self.pre_gate, self.positioning, self.window_config)
         ):
-            key = (self._trig, self.threshold, self.pre_gate, self.positioning)
+            key = (self._trig, self.threshold, self.pre_gate, self.positioning, self.window_config)
             self._drv_args = cached = (key, *self._driver_args())
         return (cached[2] if cascade else cached[1]), cached[3]
 
@@ -1258,7 +1355,12 @@ class LearnedKinDetector(KinDetector):
 
     def _detect_arrays_staged(self, ranges, angles, trusted: bool = False) -> BatchDetections:
         """:meth:`detect_arrays` through the staged Python pipeline (:meth:`_predict`): the readable
-        reference of the fused driver (tests compare the two bit for bit)."""
+        reference of the fused driver (tests compare the two bit for bit). Without candidate windows
+        (their Python reference is ``scripts/experiment_split_windows.py``'s ``split_detector``)."""
+        if self.windows:
+            raise ValueError(
+                "LearnedKinDetector: the staged pipeline has no candidate windows (use windows=False)"
+            )
         batch, _, p, centres, thr, max_beams, score = self._predict(
             ranges, angles, all_centres=False, trusted=trusted
         )
@@ -1401,6 +1503,16 @@ class LearnedKinDetector(KinDetector):
         """Detect kins in ``B`` scans (``ranges`` (B, n) m, shared ``angles`` (n,) rad): the objects of
         :meth:`detect_arrays`, one :class:`DetectionResult` per scan."""
         return self.results(self.detect_arrays(ranges, angles))
+
+
+def _merged(src: np.ndarray, idx: np.ndarray, seg: np.ndarray, win: np.ndarray) -> np.ndarray:
+    """Rows of ``seg`` (``src == 0``) and ``win`` (``src == 1``) in the order of
+    :func:`~detectors._learned_driver.window_merge`."""
+    out = np.empty((src.shape[0], *seg.shape[1:]), dtype=seg.dtype)
+    w = src == 1
+    out[~w] = seg[idx[~w]]
+    out[w] = win[idx[w]]
+    return np.ascontiguousarray(out)
 
 
 def _blas_forward(x: np.ndarray, layers) -> np.ndarray:

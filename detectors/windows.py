@@ -1,4 +1,4 @@
-"""Candidate windows inside segments too wide for a housing (issue 11, rounds 5-6: an experiment).
+"""Candidate windows inside segments too wide for a housing (issue 11, rounds 5-7).
 
 The paper's segmentation (``d_th`` = 0.1 m) merges a kin touching a wall or another robot into one
 segment wider than a housing; the learned detector's pre-gate drops that segment and the kin has no
@@ -34,7 +34,9 @@ On 30 swarm scenes (training seeds 610,000+) round 6 cuts 7.1 / 6.2 / 4.8 window
 round 6".
 
 Pure numpy over all windows at once (loops over beam offsets, at most a housing's span, never over
-beams); only the segments given are searched.
+beams); only the segments given are searched. :func:`_cut_windows` is the same function compiled, which
+the learned detector's driver runs on the segments its pre-gate drops (round 7,
+``LearnedKinDetector(windows=...)``; :func:`cut_windows` calls it from Python; tested equal).
 """
 
 from __future__ import annotations
@@ -42,12 +44,13 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from . import _kernels as _k
 from .features import FeatureConfig, SegmentBatch, config_from_dict, scan_noise
 
-__all__ = ["ANCHORS", "WindowConfig", "Windows", "candidate_windows", "wide_segments"]
+__all__ = ["ANCHORS", "WindowConfig", "Windows", "candidate_windows", "cut_windows", "wide_segments"]
 
 ANCHORS = ("local", "span")
 #: the learned detector's pre-gate constants (``detectors.learned.PRE_GATE_SLACK`` / ``_MARGIN``;
@@ -244,3 +247,157 @@ def candidate_windows(
         next_nearer=nn[sel].astype(bool),
     )  # fmt: skip
     return Windows(wb, s[sel], beam[j][sel].astype(np.int64), sag[sel])
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def _cut_windows(d, scan, first, count, prev, nxt, p_near, n_near, wide, sigma, cos_a, sin_a, step, r, span,
+                 depth, sag_r, sag_noise, o_scan, o_first, o_count, o_prev, o_next, o_pn, o_nn, offset,
+                 o_parent, o_anchor, o_sag):  # fmt: skip
+    """:func:`candidate_windows` compiled, one segment of ``wide`` at a time (the learned detector's
+    driver calls it on the segments its pre-gate drops): the same tests with the same expressions,
+    written to ``o_*[offset + k]`` (the window's segment columns) and ``o_parent / o_anchor /
+    o_sag[k]``; returns how many. ``d`` (B, n): the pre-processed ranges; ``sigma`` (B,): each scan's
+    noise estimate (:func:`detectors.features.scan_noise`); ``cos_a`` / ``sin_a``: the beams'; ``span``:
+    ``anchor == "span"``. The output arrays need room for half the beams of the wide segments (anchors
+    are never adjacent: a local minimum's right neighbour is strictly farther)."""
+    n = d.shape[1]
+    tol = depth * r
+    bulge = sag_r > 0.0 or sag_noise > 0.0
+    k_out = 0
+    for q in range(wide.shape[0]):
+        i = wide[q]
+        b = scan[i]
+        f = first[i]
+        c = count[i]
+        row = d[b]
+        for pos in range(c):
+            bj = f + pos if f + pos < n else f + pos - n
+            dj = row[bj]
+            # a local minimum first (cheap; most beams are not one), then the housing's span
+            # ("span": a beam more than depth * r nearer is another object in front, not a lower point)
+            if pos > 0:
+                dl = row[bj - 1 if bj > 0 else n - 1]
+                if dl < dj and (not span or dj - dl <= tol):
+                    continue
+            if pos + 1 < c:
+                dr = row[bj + 1 if bj + 1 < n else 0]
+                if dr <= dj and (not span or dj - dr <= tol):
+                    continue
+            w = int(math.floor(math.asin(min(r / (dj + r), 1.0)) / step)) + 1
+            is_min = True
+            if span:
+                for k in range(2, w + 1):
+                    if pos - k >= 0:
+                        dl = row[(f + pos - k) % n]
+                        if dl < dj and dj - dl <= tol:
+                            is_min = False
+                            break
+                    if pos + k < c:
+                        dr = row[(f + pos + k) % n]
+                        if dr <= dj and dj - dr <= tol:
+                            is_min = False
+                            break
+            if not is_min:
+                continue
+            left = 0
+            for k in range(1, w + 1):
+                if pos - k < 0:
+                    break
+                dl = row[(f + pos - k) % n]
+                if not (dl - dj <= tol and (not span or dj - dl <= tol)):
+                    break
+                left += 1
+            right = 0
+            for k in range(1, w + 1):
+                if pos + k >= c:
+                    break
+                dr = row[(f + pos + k) % n]
+                if not (dr - dj <= tol and (not span or dj - dr <= tol)):
+                    break
+                right += 1
+            a0 = pos - left
+            a1 = pos + right
+            size = a1 - a0 + 1
+            if size < 2 or (a0 == 0 and a1 == c - 1):
+                continue
+            b0 = (f + a0) % n
+            b1 = (f + a1) % n
+            if a0 == 0:
+                wp = prev[i]
+                pn = p_near[i]
+            else:
+                wp = (f + a0 - 1) % n
+                pn = row[wp] < row[b0]
+            if a1 == c - 1:
+                wn = nxt[i]
+                nn = n_near[i]
+            else:
+                wn = (f + a1 + 1) % n
+                nn = row[wn] < row[b1]
+            # the anchor's bulge in front of the chord between the beams just outside the window
+            lo_b = b0 if (pn or wp < 0 or row[max(wp, 0)] < dj) else wp
+            hi_b = b1 if (nn or wn < 0 or row[max(wn, 0)] < dj) else wn
+            dlo = row[lo_b]
+            dhi = row[hi_b]
+            lx = dlo * cos_a[lo_b]
+            ly = dlo * sin_a[lo_b]
+            hx = dhi * cos_a[hi_b]
+            hy = dhi * sin_a[hi_b]
+            mx = dj * cos_a[bj]
+            my = dj * sin_a[bj]
+            ex = hx - lx
+            ey = hy - ly
+            length = math.hypot(ex, ey)
+            side_m = ex * (my - ly) - ey * (mx - lx)
+            side_o = ex * (0.0 - ly) - ey * (0.0 - lx)
+            sg = np.nan
+            if length > 0:
+                sg = side_m * np.sign(side_o) / length
+            if lo_b == bj:
+                sg = dhi - dj
+            elif hi_b == bj:
+                sg = dlo - dj
+            if bulge:
+                v = sg if sg == sg else -1.0
+                if not v >= max(sag_r * r, sag_noise * sigma[b] * dj):
+                    continue
+                end = (pos == 0 and not pn and wp >= 0) or (pos == c - 1 and not nn and wn >= 0)
+                if end and 2 * math.asin(min(r / (dj + r), 1.0)) / step >= 3.0:
+                    continue
+            o = offset + k_out
+            o_scan[o] = b
+            o_first[o] = b0
+            o_count[o] = size
+            o_prev[o] = wp
+            o_next[o] = wn
+            o_pn[o] = pn
+            o_nn[o] = nn
+            o_parent[k_out] = i
+            o_anchor[k_out] = bj
+            o_sag[k_out] = sg
+            k_out += 1
+    return k_out
+
+
+def cut_windows(batch: SegmentBatch, segments, step: float, r: float, config: WindowConfig | None = None,
+                sigma: np.ndarray | None = None) -> Windows:
+    """:func:`candidate_windows` through the compiled kernel the learned detector runs
+    (:func:`_cut_windows`; the same windows, tested against it). ``sigma``: each scan's noise estimate
+    (default: :func:`detectors.features.scan_noise` with the default feature config)."""
+    c = config or WindowConfig()
+    seg = np.ascontiguousarray(segments, dtype=np.int64)
+    if sigma is None:
+        sigma = scan_noise(batch, FeatureConfig())[0]
+    ang = np.ascontiguousarray(batch.angles, dtype=np.float64)
+    room = int(batch.count[seg].sum()) // 2 + 1
+    cols = [np.empty(room, np.int64) for _ in range(5)] + [np.empty(room, bool) for _ in range(2)]
+    parent, anchor, sag = np.empty(room, np.int64), np.empty(room, np.int64), np.empty(room)
+    k = _cut_windows(np.ascontiguousarray(batch.ranges, dtype=np.float64), batch.scan, batch.first,
+                     batch.count, batch.prev_beam, batch.next_beam, batch.prev_nearer, batch.next_nearer, seg,
+                     np.ascontiguousarray(sigma, dtype=np.float64), np.cos(ang), np.sin(ang), float(step),
+                     float(r), c.anchor == "span", float(c.depth), float(c.sag), float(c.sag_noise), *cols, 0,
+                     parent, anchor, sag)  # fmt: skip
+    wb = SegmentBatch(ranges=batch.ranges, angles=batch.angles, circular=batch.circular, scan=cols[0][:k],
+                      first=cols[1][:k], count=cols[2][:k], prev_beam=cols[3][:k], next_beam=cols[4][:k],
+                      prev_nearer=cols[5][:k], next_nearer=cols[6][:k])  # fmt: skip
+    return Windows(wb, parent[:k], anchor[:k], sag[:k])

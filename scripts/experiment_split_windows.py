@@ -28,6 +28,7 @@ to ``--out``::
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 from pathlib import Path
 
@@ -57,20 +58,25 @@ def window_threshold_values(checkpoint: dict) -> dict | None:
 
 
 def split_detector(
-    checkpoint=None, window_threshold="calibrated", config: WindowConfig = ROUND5, threshold=None
+    checkpoint=None, window_threshold="calibrated", config: WindowConfig = ROUND5, threshold=None,
+    cascade=None, cascade_windows: bool = False,
 ):
     """The learned detector plus candidate windows (:func:`detectors.windows.candidate_windows`) in
     the segments its pre-gate drops, each scored by the same network and accepted at ``max(segment
     threshold, window threshold)``; ``window_threshold`` a probability, or ``"calibrated"``: the
-    checkpoint's per-noise window thresholds (:func:`window_threshold_values`)."""
+    checkpoint's per-noise window thresholds (:func:`window_threshold_values`). The Python reference of
+    the detector's own compiled windows (round 7, ``LearnedKinDetector(windows=...)``, which this one turns
+    off for its segments); ``cascade_windows``: windows of batches of >= 2 scans first go through the
+    detector's cascade, as there."""
     from detectors.base import Detection, DetectionResult, wrap_angle
-    from detectors.features import _segment_batch, local_to_observer, segment_features
+    from detectors.features import _cascade, _segment_batch, local_to_observer, scan_noise, segment_features
     from detectors.learned import LearnedKinDetector
 
     class SplitWindows(LearnedKinDetector):
         def permissive(self):
             return split_detector(
-                self.checkpoint["path"], self.window_threshold, self.window_config, threshold=0.0
+                self.checkpoint["path"], self.window_threshold, self.split_config, threshold=0.0,
+                cascade_windows=self.cascade_windows,
             )
 
         def _window_thresholds(self, log_noise: np.ndarray) -> np.ndarray:
@@ -91,13 +97,22 @@ def split_detector(
             r = float(self.feature_config.r)
             step = 2 * math.pi / a.shape[0]  # as the dataset writer (a full turn of beams)
             wide = wide_segments(batch, step, r)
-            win = candidate_windows(batch, wide, step, r, self.window_config, self.feature_config)
+            win = candidate_windows(batch, wide, step, r, self.split_config, self.feature_config)
             self.counts["scans"] += rb.shape[0]
             self.counts["wide"] += int(wide.size)
             self.counts["windows"] += win.n_windows
             if win.n_windows == 0:
                 return res
             sub = win.batch
+            if self.cascade_windows and self._uses_cascade(rb):  # stage 1 on the windows too
+                noise = scan_noise(sub, self.feature_config)
+                _, s1 = _cascade(sub, self.feature_config, np.arange(sub.n_segments), self._trig, noise,
+                                 self._cascade["model"])  # fmt: skip
+                passed = np.flatnonzero(s1 >= self._cascade["threshold"])
+                sub = dataclasses.replace(sub, **{k: getattr(sub, k)[passed] for k in (
+                    "scan", "first", "count", "prev_beam", "next_beam", "prev_nearer", "next_nearer")})
+                if sub.n_segments == 0:
+                    return res
             feats = segment_features(sub, self.feature_config)
             out = self._forward(feats.x)
             p = 1.0 / (1.0 + np.exp(-out[:, 0]))
@@ -126,8 +141,9 @@ def split_detector(
             self.counts["accepted"] += sum(len(v) for v in new.values())
             return [DetectionResult(r.detections + new[b]) if b in new else r for b, r in enumerate(res)]
 
-    det = SplitWindows(checkpoint, reports=False, threshold=threshold)
-    det.window_threshold, det.window_config = window_threshold, config
+    det = SplitWindows(checkpoint, reports=False, threshold=threshold, cascade=cascade, windows=False)
+    # (not ``window_config``: that is the detector's own compiled windows' setting, off here)
+    det.window_threshold, det.split_config, det.cascade_windows = window_threshold, config, cascade_windows
     det.counts = {"scans": 0, "wide": 0, "windows": 0, "accepted": 0}
     return det
 

@@ -109,31 +109,73 @@ def _dataset_config(checkpoint):
 
 
 def _scenes(seeds, det, progress: bool, desc: str):
-    """``(seed, noise, batch, scan, kin labels)`` of each scene with segments (the checkpoint's mix)."""
+    """``(seed, noise, batch, scan, kin labels, windows)`` of each scene with segments (the checkpoint's
+    mix); ``windows``: with the detector's candidate windows (``det.windows``), ``(Windows, kin labels)``
+    of those the pre-gate's bound keeps (as the detector does), else None."""
     from tqdm import tqdm
 
     from kin_envs.detection.dataset import scene_records
 
     config = _dataset_config(det.checkpoint)
     for seed in tqdm(seeds, desc=desc, disable=not progress):
-        segs, _, info = scene_records(seed, config, det.feature_config)
+        segs, _, info = scene_records(seed, config, det.feature_config, windows=det.window_config)
         if info["batch"].n_segments:
-            yield seed, float(info["noise"]), info["batch"], info["scan"], segs["label"] > 0
+            label = segs["label"] > 0
+            win = None
+            if det.windows:
+                is_win = segs["window"] == 1
+                w = info["windows"]
+                ok = np.flatnonzero(w.batch.count <= det.gate(w.batch))
+                win = (_subset(w.batch, ok), label[is_win][ok])
+                label = label[~is_win]
+            yield seed, float(info["noise"]), info["batch"], info["scan"], label, win
+
+
+def _subset(batch, rows):
+    """The segments ``rows`` of a SegmentBatch."""
+    import dataclasses
+
+    cols = ("scan", "first", "count", "prev_beam", "next_beam", "prev_nearer", "next_nearer")
+    return dataclasses.replace(batch, **{k: getattr(batch, k)[rows] for k in cols})
+
+
+def window_scores(det, wb) -> tuple[np.ndarray, np.ndarray]:
+    """``(p(kin), window threshold)`` of the candidate windows ``wb`` (a SegmentBatch) as the detector
+    scores them (the same network; it accepts a window at max(segment threshold, window threshold of the
+    scan's noise))."""
+    from detectors.features import segment_features
+
+    feats = segment_features(wb, det.feature_config)
+    p = 1.0 / (1.0 + np.exp(-det._forward(feats.x)[:, 0]))
+    noise = feats.x[:, det._noise_col]
+    sigma = np.exp(noise.astype(np.float64)) - 1e-4
+    w_thr = det._win_values[np.searchsorted(det._win_edges, sigma, side="right")]
+    return p, w_thr
 
 
 def collect(seeds, det, min_p: float, progress: bool) -> dict[str, np.ndarray]:
     """Stage-1 inputs ``x`` of every pre-gated segment, the full model's acceptance at ``min_p``
-    (``acc``) and the kin labels."""
+    (``acc``) and the kin labels; with candidate windows also theirs (accepted at max(``min_p``, the
+    window threshold)), ``window`` marking their rows."""
     from detectors.features import cascade_features
 
-    xs, accs, kins = [], [], []
-    for _, _, batch, scan, kin in _scenes(seeds, det, progress, "fitting scenes"):
+    xs, accs, kins, wins = [], [], [], []
+    for _, _, batch, scan, kin, win in _scenes(seeds, det, progress, "fitting scenes"):
         _, _, p, _ = det.predict_segments(scan.ranges, scan.angles)
         keep = np.flatnonzero(batch.count <= det.gate(batch))
         xs.append(cascade_features(batch, det.feature_config, keep))
         accs.append(p[keep] >= min_p)
         kins.append(kin[keep])
-    return {"x": np.concatenate(xs), "acc": np.concatenate(accs), "kin": np.concatenate(kins)}
+        wins.append(np.zeros(keep.size, bool))
+        if win is not None and win[0].n_segments:
+            wb, w_kin = win
+            pw, w_thr = window_scores(det, wb)
+            xs.append(cascade_features(wb, det.feature_config, np.arange(wb.n_segments)))
+            accs.append(pw >= np.maximum(w_thr, min_p))
+            kins.append(w_kin)
+            wins.append(np.ones(wb.n_segments, bool))
+    return {"x": np.concatenate(xs), "acc": np.concatenate(accs), "kin": np.concatenate(kins),
+            "window": np.concatenate(wins)}  # fmt: skip
 
 
 def fit_stage1(data: dict, hidden: int, epochs: int, batch_size: int, pos_weight: float, seed: int) -> tuple:
@@ -173,11 +215,15 @@ def stage1_scores(model: tuple, x: np.ndarray) -> np.ndarray:
 
 
 def validate(seeds, det_full, det_cas, progress: bool) -> dict:
-    """The detector with the cascade against the same detector without, per noise bin."""
+    """The detector with the cascade against the same detector without, per noise bin. With candidate
+    windows, the windows' detections too (``window_*``: a detection whose segment the pre-gate dropped;
+    kin by its window's label), and ``kin_accepted`` / ``kin_accepted_lost`` count segments and windows."""
     keys = ("scenes", "segments", "gated", "cascaded", "kin", "kin_accepted", "kin_accepted_lost",
-            "accepted", "accepted_lost", "accepted_gained")  # fmt: skip
+            "accepted", "accepted_lost", "accepted_gained", "windows", "window_kin", "window_accepted",
+            "window_kin_accepted", "window_kin_accepted_lost", "window_accepted_lost",
+            "window_accepted_gained")  # fmt: skip
     per = {b: dict.fromkeys(keys, 0) for b in NOISE_BINS}
-    for _, noise, batch, scan, kin in _scenes(seeds, det_full, progress, "validation scenes"):
+    for _, noise, batch, scan, kin, win in _scenes(seeds, det_full, progress, "validation scenes"):
         full = det_full.detect_arrays(scan.ranges, scan.angles)
         cas = det_cas.detect_arrays(scan.ranges, scan.angles)
         assert np.array_equal(full.seg_first, batch.first) and np.array_equal(cas.seg_first, batch.first)
@@ -191,6 +237,25 @@ def validate(seeds, det_full, det_cas, progress: bool) -> dict:
             "accepted": int(a_full.sum()), "accepted_lost": int((a_full & ~a_cas).sum()),
             "accepted_gained": int((a_cas & ~a_full).sum()),
         }  # fmt: skip
+        if win is not None:
+            wb, w_kin = win
+            kin_keys = set(zip(wb.scan[w_kin].tolist(), wb.first[w_kin].tolist(), wb.count[w_kin].tolist(),
+                               strict=True))  # fmt: skip
+
+            def window_dets(a):
+                w = a.seg_stage[a.segment] == 1  # (a window's segment is one the pre-gate dropped)
+                return set(zip(a.scan[w].tolist(), a.first_beam[w].tolist(), a.n_beams_on[w].tolist(),
+                               strict=True))
+
+            w_full, w_cas = window_dets(full), window_dets(cas)
+            c.update({
+                "windows": wb.n_segments, "window_kin": len(kin_keys), "window_accepted": len(w_full),
+                "window_kin_accepted": len(w_full & kin_keys),
+                "window_kin_accepted_lost": len((w_full - w_cas) & kin_keys),
+                "window_accepted_lost": len(w_full - w_cas), "window_accepted_gained": len(w_cas - w_full),
+            })  # fmt: skip
+            c["kin_accepted"] += c["window_kin_accepted"]
+            c["kin_accepted_lost"] += c["window_kin_accepted_lost"]
         nb = next(b for b in NOISE_BINS if b[0] <= noise <= b[1])
         for k, v in c.items():
             per[nb][k] += v
@@ -202,6 +267,8 @@ def validate(seeds, det_full, det_cas, progress: bool) -> dict:
             "cascaded_share": c["cascaded"] / max(c["segments"], 1),
             "cascaded_of_gate_kept": c["cascaded"] / max(c["segments"] - c["gated"], 1),
             "kin_accepted_kept": 1.0 - c["kin_accepted_lost"] / max(c["kin_accepted"], 1),
+            "window_kin_accepted_kept": 1.0 - c["window_kin_accepted_lost"] / max(c["window_kin_accepted"],
+                                                                                  1),
         }
 
     return {"totals": shares(tot), "per_noise": {f"{lo:g}-{hi:g}": shares(c) for (lo, hi), c in per.items()}}
@@ -228,7 +295,7 @@ def main(argv: list[str] | None = None) -> dict:
     data = collect(fit_seeds, det, min_p, progress)
     model = fit_stage1(data, args.hidden, args.epochs, args.batch_size, args.pos_weight, args.seed)
     s = stage1_scores(model, data["x"])
-    ref = s[data["acc"] & data["kin"]]
+    ref = s[data["acc"] & data["kin"]]  # (segments and candidate windows)
     if ref.size == 0:
         raise ValueError(
             "fit_cascade: the fitting scenes hold no kin segment the model accepts; use more --scenes"
@@ -242,6 +309,10 @@ def main(argv: list[str] | None = None) -> dict:
         "kin_accepted_kept": float((ref >= threshold).mean()),
         "accepted_kept": float((s[data["acc"]] >= threshold).mean()),
         "cascaded_share": float((s < threshold).mean()),
+        "windows": int(data["window"].sum()),
+        "window_kin_accepted": int((data["acc"] & data["kin"] & data["window"]).sum()),
+        "window_kin_accepted_kept": float((s[data["acc"] & data["kin"] & data["window"]] >= threshold).mean())
+        if (data["acc"] & data["kin"] & data["window"]).any() else None,
     }
     mean, std, w1, b1, w2, b2 = model
     card = {
@@ -322,6 +393,16 @@ def to_markdown(result: dict) -> str:
             f"{c['accepted_lost']} / {c['accepted_gained']} |"
         )
     lines.append("")
+    t = v["totals"]
+    if t.get("windows"):
+        lines += [
+            f"Candidate windows (validation): {t['windows']:,} cut, {t['window_accepted']:,} accepted, "
+            f"of them {t['window_kin_accepted']:,} kin; the cascade loses {t['window_kin_accepted_lost']} "
+            "of those "
+            f"({100 * t['window_kin_accepted_kept']:.3f} % kept; counted in 'kin accepted' above) and "
+            f"{t['window_accepted_lost']} / gains {t['window_accepted_gained']} accepted windows.",
+            "",
+        ]
     lines.append(
         f"Requirement (>= {100 * result['requirement']:g} % of the accepted kin segments kept on the "
         f"validation seeds): {'met' if result['requirement_met'] else 'NOT met'}."

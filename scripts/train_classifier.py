@@ -208,6 +208,12 @@ _WINDOW_GRID = np.round(np.arange(0.2, 0.9951, 0.005), 3)
 _WINDOW_MIN_KIN = 50  # kin windows a noise bin needs for its own threshold (else the pooled one)
 
 
+def _one_window_config(manifests) -> dict | None:
+    """The window config the datasets' candidate windows were cut with, if they name one (else None)."""
+    named = [m["windows"] for m in manifests if m.get("windows") is not None]
+    return named[0] if named and all(w == named[0] for w in named) else None
+
+
 def calibrate_window_thresholds(p, y, sigma, edges) -> dict:
     """The candidate windows' own ``p(kin)`` thresholds (issue 11, round 6): per scan-noise bin the grid
     value with the best window F1 (kin windows found against windows accepted), the pooled one where a
@@ -777,6 +783,9 @@ def main(argv=None) -> dict:
         "window_kin_weight": args.window_kin_weight,
         "windows": [m.get("windows") for m in manifests],
         "window_thresholds": window_thresholds,
+        # what LearnedKinDetector cuts its candidate windows with (detectors.learned.window_settings):
+        # the datasets' one config; None (windows off) without windows or with several configs
+        "window_config": _one_window_config(manifests) if window_thresholds is not None else None,
     }
     positioning = "regression" if args.positioning == "auto" else args.positioning
     ev = None

@@ -544,6 +544,7 @@ def permissive(detector: KinDetector) -> KinDetector:
         return learned.LearnedKinDetector(
             detector.checkpoint["path"], threshold=0.0, device=detector.device,
             positioning=detector.positioning, reports=False, pre_gate=getattr(detector, "pre_gate", True),
+            windows=getattr(detector, "windows", None),
             suppress_duplicates=getattr(detector, "suppress_duplicates", True),
         )  # fmt: skip
     return detector

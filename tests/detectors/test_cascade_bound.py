@@ -153,7 +153,8 @@ def test_lean_driver_sends_the_same_segments_to_the_network(positioning):
         out = np.zeros((full[10].shape[0], 3))
         bk_full = _drv.back_rest(out, full, back_args)
         bk_lean = _drv.back_rest(out, lean, back_args)
-        for a, b in zip(bk_full, bk_lean, strict=True):
+        # (the last output: the accepted candidate windows' columns)
+        for a, b in zip((*bk_full[:-1], *bk_full[-1]), (*bk_lean[:-1], *bk_lean[-1]), strict=True):
             assert np.array_equal(a, b, equal_nan=True)
         ref = det.detect_arrays(ranges, angles)
         row, table = det._detect_table_trusted(ranges, angles)

@@ -51,7 +51,7 @@ def test_table_front_gives_the_lean_fronts_rows_and_the_same_detections(kw):
         front_args, _ = det._driver_consts(cascade)
         lean = _drv.front(rb, *front_args, True)
         ws = _drv.new_work(rb.size, rb.size, front_args[17])
-        d, scan, first, count, rows, x, frames, scan_cols = _drv._front_table(rb, *front_args, ws)
+        d, scan, first, count, rows, x, frames, scan_cols, _ = _drv._front_table(rb, *front_args, ws)
         # the segments written: those the lean front scored in stage 1 (or, without it, sent on)
         if cascade:
             sel = np.isfinite(lean[13])

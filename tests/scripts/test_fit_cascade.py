@@ -37,3 +37,25 @@ def test_seed_misuse_is_refused(tmp_path):
         )
     with pytest.raises(ValueError, match="reserved"):
         script.main(["--scenes", "2", "--first-seed", "2000000000", "--out", str(tmp_path)])
+
+
+def test_windows_are_fitted_and_validated(tmp_path):
+    """A checkpoint with candidate windows (the shipped weights with window settings): the windows'
+    stage-1 inputs join the fit, and the validation counts the windows' detections (kin ones in the
+    retention) from the detector run end to end, with and without the cascade."""
+    from detectors.learned import LearnedKinDetector
+    from tests.detectors.test_learned_windows import window_checkpoint
+
+    ck = window_checkpoint(tmp_path, values=[0.3] * 5, cascade=False)
+    script = load_script("fit_cascade")
+    res = script.main(
+        ["--checkpoint", str(ck), "--scenes", "6", "--val-scenes", "6", "--epochs", "3", "--batch-size",
+         "256", "--out", str(tmp_path / "out"), "--no-progress", "-q"]
+    )  # fmt: skip
+    v = res["validation"]["totals"]
+    assert res["fit"]["windows"] > 0 and v["windows"] > 0 and v["window_accepted"] > 0
+    assert v["window_kin_accepted"] <= v["window_accepted"] and v["window_kin_accepted"] <= v["kin_accepted"]
+    assert v["window_kin_accepted_lost"] <= v["kin_accepted_lost"]
+    assert "Candidate windows (validation)" in (tmp_path / "out" / "results.md").read_text()
+    det = LearnedKinDetector(ck, cascade=tmp_path / "out" / "learned.cascade.json")
+    assert det.windows and det.cascade
