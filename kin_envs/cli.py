@@ -32,6 +32,7 @@ from detectors.fileio import write_json
 
 __all__ = [
     "add_logging_args",
+    "defaults_formatter",
     "detector_from_name",
     "package_versions",
     "parse_json_object",
@@ -250,8 +251,29 @@ def detector_from_name(name: str, *, checkpoint=None, reports: bool = False, wha
     )
 
 
+def defaults_formatter(base: type[argparse.HelpFormatter]) -> type[argparse.HelpFormatter]:
+    """``base`` (a help formatter class) that ends each option's help with ``(default: ...)`` where the
+    help does not name its default already; flags (``store_true``), positionals and ``None`` defaults
+    are left alone."""
+
+    class DefaultsFormatter(base):
+        def _get_help_string(self, action: argparse.Action) -> str:
+            text = action.help or ""
+            d = action.default
+            if (not text or not action.option_strings or d is None or d is argparse.SUPPRESS
+                    or isinstance(d, bool) or "default" in text.lower()):
+                return text
+            return text + " (default: %(default)s)"
+
+    return DefaultsFormatter
+
+
 def add_logging_args(parser: argparse.ArgumentParser) -> None:
-    """Add ``-v/--verbose`` (debug messages) and ``-q/--quiet`` (warnings and errors only)."""
+    """Add ``-v/--verbose`` (debug messages) and ``-q/--quiet`` (warnings and errors only), and make
+    ``--help`` show each option's default (:func:`defaults_formatter`; every script calls this)."""
+    if not getattr(parser.formatter_class, "_shows_defaults", False):
+        parser.formatter_class = defaults_formatter(parser.formatter_class)
+        parser.formatter_class._shows_defaults = True
     g = parser.add_mutually_exclusive_group()
     g.add_argument("-v", "--verbose", action="store_true", help="also log debug messages")
     g.add_argument("-q", "--quiet", action="store_true", help="log warnings and errors only")

@@ -238,3 +238,23 @@ def test_every_optional_package_maps_to_an_extra_of_pyproject():
     extras = tomllib.loads((Path(__file__).resolve().parents[2] / "pyproject.toml").read_text())
     extras = extras["project"]["optional-dependencies"]
     assert set(cli.EXTRA_OF.values()) <= set(extras)
+
+
+def test_help_shows_defaults_once():
+    import argparse
+
+    from kin_envs.cli import add_logging_args
+
+    p = argparse.ArgumentParser(formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--scenes", type=int, default=30, help="number of scenes")
+    p.add_argument("--noise", type=float, default=0.0, help="range noise")
+    p.add_argument("--out", default="outputs/x", help="output directory (default: outputs/x)")
+    p.add_argument("--flag", action="store_true", help="a switch")
+    p.add_argument("--opt", default=None, help="optional")
+    add_logging_args(p)
+    add_logging_args(argparse.ArgumentParser())  # another parser: its own formatter
+    text = " ".join(p.format_help().split())
+    assert "number of scenes (default: 30)" in text and "range noise (default: 0.0)" in text
+    assert text.count("default: outputs/x") == 1
+    assert "a switch (default" not in text and "optional (default" not in text
+    assert issubclass(p.formatter_class, argparse.RawDescriptionHelpFormatter)
