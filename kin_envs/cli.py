@@ -16,6 +16,7 @@ import argparse
 import dataclasses
 import datetime
 import functools
+import importlib.util
 import json
 import logging
 import math
@@ -72,6 +73,13 @@ EXTRA_OF = {
 }
 
 
+def _installed(name: str) -> bool:
+    try:
+        return importlib.util.find_spec(name) is not None
+    except (ImportError, ValueError):
+        return False
+
+
 def run_main(
     main: Callable[[], object],
     bad_input: tuple[type[BaseException], ...] = (ValueError, FileNotFoundError),
@@ -101,6 +109,8 @@ def run_main(
             # renderer: "Invalid bounding box"), leaving no trace of it in the exception
             _interrupted()
         missing = (e.name or "").split(".")[0] if isinstance(e, ModuleNotFoundError) else ""
+        if missing in EXTRA_OF and _installed(missing):  # a bad import inside an installed package: a bug
+            missing = ""
         if not (isinstance(e, bad_input) or missing in EXTRA_OF):
             raise
         if os.environ.get("KIN_ENVS_TRACEBACK"):

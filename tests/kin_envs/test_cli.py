@@ -184,7 +184,7 @@ def test_run_main_treats_an_error_after_its_ctrl_c_as_the_interrupt(capsys, monk
     assert stop.value.code == 2 and "interrupted" not in capsys.readouterr().err
 
 
-def test_run_main_bad_input_and_other_errors(capsys, no_sigint_handler):
+def test_run_main_bad_input_and_other_errors(capsys, monkeypatch, no_sigint_handler):
     def bad():
         raise ValueError("--noise must be in [0, 0.2]")
 
@@ -202,12 +202,22 @@ def test_run_main_bad_input_and_other_errors(capsys, no_sigint_handler):
     def no_torch():  # a training script on the core install: the extra to install, not a traceback
         import importlib
 
-        importlib.import_module("torch.definitely_not_installed_here")
+        importlib.import_module("torch")
 
-    with pytest.raises(SystemExit) as stop:
-        cli.run_main(no_torch)
+    with monkeypatch.context() as m:
+        m.setitem(sys.modules, "torch", None)  # as on the core install: torch cannot be imported
+        with pytest.raises(SystemExit) as stop:
+            cli.run_main(no_torch)
     assert stop.value.code == 2
     assert "needs torch, which is not installed: pip install 'kin-envs[train]'" in capsys.readouterr().err
+
+    def bad_submodule():  # an installed optional package, a wrong import inside it: a bug, kept
+        import importlib
+
+        importlib.import_module("pytest.definitely_not_a_submodule")
+
+    with pytest.raises(ModuleNotFoundError):
+        cli.run_main(bad_submodule)
 
     def unknown_module():  # not an optional dependency of ours: a real error, kept
         import importlib
