@@ -186,8 +186,7 @@ def front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_a
     return _front(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin, trig_ang, cos_a, sin_a,
                   sweep, tan_tab, occlusion_unbounded, n_points, n_context, gn_iters, n_feat, cascade, c_w1t,
                   c_b1, c_w2, c_b2, c_threshold, c_one_beam, windows, w_span, w_depth, w_sag, w_sag_noise,
-                  lean,
-                  ws)  # fmt: skip
+                  lean, ws)  # fmt: skip
 
 
 @numba.njit(cache=True, nogil=True)
@@ -322,20 +321,15 @@ def _add_windows(d, cols, s, wide, noise, cos_a, sin_a, step, r_kin, slack, marg
     anchor = np.empty(room, dtype=np.int64)
     sag = np.empty(room)
     n_win = _cut_windows(d, scan, first, count, prev, nxt, p_near, n_near, wide, noise, cos_a, sin_a, step,
-                         r_kin,
-                         w_span, w_depth, w_sag, w_sag_noise, scan, first, count, prev, nxt, p_near,
-                         n_near, s,
-                         parent, anchor, sag)  # fmt: skip
-    n = d.shape[1]
+                         r_kin, w_span, w_depth, w_sag, w_sag_noise, scan, first, count, prev, nxt, p_near,
+                         n_near, s, parent, anchor, sag)  # fmt: skip
+    bound = np.empty(n_win)  # the pre-gate's test on the window itself
+    e = s + n_win
+    _k.housing_max_beams(d, scan[s:e], first[s:e], count[s:e], step, r_kin, slack, margin, bound)
     m = 0
-    for k in range(n_win):  # the pre-gate's test on the window itself
+    for k in range(n_win):
         o = s + k
-        b = scan[o]
-        dmin = d[b, first[o]]
-        for t in range(1, count[o]):
-            v = d[b, (first[o] + t) % n]
-            dmin = v if v < dmin else dmin
-        if count[o] <= _k.max_beams_of(dmin, step, r_kin, slack, margin):
+        if count[o] <= bound[k]:
             q = s + m
             scan[q], first[q], count[q], prev[q], nxt[q] = scan[o], first[o], count[o], prev[o], nxt[o]
             p_near[q], n_near[q] = p_near[o], n_near[o]
@@ -451,13 +445,11 @@ def _front_table(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin,
     wide = wi[6 * cells : 7 * cells]  # (a wide segment has >= 4 beams: at most cells / 4 of them)
     s, n_wide = _table_segments(d, d_th, d_max, circular, pre_gate, skip_upto, step, r_kin, slack, margin,
                                 cascade, scan_cols, c_one_beam, c_threshold, scan, first, count, prev, nxt,
-                                p_near,
-                                n_near, windows, wide)  # fmt: skip
+                                p_near, n_near, windows, wide)  # fmt: skip
     n_win = 0
     if n_wide > 0:
         n_win, _ = _add_windows(d, cols, s, wide[:n_wide], noise, cos_a, sin_a, step, r_kin, slack, margin,
-                                w_span,
-                                w_depth, w_sag, w_sag_noise)  # fmt: skip
+                                w_span, w_depth, w_sag, w_sag_noise)  # fmt: skip
     n_x = s + n_win
     scan, first, count, prev, nxt = scan[:n_x], first[:n_x], count[:n_x], prev[:n_x], nxt[:n_x]
     p_near, n_near = p_near[:n_x], n_near[:n_x]

@@ -283,7 +283,8 @@ def _cut_windows(d, scan, first, count, prev, nxt, p_near, n_near, wide, sigma, 
                 dr = row[bj + 1 if bj + 1 < n else 0]
                 if dr <= dj and (not span or dj - dr <= tol):
                     continue
-            w = int(math.floor(math.asin(min(r / (dj + r), 1.0)) / step)) + 1
+            half = math.asin(min(r / (dj + r), 1.0)) / step  # half a housing's beam span at dj
+            w = int(math.floor(half)) + 1
             is_min = True
             if span:
                 for k in range(2, w + 1):
@@ -362,7 +363,7 @@ def _cut_windows(d, scan, first, count, prev, nxt, p_near, n_near, wide, sigma, 
                 if not v >= max(sag_r * r, sag_noise * sigma[b] * dj):
                     continue
                 end = (pos == 0 and not pn and wp >= 0) or (pos == c - 1 and not nn and wn >= 0)
-                if end and 2 * math.asin(min(r / (dj + r), 1.0)) / step >= 3.0:
+                if end and 2 * half >= 3.0:  # (2 * (a / step) == 2 * a / step exactly: a doubling)
                     continue
             o = offset + k_out
             o_scan[o] = b
