@@ -988,9 +988,16 @@ class LearnedKinDetector(KinDetector):
         thr = self._thresholds(feats.x[:, self._noise_col])
         return self._by_beams(thr, feats.x[:, self._noise_col], feats.x[:, self._range_col])
 
-    def _noise_bin(self, log_noise: np.ndarray) -> np.ndarray:
+    def _noise_bin(self, log_noise: np.ndarray, edges: np.ndarray | None = None) -> np.ndarray:
         sigma = np.exp(log_noise.astype(np.float64)) - 1e-4
-        return np.searchsorted(self._noise_edges, sigma, side="right")
+        return np.searchsorted(self._noise_edges if edges is None else edges, sigma, side="right")
+
+    def window_thresholds(self, log_noise: np.ndarray) -> np.ndarray:
+        """The candidate windows' own ``p(kin)`` thresholds (a window is accepted at the larger of this and
+        its segment threshold) for float32 ``log_scan_noise`` feature values; needs window settings."""
+        if not self.windows:
+            raise ValueError(f"{self.checkpoint['path']}: candidate windows are off (no window thresholds)")
+        return self._win_values[self._noise_bin(log_noise, self._win_edges)]
 
     def _thresholds(self, log_noise: np.ndarray) -> np.ndarray:
         """Per-noise thresholds for float32 ``log_scan_noise`` feature values."""

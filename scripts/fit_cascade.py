@@ -147,10 +147,7 @@ def window_scores(det, wb) -> tuple[np.ndarray, np.ndarray]:
 
     feats = segment_features(wb, det.feature_config)
     p = 1.0 / (1.0 + np.exp(-det._forward(feats.x)[:, 0]))
-    noise = feats.x[:, det._noise_col]
-    sigma = np.exp(noise.astype(np.float64)) - 1e-4
-    w_thr = det._win_values[np.searchsorted(det._win_edges, sigma, side="right")]
-    return p, w_thr
+    return p, det.window_thresholds(feats.x[:, det._noise_col])
 
 
 def collect(seeds, det, min_p: float, progress: bool) -> dict[str, np.ndarray]:

@@ -152,6 +152,15 @@ def test_settings_in_the_npz_and_errors(tmp_path):
     bad = window_checkpoint(tmp_path, values=[0.5, 1.5, 0.5, 0.5, 0.5])
     with pytest.raises(ValueError, match="bad window settings"):
         LearnedKinDetector(bad)
+    # window_thresholds: the scan noise's bin of the checkpoint's window thresholds (log(noise + 1e-4) in)
+    edges = np.asarray(th["noise_edges"], dtype=np.float64)
+    sigma = np.concatenate([[0.0], edges, edges + 1e-4, [0.05]])
+    log_noise = np.log(sigma + 1e-4).astype(np.float32)
+    want = np.asarray(WINDOW_VALUES)[np.searchsorted(edges, np.exp(log_noise.astype(np.float64)) - 1e-4,
+                                                     side="right")]  # fmt: skip
+    assert np.array_equal(det.window_thresholds(log_noise), want) and len(set(want.tolist())) > 1
+    with pytest.raises(ValueError, match="windows are off"):
+        LearnedKinDetector(reports=False).window_thresholds(log_noise)  # the shipped one: no windows
 
 
 def test_train_checkpoint_carries_window_settings_in_both_forms(tmp_path):
