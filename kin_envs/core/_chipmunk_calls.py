@@ -24,7 +24,7 @@ from numba import types
 from numba.extending import intrinsic
 from pymunk._chipmunk import ffi, lib
 
-__all__ = ["ChipmunkCalls", "address"]
+__all__ = ["ChipmunkCalls", "address", "drive"]
 
 
 def address(cdata) -> int:
@@ -163,7 +163,7 @@ def _arbiter_pairs(each_fn, arb_fn, data, int_array, arr_field, spaces, counts):
 
 class ChipmunkCalls:
     """This thread's batch buffers and the C functions' addresses (one set per thread, like
-    :func:`kin_envs.core.world._buffers`: pymunk never frees a buffer's native arrays)."""
+    :func:`kin_envs.core.world._buffer`: pymunk never frees a buffer's native arrays)."""
 
     _local = threading.local()
 
@@ -241,3 +241,31 @@ class ChipmunkCalls:
         pairs = np.frombuffer(ffi.buffer(ffi.cast("uintptr_t *", arr), total * ffi.sizeof("uintptr_t")),
                               dtype=np.uintp).reshape(-1, 2).copy()  # fmt: skip
         return pairs, counts // 2
+
+
+def drive(calls: ChipmunkCalls, bodies, controls, spaces, commands: np.ndarray, odometry, substeps: int,
+          dt: float) -> None:
+    """``World.step``'s physics for the robots ``bodies`` (driven through their kinematic ``controls``,
+    ``uintp`` addresses, row for row) of ``spaces``: ``substeps`` Chipmunk steps of ``dt`` s with the
+    ``(n, 2)`` ``(v, omega)`` ``commands`` (m/s, rad/s CCW) held, and each substep's achieved motion
+    integrated by ``odometry`` (an :class:`~kin_envs.core.odometry.Odometry` of these ``n`` robots,
+    between its ``begin_step`` and ``end_step``), read before the drive update."""
+    v, omega = commands[:, 0], commands[:, 1]
+    # The yaw rate is constant over a control step: set it once (a kinematic body keeps it; setting it
+    # again every substep is a no-op). A robot commanded to stand still (v = 0) gets its zero once too.
+    calls.set_angular_velocities(controls, np.ascontiguousarray(omega))
+    moving = v != 0.0
+    still = controls[~moving]
+    if still.size:
+        zero = np.zeros(still.size)
+        calls.set_velocities(still, zero, zero)
+    m_controls, m_v = controls[moving], v[moving]
+    state = np.empty((len(bodies), 4))  # angle, vx, vy, omega
+    for _ in range(substeps):
+        calls.read_bodies(bodies, state)
+        heading = state[:, 0]
+        cos_h, sin_h = np.cos(heading), np.sin(heading)
+        # pymunk moves bodies with the velocity they have now (positions are integrated first in a
+        # step), so this is the motion the wheel encoders are about to measure
+        odometry.integrate_state(state, cos_h, sin_h, dt)
+        calls.set_and_step(m_controls, m_v * cos_h[moving], m_v * sin_h[moving], spaces, dt)

@@ -18,7 +18,7 @@ from collections.abc import Sequence
 import numba
 import numpy as np
 
-from kin_envs.core._chipmunk_calls import ChipmunkCalls, address
+from kin_envs.core._chipmunk_calls import ChipmunkCalls, address, drive
 from kin_envs.core.interrupts import atomic
 from kin_envs.core.lidar import (
     _cast_one,
@@ -221,17 +221,6 @@ class WorldBatch:
         if sel is not None:
             rows = np.repeat(sel, n)
             commands, bodies, controls, spaces = commands[rows], bodies[rows], controls[rows], spaces[sel]
-        v, omega = commands[:, 0], commands[:, 1]
-        # The yaw rate is constant over a control step: set it once (World.step rewrites the same
-        # value every substep, a no-op for a kinematic body). A robot commanded to stand still
-        # (v = 0) gets its zero velocity once too.
-        calls.set_angular_velocities(controls, np.ascontiguousarray(omega))
-        moving = v != 0.0
-        still = controls[~moving]
-        if still.size:
-            zero = np.zeros(still.size)
-            calls.set_velocities(still, zero, zero)
-        m_controls, m_v = controls[moving], v[moving]
         # wheel odometry of every world's robots in one Odometry (World.step: begin, integrate the
         # achieved motion each substep before the drive update, end)
         scale = phys["odometry_scale"] if sel is None else phys["odometry_scale"][rows]
@@ -239,13 +228,7 @@ class WorldBatch:
         if noisy:
             odo.ahead = np.concatenate(noise, axis=1)
         odo.begin_step()
-        state = np.empty((len(bodies), 4))  # angle, vx, vy, omega: World._advance's rows
-        for _ in range(substeps):
-            calls.read_bodies(bodies, state)
-            heading = state[:, 0]
-            cos_h, sin_h = np.cos(heading), np.sin(heading)
-            odo.integrate_state(state, cos_h, sin_h, dt)
-            calls.set_and_step(m_controls, m_v * cos_h[moving], m_v * sin_h[moving], spaces, dt)
+        drive(calls, bodies, controls, spaces, commands, odo, substeps, dt)
         odo.end_step()
         if odo.ahead is not None and odo.ahead_pos != substeps:
             raise RuntimeError("WorldBatch: odometry noise draws out of step with Odometry.integrate")

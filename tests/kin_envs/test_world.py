@@ -165,3 +165,76 @@ def test_movable_obstacle_is_pushed_static_is_not():
     assert moved[0] > 0.5  # pushed along
     assert static[0] == pytest.approx(0.3)
     assert world.poses[1, 0] < 0.3 - 0.14 + 0.005
+
+
+_REF_BUFFERS: list = []
+
+
+def _reference_advance(world: World, applied: np.ndarray) -> None:
+    """World._advance through pymunk's own batch API and the numpy odometry (``Odometry.integrate``):
+    what the compiled Chipmunk loops of ``World.step`` replaced, kept as their oracle."""
+    import pymunk.batch as pmbatch
+
+    if not _REF_BUFFERS:  # made once: pymunk never frees a Buffer's native arrays
+        _REF_BUFFERS.extend(pmbatch.Buffer() for _ in range(2))
+    buf, set_buf = _REF_BUFFERS  # a set buffer's array is numpy's: never grown by a get
+    f = pmbatch.BodyFields
+    buf.clear()
+    pmbatch.get_space_bodies(world.space, f.BODY_ID, buf)
+    where = {int(b): k for k, b in enumerate(np.frombuffer(buf.int_buf(), dtype=np.uintp))}
+    rs = np.array([where[b.id] for b in world.robot_bodies])
+    cs = np.array([where[c.id] for c in world._controls])
+    world._commands = applied
+    dt, odom = world.config.physics_dt, world._odometry
+    v, omega = applied[:, 0], applied[:, 1]
+    odom.begin_step()
+    for _ in range(world.config.substeps):
+        buf.clear()
+        pmbatch.get_space_bodies(world.space, f.ANGLE | f.VELOCITY | f.ANGULAR_VELOCITY, buf)
+        rows = np.frombuffer(buf.float_buf(), dtype=np.float64).reshape(-1, 4)  # angle, vx, vy, omega
+        heading, r = rows[rs, 0], rows[rs]
+        odom.integrate(r[:, 1] * np.cos(heading) + r[:, 2] * np.sin(heading), r[:, 3], dt)
+        vel = rows[:, 1:].copy()  # every body's velocity written back (a no-op but for the controls)
+        vel[cs, 0], vel[cs, 1], vel[cs, 2] = v * np.cos(heading), v * np.sin(heading), omega
+        set_buf.set_float_buf(vel)
+        pmbatch.set_space_bodies(world.space, f.VELOCITY | f.ANGULAR_VELOCITY, set_buf)
+        world.space.step(dt)
+    odom.end_step()
+    world.time += world.config.substeps * dt
+    contacts = np.zeros(world.n_robots, np.int8)
+    owner = {b.id: (Contact.ROBOT, i) for i, b in enumerate(world.robot_bodies)}
+    buf.clear()
+    pmbatch.get_space_arbiters(
+        world.space, pmbatch.ArbiterFields.BODY_A_ID | pmbatch.ArbiterFields.BODY_B_ID, buf
+    )
+    for ida, idb in np.frombuffer(buf.int_buf(), dtype=np.uintp).reshape(-1, 2):
+        for me, other in ((int(ida), int(idb)), (int(idb), int(ida))):
+            if me in owner:
+                kind = world._body_owner.get(other, (Contact.WALL, -1))[0]
+                contacts[owner[me][1]] |= kind
+    world.contacts = contacts
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_step_matches_pymunk_batch_reference(seed):
+    """World.step's compiled Chipmunk loops and odometry kernel equal pymunk's batch API and the numpy
+    odometry bit for bit: poses, velocities, movable obstacles, contacts, odometry (noisy), on crowded
+    random arenas with movable obstacles, robots standing still, reversing and turning."""
+    rng = np.random.default_rng(seed)
+    scene = scenes.random_arena(6, 16, seed=seed, size=2.5)
+    scene = scene.replace(obstacles=tuple(
+        scenes.obstacle_from_dict({**o.to_dict(), "movable": True, "mass": 0.3}) if k % 3 else o
+        for k, o in enumerate(scene.obstacles)))  # fmt: skip
+    fast, ref = World(scene, seed=seed), World(scene, seed=seed)
+    ref._advance = lambda applied: _reference_advance(ref, applied)
+    pushed, start = 0, fast.obstacle_poses
+    for _ in range(120):
+        cmd = np.column_stack([rng.choice([0.3, -0.3, 0.0], 6, p=[0.8, 0.1, 0.1]), rng.uniform(-3, 3, 6)])
+        fast.step(commands=cmd)
+        ref.step(commands=cmd)
+        for name in ("poses", "velocities", "obstacle_poses", "odometry", "odometry_delta", "contacts"):
+            assert np.array_equal(getattr(fast, name), getattr(ref, name)), name
+        assert fast.time == ref.time
+        pushed += int(np.count_nonzero(fast.contacts & Contact.OBSTACLE))
+    assert pushed > 20 and np.any(fast.obstacle_poses != start)  # obstacles touched and moved
+    assert fast.config.odometry.noise_k > 0  # the default odometry: noisy
