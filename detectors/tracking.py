@@ -189,7 +189,10 @@ class TrackerParams:
             ``sqrt(L) * (odom_heading_rate * range + odom_position_rate)``. Defaults match
             ``kin_envs``' default odometry model (noise_k = 0.005 m^1/2, wheel base 0.16 m).
         wheel_base: m, turns the odometry's dtheta into wheel travel for the odometer.
-        max_points: accumulated outline points kept per track (newest).
+        max_points: accumulated outline points kept per track (newest), when kept: for the outline cue
+            (``shape_clamp > 0``) or with ``keep_points`` 1; otherwise none (:attr:`Track.points` empty:
+            writing every candidate's points into a ring per track was ~5 % of a 64-observer frame).
+        keep_points: 1 keeps the outline points (:attr:`Track.points`) with the outline cue off too.
         motion_dist, motion_gain: the motion cue (m; log-odds once moved).
         static_time, static_penalty: a track seen this long (s) without moving, while another track has
             moved, gets this log-odds (0: off).
@@ -201,13 +204,15 @@ class TrackerParams:
         min_score: candidates scoring below this are dropped before association: a permissive detector
             scores every segment, and those of walls slide along the wall as the observer moves, which
             would read as motion.
-        frame_fit_iterations, frame_fit_warm_start: the per-frame circle fits (whose residuals are the
-            classifier's ``resid_z``): Gauss-Newton steps (6), and where they start: 0 (default) r behind
-            the points' middle, 1 at the candidate's own centre (the geometric detector's is its circle fit
-            of the same points, so 2 steps from there reach a converged fit's residuals to a median relative
-            ~1e-9; measured ~2x less fit time). Changes ``resid_z`` slightly: the shipped classifier was
-            fitted with the defaults, and one refitted for the warm starts scored lower on the sequence
-            benchmark (README, "Multi-frame kin tracking", round 9).
+        frame_fit_iterations, frame_fit_warm_start: the per-frame residuals (the classifier's ``resid_z``).
+            Default (0, 1): no fit, the candidate's points against a circle of radius ``r`` at the
+            candidate's own centre (the geometric detector's centre is its circle fit of the same points;
+            the learned detector's its positioning): one pass over the points, in the robot frame. Else
+            Gauss-Newton fits of ``frame_fit_iterations`` steps from 0.7 ``r`` behind the points' middle
+            (warm start 0; 6 steps: the rounds before issue 12's session 14) or from the candidate's centre
+            (1). Refit the classifier for another setting: on held-out training seeds the residuals at the
+            candidate's centre, refitted, scored within the spread of the 6-step fits (README, "Multi-frame
+            kin tracking", session 14) at ~1/5 of their cost.
     """
 
     r: float = 0.035
@@ -248,8 +253,9 @@ class TrackerParams:
     static_penalty: float = 0.0
     kin_threshold: float = 0.5
     min_score: float = 0.1
-    frame_fit_iterations: int = 6
-    frame_fit_warm_start: int = 0
+    frame_fit_iterations: int = 0
+    frame_fit_warm_start: int = 1
+    keep_points: int = 0
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -275,11 +281,20 @@ class TrackerParams:
             raise ValueError(
                 f"TrackerParams.frame_fit_warm_start must be 0 or 1, got {self.frame_fit_warm_start!r}"
             )
-        for name in ("shape_n_cap", "shape_min_points", "max_points", "frame_fit_iterations"):
+        for name in ("shape_n_cap", "shape_min_points", "max_points"):
             if int(getattr(self, name)) != getattr(self, name) or getattr(self, name) < 1:
                 raise ValueError(
                     f"TrackerParams.{name} must be a positive integer, got {getattr(self, name)!r}"
                 )
+        if int(self.frame_fit_iterations) != self.frame_fit_iterations or self.frame_fit_iterations < 0:
+            v = self.frame_fit_iterations
+            raise ValueError(f"TrackerParams.frame_fit_iterations must be an integer >= 0, got {v!r}")
+        if self.frame_fit_iterations == 0 and self.frame_fit_warm_start != 1:
+            raise ValueError("TrackerParams: frame_fit_iterations 0 (no fit) needs frame_fit_warm_start 1 "
+                             "(the residuals at the candidate's own centre), got "
+                             f"{self.frame_fit_warm_start!r}")  # fmt: skip
+        if self.keep_points not in (0, 1):
+            raise ValueError(f"TrackerParams.keep_points must be 0 or 1, got {self.keep_points!r}")
 
     @classmethod
     def from_dict(cls, d) -> TrackerParams:
@@ -701,7 +716,9 @@ class KinTracker:
         self.poses = np.zeros((self.n_observers, 3))  # each observer in its own odometry frame
         self.time = 0.0
         self._next_id = 0
-        cap, m = 8 * self.n_observers, int(self.params.max_points)
+        pr = self.params
+        # the outline's points are kept (a ring per track) only where read: its cue, or Track.points asked for
+        cap, m = 8 * self.n_observers, int(pr.max_points) if pr.shape_clamp > 0 or pr.keep_points else 0
         # the per-track scalars, packed by type (:data:`_F_COLS`, ...): the track's existence, cue log-odds
         # (score, outline, motion, per-frame residual), time static; where it was first seen (variance,
         # the observer's odometer and the range then); the per-frame fits' summed chi-square and dof; the
@@ -1916,6 +1933,39 @@ def _frame_fits_kernel(ti, ci, pts, sig, cstart, tobs, poses, z, r, iterations, 
                 lo_resid[t] = min(max(lo_resid[t] + llr, -resid_clamp), resid_clamp)
 
 
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _centre_resid_kernel(ti, ci, pts, cstart, xy, obs, noise, sigma2, r, delta2, resid_clamp, lo_resid,
+                         res_chi2, res_dof):  # fmt: skip
+    """The per-frame residual sums without a fit (``frame_fit_iterations`` 0, the default): each updated
+    track's candidate points (3 or more; robot frame) against a circle of the housing radius at the
+    candidate's own centre ``xy[c]`` (robot frame too: distances do not depend on the frame, so the points
+    need no transform). Each point's variance is ``sigma2 + (noise * range)^2``; the sums are
+    :func:`_frame_fits_kernel`'s: the noise-normalised chi-square, its dof (points - 2, as after a fit: the
+    detector placed the centre on these points) and, when the hand-tuned cue is on, its LLR."""
+    for j in range(ti.shape[0]):
+        c = ci[j]
+        a, b = cstart[c], cstart[c + 1]
+        mf = b - a
+        if mf < 3:
+            continue
+        t = ti[j]
+        cx, cy = xy[c, 0], xy[c, 1]
+        n2 = noise[obs[c]] * noise[obs[c]]
+        chi2 = llr = 0.0
+        for p in range(a, b):
+            px, py = pts[p, 0], pts[p, 1]
+            v0 = sigma2 + n2 * (px * px + py * py)
+            e = math.sqrt((px - cx) * (px - cx) + (py - cy) * (py - cy)) - r
+            chi2 += e * e / v0
+            if resid_clamp > 0.0:
+                v1 = v0 + delta2
+                llr += 0.5 * math.log(v1 / v0) * (mf - 2) / mf - 0.5 * e * e * (1.0 / v0 - 1.0 / v1)
+        res_chi2[t] += chi2
+        res_dof[t] += mf - 2
+        if resid_clamp > 0.0:
+            lo_resid[t] = min(max(lo_resid[t] + llr, -resid_clamp), resid_clamp)
+
+
 @numba.njit(cache=True, nogil=True)
 def _outline_kernel(ti, ci, pts, sig, dist, cstart, obs, odometer, moved, buf, aux, npts, head, fit_c,
                     lo_shape, x, P, now, r, delta2, n_cap, min_points, clamp, head_rate2,
@@ -1932,7 +1982,7 @@ def _outline_kernel(ti, ci, pts, sig, dist, cstart, obs, odometer, moved, buf, a
         if moved[t]:  # a moving object's points share no frame: its outline is no evidence
             lo_shape[t] = 0.0
             continue
-        if b == a:
+        if b == a or m_max == 0:  # max_points 0: no outline kept (nor its cue: shape_clamp is 0 then)
             continue
         h, odo_t = head[t], odometer[obs[t]]
         for p in range(a, b):
@@ -2180,13 +2230,22 @@ def _update_frame(obs, xy, scores, accepted, delta, dt, pts, owner, has_points, 
                   prm[12], prm[13], prm[14], prm[15])  # fmt: skip
     bm = np.zeros(n_t)
     if has_points and n_t:
-        odom, sig, dist = _points_prep(pts, owner, obs, noise, cos, sin, poses, prm[16])
-        # per-frame known-radius fits (always: the track classifier reads their summed chi-square, resid_z)
-        _frame_fits_kernel(tracks, cands, odom, sig, cstart, tobs, poses, z, prm[7], int(prm[32]),
-                           prm[33] > 0.0, prm[17], prm[23], lo_resid, res_chi2, res_dof)  # fmt: skip
-        _outline_kernel(tracks, cands, odom, sig, dist, cstart, tobs, odometer, moved, buf, aux, npts, head,
-                        fit_c, lo_shape, x, P, now, prm[7], prm[17], prm[18], int(prm[19]), prm[20], prm[21],
-                        prm[22])  # fmt: skip
+        # the per-frame residual sums (always: the track classifier reads them, resid_z): by default at the
+        # candidate's own centre (no fit, in the robot frame: no transform); Gauss-Newton fits (opt-in) and
+        # the outline's ring (max_points > 0) need the points in the odometry frame
+        gn = prm[32] > 0.0
+        if gn or buf.shape[1] > 0:
+            odom, sig, dist = _points_prep(pts, owner, obs, noise, cos, sin, poses, prm[16])
+            if gn:
+                _frame_fits_kernel(tracks, cands, odom, sig, cstart, tobs, poses, z, prm[7], int(prm[32]),
+                                   prm[33] > 0.0, prm[17], prm[23], lo_resid, res_chi2, res_dof)  # fmt: skip
+            if buf.shape[1] > 0:
+                _outline_kernel(tracks, cands, odom, sig, dist, cstart, tobs, odometer, moved, buf, aux, npts,
+                                head, fit_c, lo_shape, x, P, now, prm[7], prm[17], prm[18], int(prm[19]),
+                                prm[20], prm[21], prm[22])  # fmt: skip
+        if not gn:
+            _centre_resid_kernel(tracks, cands, pts, cstart, xy, obs, noise, prm[16], prm[7], prm[17],
+                                 prm[23], lo_resid, res_chi2, res_dof)  # fmt: skip
         for j in range(n_t):
             bm[j] = cstart[cands[j] + 1] - cstart[cands[j]]
     _feature_kernel(tracks, n_m, lgs, ac, rg, bm, f_lgsum, f_lgsq, f_lgmax, f_lglast, f_accsum, f_acclast,

@@ -106,7 +106,7 @@ class StagedKinTracker(KinTracker):
         self._score_cue(tracks, scores[cands], None if accepted is None else accepted[cands], rng[cands])
         beams = np.zeros(k)
         if points is not None and len(tracks):
-            self._outline_cue(tracks, cands, points, owner, obs, noise, cos, sin, k, z)  # validates owner
+            self._outline_cue(tracks, cands, points, owner, obs, noise, cos, sin, k, z, xy)  # validates owner
             beams = np.bincount(np.asarray(owner, np.int64).reshape(-1), minlength=k).astype(np.float64)
         _feature_kernel(tracks, len(ti), _score_logits(scores[cands]),
                         np.zeros(0, np.bool_) if accepted is None else accepted[cands], rng[cands],
@@ -166,7 +166,7 @@ class StagedKinTracker(KinTracker):
                       pr.score_weight, pr.accept_llr, pr.reject_llr, pr.score_n0, pr.score_gain,
                       pr.score_clamp)  # fmt: skip
 
-    def _outline_cue(self, ti, ci, points, owner, obs, noise, cos, sin, k, z) -> None:
+    def _outline_cue(self, ti, ci, points, owner, obs, noise, cos, sin, k, z, xy) -> None:
         # (b) the accumulated outline relative to the track centre (ego-motion compensated)
         pr = self.params
         pts = np.asarray(points, np.float64).reshape(-1, 2)
@@ -182,10 +182,18 @@ class StagedKinTracker(KinTracker):
         if status == 3:  # not grouped by candidate (segment_points gives them sorted already)
             order = np.argsort(owner, kind="stable")
             pts, owner = np.ascontiguousarray(pts[order]), owner[order]
+        cstart = np.searchsorted(owner, np.arange(k + 1))
+        if pr.frame_fit_iterations == 0:  # no fit: the residuals at the candidate's own centre
+            self._centre_resid(ti, ci, pts, cstart, xy, obs, noise)
+        ring = self._pts.shape[1] > 0  # the outline's points kept (its cue on, or keep_points)
+        if pr.frame_fit_iterations == 0 and not ring:
+            return  # nothing reads the odometry-frame points
         odom, sig, d = _points_prep(pts, owner, obs, noise, cos, sin, self.poses,
                                     pr.shape_sigma**2)  # fmt: skip
-        cstart = np.searchsorted(owner, np.arange(k + 1))
-        self._frame_fits(ti, ci, odom, sig, cstart, z)
+        if pr.frame_fit_iterations > 0:
+            self._frame_fits(ti, ci, odom, sig, cstart, z)
+        if not ring:
+            return
         _outline_kernel(
             ti, ci, odom, sig, d, cstart, self._obs, self.odometer, self._moved,
             self._pts, self._pts_aux, self._npts, self._head, self._fit_c, self._lo_shape, self._x, self._P,
@@ -193,6 +201,32 @@ class StagedKinTracker(KinTracker):
             pr.r, pr.shape_delta**2, float(pr.shape_n_cap), int(pr.shape_min_points),
             pr.shape_clamp, pr.odom_heading_rate**2, pr.odom_position_rate**2,
         )  # fmt: skip
+
+    def _centre_resid(self, ti, ci, pts, cstart, xy, obs, noise) -> None:
+        """The residual sums without a fit, in Python (the oracle of
+        :func:`detectors.tracking._centre_resid_kernel`): each candidate's points (robot frame, 3 or more)
+        against the housing circle at its own centre, variance ``shape_sigma^2 + (noise * range)^2``."""
+        pr = self.params
+        r, s2, delta2, clamp = pr.r, pr.shape_sigma**2, pr.shape_delta**2, pr.resid_clamp
+        for t, c in zip(ti.tolist(), ci.tolist(), strict=True):
+            a, b = int(cstart[c]), int(cstart[c + 1])
+            mf = b - a
+            if mf < 3:
+                continue
+            n2 = float(noise[obs[c]]) * float(noise[obs[c]])
+            chi2 = llr = 0.0
+            for p in range(a, b):
+                px, py = float(pts[p, 0]), float(pts[p, 1])
+                v0 = s2 + n2 * (px * px + py * py)
+                e = math.sqrt((px - xy[c, 0]) * (px - xy[c, 0]) + (py - xy[c, 1]) * (py - xy[c, 1])) - r
+                chi2 += e * e / v0
+                if clamp > 0.0:
+                    v1 = v0 + delta2
+                    llr += 0.5 * math.log(v1 / v0) * (mf - 2) / mf - 0.5 * e * e * (1.0 / v0 - 1.0 / v1)
+            self._res_chi2[t] += chi2
+            self._res_dof[t] += mf - 2
+            if clamp > 0.0:
+                self._lo_resid[t] = min(max(self._lo_resid[t] + llr, -clamp), clamp)
 
     def _frame_fits(self, ti, ci, pts, sig, cstart, z) -> None:
         """The per-frame circle fits one at a time, as before they ran eight to a vector
