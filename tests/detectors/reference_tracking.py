@@ -22,6 +22,7 @@ from detectors.tracking import (
     KinTracker,
     _feature_kernel,
     _fit_known_circle,
+    _kalman_update,
     _logit,
     _outline_kernel,
     _points_check,
@@ -97,7 +98,7 @@ class StagedKinTracker(KinTracker):
         self.odometer += np.hypot(delta[:, 0], delta[:, 1]) + half_turn
         cos, sin = np.cos(self.poses[:, 2]), np.sin(self.poses[:, 2])
         z = self._to_odom(xy, obs, cos, sin)  # candidates in their observer's odometry frame
-        rng = np.hypot(xy[:, 0], xy[:, 1])
+        rng = np.sqrt(xy[:, 0] * xy[:, 0] + xy[:, 1] * xy[:, 1])
         if int(self._alive.sum()) + k > self._alive.shape[0]:  # room for every candidate to start a track
             self._grow(int(self._alive.sum()) + k)
         pre = self._alive.copy()  # the tracks before this frame's births (existence: hit or miss)
@@ -757,40 +758,12 @@ def _frame_kernel_before(z, obs, rng, dt, n_obs, alive, tobs, tid, next_id, x, P
                 c_loc[uc_s[i]] = -1
         a = b
     ti, ci = ti[:n_m], ci[:n_m]
-    # Joseph-form Kalman update, position measured with isotropic noise
+    # the Kalman update (since session 14 the fused kernel's own, standard form: tested against filterpy)
     taken = np.zeros(k, np.bool_)
-    K = np.empty((4, 2))
-    A = np.empty((4, 4))
-    B = np.empty((4, 4))
     for j in range(n_m):
         t, c = ti[j], ci[j]
         taken[c] = True
-        mv = (meas_sigma + meas_sigma_rel * rng[c]) ** 2
-        Pt = P[t]
-        s00, s01, s10, s11 = Pt[0, 0] + mv, Pt[0, 1], Pt[1, 0], Pt[1, 1] + mv
-        det = s00 * s11 - s01 * s10
-        i00, i01, i10, i11 = s11 / det, -s01 / det, -s10 / det, s00 / det
-        for i in range(4):
-            K[i, 0] = Pt[i, 0] * i00 + Pt[i, 1] * i10
-            K[i, 1] = Pt[i, 0] * i01 + Pt[i, 1] * i11
-        d0, d1 = z[c, 0] - x[t, 0], z[c, 1] - x[t, 1]
-        for i in range(4):
-            x[t, i] += K[i, 0] * d0 + K[i, 1] * d1
-        for i in range(4):  # A = I - K H
-            for jj in range(4):
-                A[i, jj] = (1.0 if i == jj else 0.0) - (K[i, jj] if jj < 2 else 0.0)
-        for i in range(4):  # B = A P
-            for jj in range(4):
-                acc = 0.0
-                for l in range(4):
-                    acc += A[i, l] * Pt[l, jj]
-                B[i, jj] = acc
-        for i in range(4):  # P = B A^T + mv K K^T
-            for jj in range(4):
-                acc = 0.0
-                for l in range(4):
-                    acc += B[i, l] * A[jj, l]
-                Pt[i, jj] = acc + mv * (K[i, 0] * K[jj, 0] + K[i, 1] * K[jj, 1])
+        _kalman_update(x[t], P[t], z[c, 0], z[c, 1], (meas_sigma + meas_sigma_rel * rng[c]) ** 2)
         seen[t] += 1
     # births: unmatched candidates in index order take the first free rows
     n_b = k - n_m
