@@ -37,11 +37,12 @@ absorbs.
       the evidence is how consistently the detector calls it kin, not how often it has been seen; the
       mean still averages out the per-frame score noise as the beam pattern slides over the object.
    r. **per-frame residual** (off by default, ``resid_clamp = 0``): each frame's points of the candidate
-      (one pose: no odometry drift, valid while the object moves) get a circle of the housing radius
-      fitted; the Gaussian log-likelihood ratio of the noise-normalised residuals, "on the circle"
-      (``N(0, sigma_i^2)``) vs "off it by ``shape_delta``", with the fit's 2 degrees of freedom taken out,
-      is summed over the track's frames (clamped to ``±resid_clamp``). For a circle it is pure noise; for
-      a look-alike a systematic term accumulates (the noise of the sum grows as ``sqrt(N)``, the
+      (one pose: no odometry drift, valid while the object moves) are compared with a circle of the housing
+      radius at the candidate's own centre (by default; Gauss-Newton fits are opt-in,
+      ``frame_fit_iterations``); the Gaussian log-likelihood ratio of the noise-normalised residuals, "on
+      the circle" (``N(0, sigma_i^2)``) vs "off it by ``shape_delta``", with the fit's 2 degrees of freedom
+      taken out, is summed over the track's frames (clamped to ``±resid_clamp``). For a circle it is pure
+      noise; for a look-alike a systematic term accumulates (the noise of the sum grows as ``sqrt(N)``, the
       systematic part as ``N``). Its information per point is ~``(shape_delta / sigma)^4``: decisive at
       millimetre noise, ~0 at 1 % range noise beyond 0.3 m (measured on the sequence benchmark's
       training episodes, where it did not help), hence off.
@@ -86,12 +87,12 @@ absorbs.
    tanh layer of 8 units) over per-track features (:data:`TRACK_FEATURES`: the detector's score log-odds
    averaged, spread, maximum and last; the detector's own decisions; frames seen, beams, range; the motion
    statistic in the odometry frame; existence; the share of the observer's tracks that moved; the
-   per-frame circle fits' summed chi-square, cue r's statistic), fitted on training-seed
+   per-frame residuals' summed chi-square, cue r's statistic), fitted on training-seed
    sequence episodes (``scripts/fit_track_classifier.py``). A track seen in fewer than its ``min_frames``
    frames takes the detector's own decision of its last frame instead, so that a young track is never
    worse than the single scan. The cues above still run (their state feeds the features); only their
    hand-set weights are replaced. It is fitted on candidates *with* their scan points (``points`` /
-   ``owner``: the beams and the per-frame circle fits are among its inputs); a caller without points
+   ``owner``: the beams and the per-frame residuals are among its inputs); a caller without points
    should use ``kin_model="hand"``. The shipped model answers "a kin in view here, this frame" (its
    labels are the per-frame benchmark's) and gives a track not updated this frame probability 0
    (``TrackKinModel.hit_only``).
@@ -130,10 +131,10 @@ TRACK_FIELDS = ("id", "x", "y", "vx", "vy", "existence", "kin_prob", "frames_see
 #: drift since, clipped to 10) and the motion cue's flag; the existence probability; the filtered speed
 #: over its standard deviation (clipped to 10); and the scene around it: the share of the observer's
 #: confirmed tracks that have moved and log(1 + their number) — in a swarm many tracks move and a kin is
-#: the likely object, among static look-alikes few do; and the per-frame circle fits' residuals (each
-#: frame's points against a circle of the housing radius, one pose so no odometry drift, noise-normalised
-#: chi-square summed over the track's frames, as its excess over the degrees of freedom in standard
-#: deviations, clipped to ±10).
+#: the likely object, among static look-alikes few do; and the per-frame residuals (each frame's points
+#: against a circle of the housing radius at the candidate's centre, one pose so no odometry drift,
+#: noise-normalised chi-square summed over the track's frames, as its excess over the degrees of freedom
+#: in standard deviations, clipped to ±10).
 TRACK_FEATURES = ("mean_logit", "std_logit", "max_logit", "last_logit", "hit_logit", "accept_rate",
                   "last_accepted", "hit_accepted", "hit", "log_frames", "log_beams", "range", "motion_z",
                   "moved", "existence", "speed_z", "moved_share", "log_moved", "resid_z")  # fmt: skip
@@ -177,7 +178,7 @@ class TrackerParams:
         score_gain, score_n0, score_clamp: the score cue is ``score_gain`` times the mean evidence per
             frame (``score_n0`` pseudo-frames of zero evidence in the mean), clamped to ``±score_clamp``.
         resid_clamp: clamp of the per-frame residual cue's sum in the hand-tuned fusion (0: off; the
-            per-frame fits run anyway: the track classifier reads their chi-square, ``resid_z``).
+            per-frame residuals are summed anyway: the track classifier reads their chi-square, ``resid_z``).
         shape_delta: RMS deviation of a 7 cm look-alike's outline from the housing circle, m (a hexagon's
             is ~2 mm, a triangle's ~8 mm).
         shape_sigma: per-point noise floor, m; range_noise: relative range noise used when a frame gives
