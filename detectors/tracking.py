@@ -38,7 +38,7 @@ absorbs.
       mean still averages out the per-frame score noise as the beam pattern slides over the object.
    r. **per-frame residual** (off by default, ``resid_clamp = 0``): each frame's points of the candidate
       (one pose: no odometry drift, valid while the object moves) are compared with a circle of the housing
-      radius at the candidate's own centre (by default; Gauss-Newton fits are opt-in,
+      radius fitted by one Gauss-Newton step from the candidate's own centre (by default:
       ``frame_fit_iterations``); the Gaussian log-likelihood ratio of the noise-normalised residuals, "on
       the circle" (``N(0, sigma_i^2)``) vs "off it by ``shape_delta``", with the fit's 2 degrees of freedom
       taken out, is summed over the track's frames (clamped to ``±resid_clamp``). For a circle it is pure
@@ -132,7 +132,7 @@ TRACK_FIELDS = ("id", "x", "y", "vx", "vy", "existence", "kin_prob", "frames_see
 #: over its standard deviation (clipped to 10); and the scene around it: the share of the observer's
 #: confirmed tracks that have moved and log(1 + their number) — in a swarm many tracks move and a kin is
 #: the likely object, among static look-alikes few do; and the per-frame residuals (each frame's points
-#: against a circle of the housing radius at the candidate's centre, one pose so no odometry drift,
+#: against a circle of the housing radius fitted from the candidate's centre, one pose so no odometry drift,
 #: noise-normalised chi-square summed over the track's frames, as its excess over the degrees of freedom
 #: in standard deviations, clipped to ±10).
 TRACK_FEATURES = ("mean_logit", "std_logit", "max_logit", "last_logit", "hit_logit", "accept_rate",
@@ -205,15 +205,17 @@ class TrackerParams:
         min_score: candidates scoring below this are dropped before association: a permissive detector
             scores every segment, and those of walls slide along the wall as the observer moves, which
             would read as motion.
-        frame_fit_iterations, frame_fit_warm_start: the per-frame residuals (the classifier's ``resid_z``).
-            Default (0, 1): no fit, the candidate's points against a circle of radius ``r`` at the
-            candidate's own centre (the geometric detector's centre is its circle fit of the same points;
-            the learned detector's its positioning): one pass over the points, in the robot frame. Else
-            Gauss-Newton fits of ``frame_fit_iterations`` steps from 0.7 ``r`` behind the points' middle
-            (warm start 0; 6 steps: the rounds before issue 12's session 14) or from the candidate's centre
-            (1). Refit the classifier for another setting: on held-out training seeds the residuals at the
-            candidate's centre, refitted, scored within the spread of the 6-step fits (README, "Multi-frame
-            kin tracking", session 14) at ~1/5 of their cost.
+        frame_fit_iterations, frame_fit_warm_start: the per-frame residuals (the classifier's ``resid_z``):
+            each candidate's points against a circle of radius ``r`` fitted by ``frame_fit_iterations``
+            Gauss-Newton steps (0: none) from where ``frame_fit_warm_start`` says: 1 (default) the
+            candidate's own centre (the geometric detector's is its circle fit of the same points, the
+            learned detector's its positioning), in the robot frame, one pass over the points per step and
+            one for the residuals; 0 from 0.7 ``r`` behind the points' middle, in the odometry frame
+            (vectorised lanes: the rounds before issue 12's session 14 ran 6 such steps). Default 1 step
+            from the centre: on held-out training seeds, refitted, within ±0.02 of the 6-step fits on
+            every figure (F1, same-radius and prism rejection, two training sets) at ~1/3 of their cost; 0
+            steps cost less again but moved same-radius rejection by up to 0.06 (README, "Multi-frame kin
+            tracking", session 14). Refit the classifier for another setting.
     """
 
     r: float = 0.035
@@ -254,7 +256,7 @@ class TrackerParams:
     static_penalty: float = 0.0
     kin_threshold: float = 0.5
     min_score: float = 0.1
-    frame_fit_iterations: int = 0
+    frame_fit_iterations: int = 1
     frame_fit_warm_start: int = 1
     keep_points: int = 0
 
@@ -1947,13 +1949,15 @@ def _frame_fits_kernel(ti, ci, pts, sig, cstart, tobs, poses, z, r, iterations, 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _centre_resid_kernel(ti, ci, pts, cstart, xy, obs, noise, sigma2, r, delta2, resid_clamp, lo_resid,
-                         res_chi2, res_dof):  # fmt: skip
-    """The per-frame residual sums without a fit (``frame_fit_iterations`` 0, the default): each updated
-    track's candidate points (3 or more; robot frame) against a circle of the housing radius at the
-    candidate's own centre ``xy[c]`` (robot frame too: distances do not depend on the frame, so the points
+                         res_chi2, res_dof, iterations=0):  # fmt: skip
+    """The per-frame residual sums from the candidate's centre (``frame_fit_warm_start`` 1, the default):
+    each updated track's candidate points (3 or more; robot frame) against a circle of the housing radius at
+    the candidate's own centre ``xy[c]`` (robot frame too: distances do not depend on the frame, so the points
     need no transform). Each point's variance is ``sigma2 + (noise * range)^2``; the sums are
     :func:`_frame_fits_kernel`'s: the noise-normalised chi-square, its dof (points - 2, as after a fit: the
-    detector placed the centre on these points) and, when the hand-tuned cue is on, its LLR."""
+    detector placed the centre on these points) and, when the hand-tuned cue is on, its LLR; after
+    ``iterations`` Gauss-Newton steps of the centre (:func:`_fit_span`'s, weights ``1 / variance``; the
+    default 1) from the candidate's centre, in the robot frame."""
     for j in range(ti.shape[0]):
         c = ci[j]
         a, b = cstart[c], cstart[c + 1]
@@ -1963,6 +1967,29 @@ def _centre_resid_kernel(ti, ci, pts, cstart, xy, obs, noise, sigma2, r, delta2,
         t = ti[j]
         cx, cy = xy[c, 0], xy[c, 1]
         n2 = noise[obs[c]] * noise[obs[c]]
+        for _ in range(iterations):
+            a00 = a01 = a11 = g0 = g1 = 0.0
+            for p in range(a, b):
+                px, py = pts[p, 0], pts[p, 1]
+                w = 1.0 / (sigma2 + n2 * (px * px + py * py))
+                dx, dy = px - cx, py - cy
+                d = max(math.sqrt(dx * dx + dy * dy), 1e-12)
+                jx, jy = -dx / d, -dy / d
+                ei = d - r
+                a00 += w * jx * jx
+                a01 += w * jx * jy
+                a11 += w * jy * jy
+                g0 += w * jx * ei
+                g1 += w * jy * ei
+            det = a00 * a11 - a01 * a01
+            if det <= 1e-12 * (a00 + a11) ** 2:  # points on a line through c: no unique step
+                break
+            s0 = -(a11 * g0 - a01 * g1) / det
+            s1 = -(a00 * g1 - a01 * g0) / det
+            cx += s0
+            cy += s1
+            if s0 * s0 + s1 * s1 < 1e-18:
+                break
         chi2 = llr = 0.0
         for p in range(a, b):
             px, py = pts[p, 0], pts[p, 1]
@@ -2242,10 +2269,10 @@ def _update_frame(obs, xy, scores, accepted, delta, dt, pts, owner, has_points, 
                   prm[12], prm[13], prm[14], prm[15])  # fmt: skip
     bm = np.zeros(n_t)
     if has_points and n_t:
-        # the per-frame residual sums (always: the track classifier reads them, resid_z): by default at the
-        # candidate's own centre (no fit, in the robot frame: no transform); Gauss-Newton fits (opt-in) and
-        # the outline's ring (max_points > 0) need the points in the odometry frame
-        gn = prm[32] > 0.0
+        # the per-frame residual sums (always: the track classifier reads them, resid_z): by default fitted
+        # from the candidate's own centre in the robot frame (no transform); fits from behind the points
+        # (frame_fit_warm_start 0) and the outline's ring need the points in the odometry frame
+        gn = prm[32] > 0.0 and prm[33] <= 0.0  # fits from behind the points: in the odometry frame
         if gn or buf.shape[1] > 0:
             odom, sig, dist = _points_prep(pts, owner, obs, noise, cos, sin, poses, prm[16])
             if gn:
@@ -2257,7 +2284,7 @@ def _update_frame(obs, xy, scores, accepted, delta, dt, pts, owner, has_points, 
                                 prm[20], prm[21], prm[22])  # fmt: skip
         if not gn:
             _centre_resid_kernel(tracks, cands, pts, cstart, xy, obs, noise, prm[16], prm[7], prm[17],
-                                 prm[23], lo_resid, res_chi2, res_dof)  # fmt: skip
+                                 prm[23], lo_resid, res_chi2, res_dof, int(prm[32]))  # fmt: skip
         for j in range(n_t):
             bm[j] = cstart[cands[j] + 1] - cstart[cands[j]]
     _feature_kernel(tracks, n_m, lgs, ac, rg, bm, f_lgsum, f_lgsq, f_lgmax, f_lglast, f_accsum, f_acclast,

@@ -184,14 +184,15 @@ class StagedKinTracker(KinTracker):
             order = np.argsort(owner, kind="stable")
             pts, owner = np.ascontiguousarray(pts[order]), owner[order]
         cstart = np.searchsorted(owner, np.arange(k + 1))
-        if pr.frame_fit_iterations == 0:  # no fit: the residuals at the candidate's own centre
+        centre = pr.frame_fit_warm_start == 1  # from the candidate's own centre: in the robot frame
+        if centre:
             self._centre_resid(ti, ci, pts, cstart, xy, obs, noise)
         ring = self._pts.shape[1] > 0  # the outline's points kept (its cue on, or keep_points)
-        if pr.frame_fit_iterations == 0 and not ring:
+        if centre and not ring:
             return  # nothing reads the odometry-frame points
         odom, sig, d = _points_prep(pts, owner, obs, noise, cos, sin, self.poses,
                                     pr.shape_sigma**2)  # fmt: skip
-        if pr.frame_fit_iterations > 0:
+        if not centre:
             self._frame_fits(ti, ci, odom, sig, cstart, z)
         if not ring:
             return
@@ -215,11 +216,33 @@ class StagedKinTracker(KinTracker):
             if mf < 3:
                 continue
             n2 = float(noise[obs[c]]) * float(noise[obs[c]])
+            # Gauss-Newton steps from the candidate's centre (frame_fit_iterations), as _fit_span's
+            cx, cy = float(xy[c, 0]), float(xy[c, 1])
+            for _ in range(int(pr.frame_fit_iterations)):
+                A = np.zeros((2, 2))
+                g = np.zeros(2)
+                for p in range(a, b):
+                    px, py = float(pts[p, 0]), float(pts[p, 1])
+                    w = 1.0 / (s2 + n2 * (px * px + py * py))
+                    d = max(math.sqrt((px - cx) * (px - cx) + (py - cy) * (py - cy)), 1e-12)
+                    jac = np.array([-(px - cx) / d, -(py - cy) / d])
+                    A[0, 0] += w * jac[0] * jac[0]
+                    A[0, 1] += w * jac[0] * jac[1]
+                    A[1, 1] += w * jac[1] * jac[1]
+                    g += w * jac * (d - r)
+                det = A[0, 0] * A[1, 1] - A[0, 1] * A[0, 1]
+                if det <= 1e-12 * (A[0, 0] + A[1, 1]) ** 2:
+                    break
+                s0 = -(A[1, 1] * g[0] - A[0, 1] * g[1]) / det
+                s1 = -(A[0, 0] * g[1] - A[0, 1] * g[0]) / det
+                cx, cy = cx + s0, cy + s1
+                if s0 * s0 + s1 * s1 < 1e-18:
+                    break
             chi2 = llr = 0.0
             for p in range(a, b):
                 px, py = float(pts[p, 0]), float(pts[p, 1])
                 v0 = s2 + n2 * (px * px + py * py)
-                e = math.sqrt((px - xy[c, 0]) * (px - xy[c, 0]) + (py - xy[c, 1]) * (py - xy[c, 1])) - r
+                e = math.sqrt((px - cx) * (px - cx) + (py - cy) * (py - cy)) - r
                 chi2 += e * e / v0
                 if clamp > 0.0:
                     v1 = v0 + delta2

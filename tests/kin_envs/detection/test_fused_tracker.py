@@ -26,8 +26,8 @@ def _assert_same(a: KinTracker, b: KinTracker) -> None:
     assert all(np.array_equal(ta[k], tb[k]) for k in ta)
 
 
-#: the per-frame residuals: at the candidate's own centre (the default), and Gauss-Newton fits of 6 steps from
-#: behind the points (the default before session 14), with the outline's points kept
+#: the per-frame residuals: one Gauss-Newton step from the candidate's own centre (the default), and fits of 6
+#: steps from behind the points (the default before session 14), with the outline's points kept
 _FITS = {"centre": TrackerParams(), "fits6": TrackerParams(frame_fit_iterations=6, frame_fit_warm_start=0,
                                                            keep_points=1)}
 
@@ -74,7 +74,7 @@ def test_fused_update_is_bitwise_the_staged_one_on_sequence_episodes(split, n_ro
     assert not np.array_equal(warm._res_chi2, fused._res_chi2)
     if fits == "fits6":  # 2 steps from the detector's own fit reach the 6 steps' fit
         assert np.median(rel) < 1e-3
-    else:  # no fit: the residuals at the geometric detector's own fit of (nearly) the same points
+    else:  # 1 step against 2 from the geometric detector's own fit of (nearly) the same points
         assert np.median(rel) < 0.2
     with pytest.raises(ValueError, match="frame_fit_warm_start must be 0 or 1"):
         TrackerParams(frame_fit_warm_start=2)
