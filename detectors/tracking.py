@@ -37,11 +37,12 @@ absorbs.
       the evidence is how consistently the detector calls it kin, not how often it has been seen; the
       mean still averages out the per-frame score noise as the beam pattern slides over the object.
    r. **per-frame residual** (off by default, ``resid_clamp = 0``): each frame's points of the candidate
-      (one pose: no odometry drift, valid while the object moves) get a circle of the housing radius
-      fitted; the Gaussian log-likelihood ratio of the noise-normalised residuals, "on the circle"
-      (``N(0, sigma_i^2)``) vs "off it by ``shape_delta``", with the fit's 2 degrees of freedom taken out,
-      is summed over the track's frames (clamped to ``±resid_clamp``). For a circle it is pure noise; for
-      a look-alike a systematic term accumulates (the noise of the sum grows as ``sqrt(N)``, the
+      (one pose: no odometry drift, valid while the object moves) are compared with a circle of the housing
+      radius fitted by one Gauss-Newton step from the candidate's own centre (by default:
+      ``frame_fit_iterations``); the Gaussian log-likelihood ratio of the noise-normalised residuals, "on
+      the circle" (``N(0, sigma_i^2)``) vs "off it by ``shape_delta``", with the fit's 2 degrees of freedom
+      taken out, is summed over the track's frames (clamped to ``±resid_clamp``). For a circle it is pure
+      noise; for a look-alike a systematic term accumulates (the noise of the sum grows as ``sqrt(N)``, the
       systematic part as ``N``). Its information per point is ~``(shape_delta / sigma)^4``: decisive at
       millimetre noise, ~0 at 1 % range noise beyond 0.3 m (measured on the sequence benchmark's
       training episodes, where it did not help), hence off.
@@ -86,12 +87,12 @@ absorbs.
    tanh layer of 8 units) over per-track features (:data:`TRACK_FEATURES`: the detector's score log-odds
    averaged, spread, maximum and last; the detector's own decisions; frames seen, beams, range; the motion
    statistic in the odometry frame; existence; the share of the observer's tracks that moved; the
-   per-frame circle fits' summed chi-square, cue r's statistic), fitted on training-seed
+   per-frame residuals' summed chi-square, cue r's statistic), fitted on training-seed
    sequence episodes (``scripts/fit_track_classifier.py``). A track seen in fewer than its ``min_frames``
    frames takes the detector's own decision of its last frame instead, so that a young track is never
    worse than the single scan. The cues above still run (their state feeds the features); only their
    hand-set weights are replaced. It is fitted on candidates *with* their scan points (``points`` /
-   ``owner``: the beams and the per-frame circle fits are among its inputs); a caller without points
+   ``owner``: the beams and the per-frame residuals are among its inputs); a caller without points
    should use ``kin_model="hand"``. The shipped model answers "a kin in view here, this frame" (its
    labels are the per-frame benchmark's) and gives a track not updated this frame probability 0
    (``TrackKinModel.hit_only``).
@@ -130,10 +131,10 @@ TRACK_FIELDS = ("id", "x", "y", "vx", "vy", "existence", "kin_prob", "frames_see
 #: drift since, clipped to 10) and the motion cue's flag; the existence probability; the filtered speed
 #: over its standard deviation (clipped to 10); and the scene around it: the share of the observer's
 #: confirmed tracks that have moved and log(1 + their number) — in a swarm many tracks move and a kin is
-#: the likely object, among static look-alikes few do; and the per-frame circle fits' residuals (each
-#: frame's points against a circle of the housing radius, one pose so no odometry drift, noise-normalised
-#: chi-square summed over the track's frames, as its excess over the degrees of freedom in standard
-#: deviations, clipped to ±10).
+#: the likely object, among static look-alikes few do; and the per-frame residuals (each frame's points
+#: against a circle of the housing radius fitted from the candidate's centre, one pose so no odometry drift,
+#: noise-normalised chi-square summed over the track's frames, as its excess over the degrees of freedom
+#: in standard deviations, clipped to ±10).
 TRACK_FEATURES = ("mean_logit", "std_logit", "max_logit", "last_logit", "hit_logit", "accept_rate",
                   "last_accepted", "hit_accepted", "hit", "log_frames", "log_beams", "range", "motion_z",
                   "moved", "existence", "speed_z", "moved_share", "log_moved", "resid_z")  # fmt: skip
@@ -177,7 +178,7 @@ class TrackerParams:
         score_gain, score_n0, score_clamp: the score cue is ``score_gain`` times the mean evidence per
             frame (``score_n0`` pseudo-frames of zero evidence in the mean), clamped to ``±score_clamp``.
         resid_clamp: clamp of the per-frame residual cue's sum in the hand-tuned fusion (0: off; the
-            per-frame fits run anyway: the track classifier reads their chi-square, ``resid_z``).
+            per-frame residuals are summed anyway: the track classifier reads their chi-square, ``resid_z``).
         shape_delta: RMS deviation of a 7 cm look-alike's outline from the housing circle, m (a hexagon's
             is ~2 mm, a triangle's ~8 mm).
         shape_sigma: per-point noise floor, m; range_noise: relative range noise used when a frame gives
@@ -189,7 +190,10 @@ class TrackerParams:
             ``sqrt(L) * (odom_heading_rate * range + odom_position_rate)``. Defaults match
             ``kin_envs``' default odometry model (noise_k = 0.005 m^1/2, wheel base 0.16 m).
         wheel_base: m, turns the odometry's dtheta into wheel travel for the odometer.
-        max_points: accumulated outline points kept per track (newest).
+        max_points: accumulated outline points kept per track (newest), when kept: for the outline cue
+            (``shape_clamp > 0``) or with ``keep_points`` 1; otherwise none (:attr:`Track.points` empty:
+            writing every candidate's points into a ring per track was ~5 % of a 64-observer frame).
+        keep_points: 1 keeps the outline points (:attr:`Track.points`) with the outline cue off too.
         motion_dist, motion_gain: the motion cue (m; log-odds once moved).
         static_time, static_penalty: a track seen this long (s) without moving, while another track has
             moved, gets this log-odds (0: off).
@@ -201,13 +205,17 @@ class TrackerParams:
         min_score: candidates scoring below this are dropped before association: a permissive detector
             scores every segment, and those of walls slide along the wall as the observer moves, which
             would read as motion.
-        frame_fit_iterations, frame_fit_warm_start: the per-frame circle fits (whose residuals are the
-            classifier's ``resid_z``): Gauss-Newton steps (6), and where they start: 0 (default) r behind
-            the points' middle, 1 at the candidate's own centre (the geometric detector's is its circle fit
-            of the same points, so 2 steps from there reach a converged fit's residuals to a median relative
-            ~1e-9; measured ~2x less fit time). Changes ``resid_z`` slightly: the shipped classifier was
-            fitted with the defaults, and one refitted for the warm starts scored lower on the sequence
-            benchmark (README, "Multi-frame kin tracking", round 9).
+        frame_fit_iterations, frame_fit_warm_start: the per-frame residuals (the classifier's ``resid_z``):
+            each candidate's points against a circle of radius ``r`` fitted by ``frame_fit_iterations``
+            Gauss-Newton steps (0: none) from where ``frame_fit_warm_start`` says: 1 (default) the
+            candidate's own centre (the geometric detector's is its circle fit of the same points, the
+            learned detector's its positioning), in the robot frame, one pass over the points per step and
+            one for the residuals; 0 from 0.7 ``r`` behind the points' middle, in the odometry frame
+            (vectorised lanes: the rounds before issue 12's session 14 ran 6 such steps). Default 1 step
+            from the centre: on held-out training seeds, refitted, within ±0.02 of the 6-step fits on
+            every figure (F1, same-radius and prism rejection, two training sets) at ~1/3 of their cost; 0
+            steps cost less again but moved same-radius rejection by up to 0.06 (README, "Multi-frame kin
+            tracking", session 14). Refit the classifier for another setting.
     """
 
     r: float = 0.035
@@ -248,8 +256,9 @@ class TrackerParams:
     static_penalty: float = 0.0
     kin_threshold: float = 0.5
     min_score: float = 0.1
-    frame_fit_iterations: int = 6
-    frame_fit_warm_start: int = 0
+    frame_fit_iterations: int = 1
+    frame_fit_warm_start: int = 1
+    keep_points: int = 0
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -275,11 +284,20 @@ class TrackerParams:
             raise ValueError(
                 f"TrackerParams.frame_fit_warm_start must be 0 or 1, got {self.frame_fit_warm_start!r}"
             )
-        for name in ("shape_n_cap", "shape_min_points", "max_points", "frame_fit_iterations"):
+        for name in ("shape_n_cap", "shape_min_points", "max_points"):
             if int(getattr(self, name)) != getattr(self, name) or getattr(self, name) < 1:
                 raise ValueError(
                     f"TrackerParams.{name} must be a positive integer, got {getattr(self, name)!r}"
                 )
+        if int(self.frame_fit_iterations) != self.frame_fit_iterations or self.frame_fit_iterations < 0:
+            v = self.frame_fit_iterations
+            raise ValueError(f"TrackerParams.frame_fit_iterations must be an integer >= 0, got {v!r}")
+        if self.frame_fit_iterations == 0 and self.frame_fit_warm_start != 1:
+            raise ValueError("TrackerParams: frame_fit_iterations 0 (no fit) needs frame_fit_warm_start 1 "
+                             "(the residuals at the candidate's own centre), got "
+                             f"{self.frame_fit_warm_start!r}")  # fmt: skip
+        if self.keep_points not in (0, 1):
+            raise ValueError(f"TrackerParams.keep_points must be 0 or 1, got {self.keep_points!r}")
 
     @classmethod
     def from_dict(cls, d) -> TrackerParams:
@@ -701,7 +719,9 @@ class KinTracker:
         self.poses = np.zeros((self.n_observers, 3))  # each observer in its own odometry frame
         self.time = 0.0
         self._next_id = 0
-        cap, m = 8 * self.n_observers, int(self.params.max_points)
+        pr = self.params
+        # the outline's points are kept (a ring per track) only where read: its cue, or Track.points asked for
+        cap, m = 8 * self.n_observers, int(pr.max_points) if pr.shape_clamp > 0 or pr.keep_points else 0
         # the per-track scalars, packed by type (:data:`_F_COLS`, ...): the track's existence, cue log-odds
         # (score, outline, motion, per-frame residual), time static; where it was first seen (variance,
         # the observer's odometer and the range then); the per-frame fits' summed chi-square and dof; the
@@ -993,11 +1013,12 @@ class KinTracker:
         pr = self.params
         n = np.maximum(self._seen[rows], 1).astype(np.float64)
         o = self._obs[rows]
-        disp = np.hypot(*(self._x[rows, :2] - self._anchor[rows]).T)
+        dx, dy = (self._x[rows, :2] - self._anchor[rows]).T
+        disp = np.sqrt(dx * dx + dy * dy)  # not hypot: the kernels' square root (libm's hypot ~15 ns)
         aged = self.odometer[o] - self._anchor_odo[rows]
         drift = aged * (pr.odom_heading_rate**2 * self._anchor_rng[rows] ** 2 + pr.odom_position_rate**2)
         var = self._anchor_var[rows] + 0.5 * (self._P[rows, 0, 0] + self._P[rows, 1, 1]) + drift
-        speed = np.hypot(self._x[rows, 2], self._x[rows, 3])
+        speed = np.sqrt(self._x[rows, 2] * self._x[rows, 2] + self._x[rows, 3] * self._x[rows, 3])
         speed_sd = np.sqrt(np.maximum(0.5 * (self._P[rows, 2, 2] + self._P[rows, 3, 3]), 1e-12))
         hit = self._hit[rows]
         mean = self._f_lgsum[rows] / n
@@ -1225,12 +1246,52 @@ def _gate_pairs(n_obs, t_cnt, c_cnt, c_ord, z, rng, meas_sigma, meas_sigma_rel, 
 
 
 @numba.njit(cache=True, nogil=True)
+def _kalman_update(xt, Pt, zx, zy, mv):
+    """One track's Kalman update (state ``xt`` (4,), covariance ``Pt`` (4, 4), in place) with a position
+    ``zx, zy`` measured with isotropic variance ``mv``, in the standard form ``P - K H P`` written symmetric
+    (its upper triangle, mirrored): ~1/3 of the Joseph form's operations (which the rounds before session 14
+    used; P is a well-conditioned 4 x 4 here, and the filter is tested against filterpy's Joseph form)."""
+    p00, p01, p11 = Pt[0, 0], Pt[0, 1], Pt[1, 1]
+    s00, s11 = p00 + mv, p11 + mv
+    det = s00 * s11 - p01 * p01
+    i00, i01, i11 = s11 / det, -p01 / det, s00 / det
+    # K = P H^T S^-1 (4 x 2) from P's first two columns (rows, P being symmetric)
+    h00, h01, h02, h03 = Pt[0, 0], Pt[0, 1], Pt[0, 2], Pt[0, 3]
+    h10, h11, h12, h13 = Pt[1, 0], Pt[1, 1], Pt[1, 2], Pt[1, 3]
+    k00, k01 = h00 * i00 + h10 * i01, h00 * i01 + h10 * i11
+    k10, k11 = h01 * i00 + h11 * i01, h01 * i01 + h11 * i11
+    k20, k21 = h02 * i00 + h12 * i01, h02 * i01 + h12 * i11
+    k30, k31 = h03 * i00 + h13 * i01, h03 * i01 + h13 * i11
+    d0, d1 = zx - xt[0], zy - xt[1]
+    xt[0] += k00 * d0 + k01 * d1
+    xt[1] += k10 * d0 + k11 * d1
+    xt[2] += k20 * d0 + k21 * d1
+    xt[3] += k30 * d0 + k31 * d1
+    # P - K (H P): H P is P's first two rows
+    a00 = Pt[0, 0] - (k00 * h00 + k01 * h10)
+    a01 = Pt[0, 1] - (k00 * h01 + k01 * h11)
+    a02 = Pt[0, 2] - (k00 * h02 + k01 * h12)
+    a03 = Pt[0, 3] - (k00 * h03 + k01 * h13)
+    a11 = Pt[1, 1] - (k10 * h01 + k11 * h11)
+    a12 = Pt[1, 2] - (k10 * h02 + k11 * h12)
+    a13 = Pt[1, 3] - (k10 * h03 + k11 * h13)
+    a22 = Pt[2, 2] - (k20 * h02 + k21 * h12)
+    a23 = Pt[2, 3] - (k20 * h03 + k21 * h13)
+    a33 = Pt[3, 3] - (k30 * h03 + k31 * h13)
+    Pt[0, 0], Pt[0, 1], Pt[0, 2], Pt[0, 3] = a00, a01, a02, a03
+    Pt[1, 0], Pt[1, 1], Pt[1, 2], Pt[1, 3] = a01, a11, a12, a13
+    Pt[2, 0], Pt[2, 1], Pt[2, 2], Pt[2, 3] = a02, a12, a22, a23
+    Pt[3, 0], Pt[3, 1], Pt[3, 2], Pt[3, 3] = a03, a13, a23, a33
+
+
+@numba.njit(cache=True, nogil=True)
 def _frame_kernel(z, obs, rng, dt, n_obs, alive, tobs, tid, next_id, x, P, poses, exist, lo_score, lo_shape,
                   lo_motion, lo_resid, res_chi2, res_dof, score_sum, n_scored, seen, age, static_t, moved,
                   confirmed, npts, head, fit_c, anchor, anchor_var, anchor_odo, anchor_rng, odometer, q,
                   meas_sigma, meas_sigma_rel, speed_var, gate, birth_exist, confirm_exist, r):  # fmt: skip
     """One frame's predict (constant velocity), Mahalanobis gating, assignment (a pair alone in both its
-    gates is forced; the rest per observer by :func:`_hungarian`), Joseph-form Kalman update, and births."""
+    gates is forced; the rest per observer by :func:`_hungarian`), Kalman update (:func:`_kalman_update`), and
+    births."""
     cap = alive.shape[0]
     k = z.shape[0]
     # predict
@@ -1478,42 +1539,12 @@ def _frame_kernel(z, obs, rng, dt, n_obs, alive, tobs, tid, next_id, x, P, poses
                 c_loc[uc_s[i]] = -1
         a = b
     ti, ci = ti[:n_m], ci[:n_m]
-    # Joseph-form Kalman update, position measured with isotropic noise
+    # Kalman update, position measured with isotropic noise
     taken = np.zeros(k, np.bool_)
-    K = np.empty((4, 2))
-    A = np.empty((4, 4))
-    B = np.empty((4, 4))
     for j in range(n_m):
         t, c = ti[j], ci[j]
         taken[c] = True
-        mv = (meas_sigma + meas_sigma_rel * rng[c]) ** 2
-        Pt = P[t]
-        s00, s01, s10, s11 = Pt[0, 0] + mv, Pt[0, 1], Pt[1, 0], Pt[1, 1] + mv
-        det = s00 * s11 - s01 * s10
-        i00, i01, i10, i11 = s11 / det, -s01 / det, -s10 / det, s00 / det
-        for i in range(4):
-            K[i, 0] = Pt[i, 0] * i00 + Pt[i, 1] * i10
-            K[i, 1] = Pt[i, 0] * i01 + Pt[i, 1] * i11
-        d0, d1 = z[c, 0] - x[t, 0], z[c, 1] - x[t, 1]
-        for i in range(4):
-            x[t, i] += K[i, 0] * d0 + K[i, 1] * d1
-        # A = I - K H: its columns 2 and 3 are the identity's, so of each 4-term sum below only the terms
-        # with A's first two columns and the identity's one remain. The others were products with an
-        # exact 0.0 (+-0 for finite P), and adding +-0 to these partial sums changes no bit (a sum that
-        # starts at 0.0 + ... is never -0): the same values as the full products, ~40 % fewer operations
-        for i in range(4):
-            A[i, 0] = (1.0 if i == 0 else 0.0) - K[i, 0]
-            A[i, 1] = (1.0 if i == 1 else 0.0) - K[i, 1]
-        for i in range(4):  # B = A P
-            for jj in range(4):
-                acc = (0.0 + A[i, 0] * Pt[0, jj]) + A[i, 1] * Pt[1, jj]
-                B[i, jj] = acc + Pt[i, jj] if i >= 2 else acc
-        for i in range(4):  # P = B A^T + mv K K^T
-            for jj in range(4):
-                acc = (0.0 + B[i, 0] * A[jj, 0]) + B[i, 1] * A[jj, 1]
-                if jj >= 2:
-                    acc += B[i, jj]
-                Pt[i, jj] = acc + mv * (K[i, 0] * K[jj, 0] + K[i, 1] * K[jj, 1])
+        _kalman_update(x[t], P[t], z[c, 0], z[c, 1], (meas_sigma + meas_sigma_rel * rng[c]) ** 2)
         seen[t] += 1
     # births: unmatched candidates in index order take the first free rows
     n_b = k - n_m
@@ -1916,6 +1947,64 @@ def _frame_fits_kernel(ti, ci, pts, sig, cstart, tobs, poses, z, r, iterations, 
                 lo_resid[t] = min(max(lo_resid[t] + llr, -resid_clamp), resid_clamp)
 
 
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _centre_resid_kernel(ti, ci, pts, cstart, xy, obs, noise, sigma2, r, delta2, resid_clamp, lo_resid,
+                         res_chi2, res_dof, iterations=0):  # fmt: skip
+    """The per-frame residual sums from the candidate's centre (``frame_fit_warm_start`` 1, the default):
+    each updated track's candidate points (3 or more; robot frame) against a circle of the housing radius at
+    the candidate's own centre ``xy[c]`` (robot frame too: distances do not depend on the frame, so the points
+    need no transform). Each point's variance is ``sigma2 + (noise * range)^2``; the sums are
+    :func:`_frame_fits_kernel`'s: the noise-normalised chi-square, its dof (points - 2, as after a fit: the
+    detector placed the centre on these points) and, when the hand-tuned cue is on, its LLR; after
+    ``iterations`` Gauss-Newton steps of the centre (:func:`_fit_span`'s, weights ``1 / variance``; the
+    default 1) from the candidate's centre, in the robot frame."""
+    for j in range(ti.shape[0]):
+        c = ci[j]
+        a, b = cstart[c], cstart[c + 1]
+        mf = b - a
+        if mf < 3:
+            continue
+        t = ti[j]
+        cx, cy = xy[c, 0], xy[c, 1]
+        n2 = noise[obs[c]] * noise[obs[c]]
+        for _ in range(iterations):
+            a00 = a01 = a11 = g0 = g1 = 0.0
+            for p in range(a, b):
+                px, py = pts[p, 0], pts[p, 1]
+                w = 1.0 / (sigma2 + n2 * (px * px + py * py))
+                dx, dy = px - cx, py - cy
+                d = max(math.sqrt(dx * dx + dy * dy), 1e-12)
+                jx, jy = -dx / d, -dy / d
+                ei = d - r
+                a00 += w * jx * jx
+                a01 += w * jx * jy
+                a11 += w * jy * jy
+                g0 += w * jx * ei
+                g1 += w * jy * ei
+            det = a00 * a11 - a01 * a01
+            if det <= 1e-12 * (a00 + a11) ** 2:  # points on a line through c: no unique step
+                break
+            s0 = -(a11 * g0 - a01 * g1) / det
+            s1 = -(a00 * g1 - a01 * g0) / det
+            cx += s0
+            cy += s1
+            if s0 * s0 + s1 * s1 < 1e-18:
+                break
+        chi2 = llr = 0.0
+        for p in range(a, b):
+            px, py = pts[p, 0], pts[p, 1]
+            v0 = sigma2 + n2 * (px * px + py * py)
+            e = math.sqrt((px - cx) * (px - cx) + (py - cy) * (py - cy)) - r
+            chi2 += e * e / v0
+            if resid_clamp > 0.0:
+                v1 = v0 + delta2
+                llr += 0.5 * math.log(v1 / v0) * (mf - 2) / mf - 0.5 * e * e * (1.0 / v0 - 1.0 / v1)
+        res_chi2[t] += chi2
+        res_dof[t] += mf - 2
+        if resid_clamp > 0.0:
+            lo_resid[t] = min(max(lo_resid[t] + llr, -resid_clamp), resid_clamp)
+
+
 @numba.njit(cache=True, nogil=True)
 def _outline_kernel(ti, ci, pts, sig, dist, cstart, obs, odometer, moved, buf, aux, npts, head, fit_c,
                     lo_shape, x, P, now, r, delta2, n_cap, min_points, clamp, head_rate2,
@@ -1932,7 +2021,7 @@ def _outline_kernel(ti, ci, pts, sig, dist, cstart, obs, odometer, moved, buf, a
         if moved[t]:  # a moving object's points share no frame: its outline is no evidence
             lo_shape[t] = 0.0
             continue
-        if b == a:
+        if b == a or m_max == 0:  # max_points 0: no outline kept (nor its cue: shape_clamp is 0 then)
             continue
         h, odo_t = head[t], odometer[obs[t]]
         for p in range(a, b):
@@ -2155,7 +2244,7 @@ def _update_frame(obs, xy, scores, accepted, delta, dt, pts, owner, has_points, 
         o = obs[c]
         z[c, 0] = cos[o] * xy[c, 0] - sin[o] * xy[c, 1] + poses[o, 0]
         z[c, 1] = sin[o] * xy[c, 0] + cos[o] * xy[c, 1] + poses[o, 1]
-        rng[c] = math.hypot(xy[c, 0], xy[c, 1])
+        rng[c] = math.sqrt(xy[c, 0] * xy[c, 0] + xy[c, 1] * xy[c, 1])  # (libm's hypot: ~15 ns a call)
     pre = alive.copy()  # the tracks before this frame's births (existence: hit or miss)
     ti, ci, tb, born, next_id = _frame_kernel(
         z, obs, rng, dt, N, alive, tobs, tid, next_id, x, P, poses, exist, lo_score, lo_shape, lo_motion,
@@ -2180,13 +2269,22 @@ def _update_frame(obs, xy, scores, accepted, delta, dt, pts, owner, has_points, 
                   prm[12], prm[13], prm[14], prm[15])  # fmt: skip
     bm = np.zeros(n_t)
     if has_points and n_t:
-        odom, sig, dist = _points_prep(pts, owner, obs, noise, cos, sin, poses, prm[16])
-        # per-frame known-radius fits (always: the track classifier reads their summed chi-square, resid_z)
-        _frame_fits_kernel(tracks, cands, odom, sig, cstart, tobs, poses, z, prm[7], int(prm[32]),
-                           prm[33] > 0.0, prm[17], prm[23], lo_resid, res_chi2, res_dof)  # fmt: skip
-        _outline_kernel(tracks, cands, odom, sig, dist, cstart, tobs, odometer, moved, buf, aux, npts, head,
-                        fit_c, lo_shape, x, P, now, prm[7], prm[17], prm[18], int(prm[19]), prm[20], prm[21],
-                        prm[22])  # fmt: skip
+        # the per-frame residual sums (always: the track classifier reads them, resid_z): by default fitted
+        # from the candidate's own centre in the robot frame (no transform); fits from behind the points
+        # (frame_fit_warm_start 0) and the outline's ring need the points in the odometry frame
+        gn = prm[32] > 0.0 and prm[33] <= 0.0  # fits from behind the points: in the odometry frame
+        if gn or buf.shape[1] > 0:
+            odom, sig, dist = _points_prep(pts, owner, obs, noise, cos, sin, poses, prm[16])
+            if gn:
+                _frame_fits_kernel(tracks, cands, odom, sig, cstart, tobs, poses, z, prm[7], int(prm[32]),
+                                   prm[33] > 0.0, prm[17], prm[23], lo_resid, res_chi2, res_dof)  # fmt: skip
+            if buf.shape[1] > 0:
+                _outline_kernel(tracks, cands, odom, sig, dist, cstart, tobs, odometer, moved, buf, aux, npts,
+                                head, fit_c, lo_shape, x, P, now, prm[7], prm[17], prm[18], int(prm[19]),
+                                prm[20], prm[21], prm[22])  # fmt: skip
+        if not gn:
+            _centre_resid_kernel(tracks, cands, pts, cstart, xy, obs, noise, prm[16], prm[7], prm[17],
+                                 prm[23], lo_resid, res_chi2, res_dof, int(prm[32]))  # fmt: skip
         for j in range(n_t):
             bm[j] = cstart[cands[j] + 1] - cstart[cands[j]]
     _feature_kernel(tracks, n_m, lgs, ac, rg, bm, f_lgsum, f_lgsq, f_lgmax, f_lglast, f_accsum, f_acclast,
@@ -2226,7 +2324,8 @@ def _features_kernel(rows, n_obs, alive, confirmed, obs, seen, x, P, anchor, anc
         t = rows[i]
         o = obs[t]
         n = float(max(seen[t], 1))
-        disp = math.hypot(x[t, 0] - anchor[t, 0], x[t, 1] - anchor[t, 1])
+        dx, dy = x[t, 0] - anchor[t, 0], x[t, 1] - anchor[t, 1]
+        disp = math.sqrt(dx * dx + dy * dy)
         drift = (odometer[o] - anchor_odo[t]) * (head_rate2 * anchor_rng[t] ** 2 + pos_rate2)
         var = anchor_var[t] + 0.5 * (P[t, 0, 0] + P[t, 1, 1]) + drift
         speed_sd = math.sqrt(max(0.5 * (P[t, 2, 2] + P[t, 3, 3]), 1e-12))
@@ -2247,7 +2346,7 @@ def _features_kernel(rows, n_obs, alive, confirmed, obs, seen, x, P, anchor, anc
         X[i, 12] = min(disp / math.sqrt(var), 10.0)
         X[i, 13] = 1.0 if moved[t] else 0.0
         X[i, 14] = exist[t]
-        X[i, 15] = min(math.hypot(x[t, 2], x[t, 3]) / speed_sd, 10.0)
+        X[i, 15] = min(math.sqrt(x[t, 2] * x[t, 2] + x[t, 3] * x[t, 3]) / speed_sd, 10.0)
         X[i, 16] = n_moved[o] / max(n_conf[o], 1.0)
         X[i, 17] = math.log1p(n_moved[o])
         X[i, 18] = min(max((res_chi2[t] - dof) / math.sqrt(2.0 * max(dof, 1.0)), -10.0), 10.0)
@@ -2307,7 +2406,8 @@ def _decide_kernel(n_obs, alive, confirmed, obs, seen, x, P, anchor, anchor_var,
             kp[i - 1] = 0.75 if (acclast[t] if hit[t] else 0.0) > 0.75 else 0.25
             continue
         o = obs[t]
-        disp = math.hypot(x[t, 0] - anchor[t, 0], x[t, 1] - anchor[t, 1])
+        dx, dy = x[t, 0] - anchor[t, 0], x[t, 1] - anchor[t, 1]
+        disp = math.sqrt(dx * dx + dy * dy)
         drift = (odometer[o] - anchor_odo[t]) * (head_rate2 * anchor_rng[t] ** 2 + pos_rate2)
         var = anchor_var[t] + 0.5 * (P[t, 0, 0] + P[t, 1, 1]) + drift
         speed_sd = math.sqrt(max(0.5 * (P[t, 2, 2] + P[t, 3, 3]), 1e-12))
@@ -2336,7 +2436,7 @@ def _decide_kernel(n_obs, alive, confirmed, obs, seen, x, P, anchor, anchor_var,
         xf[12, c] = min(disp / math.sqrt(var), 10.0)
         xf[13, c] = 1.0 if moved[t] else 0.0
         xf[14, c] = exist[t]
-        xf[15, c] = min(math.hypot(x[t, 2], x[t, 3]) / speed_sd, 10.0)
+        xf[15, c] = min(math.sqrt(x[t, 2] * x[t, 2] + x[t, 3] * x[t, 3]) / speed_sd, 10.0)
         xf[16, c] = share[o]
         xf[17, c] = log_moved[o]
         xf[18, c] = min(max((res_chi2[t] - dof) / math.sqrt(2.0 * max(dof, 1.0)), -10.0), 10.0)

@@ -22,6 +22,7 @@ from detectors.tracking import (
     KinTracker,
     _feature_kernel,
     _fit_known_circle,
+    _kalman_update,
     _logit,
     _outline_kernel,
     _points_check,
@@ -97,7 +98,7 @@ class StagedKinTracker(KinTracker):
         self.odometer += np.hypot(delta[:, 0], delta[:, 1]) + half_turn
         cos, sin = np.cos(self.poses[:, 2]), np.sin(self.poses[:, 2])
         z = self._to_odom(xy, obs, cos, sin)  # candidates in their observer's odometry frame
-        rng = np.hypot(xy[:, 0], xy[:, 1])
+        rng = np.sqrt(xy[:, 0] * xy[:, 0] + xy[:, 1] * xy[:, 1])
         if int(self._alive.sum()) + k > self._alive.shape[0]:  # room for every candidate to start a track
             self._grow(int(self._alive.sum()) + k)
         pre = self._alive.copy()  # the tracks before this frame's births (existence: hit or miss)
@@ -106,7 +107,7 @@ class StagedKinTracker(KinTracker):
         self._score_cue(tracks, scores[cands], None if accepted is None else accepted[cands], rng[cands])
         beams = np.zeros(k)
         if points is not None and len(tracks):
-            self._outline_cue(tracks, cands, points, owner, obs, noise, cos, sin, k, z)  # validates owner
+            self._outline_cue(tracks, cands, points, owner, obs, noise, cos, sin, k, z, xy)  # validates owner
             beams = np.bincount(np.asarray(owner, np.int64).reshape(-1), minlength=k).astype(np.float64)
         _feature_kernel(tracks, len(ti), _score_logits(scores[cands]),
                         np.zeros(0, np.bool_) if accepted is None else accepted[cands], rng[cands],
@@ -166,7 +167,7 @@ class StagedKinTracker(KinTracker):
                       pr.score_weight, pr.accept_llr, pr.reject_llr, pr.score_n0, pr.score_gain,
                       pr.score_clamp)  # fmt: skip
 
-    def _outline_cue(self, ti, ci, points, owner, obs, noise, cos, sin, k, z) -> None:
+    def _outline_cue(self, ti, ci, points, owner, obs, noise, cos, sin, k, z, xy) -> None:
         # (b) the accumulated outline relative to the track centre (ego-motion compensated)
         pr = self.params
         pts = np.asarray(points, np.float64).reshape(-1, 2)
@@ -182,10 +183,19 @@ class StagedKinTracker(KinTracker):
         if status == 3:  # not grouped by candidate (segment_points gives them sorted already)
             order = np.argsort(owner, kind="stable")
             pts, owner = np.ascontiguousarray(pts[order]), owner[order]
+        cstart = np.searchsorted(owner, np.arange(k + 1))
+        centre = pr.frame_fit_warm_start == 1  # from the candidate's own centre: in the robot frame
+        if centre:
+            self._centre_resid(ti, ci, pts, cstart, xy, obs, noise)
+        ring = self._pts.shape[1] > 0  # the outline's points kept (its cue on, or keep_points)
+        if centre and not ring:
+            return  # nothing reads the odometry-frame points
         odom, sig, d = _points_prep(pts, owner, obs, noise, cos, sin, self.poses,
                                     pr.shape_sigma**2)  # fmt: skip
-        cstart = np.searchsorted(owner, np.arange(k + 1))
-        self._frame_fits(ti, ci, odom, sig, cstart, z)
+        if not centre:
+            self._frame_fits(ti, ci, odom, sig, cstart, z)
+        if not ring:
+            return
         _outline_kernel(
             ti, ci, odom, sig, d, cstart, self._obs, self.odometer, self._moved,
             self._pts, self._pts_aux, self._npts, self._head, self._fit_c, self._lo_shape, self._x, self._P,
@@ -193,6 +203,54 @@ class StagedKinTracker(KinTracker):
             pr.r, pr.shape_delta**2, float(pr.shape_n_cap), int(pr.shape_min_points),
             pr.shape_clamp, pr.odom_heading_rate**2, pr.odom_position_rate**2,
         )  # fmt: skip
+
+    def _centre_resid(self, ti, ci, pts, cstart, xy, obs, noise) -> None:
+        """The residual sums without a fit, in Python (the oracle of
+        :func:`detectors.tracking._centre_resid_kernel`): each candidate's points (robot frame, 3 or more)
+        against the housing circle at its own centre, variance ``shape_sigma^2 + (noise * range)^2``."""
+        pr = self.params
+        r, s2, delta2, clamp = pr.r, pr.shape_sigma**2, pr.shape_delta**2, pr.resid_clamp
+        for t, c in zip(ti.tolist(), ci.tolist(), strict=True):
+            a, b = int(cstart[c]), int(cstart[c + 1])
+            mf = b - a
+            if mf < 3:
+                continue
+            n2 = float(noise[obs[c]]) * float(noise[obs[c]])
+            # Gauss-Newton steps from the candidate's centre (frame_fit_iterations), as _fit_span's
+            cx, cy = float(xy[c, 0]), float(xy[c, 1])
+            for _ in range(int(pr.frame_fit_iterations)):
+                A = np.zeros((2, 2))
+                g = np.zeros(2)
+                for p in range(a, b):
+                    px, py = float(pts[p, 0]), float(pts[p, 1])
+                    w = 1.0 / (s2 + n2 * (px * px + py * py))
+                    d = max(math.sqrt((px - cx) * (px - cx) + (py - cy) * (py - cy)), 1e-12)
+                    jac = np.array([-(px - cx) / d, -(py - cy) / d])
+                    A[0, 0] += w * jac[0] * jac[0]
+                    A[0, 1] += w * jac[0] * jac[1]
+                    A[1, 1] += w * jac[1] * jac[1]
+                    g += w * jac * (d - r)
+                det = A[0, 0] * A[1, 1] - A[0, 1] * A[0, 1]
+                if det <= 1e-12 * (A[0, 0] + A[1, 1]) ** 2:
+                    break
+                s0 = -(A[1, 1] * g[0] - A[0, 1] * g[1]) / det
+                s1 = -(A[0, 0] * g[1] - A[0, 1] * g[0]) / det
+                cx, cy = cx + s0, cy + s1
+                if s0 * s0 + s1 * s1 < 1e-18:
+                    break
+            chi2 = llr = 0.0
+            for p in range(a, b):
+                px, py = float(pts[p, 0]), float(pts[p, 1])
+                v0 = s2 + n2 * (px * px + py * py)
+                e = math.sqrt((px - cx) * (px - cx) + (py - cy) * (py - cy)) - r
+                chi2 += e * e / v0
+                if clamp > 0.0:
+                    v1 = v0 + delta2
+                    llr += 0.5 * math.log(v1 / v0) * (mf - 2) / mf - 0.5 * e * e * (1.0 / v0 - 1.0 / v1)
+            self._res_chi2[t] += chi2
+            self._res_dof[t] += mf - 2
+            if clamp > 0.0:
+                self._lo_resid[t] = min(max(self._lo_resid[t] + llr, -clamp), clamp)
 
     def _frame_fits(self, ti, ci, pts, sig, cstart, z) -> None:
         """The per-frame circle fits one at a time, as before they ran eight to a vector
@@ -723,40 +781,12 @@ def _frame_kernel_before(z, obs, rng, dt, n_obs, alive, tobs, tid, next_id, x, P
                 c_loc[uc_s[i]] = -1
         a = b
     ti, ci = ti[:n_m], ci[:n_m]
-    # Joseph-form Kalman update, position measured with isotropic noise
+    # the Kalman update (since session 14 the fused kernel's own, standard form: tested against filterpy)
     taken = np.zeros(k, np.bool_)
-    K = np.empty((4, 2))
-    A = np.empty((4, 4))
-    B = np.empty((4, 4))
     for j in range(n_m):
         t, c = ti[j], ci[j]
         taken[c] = True
-        mv = (meas_sigma + meas_sigma_rel * rng[c]) ** 2
-        Pt = P[t]
-        s00, s01, s10, s11 = Pt[0, 0] + mv, Pt[0, 1], Pt[1, 0], Pt[1, 1] + mv
-        det = s00 * s11 - s01 * s10
-        i00, i01, i10, i11 = s11 / det, -s01 / det, -s10 / det, s00 / det
-        for i in range(4):
-            K[i, 0] = Pt[i, 0] * i00 + Pt[i, 1] * i10
-            K[i, 1] = Pt[i, 0] * i01 + Pt[i, 1] * i11
-        d0, d1 = z[c, 0] - x[t, 0], z[c, 1] - x[t, 1]
-        for i in range(4):
-            x[t, i] += K[i, 0] * d0 + K[i, 1] * d1
-        for i in range(4):  # A = I - K H
-            for jj in range(4):
-                A[i, jj] = (1.0 if i == jj else 0.0) - (K[i, jj] if jj < 2 else 0.0)
-        for i in range(4):  # B = A P
-            for jj in range(4):
-                acc = 0.0
-                for l in range(4):
-                    acc += A[i, l] * Pt[l, jj]
-                B[i, jj] = acc
-        for i in range(4):  # P = B A^T + mv K K^T
-            for jj in range(4):
-                acc = 0.0
-                for l in range(4):
-                    acc += B[i, l] * A[jj, l]
-                Pt[i, jj] = acc + mv * (K[i, 0] * K[jj, 0] + K[i, 1] * K[jj, 1])
+        _kalman_update(x[t], P[t], z[c, 0], z[c, 1], (meas_sigma + meas_sigma_rel * rng[c]) ** 2)
         seen[t] += 1
     # births: unmatched candidates in index order take the first free rows
     n_b = k - n_m

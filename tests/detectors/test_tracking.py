@@ -187,7 +187,10 @@ def test_per_frame_residual_cue_separates_a_circle_from_a_hexagon_over_frames():
     first, final, chi, kp = ({"circle": [], "hexagon": []} for _ in range(4))
     for kind in ("circle", "hexagon"):
         for seed in range(8):
-            tr = KinTracker(TrackerParams(resid_clamp=50.0, score_prior=0.5), kin_model="hand")
+            # Gauss-Newton fits (the default takes the residuals at the candidate's centre, exact here)
+            pr = TrackerParams(resid_clamp=50.0, score_prior=0.5, frame_fit_iterations=6,
+                               frame_fit_warm_start=0)  # fmt: skip
+            tr = KinTracker(pr, kin_model="hand")
             for k, pts in enumerate(_outline(kind, centre, np.zeros(2), 25, noise=noise, seed=seed)):
                 tr.update([centre], [0.5], STILL, DT, points=[pts], noise=noise)
                 row = tr._rows(0)[0]
@@ -212,7 +215,9 @@ def test_parked_track_keeps_its_kin_probability_by_default():
         tr = KinTracker(kin_model=model)
         for k in range(50):
             xy = np.array([[1.0, 0.0], [1.5, -0.5 + 0.02 * k]])
-            tr.update(xy, [0.97, 0.97], STILL, DT, points=[c + (0.035, 0.0) + arc for c in xy])
+            # the visible arc of a housing centred on the candidate (detectors report the housing's centre:
+            # the per-frame residuals are taken there)
+            tr.update(xy, [0.97, 0.97], STILL, DT, points=[c + arc for c in xy])
         kp = tr.kin_prob()
         assert kp[0] > 0.5 and kp[1] > 0.5, model
         assert not tr.tracks()[0].moved and tr.tracks()[1].moved
@@ -276,6 +281,102 @@ def test_vectorised_frame_fits_are_bitwise_one_fit_at_a_time(n_fits, warm):
     assert np.array_equal(res[2][fitted] - dof0[fitted], counts[ci][counts[ci] >= 3] - 2.0)
 
 
+@pytest.mark.parametrize("clamp, iterations", [(0.0, 0), (2.0, 0), (0.0, 1), (2.0, 3)])
+def test_residuals_at_the_candidate_centre_against_numpy_and_the_fits_path(clamp, iterations):
+    """The per-frame residuals from the candidate's centre (``_centre_resid_kernel``, robot frame; the
+    default takes no Gauss-Newton step) against the staged Python reference bitwise, without a step against
+    numpy on the same points, and against the vectorised fits' path with as many steps from the candidate's
+    centre (odometry frame, its own noise arithmetic) to rounding: candidates of 1-12 points (fewer than 3
+    skipped), tracks and candidates in any order, per-observer noise."""
+    from detectors.tracking import _centre_resid_kernel, _frame_fits_kernel, _points_prep
+    from tests.detectors.reference_tracking import StagedKinTracker
+
+    rng = np.random.default_rng(int(clamp) + 3)
+    pr = TrackerParams(resid_clamp=clamp, frame_fit_iterations=iterations)
+    n, n_obs = 60, 3
+    ref = StagedKinTracker(pr, n_observers=n_obs)
+    ref._grow(2 * n)
+    ref.poses = rng.uniform(-1, 1, (n_obs, 3))
+    counts = rng.integers(1, 13, n)
+    xy = rng.uniform(-2, 2, (n, 2))  # candidate centres, robot frame
+    obs = rng.integers(0, n_obs, n)
+    ref._obs[:] = rng.integers(0, n_obs, ref._obs.shape[0])
+    pts = np.concatenate([c + (0.035 + rng.normal(0, 0.003, m))[:, None]
+                          * np.c_[np.cos(a := rng.uniform(0, 6.3) + np.linspace(0, 1.5, m)), np.sin(a)]
+                          for c, m in zip(xy, counts, strict=True)])  # fmt: skip
+    cstart = np.r_[0, np.cumsum(counts)].astype(np.int64)
+    noise = rng.uniform(0.0, 0.02, n_obs)
+    ti = rng.permutation(2 * n)[:n].astype(np.int64)
+    ci = rng.permutation(n).astype(np.int64)
+    sums = [rng.uniform(-1, 1, 2 * n), rng.uniform(0, 5, 2 * n), rng.integers(0, 9, 2 * n).astype(float)]
+    for name, v in zip(("_lo_resid", "_res_chi2", "_res_dof"), sums, strict=True):
+        getattr(ref, name)[: 2 * n] = v
+    got = [v.copy() for v in sums]
+    _centre_resid_kernel(ti, ci, pts, cstart, xy, obs, noise, pr.shape_sigma**2, pr.r, pr.shape_delta**2,
+                         pr.resid_clamp, *got, iterations)  # fmt: skip
+    ref._centre_resid(ti, ci, pts, cstart, xy, obs, noise)
+    for name, g in zip(("_lo_resid", "_res_chi2", "_res_dof"), got, strict=True):
+        assert np.array_equal(g, getattr(ref, name)[: 2 * n]), name
+    # numpy, per candidate
+    owner = np.repeat(np.arange(n), counts)
+    e = np.hypot(*(pts - xy[owner]).T) - pr.r
+    v0 = pr.shape_sigma**2 + (noise[obs[owner]] * np.hypot(*pts.T)) ** 2
+    chi = np.bincount(owner, e * e / v0, minlength=n)
+    fit = counts[ci] >= 3
+    if iterations == 0:  # (with steps: the fits' path below)
+        np.testing.assert_allclose(got[1][ti] - sums[1][ti], np.where(fit, chi[ci], 0.0), rtol=1e-12, atol=0)
+    else:  # a fit lowers every chi-square (Gauss-Newton from a point near the optimum)
+        assert np.all(got[1][ti] - sums[1][ti] <= np.where(fit, chi[ci], 0.0) * (1 + 1e-9))
+    np.testing.assert_array_equal(got[2][ti] - sums[2][ti], np.where(fit, counts[ci] - 2.0, 0.0))
+    if clamp == 0.0:
+        assert np.array_equal(got[0], sums[0])
+    # the fits' path with no step from the candidate's centre, in the observers' odometry frames
+    poses = ref.poses
+    cos, sin = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+    odom, sig, _ = _points_prep(pts, owner, obs, noise, cos, sin, poses, pr.shape_sigma**2)
+    o = obs
+    z = np.c_[cos[o] * xy[:, 0] - sin[o] * xy[:, 1] + poses[o, 0], sin[o] * xy[:, 0] + cos[o] * xy[:, 1]
+              + poses[o, 1]]  # fmt: skip
+    alt = [v.copy() for v in sums]
+    _frame_fits_kernel(ti, ci, odom, sig, cstart, ref._obs, poses, z, pr.r, iterations, True,
+                       pr.shape_delta**2, pr.resid_clamp, *alt)  # fmt: skip
+    np.testing.assert_allclose(alt[1], got[1], rtol=1e-8)
+    np.testing.assert_allclose(alt[0], got[0], rtol=1e-8, atol=1e-12)
+
+
+def test_fit_from_the_candidate_centre_reaches_scipy_least_squares():
+    """Gauss-Newton steps from the candidate's centre (``_centre_resid_kernel`` with ``iterations``) reach
+    scipy's least-squares optimum of the weighted residuals: the chi-square after 8 steps is scipy's, and
+    one step already takes most of the way from the candidate's centre."""
+    from scipy.optimize import least_squares
+
+    from detectors.tracking import _centre_resid_kernel
+
+    rng = np.random.default_rng(4)
+    pr = TrackerParams()
+    s2, r = pr.shape_sigma**2, pr.r
+    for _ in range(20):
+        m = int(rng.integers(4, 12))
+        c = rng.uniform(0.5, 2.0, 2)
+        a = rng.uniform(0, 6.3) + np.linspace(0, 1.2, m)
+        pts = c + (r + rng.normal(0, 0.002, m))[:, None] * np.c_[np.cos(a), np.sin(a)]
+        noise = np.array([0.005])
+        v0 = s2 + noise[0] ** 2 * np.sum(pts * pts, axis=1)
+        start = c + rng.normal(0, 0.005, 2)  # the detector's centre, a few mm off
+        sol = least_squares(lambda q, p=pts, v=v0: (np.hypot(*(p - q).T) - r) / np.sqrt(v), start, xtol=1e-14,
+                            ftol=1e-14, gtol=1e-14)  # fmt: skip
+        best = 2 * sol.cost
+        chi = {}
+        for it in (0, 1, 8):
+            out = [np.zeros(1), np.zeros(1), np.zeros(1)]
+            _centre_resid_kernel(np.zeros(1, np.int64), np.zeros(1, np.int64), pts, np.array([0, m]),
+                                 start[None], np.zeros(1, np.int64), noise, s2, r, pr.shape_delta**2, 0.0,
+                                 *out, it)  # fmt: skip
+            chi[it] = out[1][0]
+        assert chi[8] == pytest.approx(best, rel=1e-6, abs=1e-9)
+        assert best - 1e-9 <= chi[1] <= chi[0]
+
+
 def test_static_circle_rejected_once_others_move():
     pr = TrackerParams(static_penalty=-6.0, score_prior=0.5)  # the static penalty on (default: off)
     tr = KinTracker(pr, kin_model="hand")
@@ -288,7 +389,7 @@ def test_static_circle_rejected_once_others_move():
 
 
 def test_low_scores_are_dropped():
-    tr = KinTracker(TrackerParams(min_score=0.2))
+    tr = KinTracker(TrackerParams(min_score=0.2, keep_points=1))
     arc = 0.035 * np.c_[np.cos(np.linspace(2, 4, 4)), np.sin(np.linspace(2, 4, 4))]
     xy = np.array([[1.0, 0.0], [2.0, 0.0], [3.0, 0.0]])
     for _ in range(3):
