@@ -35,7 +35,7 @@ import numpy as np
 from gymnasium import spaces
 
 from kin_envs.core.lidar import HitKind, LidarSpec
-from kin_envs.envs.info import DETECTION_FIELDS, KIN_TRUTH_FIELDS, PAD_VALUES
+from kin_envs.envs.info import DETECTION_FIELDS, KIN_TRUTH_FIELDS, PAD_VALUES, dict_maker
 
 __all__ = [
     "ACTION_TYPES",
@@ -502,6 +502,8 @@ def detect_rows_padded(
     return ((row, _detection_cols(flo, ints)) if flat else None), padded
 
 
+#: ``{field: value}`` over :data:`DETECTION_FIELDS` as one dict display (the same dict as ``dict(zip(...))``)
+_DETECTION_DICT = dict_maker(DETECTION_FIELDS)
 #: kin_envs.envs._detector_pad.learned_match_pad once imported (it imports the detectors package)
 _LEARNED_MATCH_PAD = []
 
@@ -560,8 +562,7 @@ def detect_one_padded(
     if not flat and (res := _padded_in_detector(detector, ranges, angles, _one_observer(observer), poses,
                                                 slots, hits)) is not None:  # fmt: skip
         pf, pi, count = res
-        padded = dict(zip(DETECTION_FIELDS, (*pf.reshape(5, slots), *pi.reshape(4, slots)), strict=True))
-        return None, padded, int(count[0])
+        return None, _DETECTION_DICT(*pf.reshape(5, slots), *pi.reshape(4, slots)), int(count[0])
     owner, tab = detection_arrays(detector, ranges, angles, True)
     if not len(owner):  # nothing detected (most steps of a one-robot env): copies of the empty slots
         pf, pi = _empty_slots(slots)
@@ -652,10 +653,10 @@ def _rank_sort_by_range(tab, order, lo, hi, keys, idx):
     for i in range(m):
         ki = keys[i]
         c = 0
-        for j in range(i):
-            c += keys[j] <= ki
-        for j in range(i + 1, m):
-            c += keys[j] < ki
+        # one loop over the row (j == i counts neither way): SIMD lanes, where two loops of
+        # lengths i and m - i - 1 ran mostly in their scalar remainders
+        for j in range(m):
+            c += (keys[j] < ki) | ((keys[j] == ki) & (j < i))
         order[lo + c] = idx[i]
 
 
