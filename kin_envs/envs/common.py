@@ -653,10 +653,10 @@ def _rank_sort_by_range(tab, order, lo, hi, keys, idx):
     for i in range(m):
         ki = keys[i]
         c = 0
-        # one loop over the row (j == i counts neither way): SIMD lanes, where two loops of
-        # lengths i and m - i - 1 ran mostly in their scalar remainders
-        for j in range(m):
-            c += (keys[j] < ki) | ((keys[j] == ki) & (j < i))
+        for j in range(i):
+            c += keys[j] <= ki
+        for j in range(i + 1, m):
+            c += keys[j] < ki
         order[lo + c] = idx[i]
 
 
