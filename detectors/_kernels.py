@@ -552,11 +552,12 @@ def mlp_forward(x, mean, std, weights, biases, sizes, out):
         m = min(blk, n_rows - s)
         lanes = min(blk, (m + 7) // 8 * 8)  # whole SIMD vectors; a short block does not pay for 64
         # a row's inputs as SIMD divisions (np.true_divide: the IEEE quotients of `/`, without the
-        # zero-divisor check and branch that keep `/` scalar), then into the block's column
+        # zero-divisor check and branch that keep `/` scalar), then into the block's column; read
+        # through x itself (a row view per row took a reference count pair on x, two atomics a row)
         for r_ in range(m):
-            xr = x[s + r_]
+            sr = s + r_
             for k in range(n_in):
-                row[k] = np.true_divide(xr[k] - mean[k], std[k])
+                row[k] = np.true_divide(x[sr, k] - mean[k], std[k])
             for k in range(n_in):
                 a[k, r_] = row[k]
         if m == blk:

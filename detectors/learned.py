@@ -1187,6 +1187,21 @@ class LearnedKinDetector(KinDetector):
             table = _merged(src, idx, table, w_table)
         return scan, table
 
+    def _detect_table_then(self, kernel, ranges, angles, *extra):
+        """:meth:`_detect_table_trusted` (same input contract) with the caller's compiled work on its table in
+        the same compiled call: ``kernel(r, front_args, rows_max, mean, std, weights, weights_t, biases,
+        sizes, back_args, dup_radius, w_radius, *extra, ws)``, a numba function that passes its arguments but
+        ``extra`` to :func:`detectors._learned_driver.fused_table` and works on the ``(scan row, table)`` it
+        returns. Its output, or ``None`` where the table would not come from ``fused_table`` (thresholds by
+        expected beams; inference ``"blas"`` / ``"torch"``): the caller then reads
+        :meth:`_detect_table_trusted`. (The envs match and pad the table so: one dispatch, and the table
+        never crosses into Python.)"""
+        if self._beam_table is not None and self.threshold is None:
+            return None
+        rb = self._table_input(ranges, angles)
+        radius = float(self._dup_radius) if self.suppress_duplicates else -1.0
+        return self._call_driver(kernel, rb, self._uses_cascade(rb), radius, float(self._dup_radius), *extra)
+
     def _detect_arrays(self, ranges, angles, trusted: bool) -> BatchDetections:
         if self._beam_table is not None and self.threshold is None:
             # thresholds by expected beams (calibrate_thresholds.py --by-beams): the staged pipeline,

@@ -180,10 +180,13 @@ class SingleRobotEnv(gym.Env):
             return dets
         if self.padded_info:
             # the lidar's robot hits settle the match without a search (the same values)
+            if scan.ranges.shape[0] == 1:  # the learner's row alone (KinSeek): no row views made
+                ranges, hits = scan.ranges, (scan.hit_kind, scan.hit_index)
+            else:
+                ranges, hits = scan.ranges[:1], (scan.hit_kind[:1], scan.hit_index[:1])
             dets, cols, count = detect_one_padded(
-                self.detector, scan.ranges[:1], scan.angles, int(scan.robots[0]), poses,
-                self.config.max_detections,
-                hits=(scan.hit_kind[:1], scan.hit_index[:1]), flat=self._flat_dets,
+                self.detector, ranges, scan.angles, int(scan.robots[0]), poses, self.config.max_detections,
+                hits=hits, flat=self._flat_dets,
             )  # fmt: skip
             self._padded_dets = cols, count
             return dets

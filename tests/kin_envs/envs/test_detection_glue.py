@@ -529,3 +529,76 @@ def test_envs_without_flat_detections_give_the_same_outputs(detector):
         assert_same_ordered(out, swarm[1].step(acts))
         n_det += sum(i["kin_detections_count"] for i in out[4].values())
     assert n_det > 20
+
+
+
+def test_learned_table_matched_in_the_driver_is_the_two_calls():
+    # the learned detector's table matched and padded inside its own compiled call (_padded_in_detector:
+    # kin_envs.envs._detector_pad.learned_match_pad, what a step that reads no flat columns takes) against
+    # the two calls it fuses, detection_arrays then _match_pad(flat=False), bit for bit: one scan (no
+    # cascade) and batches (cascade), with and without the lidar's candidates, over-full and empty rows, and
+    # settings that change the driver's arguments (duplicates kept, a fixed threshold)
+    from detectors import LearnedKinDetector
+    from kin_envs import LidarSpec, World, scenes
+    from kin_envs.envs.common import _match_pad, _one_observer, _padded_in_detector, detection_arrays
+
+    dets = [LearnedKinDetector(reports=False), LearnedKinDetector(reports=False, suppress_duplicates=False),
+            LearnedKinDetector(reports=False, threshold=0.3)]  # fmt: skip
+    n_det = n_empty = n_over = 0
+    for seed, n in enumerate((2, 8, 64)):
+        scene = scenes.random_arena(n, max(2, n // 4), seed=seed, size=max(3.0, n**0.5 * 0.9))
+        w = World(scene.replace(lidar=LidarSpec(noise_sigma=0.01 * seed)), seed=seed)
+        scan, poses = w.scan(), w.poses
+        no_return = np.full_like(scan.ranges, scan.range_max)
+        # (ranges, their rows of the scan): the whole batch, the batch with no return, one scan, the last scan
+        batches = [(scan.ranges, slice(0, n)), (no_return, slice(0, n)), (scan.ranges[:1], slice(0, 1)),
+                   (scan.ranges[n - 1 :], slice(n - 1, n))]  # fmt: skip
+        for det in dets:
+            for ranges, rows in batches:
+                one = len(ranges) == 1
+                observers = _one_observer(int(scan.robots[rows][0])) if one else scan.robots
+                for slots in (1, 16):
+                    for hits in (None, (scan.hit_kind[rows], scan.hit_index[rows])):
+                        got = _padded_in_detector(det, ranges, scan.angles, observers, poses, slots, hits)
+                        owner, tab = detection_arrays(det, ranges, scan.angles, True)
+                        ref = _match_pad(owner, tab, observers, poses, len(ranges), slots, hits, False)[3:]
+                        assert len(got) == 3
+                        for a, b in zip(got, ref, strict=True):
+                            assert a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
+                        n_det += len(owner)
+                        n_empty += len(owner) == 0
+                        n_over += int((np.bincount(owner, minlength=len(ranges)) > slots).sum())
+    assert n_det > 500 and n_empty > 10 and n_over > 20
+
+
+def test_detector_pad_falls_back_without_the_compiled_table():
+    # a learned detector whose table does not come from the fused driver (BLAS inference) and a detector
+    # without the hook take the two calls: the envs' lean entries (flat=False) give the padded columns of
+    # their flat=True path (which never takes the hook)
+    pytest.importorskip("threadpoolctl")
+    from detectors import LearnedKinDetector
+    from kin_envs import LidarSpec, World, scenes
+    from kin_envs.envs import common as C
+
+    scene = scenes.random_arena(16, 4, seed=4).replace(lidar=LidarSpec(noise_sigma=0.01))
+    w = World(scene, seed=4)
+    scan, poses = w.scan(), w.poses
+    hits = (scan.hit_kind, scan.hit_index)
+    n_det = 0
+    for det in (LearnedKinDetector(reports=False, inference="blas"), C.resolve_detector("geometric")):
+        assert C._padded_in_detector(det, scan.ranges, scan.angles, scan.robots, poses, 16, hits) is None
+        args = (det, scan.ranges, scan.angles, scan.robots, poses, 16)
+        lean = C.detect_rows_padded(*args, trusted=True, hits=hits, flat=False)
+        full = C.detect_rows_padded(*args, trusted=True, hits=hits, flat=True)
+        assert lean[0] is None
+        _same_cols(lean[1][0], full[1][0])
+        assert np.array_equal(lean[1][1], full[1][1])
+        for i in range(16):
+            r = slice(i, i + 1)
+            one = (det, scan.ranges[r], scan.angles, i, poses, 16)
+            lean = C.detect_one_padded(*one, hits=(hits[0][r], hits[1][r]), flat=False)
+            full = C.detect_one_padded(*one, hits=(hits[0][r], hits[1][r]), flat=True)
+            _same_cols(lean[1], full[1])
+            assert lean[0] is None and lean[2] == full[2]
+            n_det += lean[2]
+    assert n_det > 5
