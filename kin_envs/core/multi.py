@@ -204,18 +204,31 @@ class WorldBatch:
         dt, substeps = w0.config.physics_dt, w0.config.substeps
         noisy = w0.config.odometry.noise_k > 0
         per_world = commands.reshape(len(ws), n, 2)  # a fresh array, never written: views are safe
-        # one pass over the worlds before the physics: commands recorded, odometry gathered
-        odos, odo_poses, noise = [], [], []
-        for j in on:
+        # one pass over the worlds before the physics: commands recorded, odometry gathered (World._record
+        # and Odometry.take_ahead inlined: this loop runs 64 times a step in the vector env, and a method
+        # call costs more than its work here)
+        odos, odo_poses, noise, stepped = [], [], [], []
+        for j, applied in zip(on, per_world if sel is None else per_world[sel], strict=True):
             w = ws[j]
-            applied = per_world[j]
+            stepped.append(w)
             w._commands = applied
-            w._record(applied)  # World copies replay it (run-length encoded)
+            hist = w._history
+            # World._record: bit-identical repeats extend the last run (bytes: -0.0 and 0.0 stay apart)
+            if hist and applied.tobytes() == hist[-1].tobytes():
+                w._history_counts[-1] += 1
+            else:
+                hist.append(applied)
+                w._history_counts.append(1)
             o = w._odometry
             odos.append(o)
             odo_poses.append(o.pose)
             if noisy:  # Odometry.integrate draws normal(0, 1, (robots, 2)) per substep
-                noise.append(o.take_ahead(substeps, _ODOMETRY_AHEAD))
+                ahead, pos = o.ahead, o.ahead_pos
+                if ahead is not None and ahead.shape[0] - pos >= substeps:
+                    o.ahead_pos = pos + substeps  # take_ahead when enough are drawn ahead
+                    noise.append(ahead[pos : pos + substeps])
+                else:
+                    noise.append(o.take_ahead(substeps, _ODOMETRY_AHEAD))
         phys, calls = self._physics(), ChipmunkCalls.here()
         bodies, controls, spaces = phys["bodies"], phys["controls"], phys["spaces"]
         if sel is not None:
@@ -232,17 +245,18 @@ class WorldBatch:
         odo.end_step()
         if odo.ahead is not None and odo.ahead_pos != substeps:
             raise RuntimeError("WorldBatch: odometry noise draws out of step with Odometry.integrate")
-        # each world's rows as views (Odometry replaces its arrays, never writes into them)
-        pose, start, delta = (a.reshape(-1, n, 3) for a in (odo.pose, odo._step_start, odo.delta))
         contacts = self._contacts(spaces)
         # the last step's contacts of the stepped worlds, in order (the vector env's task reads them)
         self.stepped_contacts = contacts if sel is None else contacts[sel]
         elapsed = substeps * dt
-        for r, (j, o) in enumerate(zip(on, odos, strict=True)):
-            w = ws[j]
-            o.pose, o._step_start, o.delta = pose[r], start[r], delta[r]
+        # each world's rows as views (Odometry replaces its arrays, never writes into them); iterating
+        # an array yields its rows as views at C speed
+        for o, w, p, s, d, c in zip(odos, stepped, odo.pose.reshape(-1, n, 3),
+                                    odo._step_start.reshape(-1, n, 3), odo.delta.reshape(-1, n, 3),
+                                    self.stepped_contacts, strict=True):  # fmt: skip
+            o.pose, o._step_start, o.delta = p, s, d
             w.time += elapsed
-            w.contacts = contacts[j]
+            w.contacts = c
 
     def _select(self, active) -> np.ndarray | None:
         if active is None:
