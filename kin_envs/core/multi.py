@@ -149,20 +149,15 @@ class WorldBatch:
                              f"{wheels.shape}")
         if sel is not None:
             wheels = np.where(sel[:, None, None], wheels, 0.0)
-        if not np.all(np.isfinite(wheels)):
+        w0 = ws[0]
+        spec = w0.scene.robot
+        # World.step's elementwise arithmetic on all worlds' rows at once, in one compiled pass
+        commands = np.empty((k * n, 2))
+        if not _limit_wheels(wheels.reshape(k * n, 2), _COMMAND_CAP, float(spec.max_wheel_speed),
+                             float(spec.wheel_radius), float(spec.wheel_base), commands):  # fmt: skip
             bad = np.argwhere(~np.isfinite(wheels))[0]
             raise ValueError(f"WorldBatch.step: wheel_speeds{bad.tolist()} is "
                              f"{wheels[tuple(bad)]}; expected finite numbers")
-        w0 = ws[0]
-        # the same elementwise arithmetic as World.step, on all worlds' rows at once
-        flat = wheels.reshape(k * n, 2)
-        peak = np.max(np.abs(flat), axis=1, keepdims=True)
-        if np.any(peak > _COMMAND_CAP):  # World._check_commands: no overflow for huge values
-            flat = flat * np.minimum(1.0, _COMMAND_CAP / peak)
-        limit = w0.scene.robot.max_wheel_speed
-        peak = np.max(np.abs(flat), axis=1, keepdims=True)
-        flat = flat * np.minimum(1.0, limit / np.maximum(peak, 1e-12))
-        commands = w0.wheel_speeds_to_unicycle(flat)
         on = range(k) if sel is None else np.flatnonzero(sel).tolist()
         with atomic():  # as World.step: Ctrl-C takes effect between steps, never inside one
             self._advance(commands, on, sel)
@@ -410,6 +405,35 @@ class WorldBatch:
                         true_ranges=true, robots=np.tile(ix, len(on)), poses=origin,
                         range_max=spec.range_max)
         return combined, poses, on
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")  # cap / 0.0 is inf, as numpy's
+def _limit_wheels(flat, cap, limit, radius, base, out):
+    """``(k * n, 2)`` wheel speeds -> ``(v, omega)`` commands in ``out``, as ``World.step`` computes them
+    (``WorldBatch.step``'s former numpy expressions, operation for operation: no fast-math, so every
+    result rounds as numpy's does); False (``out`` unset) if a value is not finite.
+
+    Rows beyond ``cap`` (any of them: then every row is scaled by ``min(1, cap / peak)``, 1 for the
+    others) as ``World._check_commands``; the wheel limit ``min(1, limit / max(peak, 1e-12))``; then
+    ``v = radius (l + r) / 2``, ``omega = radius (r - l) / base`` (``World.wheel_speeds_to_unicycle``)."""
+    rows = flat.shape[0]
+    over = False
+    for i in range(rows):
+        a, b = flat[i, 0], flat[i, 1]
+        if not (np.isfinite(a) and np.isfinite(b)):
+            return False
+        if max(abs(a), abs(b)) > cap:
+            over = True
+    for i in range(rows):
+        a, b = flat[i, 0], flat[i, 1]
+        if over:
+            m = min(1.0, cap / max(abs(a), abs(b)))
+            a, b = a * m, b * m
+        m = min(1.0, limit / max(max(abs(a), abs(b)), 1e-12))
+        a, b = a * m, b * m
+        out[i, 0] = radius * (a + b) / 2
+        out[i, 1] = radius * (b - a) / base
+    return True
 
 
 @numba.njit(cache=True, nogil=True)
