@@ -116,6 +116,7 @@ class WorldBatch:
         self._ids, self._flags, self._owner_robots = ids[order], flags[order], robots[order]
         # lidar: every world's primitives in one array, each robot casting against its own slice
         self._movable = any(w._movable for w in ws)
+        self._any_grid = any(w._lidar_grid is not None for w in ws)
         c_len = np.array([len(w._circles) for w in ws])
         s_len = np.array([len(w._segments) for w in ws])
         p_len = np.array([len(w._prim_kind) for w in ws])
@@ -325,8 +326,10 @@ class WorldBatch:
         on = list(range(k)) if sel is None else np.flatnonzero(sel).tolist()
         spec = ws[0].scene.lidar
         ix = np.arange(n) if robots is None else np.asarray(robots, dtype=np.int64).reshape(-1)
-        if ix.size and (ix.min() < 0 or ix.max() >= n):
-            raise ValueError(f"WorldBatch.scan: robot indices must be in [0, {n}), got {ix.tolist()}")
+        key = tuple(ix.tolist())
+        if self._scan_cache is None or self._scan_cache[0] != key:  # (checked once per robot list)
+            if ix.size and (ix.min() < 0 or ix.max() >= n):
+                raise ValueError(f"WorldBatch.scan: robot indices must be in [0, {n}), got {ix.tolist()}")
         poses = self.poses()
         if self._movable:  # rare: moved obstacles change their world's primitives
             for w, p in zip(ws, poses, strict=True):
@@ -335,7 +338,6 @@ class WorldBatch:
             self._segments = np.concatenate([w._segments for w in ws]).reshape(-1, 4)
         else:
             self._circles[self._robot_circle, :2] = poses.reshape(-1, 3)[:, :2]
-        key = tuple(ix.tolist())
         if self._scan_cache is None or self._scan_cache[0] != key:
             m = ix.size
             world = np.repeat(np.arange(k), m)
@@ -358,7 +360,7 @@ class WorldBatch:
         m = ix.size
         # the same kernel choice as World.scan: worlds with a lidar grid (large arenas) are cast through
         # it, one call per such world; all the others together in one call of the brute-force kernel
-        gridded = [r for r, j in enumerate(on) if ws[j]._lidar_grid is not None]
+        gridded = [r for r, j in enumerate(on) if ws[j]._lidar_grid is not None] if self._any_grid else []
         brute = np.ones(rows, dtype=bool)
         for r in gridded:
             brute[r * m : (r + 1) * m] = False

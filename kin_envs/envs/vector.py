@@ -283,8 +283,8 @@ class KinVectorEnv(VectorEnv):
                 raise ValueError(f"{where}: actions must be numbers, shape ({k}, 2)") from e
             if a.shape != (k, 2):
                 raise ValueError(f"{where}: actions must have shape ({k}, 2), got {a.shape}")
-            bad = ~np.isfinite(a[on]).all(axis=1)
-            if bad.any():
+            if not np.isfinite(a if len(on) == k else a[on]).all():
+                bad = ~np.isfinite(a[on]).all(axis=1)
                 i = on[int(np.flatnonzero(bad)[0])]
                 raise ValueError(f"{where}: actions[{i}] must be finite numbers, got {a[i].tolist()}")
             learner = np.clip(a, -1.0, 1.0)
@@ -306,7 +306,8 @@ class KinVectorEnv(VectorEnv):
         m = combined.ranges.shape[0] // k_on  # rows scanned per world (the learner's is row 0)
         learner = slice(None, None, m)
         ranges = combined.ranges[learner]
-        flat_poses = poses[on].reshape(-1, 3)  # (k_on * n, 3): robot r of stepped env e at e*n + r
+        # (k_on * n, 3): robot r of stepped env e at e*n + r
+        flat_poses = (poses if k_on == self.num_envs else poses[on]).reshape(-1, 3)
         world_of_robot = np.repeat(np.arange(k_on), n)
         observers = np.arange(k_on) * n
         angles = combined.angles
