@@ -116,6 +116,7 @@ class WorldBatch:
         self._ids, self._flags, self._owner_robots = ids[order], flags[order], robots[order]
         # lidar: every world's primitives in one array, each robot casting against its own slice
         self._movable = any(w._movable for w in ws)
+        self._any_grid = any(w._lidar_grid is not None for w in ws)
         c_len = np.array([len(w._circles) for w in ws])
         s_len = np.array([len(w._segments) for w in ws])
         p_len = np.array([len(w._prim_kind) for w in ws])
@@ -149,20 +150,15 @@ class WorldBatch:
                              f"{wheels.shape}")
         if sel is not None:
             wheels = np.where(sel[:, None, None], wheels, 0.0)
-        if not np.all(np.isfinite(wheels)):
+        w0 = ws[0]
+        spec = w0.scene.robot
+        # World.step's elementwise arithmetic on all worlds' rows at once, in one compiled pass
+        commands = np.empty((k * n, 2))
+        if not _limit_wheels(wheels.reshape(k * n, 2), _COMMAND_CAP, float(spec.max_wheel_speed),
+                             float(spec.wheel_radius), float(spec.wheel_base), commands):  # fmt: skip
             bad = np.argwhere(~np.isfinite(wheels))[0]
             raise ValueError(f"WorldBatch.step: wheel_speeds{bad.tolist()} is "
                              f"{wheels[tuple(bad)]}; expected finite numbers")
-        w0 = ws[0]
-        # the same elementwise arithmetic as World.step, on all worlds' rows at once
-        flat = wheels.reshape(k * n, 2)
-        peak = np.max(np.abs(flat), axis=1, keepdims=True)
-        if np.any(peak > _COMMAND_CAP):  # World._check_commands: no overflow for huge values
-            flat = flat * np.minimum(1.0, _COMMAND_CAP / peak)
-        limit = w0.scene.robot.max_wheel_speed
-        peak = np.max(np.abs(flat), axis=1, keepdims=True)
-        flat = flat * np.minimum(1.0, limit / np.maximum(peak, 1e-12))
-        commands = w0.wheel_speeds_to_unicycle(flat)
         on = range(k) if sel is None else np.flatnonzero(sel).tolist()
         with atomic():  # as World.step: Ctrl-C takes effect between steps, never inside one
             self._advance(commands, on, sel)
@@ -204,18 +200,31 @@ class WorldBatch:
         dt, substeps = w0.config.physics_dt, w0.config.substeps
         noisy = w0.config.odometry.noise_k > 0
         per_world = commands.reshape(len(ws), n, 2)  # a fresh array, never written: views are safe
-        # one pass over the worlds before the physics: commands recorded, odometry gathered
-        odos, odo_poses, noise = [], [], []
-        for j in on:
+        # one pass over the worlds before the physics: commands recorded, odometry gathered (World._record
+        # and Odometry.take_ahead inlined: this loop runs 64 times a step in the vector env, and a method
+        # call costs more than its work here)
+        odos, odo_poses, noise, stepped = [], [], [], []
+        for j, applied in zip(on, per_world if sel is None else per_world[sel], strict=True):
             w = ws[j]
-            applied = per_world[j]
+            stepped.append(w)
             w._commands = applied
-            w._record(applied)  # World copies replay it (run-length encoded)
+            hist = w._history
+            # World._record: bit-identical repeats extend the last run (bytes: -0.0 and 0.0 stay apart)
+            if hist and applied.tobytes() == hist[-1].tobytes():
+                w._history_counts[-1] += 1
+            else:
+                hist.append(applied)
+                w._history_counts.append(1)
             o = w._odometry
             odos.append(o)
             odo_poses.append(o.pose)
             if noisy:  # Odometry.integrate draws normal(0, 1, (robots, 2)) per substep
-                noise.append(o.take_ahead(substeps, _ODOMETRY_AHEAD))
+                ahead, pos = o.ahead, o.ahead_pos
+                if ahead is not None and ahead.shape[0] - pos >= substeps:
+                    o.ahead_pos = pos + substeps  # take_ahead when enough are drawn ahead
+                    noise.append(ahead[pos : pos + substeps])
+                else:
+                    noise.append(o.take_ahead(substeps, _ODOMETRY_AHEAD))
         phys, calls = self._physics(), ChipmunkCalls.here()
         bodies, controls, spaces = phys["bodies"], phys["controls"], phys["spaces"]
         if sel is not None:
@@ -232,17 +241,18 @@ class WorldBatch:
         odo.end_step()
         if odo.ahead is not None and odo.ahead_pos != substeps:
             raise RuntimeError("WorldBatch: odometry noise draws out of step with Odometry.integrate")
-        # each world's rows as views (Odometry replaces its arrays, never writes into them)
-        pose, start, delta = (a.reshape(-1, n, 3) for a in (odo.pose, odo._step_start, odo.delta))
         contacts = self._contacts(spaces)
         # the last step's contacts of the stepped worlds, in order (the vector env's task reads them)
         self.stepped_contacts = contacts if sel is None else contacts[sel]
         elapsed = substeps * dt
-        for r, (j, o) in enumerate(zip(on, odos, strict=True)):
-            w = ws[j]
-            o.pose, o._step_start, o.delta = pose[r], start[r], delta[r]
+        # each world's rows as views (Odometry replaces its arrays, never writes into them); iterating
+        # an array yields its rows as views at C speed
+        for o, w, p, s, d, c in zip(odos, stepped, odo.pose.reshape(-1, n, 3),
+                                    odo._step_start.reshape(-1, n, 3), odo.delta.reshape(-1, n, 3),
+                                    self.stepped_contacts, strict=True):  # fmt: skip
+            o.pose, o._step_start, o.delta = p, s, d
             w.time += elapsed
-            w.contacts = contacts[j]
+            w.contacts = c
 
     def _select(self, active) -> np.ndarray | None:
         if active is None:
@@ -316,8 +326,10 @@ class WorldBatch:
         on = list(range(k)) if sel is None else np.flatnonzero(sel).tolist()
         spec = ws[0].scene.lidar
         ix = np.arange(n) if robots is None else np.asarray(robots, dtype=np.int64).reshape(-1)
-        if ix.size and (ix.min() < 0 or ix.max() >= n):
-            raise ValueError(f"WorldBatch.scan: robot indices must be in [0, {n}), got {ix.tolist()}")
+        key = tuple(ix.tolist())
+        if self._scan_cache is None or self._scan_cache[0] != key:  # (checked once per robot list)
+            if ix.size and (ix.min() < 0 or ix.max() >= n):
+                raise ValueError(f"WorldBatch.scan: robot indices must be in [0, {n}), got {ix.tolist()}")
         poses = self.poses()
         if self._movable:  # rare: moved obstacles change their world's primitives
             for w, p in zip(ws, poses, strict=True):
@@ -326,7 +338,6 @@ class WorldBatch:
             self._segments = np.concatenate([w._segments for w in ws]).reshape(-1, 4)
         else:
             self._circles[self._robot_circle, :2] = poses.reshape(-1, 3)[:, :2]
-        key = tuple(ix.tolist())
         if self._scan_cache is None or self._scan_cache[0] != key:
             m = ix.size
             world = np.repeat(np.arange(k), m)
@@ -349,7 +360,7 @@ class WorldBatch:
         m = ix.size
         # the same kernel choice as World.scan: worlds with a lidar grid (large arenas) are cast through
         # it, one call per such world; all the others together in one call of the brute-force kernel
-        gridded = [r for r, j in enumerate(on) if ws[j]._lidar_grid is not None]
+        gridded = [r for r, j in enumerate(on) if ws[j]._lidar_grid is not None] if self._any_grid else []
         brute = np.ones(rows, dtype=bool)
         for r in gridded:
             brute[r * m : (r + 1) * m] = False
@@ -396,6 +407,35 @@ class WorldBatch:
                         true_ranges=true, robots=np.tile(ix, len(on)), poses=origin,
                         range_max=spec.range_max)
         return combined, poses, on
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")  # cap / 0.0 is inf, as numpy's
+def _limit_wheels(flat, cap, limit, radius, base, out):
+    """``(k * n, 2)`` wheel speeds -> ``(v, omega)`` commands in ``out``, as ``World.step`` computes them
+    (``WorldBatch.step``'s former numpy expressions, operation for operation: no fast-math, so every
+    result rounds as numpy's does); False (``out`` unset) if a value is not finite.
+
+    Rows beyond ``cap`` (any of them: then every row is scaled by ``min(1, cap / peak)``, 1 for the
+    others) as ``World._check_commands``; the wheel limit ``min(1, limit / max(peak, 1e-12))``; then
+    ``v = radius (l + r) / 2``, ``omega = radius (r - l) / base`` (``World.wheel_speeds_to_unicycle``)."""
+    rows = flat.shape[0]
+    over = False
+    for i in range(rows):
+        a, b = flat[i, 0], flat[i, 1]
+        if not (np.isfinite(a) and np.isfinite(b)):
+            return False
+        if max(abs(a), abs(b)) > cap:
+            over = True
+    for i in range(rows):
+        a, b = flat[i, 0], flat[i, 1]
+        if over:
+            m = min(1.0, cap / max(abs(a), abs(b)))
+            a, b = a * m, b * m
+        m = min(1.0, limit / max(max(abs(a), abs(b)), 1e-12))
+        a, b = a * m, b * m
+        out[i, 0] = radius * (a + b) / 2
+        out[i, 1] = radius * (b - a) / base
+    return True
 
 
 @numba.njit(cache=True, nogil=True)

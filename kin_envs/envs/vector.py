@@ -33,8 +33,9 @@ from gymnasium.vector.utils import batch_space
 from detectors.base import gc_paused
 from kin_envs.core.multi import WorldBatch
 from kin_envs.core.world import Scan
+from kin_envs.envs._vector_glue import match_pad_worlds
 from kin_envs.envs.base import LEARNER, SingleRobotEnv
-from kin_envs.envs.common import detect_rows, kin_truth_padded
+from kin_envs.envs.common import detect_rows, detection_arrays, kin_truth_padded
 from kin_envs.envs.info import DETECTION_FIELDS, INT_FIELDS, KIN_TRUTH_FIELDS, pad_rows
 from kin_envs.envs.kin_follow import KinFollowEnv
 from kin_envs.envs.kin_seek import KinSeekEnv
@@ -242,9 +243,11 @@ class KinVectorEnv(VectorEnv):
         """``_finish_step`` of the stepped sub-envs at once when their class has a ``_task_batch``:
         observations, rewards and ends written into the given arrays; returns the task's info as
         columns over ``on`` (``None``: no batched task, step them one by one)."""
-        envs = [self.envs[i] for i in on]
+        full = len(on) == self.num_envs
+        envs = self.envs if full else [self.envs[i] for i in on]
+        rows = slice(None) if full else np.asarray(on, dtype=np.int64)  # (a list index costs a conversion)
         task_batch = type(envs[0])._task_batch
-        out = None if task_batch is None else task_batch(envs, poses[on], self._batch.stepped_contacts)
+        out = None if task_batch is None else task_batch(envs, poses[rows], self._batch.stepped_contacts)
         if out is None:
             return None
         terms, terminated, info = out
@@ -253,17 +256,17 @@ class KinVectorEnv(VectorEnv):
             e._steps += 1
             steps[r] = e._steps
         if self.layout.frame_stack == 1:
-            self._observations[on] = frames  # what ObservationBuilder.push returns then
+            self._observations[rows] = frames  # what ObservationBuilder.push returns then
         else:
             for r, e in enumerate(envs):
                 self._observations[on[r]] = e._obs.push(frames[r : r + 1])[0]
         reward = np.zeros(len(on))
         for v in terms.values():  # float(sum(terms.values())): the same additions in the same order
             reward = reward + v
-        rewards[on] = reward
+        rewards[rows] = reward
         terminated = np.asarray(terminated, dtype=np.bool_)
-        terminations[on] = terminated
-        truncations[on] = (steps >= self.config.max_steps) & ~terminated
+        terminations[rows] = terminated
+        truncations[rows] = (steps >= self.config.max_steps) & ~terminated
         info["reward_terms"] = terms
         return info
 
@@ -280,8 +283,8 @@ class KinVectorEnv(VectorEnv):
                 raise ValueError(f"{where}: actions must be numbers, shape ({k}, 2)") from e
             if a.shape != (k, 2):
                 raise ValueError(f"{where}: actions must have shape ({k}, 2), got {a.shape}")
-            bad = ~np.isfinite(a[on]).all(axis=1)
-            if bad.any():
+            if not np.isfinite(a if len(on) == k else a[on]).all():
+                bad = ~np.isfinite(a[on]).all(axis=1)
                 i = on[int(np.flatnonzero(bad)[0])]
                 raise ValueError(f"{where}: actions[{i}] must be finite numbers, got {a[i].tolist()}")
             learner = np.clip(a, -1.0, 1.0)
@@ -303,21 +306,31 @@ class KinVectorEnv(VectorEnv):
         m = combined.ranges.shape[0] // k_on  # rows scanned per world (the learner's is row 0)
         learner = slice(None, None, m)
         ranges = combined.ranges[learner]
-        flat_poses = poses[on].reshape(-1, 3)  # (k_on * n, 3): robot r of stepped env e at e*n + r
+        # (k_on * n, 3): robot r of stepped env e at e*n + r
+        flat_poses = (poses if k_on == self.num_envs else poses[on]).reshape(-1, 3)
         world_of_robot = np.repeat(np.arange(k_on), n)
         observers = np.arange(k_on) * n
         angles = combined.angles
         dets = feed = None
+        kin: dict[str, tuple[dict[str, np.ndarray], np.ndarray]] = {}
         if self.detector is not None:
             if first_feeder := self.envs[0]._feeder:
                 (row, cols), feed = first_feeder.detect(ranges, angles, observers, flat_poses, world_of_robot,
                                                         combined.range_max)  # fmt: skip
             else:
-                row, cols = detect_rows(self.detector, ranges, angles, observers, flat_poses,
-                                        robot_world=world_of_robot, trusted=True)  # fmt: skip
-            ki = cols["kin_index"]
-            cols["kin_index"] = np.where(ki >= 0, ki - row * n, -1)
-            dets = (row, cols)
+                # matched to each world's robots and padded in one compiled call (detect_rows' general
+                # path and pad_rows, bit for bit), unless the detector gives its rows out of order
+                owner, tab = detection_arrays(self.detector, ranges, angles, True)
+                glued = match_pad_worlds(owner, tab, flat_poses, n, self.config.max_detections)
+                if glued is not None:
+                    dets, kin["kin_detections"] = glued
+                else:
+                    row, cols = detect_rows(self.detector, ranges, angles, observers, flat_poses,
+                                            robot_world=world_of_robot, trusted=True)  # fmt: skip
+            if dets is None:
+                ki = cols["kin_index"]
+                cols["kin_index"] = np.where(ki >= 0, ki - row * n, -1)
+                dets = (row, cols)
         # kin truth of all learners in one call: a virtual scan whose robot indices are global
         stacked = Scan(
             ranges=ranges, angles=angles, hit_kind=combined.hit_kind[learner],
@@ -330,7 +343,7 @@ class KinVectorEnv(VectorEnv):
         idx = t_cols["index"]
         filled = np.arange(idx.shape[1]) < t_count[:, None]
         np.subtract(idx, (np.arange(k_on) * n)[:, None], out=idx, where=filled)
-        kin = {"kin_truth": (t_cols, t_count)}
+        kin["kin_truth"] = (t_cols, t_count)
         obs_rows = dets
         if self._tracks is not None:
             on_a = np.asarray(on, np.int64)
@@ -345,18 +358,21 @@ class KinVectorEnv(VectorEnv):
                 keep = pos[t_row] >= 0
                 obs_rows = (pos[t_row[keep]], {f: c[keep] for f, c in t_c.items()})
         frames = self.envs[0]._obs.frame(ranges, obs_rows)
-        if dets is not None:
+        if dets is not None and "kin_detections" not in kin:
             kin["kin_detections"] = pad_rows(*dets, k_on, self.config.max_detections)
         # what each sub-env keeps of this step (for the scripted kin and rendering)
         keep = self.render_mode is not None
         # a sub-env's own scan is read only by scripted robots (KinFollow's kin) and rendering
         need_scan = keep or type(self.envs[0])._other_wheels is not SingleRobotEnv._other_wheels
+        if not need_scan:  # (rows of poses handed out by iteration: views at C speed)
+            for env, p in zip(self.envs if len(on) == self.num_envs else [self.envs[i] for i in on],
+                              poses if len(on) == self.num_envs else poses[on], strict=True):  # fmt: skip
+                env._current_poses = p
+                env._last_scan = None
+            return frames, kin
         for r, i in enumerate(on):
             env = self.envs[i]
             env._current_poses = poses[i]
-            if not need_scan:
-                env._last_scan = None
-                continue
             sl = slice(r * m, (r + 1) * m)
             env._last_scan = Scan(
                 ranges=combined.ranges[sl], angles=angles, hit_kind=combined.hit_kind[sl],
@@ -394,7 +410,6 @@ class KinVectorEnv(VectorEnv):
                         f"step's {sorted(task)}; _task_batch must give the keys _task gives"
                     )
             info = _merge_columns(task, on, resets, reset_infos, k)
-        ones = np.ones(k, dtype=np.bool_)
         layout = [("kin_truth", KIN_TRUTH_FIELDS, self._truth_slots)]
         if self.detector is not None:
             layout.append(("kin_detections", DETECTION_FIELDS, self.config.max_detections))
@@ -402,26 +417,35 @@ class KinVectorEnv(VectorEnv):
             from detectors.tracking import TRACK_FIELDS
 
             layout.append(("kin_tracks", TRACK_FIELDS, self.config.max_tracks))
+        full = not resets and len(on) == k  # every sub-env stepped: the (K, ...) columns as they come
         for key, fields, slots in layout:
-            cols = {
-                f: np.empty((k, slots), dtype=np.int64 if f in INT_FIELDS else np.float64) for f in fields
-            }
-            count = np.zeros(k, dtype=np.int64)
-            if on:
-                kc, kn = kin[key]
-                for f, c in cols.items():
-                    c[on] = kc[f]
-                count[on] = kn
-            for i in resets:
-                for f, c in cols.items():
-                    c[i] = per_env[i][key][f]
-                count[i] = per_env[i][f"{key}_count"]
+            # the "_field" masks: rows of one block (each its own array to the caller)
+            masks = iter(np.ones((len(fields) + 2, k), dtype=np.bool_))
             nested: dict[str, Any] = {}
-            for f, c in cols.items():
-                nested[f] = c
-                nested[f"_{f}"] = ones.copy()
-            info[key], info[f"_{key}"] = nested, ones.copy()
-            info[f"{key}_count"], info[f"_{key}_count"] = count, ones.copy()
+            kc, kn = kin[key] if on else ({}, None)
+            if full and all(_fresh_column(kc[f], f, (k, slots)) for f in fields) and kn.dtype == np.int64:
+                # fresh arrays of this step (kernels' blocks, fancy-indexed copies) of the dtypes
+                # stack_infos makes: what the copies below would hold
+                for f in fields:
+                    nested[f], nested[f"_{f}"] = kc[f], next(masks)
+                count = kn
+            else:
+                cols = {
+                    f: np.empty((k, slots), dtype=np.int64 if f in INT_FIELDS else np.float64) for f in fields
+                }
+                count = np.zeros(k, dtype=np.int64)
+                if on:
+                    for f, c in cols.items():
+                        c[on] = kc[f]
+                    count[on] = kn
+                for i in resets:
+                    for f, c in cols.items():
+                        c[i] = per_env[i][key][f]
+                    count[i] = per_env[i][f"{key}_count"]
+                for f, c in cols.items():
+                    nested[f], nested[f"_{f}"] = c, next(masks)
+            info[key], info[f"_{key}"] = nested, next(masks)
+            info[f"{key}_count"], info[f"_{key}_count"] = count, next(masks)
         return info
 
     def render(self):
@@ -434,6 +458,11 @@ class KinVectorEnv(VectorEnv):
             e.close()
 
 
+def _fresh_column(c: np.ndarray, field: str, shape: tuple[int, int]) -> bool:
+    """``c`` can be handed out as the stacked info's ``field`` column as it is (its dtype and shape)."""
+    return c.shape == shape and c.dtype == (np.int64 if field in INT_FIELDS else np.float64)
+
+
 def _merge_columns(cols: dict[str, Any], on: list[int], resets: list[int], reset_infos: list[dict],
                    k: int) -> dict[str, Any]:  # fmt: skip
     """What :func:`stack_infos` gives for K infos when the rows ``on`` are given as columns (arrays of
@@ -443,6 +472,8 @@ def _merge_columns(cols: dict[str, Any], on: list[int], resets: list[int], reset
         vals = [d[key] for d in reset_infos]
         if isinstance(col, dict):
             out[key] = _merge_columns(col, on, resets, vals, k)
+        elif not resets and len(on) == k:
+            out[key] = col.copy()  # (the task's columns may share arrays: is_success, terminated)
         else:
             arr = np.empty(k, dtype=col.dtype)
             arr[on] = col

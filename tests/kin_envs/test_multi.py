@@ -180,3 +180,27 @@ def test_replaced_worlds_update_the_compiled_loops_tables():
     assert batch._phys is None
     with pytest.raises(ValueError, match="world 2 differs"):
         batch.step(np.zeros((4, 3, 2)))
+
+
+@pytest.mark.parametrize("huge", [False, True])
+def test_command_limits_match_world_step(huge):
+    """WorldBatch.step's compiled limits (_limit_wheels) give the commands World.step applies, bit for
+    bit: rows past the wheel limit, standing robots, signed zeros and (``huge``) rows past the overflow
+    cap next to ordinary ones, which World scales by exactly 1."""
+    k = 5
+    single, batch = worlds(k, 30), WorldBatch(worlds(k, 30))
+    rng = np.random.default_rng(2)
+    for t in range(6):
+        wheels = rng.normal(0, 8.0, (k, 3, 2))
+        wheels[0, 1] = 0.0
+        wheels[1, 2] = (-0.0, 0.0)
+        wheels[2, 0] = (3e-13, -1e-300)
+        if huge:
+            wheels[3, 1] = (1e300, -2e299 * t)
+            wheels[4, 0, 0] = -1e13
+        for w, x in zip(single, wheels, strict=True):
+            w.step(wheel_speeds=x)
+        batch.step(wheels)
+        for w, b in zip(single, batch.worlds, strict=True):
+            assert w.commands.tobytes() == b.commands.tobytes()
+        assert_same(single, batch, None)
