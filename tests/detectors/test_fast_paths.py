@@ -205,8 +205,9 @@ def _fit_one(px, py, cx, cy, r, gn_iters):
 
 @numba.njit(error_model="numpy")
 def _lanes(n, c, px, py, cx, cy, ox, oy, cphi, sphi, dcest, r, gn_iters, kp, rs_lo, rs_hi, rs_w, x, fc):
+    # (its scratch NaN-filled: the outputs must not depend on what it held)
     F._fit_lanes(n, c, 0, 0, px, py, cx, cy, np.arange(c), ox, oy, cphi, sphi, dcest, r, 1.0, gn_iters, kp,
-                 rs_lo, rs_hi, rs_w, 0, x, fc)  # fmt: skip
+                 rs_lo, rs_hi, rs_w, 0, x, fc, np.full((14 + n) * c, np.nan))  # fmt: skip
 
 
 def test_circle_fits_in_simd_lanes_are_the_per_segment_fits():
