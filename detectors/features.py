@@ -977,7 +977,8 @@ def _features_kernel(
 def _scan_noise_kernel(d, d_th, d_max, circular, out, count):
     n_rows, n = d.shape
     buf = np.empty(n)
-    q_work = np.empty(2 * n)  # _quantile_into's scratch
+    lo_buf = np.empty(n)  # _quantile_into's scratch
+    hi_buf = np.empty(n)
     val = np.empty(n)
     ok = np.empty(n, dtype=np.bool_)
     for b in range(n_rows):
@@ -1013,7 +1014,7 @@ def _scan_noise_kernel(d, d_th, d_max, circular, out, count):
                     continue
                 buf[k] = abs(a3 - 3.0 * a2 + 3.0 * a1 - a0) / (0.5 * (a1 + a2))
                 k += 1
-        out[b] = _quantile_into(buf, k, _NOISE_Q, q_work) / _NOISE_SCALE if k >= 5 else 0.0
+        out[b] = _quantile_into(buf, k, _NOISE_Q, lo_buf, hi_buf) / _NOISE_SCALE if k >= 5 else 0.0
         count[b] = k
 
 
@@ -1021,74 +1022,56 @@ def _scan_noise_kernel(d, d_th, d_max, circular, out, count):
 def _quantile(buf, n, q):
     """numba's ``np.quantile(buf[:n], q)`` (linear interpolation between the two order statistics
     around rank ``1 + (n - 1) q``, its expressions) for ``n >= 2`` finite values and ``0 < q < 1``
-    (:func:`_quantile_into` with a scratch array of its own; ``buf`` is left as it is)."""
-    return _quantile_into(buf, n, q, np.empty(2 * n))
+    (:func:`_quantile_into` with scratch arrays of its own; ``buf`` is left as it is)."""
+    return _quantile_into(buf, n, q, np.empty(n), np.empty(n))
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
-def _quantile_into(buf, n, q, work):
-    """:func:`_quantile` with the scratch array ``work`` (``2 n`` values at least), the same value as
-    numba's ``np.quantile`` without its four temporary arrays and NaN checks (a selection's order
-    statistics do not depend on the algorithm; ``tests/detectors/test_features.py``).
+def _quantile_into(buf, n, q, lo_buf, hi_buf):
+    """:func:`_quantile` with the scratch arrays ``lo_buf`` / ``hi_buf`` (``n`` values each), the same
+    value as numba's ``np.quantile`` without its four temporary arrays and NaN checks (a selection's
+    order statistics do not depend on the algorithm; ``tests/detectors/test_features.py``).
 
     Quickselect of the ``k``-th smallest with out-of-place three-way partitions: the values ``<`` the
-    pivot go to ``work[:n]``, those ``>`` it to ``work[n:]``, both written on every step with the counts
+    pivot go to ``lo_buf``, those ``>`` it to ``hi_buf``, both written on every step with the counts
     advanced by the comparisons (no branch on the data: a scan's values are in random order; and no
     load of a slot the previous step wrote, which the in-place Lomuto partition waited on: ~2x faster
-    on a swarm scan's ~165 values, measured). The first partition reads ``buf``, the next ones the part
-    of ``work`` the previous one wrote (at offset ``so``; a partition reads ``work[so + i]`` and writes
-    there at offsets ``<= i`` only, so it can write into the part it reads). One array and an offset, not
-    a variable that names ``buf``, then one part, then the other: numba took and dropped a reference
-    count on every such assignment (two atomic operations a step, ~20 a scan). The next order statistic is
-    then ``lower`` itself when more than ``k + 1`` values are ``<= lower``, else the least value above
-    it."""
+    on a swarm scan's ~165 values, measured). A partition reads ``src[i]`` and writes at indices
+    ``<= i``, so it can write into the array it reads. The next order statistic is then
+    ``lower`` itself when more than ``k + 1`` values are ``<= lower``, else the least value above it."""
     rank = 1 + (n - 1) * ((q * 100.0) / 100.0)
     f = math.floor(rank)
     m = rank - f
     k = int(f - 1)
+    src = buf
     size = n
     kk = k
-    so = -1  # where this step's values are: buf (-1), work[:n] (0) or work[n:] (n)
     lower = buf[0]
     while True:
-        # the median of the values' first, middle and last as the pivot (one of the values)
-        if so < 0:
-            a = buf[0]
-            b = buf[size >> 1]
-            c = buf[size - 1]
-        else:
-            a = work[so]
-            b = work[so + (size >> 1)]
-            c = work[so + size - 1]
+        # the median of src[0], src[mid], src[size - 1] as the pivot (a value of src)
+        a = src[0]
+        b = src[size >> 1]
+        c = src[size - 1]
         if a > b:
             a, b = b, a
         piv = max(a, min(b, c))
         n_lo = 0
-        n_hi = n
-        if so < 0:
-            for i in range(size):
-                v = buf[i]
-                work[n_lo] = v
-                work[n_hi] = v
-                n_lo += v < piv
-                n_hi += v > piv
-        else:
-            for i in range(size):
-                v = work[so + i]
-                work[n_lo] = v
-                work[n_hi] = v
-                n_lo += v < piv
-                n_hi += v > piv
-        n_hi -= n
+        n_hi = 0
+        for i in range(size):
+            v = src[i]
+            lo_buf[n_lo] = v
+            hi_buf[n_hi] = v
+            n_lo += v < piv
+            n_hi += v > piv
         n_eq = size - n_lo - n_hi
         if kk < n_lo:
-            so = 0
+            src = lo_buf
             size = n_lo
         elif kk < n_lo + n_eq:
             lower = piv
             break
         else:
-            so = n
+            src = hi_buf
             size = n_hi
             kk -= n_lo + n_eq
     n_le = 0
