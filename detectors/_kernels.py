@@ -51,13 +51,15 @@ def preprocess_rows(r, d_max, d_th, circular, noise_filter, out):
     n_rows, n = r.shape
     row = np.empty(n)
     for b in range(n_rows):
+        if not noise_filter:  # straight into out (the same values; no copy of every row)
+            for i in range(n):
+                v = r[b, i]
+                out[b, i] = v if (v > 0.0 and v < d_max) else d_max
+            continue
         for i in range(n):
             v = r[b, i]
             # NaN fails both comparisons, inf the second
             row[i] = v if (v > 0.0 and v < d_max) else d_max
-        if not noise_filter:
-            out[b, :] = row
-            continue
         for i in range(n):
             d = row[i]
             if circular:

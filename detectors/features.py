@@ -423,38 +423,62 @@ def _half_width(d_cest, alpha):
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
 def _tan_table(ang, sweep, n_off, out):
-    # tan_tab[i, off]: what _half_width multiplies d_cest by for beams i and j = i - off (wrapped)
+    # tan_tab[off, i]: what _half_width multiplies d_cest by for beams i and j = i - off (wrapped).
+    # Offset-major: most lookups are a few beams apart (a segment's min beam and its ends), and each offset's
+    # row (n values) stays in cache; beam-major, a lookup missed the cache on many stage-1 rows
     n = ang.shape[0]
     for i in range(n):
         for off in range(n_off):
             j = i - off if i >= off else i - off + n
             alpha = _mod_two_pi(sweep * (ang[i] - ang[j]))
-            out[i, off] = math.tan(alpha) if alpha < 0.5 * math.pi else math.inf
+            out[off, i] = math.tan(alpha) if alpha < 0.5 * math.pi else math.inf
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
-def _half_width_ij(d_cest, i, j, ang, sweep, n_beams, tan_tab):
-    """``_half_width(d_cest, _mod_two_pi(sweep * (ang[i] - ang[j])))``, its ``tan`` looked up in
-    ``tan_tab`` (:func:`beam_trig`) when beam ``j`` is fewer than ``tan_tab.shape[1]`` beams before
-    ``i``: the same value (the table holds that very ``tan``, or inf), without a ``tan`` per call."""
+def _tan_flat(tan_tab):
+    """``tan_tab`` (:func:`beam_trig`'s ``(n_off, n)`` table) as the flat array :func:`_omegas` reads, one
+    element at least: an empty table (``n_off == 0``) becomes ``[0.0]``, read at index 0 and never used."""
+    return tan_tab.reshape(-1) if tan_tab.size > 0 else np.zeros(1)
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _half_width_reads(i, j, ang, n_beams, tan_flat, n_off):
+    """The array reads of ``_half_width(d_cest, _mod_two_pi(sweep * (ang[i] - ang[j])))``: ``(in table,
+    tan, ang[i] - ang[j])``, the tan ``tan_tab[off, i]`` (the table's very value, or inf) when beam ``j`` is
+    ``off < n_off`` beams before ``i``. Reads only, the table at a clamped index: inlined into a loop, the
+    arrays' reference counts are then taken and dropped in one block and pruned (around a branch they
+    stayed: four atomic operations on every stage-1 row, ~2,500 rows a 64-robot step)."""
     off = i - j if i >= j else i - j + n_beams
-    if off < tan_tab.shape[1]:
-        return d_cest * tan_tab[i, off]
-    return _half_width(d_cest, _mod_two_pi(sweep * (ang[i] - ang[j])))
+    in_tab = off < n_off
+    return in_tab, tan_flat[off * n_beams + i if in_tab else 0], ang[i] - ang[j]
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
-def _omegas(d_cest, bmin, f, bl, pb, nb, unbounded, ang, sweep, n_beams, tan_tab):
+def _half_width_of(d_cest, in_tab, t, da, sweep):
+    # the half-width from _half_width_reads' values (scalars only): d_cest times the table's tan, else
+    # _half_width's own tan (the same value: the table holds that very tan, or inf)
+    if in_tab:
+        return d_cest * t
+    return _half_width(d_cest, _mod_two_pi(sweep * da))
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _omegas(d_cest, bmin, f, bl, pb, nb, unbounded, ang, sweep, n_beams, tan_flat, n_off):
     """Eqs. 4-5: ``omega_min`` (the segment's own extent, nearest beam ``bmin`` to its first ``f`` and last
-    ``bl`` beams) and ``omega_max`` (to the outside beams ``pb`` / ``nb``; inf when ``unbounded``), m."""
-    omega_min = _half_width_ij(d_cest, bmin, f, ang, sweep, n_beams, tan_tab) + _half_width_ij(
-        d_cest, bl, bmin, ang, sweep, n_beams, tan_tab
-    )
+    ``bl`` beams) and ``omega_max`` (to the outside beams ``pb`` / ``nb``; inf when ``unbounded``), m.
+    ``tan_flat``, ``n_off``: :func:`_tan_flat` of :func:`beam_trig`'s table and its row count. The four
+    half-widths' array reads come first, without a branch (``pb`` / ``nb``, possibly -1, replaced by
+    ``bmin`` when unbounded: read, not used), then the arithmetic (see :func:`_half_width_reads`)."""
+    pb_r = bmin if unbounded else pb
+    nb_r = bmin if unbounded else nb
+    t0, v0, a0 = _half_width_reads(bmin, f, ang, n_beams, tan_flat, n_off)
+    t1, v1, a1 = _half_width_reads(bl, bmin, ang, n_beams, tan_flat, n_off)
+    t2, v2, a2 = _half_width_reads(bmin, pb_r, ang, n_beams, tan_flat, n_off)
+    t3, v3, a3 = _half_width_reads(nb_r, bmin, ang, n_beams, tan_flat, n_off)
+    omega_min = _half_width_of(d_cest, t0, v0, a0, sweep) + _half_width_of(d_cest, t1, v1, a1, sweep)
     omega_max = math.inf
     if not unbounded:
-        omega_max = _half_width_ij(d_cest, bmin, pb, ang, sweep, n_beams, tan_tab) + _half_width_ij(
-            d_cest, nb, bmin, ang, sweep, n_beams, tan_tab
-        )
+        omega_max = _half_width_of(d_cest, t2, v2, a2, sweep) + _half_width_of(d_cest, t3, v3, a3, sweep)
     return omega_min, omega_max
 
 
@@ -478,30 +502,33 @@ _PREFETCH = 4  # rows ahead whose ranges _features_kernel requests (their segmen
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
 def _fit_lanes(n, c, q0, p0, l_px, l_py, l_cx, l_cy, l_o, l_ox, l_oy, l_cphi, l_sphi, l_dcest, r, sweep,
-               gn_iters, kp, rs_lo, rs_hi, rs_w, col_g, x, fit_centre):  # fmt: skip
+               gn_iters, kp, rs_lo, rs_hi, rs_w, col_g, x, fit_centre, lw):  # fmt: skip
     """The known-radius circle fits of the ``c`` segments of ``n`` beams in lanes ``q0 ..`` (their points
     ``l_px, l_py`` point-major from ``p0``, eq. 7 starts ``l_cx, l_cy``) and their fit-dependent columns of
     ``x`` (row ``l_o``): :func:`_features_kernel`'s expressions per segment, in the same order, one loop
     over the lanes per step (no reduction across lanes: each lane's values are those of the segment
     fitted alone), so the divisions and square roots of ``c`` segments run as SIMD instructions side by
-    side instead of one dependent chain per segment (``tests/detectors/test_fast_paths.py``)."""
+    side instead of one dependent chain per segment (``tests/detectors/test_fast_paths.py``). ``lw``: scratch
+    of ``(14 + n) c`` values at least (the lanes' sums, steps and residuals: views of it, not ~14 arrays
+    allocated per call)."""
     px = l_px[p0 : p0 + n * c].reshape((n, c))
     py = l_py[p0 : p0 + n * c].reshape((n, c))
     cx = l_cx[q0 : q0 + c]
     cy = l_cy[q0 : q0 + c]
-    f0 = np.zeros(c)
+    f0 = lw[:c]
+    f0[:] = 0.0
     for k in range(n):
         for q in range(c):
             f0[q] += abs(math.sqrt((px[k, q] - cx[q]) ** 2 + (py[k, q] - cy[q]) ** 2) - r)
     for q in range(c):
         f0[q] /= n
-    a11 = np.empty(c)
-    a12 = np.empty(c)
-    a22 = np.empty(c)
-    g1 = np.empty(c)
-    g2 = np.empty(c)
-    stx = np.empty(c)
-    sty = np.empty(c)
+    a11 = lw[c : 2 * c]
+    a12 = lw[2 * c : 3 * c]
+    a22 = lw[3 * c : 4 * c]
+    g1 = lw[4 * c : 5 * c]
+    g2 = lw[5 * c : 6 * c]
+    stx = lw[6 * c : 7 * c]
+    sty = lw[7 * c : 8 * c]
     for _ in range(gn_iters):
         a11[:] = 0.0
         a12[:] = 0.0
@@ -537,16 +564,19 @@ def _fit_lanes(n, c, q0, p0, l_px, l_py, l_cx, l_cy, l_o, l_ox, l_oy, l_cphi, l_
         for q in range(c):
             cx[q] += stx[q]
             cy[q] += sty[q]
-    f_sum = np.zeros(c)
-    e_max = np.zeros(c)
-    pe = np.empty((n, c))
+    f_sum = lw[8 * c : 9 * c]
+    e_max = lw[9 * c : 10 * c]
+    f_sum[:] = 0.0
+    e_max[:] = 0.0
+    pe = lw[10 * c : (10 + n) * c].reshape((n, c))
     for k in range(n):
         for q in range(c):
             pe[k, q] = math.sqrt((px[k, q] - cx[q]) ** 2 + (py[k, q] - cy[q]) ** 2) - r
             e = abs(pe[k, q])
             f_sum[q] += e
             e_max[q] = max(e_max[q], e)
-    lg = np.empty((4, c))  # the four log errors' float32 values in SIMD lanes (NaN: libm's log below)
+    lg = lw[(10 + n) * c : (14 + n) * c].reshape((4, c))  # the four log errors' float32 values in SIMD lanes
+    # (NaN: libm's log below)
     for q in range(c):
         lg[0, q] = _log_err_f32(f0[q])
         lg[1, q] = _log_err_f32(f_sum[q])
@@ -615,7 +645,7 @@ def _features_kernel(
 ):
     """One pass over the segments ``which``: row ``o`` of every output for segment ``which[o]``,
     and each scan's two noise features into ``scan_cols`` (B, 2). ``tan_tab``: :func:`beam_trig`'s
-    table (``(n, 0)``: none; the same outputs). ``pre`` ``(len(which), 9)`` float32: the values the
+    table (``(0, n)``: none; the same outputs). ``pre`` ``(len(which), 9)`` float32: the values the
     cascade's stage 1 already computed for these segments (:func:`_cascade_kernel` with a 13th column;
     the learned driver's env entry, ``n_context == 2``): ``log_range_min``, ``omega_min``, ``omega_max``,
     ``omega_in_range``, ``chord``, ``ctx_prev1, ctx_prev2, ctx_next1, ctx_next2`` (the same float32
@@ -625,6 +655,8 @@ def _features_kernel(
     ~3-10 points per segment this is ~50x faster than the equivalent flat numpy expressions
     (whose ~300 array operations dominate at batch sizes of a few thousand segments).
     """
+    tan_flat = _tan_flat(tan_tab)
+    n_off = tan_tab.shape[0]
     px = np.empty(n_beams)
     py = np.empty(n_beams)
     pd = np.empty(n_beams)
@@ -666,6 +698,10 @@ def _features_kernel(
         lane0[n + 1] = lane0[n] + lane_n[n]
         pt0[n + 1] = pt0[n] + n * lane_n[n]
     n_lanes = lane0[_FIT_LANES_MAX + 1]
+    c_top = 0
+    for n in range(2, _FIT_LANES_MAX + 1):
+        c_top = max(c_top, lane_n[n])
+    lw = np.empty((14 + _FIT_LANES_MAX) * c_top)  # _fit_lanes' scratch, for every beam count
     fill = lane0[:-1].copy()
     l_o = np.empty(n_lanes, dtype=np.int64)
     l_cx = np.empty(n_lanes)
@@ -777,7 +813,7 @@ def _features_kernel(
             chord_f = float(pre[o, 4])
         else:
             omega_min, omega_max = _omegas(
-                d_cest, bmin, f, bl, pb, nb, unb_f or unb_l, ang, sweep, n_beams, tan_tab
+                d_cest, bmin, f, bl, pb, nb, unb_f or unb_l, ang, sweep, n_beams, tan_flat, n_off
             )
             log_d_min = math.log(d_min)
             omega_min_c = min(omega_min, _LEN_CLIP)
@@ -933,8 +969,8 @@ def _features_kernel(
     for n in range(2, _FIT_LANES_MAX + 1):
         if lane_n[n] > 0:
             _fit_lanes(n, lane_n[n], lane0[n], pt0[n], l_px, l_py, l_cx, l_cy, l_o, l_ox, l_oy, l_cphi,
-                       l_sphi, l_dcest, r, sweep, gn_iters, kp, rs_lo, rs_hi, rs_w, col_g, x,
-                       fit_centre)  # fmt: skip
+                       l_sphi, l_dcest, r, sweep, gn_iters, kp, rs_lo, rs_hi, rs_w, col_g, x, fit_centre,
+                       lw)  # fmt: skip
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
@@ -1102,13 +1138,13 @@ def segment_features(
 
 def beam_trig(angles, tan_offsets: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, np.ndarray]:
     """``(angles, cos, sin, sweep sign, tan table)`` of a scan's beams as the feature kernels take
-    them (a detector computes them once per beam layout). The table ``(n, tan_offsets)`` holds the
+    them (a detector computes them once per beam layout). The table ``(tan_offsets, n)`` holds the
     ``tan`` of eqs. 4-5's half-widths for beams up to ``tan_offsets - 1`` apart (a segment's min beam
     and its ends; ~10 ns each, four per segment), the same values the kernels compute without it."""
     ang = np.ascontiguousarray(angles, dtype=np.float64)
     sweep = 1.0 if ang.shape[0] > 1 and wrap_angle(float(ang[1] - ang[0])) > 0 else -1.0
-    tab = np.empty((ang.shape[0], min(int(tan_offsets), ang.shape[0])))
-    _tan_table(ang, sweep, tab.shape[1], tab)
+    tab = np.empty((min(int(tan_offsets), ang.shape[0]), ang.shape[0]))
+    _tan_table(ang, sweep, tab.shape[0], tab)
     return ang, np.cos(ang), np.sin(ang), sweep, tab
 
 
@@ -1237,6 +1273,8 @@ def _cascade_kernel(
     """:data:`CASCADE_FEATURES` of the segments ``which`` into ``x`` (rows as float32 values in
     float64). Expressions as in :func:`_features_kernel` (the context with ``n_context = 2``)."""
     n_sel = which.shape[0]
+    tan_flat = _tan_flat(tan_tab)
+    n_off = tan_tab.shape[0]
     for o in range(n_sel):
         # (as in _features_kernel; written out in both: one shared inline="always" helper made the learned
         # call ~20 % slower, 1.38 -> 1.80 ms per 64 scans, CPU time, session 10)
@@ -1285,7 +1323,7 @@ def _cascade_kernel(
         unb_f = pb < 0 or (occlusion_unbounded and prev_nearer[i])
         unb_l = nb < 0 or (occlusion_unbounded and next_nearer[i])
         omega_min, omega_max = _omegas(
-            d_cest, bmin, f, bl, pb, nb, unb_f or unb_l, ang, sweep, n_beams, tan_tab
+            d_cest, bmin, f, bl, pb, nb, unb_f or unb_l, ang, sweep, n_beams, tan_flat, n_off
         )
         # a one-beam segment (~60 % of a noisy swarm scan's) has chord hypot(0, 0) = 0.0
         chord = 0.0

@@ -205,8 +205,9 @@ def _fit_one(px, py, cx, cy, r, gn_iters):
 
 @numba.njit(error_model="numpy")
 def _lanes(n, c, px, py, cx, cy, ox, oy, cphi, sphi, dcest, r, gn_iters, kp, rs_lo, rs_hi, rs_w, x, fc):
+    # (its scratch NaN-filled: the outputs must not depend on what it held)
     F._fit_lanes(n, c, 0, 0, px, py, cx, cy, np.arange(c), ox, oy, cphi, sphi, dcest, r, 1.0, gn_iters, kp,
-                 rs_lo, rs_hi, rs_w, 0, x, fc)  # fmt: skip
+                 rs_lo, rs_hi, rs_w, 0, x, fc, np.full((14 + n) * c, np.nan))  # fmt: skip
 
 
 def test_circle_fits_in_simd_lanes_are_the_per_segment_fits():
@@ -345,3 +346,28 @@ def test_log_error_without_libm_is_the_float32_of_libm_log():
     assert mid_fb.mean() > 0.99, mid_fb.mean()
     assert fell_back[:4_000_000].mean() < 1e-4
     assert fell_back[-(11 + 22) : -22][10]  # NaN (inf is clipped to _ERR_CLIP)
+
+
+def test_preprocess_rows_is_the_numpy_preprocess():
+    # preprocess_rows (without the spike filter it writes each row straight into out) against the numpy
+    # geometric.preprocess row by row: 0.0, negative, NaN, +-inf, above d_max, float64 and the lidar's float32
+    # readings, with a fresh output, an output full of stale values and in place; with the filter too
+    from detectors.geometric import preprocess
+
+    rng = np.random.default_rng(3)
+    r = rng.uniform(-1.0, 14.0, (16, 90))
+    special = rng.random(r.shape)
+    r[special < 0.05] = 0.0
+    r[(special >= 0.05) & (special < 0.1)] = np.nan
+    r[(special >= 0.1) & (special < 0.15)] = np.inf
+    r[(special >= 0.15) & (special < 0.2)] = -np.inf
+    for src in (r, r.astype(np.float32)):
+        for noise_filter in (False, True):
+            for circular in (True, False):
+                ref = np.stack([preprocess(row, 12.0, noise_filter, circular, 0.1) for row in src])
+                out = np.full(r.shape, 99.0)
+                _k.preprocess_rows(src, 12.0, 0.1, circular, noise_filter, out)
+                assert np.array_equal(out, ref), (src.dtype, noise_filter, circular)
+    inplace = r.copy()
+    _k.preprocess_rows(inplace, 12.0, 0.1, True, False, inplace)
+    assert np.array_equal(inplace, np.stack([preprocess(row, 12.0) for row in r]))
