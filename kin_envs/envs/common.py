@@ -504,8 +504,15 @@ def detect_rows_padded(
 
 #: ``{field: value}`` over :data:`DETECTION_FIELDS` as one dict display (the same dict as ``dict(zip(...))``)
 _DETECTION_DICT = dict_maker(DETECTION_FIELDS)
-#: kin_envs.envs._detector_pad.learned_match_pad once imported (it imports the detectors package)
-_LEARNED_MATCH_PAD = []
+
+
+@functools.cache
+def _learned_match_pad():
+    """:func:`kin_envs.envs._detector_pad.learned_match_pad`, imported on first use (it imports the
+    detectors package, which ``import kin_envs`` does not)."""
+    from kin_envs.envs._detector_pad import learned_match_pad
+
+    return learned_match_pad
 
 
 def _padded_in_detector(detector, ranges, angles, observers, poses, slots: int, hits):
@@ -521,14 +528,10 @@ def _padded_in_detector(detector, ranges, angles, observers, poses, slots: int, 
     then = getattr(detector, "_detect_table_then", None)
     if then is None:
         return None
-    if not _LEARNED_MATCH_PAD:
-        from kin_envs.envs._detector_pad import learned_match_pad
-
-        _LEARNED_MATCH_PAD.append(learned_match_pad)
     hit_kind, hit_index = _NO_HITS if hits is None else hits
     match = (np.ascontiguousarray(observers, dtype=np.int64), np.ascontiguousarray(poses, dtype=np.float64),
              KIN_MATCH_TOLERANCE**2, slots, _INT_PADS, hit_kind, hit_index, _ROBOT_HIT)  # fmt: skip
-    return then(_LEARNED_MATCH_PAD[0], ranges, angles, match)
+    return then(_learned_match_pad(), ranges, angles, match)
 
 
 def _match_pad(owner, tab, observers, poses, n_rows: int, slots: int, hits, flat: bool):
