@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
+import itertools
 import math
 import os
 import platform
@@ -508,8 +509,9 @@ def bench_memory(min_time: float, steps: int = 2000, n_robots: int = 256) -> lis
 
 
 def bench_vecenv(min_time: float, num_envs: int = 64, detectors=("none", "geometric"),
-                 steps: int = 300, chunk: int = 25) -> list[dict]:
-    """Native vector env vs SyncVectorEnv, K sub-envs each, constant random actions; env-steps/s = K x
+                 steps: int = 300, chunk: int = 25, noises=(0.0, 0.01)) -> list[dict]:
+    """Native vector env vs SyncVectorEnv, K sub-envs each, constant random actions, at each relative range
+    noise sigma of ``noises`` (0 = KinSeek's default; 1 % as in the ``envs`` section); env-steps/s = K x
     vector steps/s over ``steps`` vector steps each (300 = KinSeek's episode: every sub-env that runs to
     its time limit autoresets once inside the window, so resets are counted as a user pays them). The
     two are stepped round robin, ``chunk`` steps at a time: timed one after the other on a shared
@@ -520,11 +522,11 @@ def bench_vecenv(min_time: float, num_envs: int = 64, detectors=("none", "geomet
 
     now = CLOCK["now"]
     rows = []
-    for det in detectors:
+    for noise, det in itertools.product(noises, detectors):
         envs, fns = {}, {}
         for mode in ("vector_entry_point", "sync"):
             env = gym.make_vec("kin_envs/KinSeek-v1", num_envs=num_envs, vectorization_mode=mode,
-                               detector=None if det == "none" else det)
+                               detector=None if det == "none" else det, noise_sigma=noise)
             env.reset(seed=0)
             env.action_space.seed(0)
             envs[mode] = env
@@ -544,12 +546,13 @@ def bench_vecenv(min_time: float, num_envs: int = 64, detectors=("none", "geomet
         rates = {k: steps * num_envs / spent[k] for k in fns}
         for env in envs.values():
             env.close()
-        row = {"env": "KinSeek-v1", "num_envs": num_envs, "detector": det,
+        row = {"env": "KinSeek-v1", "num_envs": num_envs, "detector": det, "noise": noise,
                "native_env_steps_per_s": rates["vector_entry_point"],
                "sync_env_steps_per_s": rates["sync"],
                "ratio": rates["vector_entry_point"] / rates["sync"]}
         rows.append(row)
-        print(f"  KinSeek-v1 x{num_envs} detector={det:9s} native {row['native_env_steps_per_s']:8.0f} "
+        print(f"  KinSeek-v1 x{num_envs} detector={det:9s} noise={noise:g} "
+              f"native {row['native_env_steps_per_s']:8.0f} "
               f"env-steps/s, SyncVectorEnv {row['sync_env_steps_per_s']:7.0f}: {row['ratio']:.1f}x",
               flush=True)
     return rows
@@ -740,11 +743,13 @@ def to_markdown(results: dict) -> str:
         lines.append("")
     if results.get("vecenv"):
         lines += [
-            "| env | sub-envs | detector | native vector env, env-steps/s | SyncVectorEnv | ratio |",
-            "|---|---:|---|---:|---:|---:|",
+            "| env | sub-envs | detector | range noise | native vector env, env-steps/s | SyncVectorEnv "
+            "| ratio |",
+            "|---|---:|---|---:|---:|---:|---:|",
         ]
         lines += [
-            f"| {r['env']} | {r['num_envs']} | {r['detector']} | {r['native_env_steps_per_s']:,.0f} | "
+            f"| {r['env']} | {r['num_envs']} | {r['detector']} | {r.get('noise', 0.0):.1%} | "
+            f"{r['native_env_steps_per_s']:,.0f} | "
             f"{r['sync_env_steps_per_s']:,.0f} | {r['ratio']:.1f}x |"
             for r in results["vecenv"]
         ]
@@ -778,6 +783,9 @@ def main(argv: list[str] | None = None) -> dict:
                    help="vecenv: vector steps timed per env (300 = one KinSeek episode, autoresets included)")
     p.add_argument("--vec-detectors", nargs="+", default=["none", "geometric"],
                    choices=["none", "geometric", "learned"], help="vecenv: detectors to time")
+    p.add_argument("--vec-noise", type=float, nargs="+", default=[0.0, 0.01],
+                   help="vecenv: relative range noise sigmas of the sub-envs (0 = KinSeek's default; "
+                   "1 %% as in the envs section)")
     p.add_argument(
         "--clock", choices=["wall", "cpu"], default="wall",
         help="rates from wall time (default) or from this process's CPU time (a shared machine: time "
@@ -809,6 +817,9 @@ def main(argv: list[str] | None = None) -> dict:
         p.error(f"--vec-envs must be >= 1, got {args.vec_envs}")
     if args.vec_steps < 1:
         p.error(f"--vec-steps must be >= 1, got {args.vec_steps}")
+    for v in args.vec_noise:
+        if not 0.0 <= v < 1.0:
+            p.error(f"--vec-noise values must be in [0, 1), got {v}")
     from detectors.fileio import write_json, write_text
     from kin_envs.cli import check_output_dir
 
@@ -832,6 +843,7 @@ def main(argv: list[str] | None = None) -> dict:
             "vec_envs": args.vec_envs,
             "vec_steps": args.vec_steps,
             "vec_detectors": args.vec_detectors,
+            "vec_noise": args.vec_noise,
             "python": platform.python_version(),
             "machine": platform.machine(),
         }
@@ -851,7 +863,8 @@ def main(argv: list[str] | None = None) -> dict:
         elif s == "memory":
             results[s] = SECTIONS[s](args.min_time, steps=args.memory_steps, n_robots=args.memory_robots)
         elif s == "vecenv":
-            results[s] = SECTIONS[s](args.min_time, args.vec_envs, args.vec_detectors, args.vec_steps)
+            results[s] = SECTIONS[s](args.min_time, args.vec_envs, args.vec_detectors, args.vec_steps,
+                                      noises=tuple(args.vec_noise))
         else:
             results[s] = SECTIONS[s](args.min_time)
     md = to_markdown(results)

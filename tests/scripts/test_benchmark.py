@@ -117,7 +117,10 @@ def test_vecenv_section(bench, tmp_path, monkeypatch):
 
     counts, make_vec = [], gym.make_vec
 
+    noises = []
+
     def counting_make_vec(*args, **kwargs):
+        noises.append(kwargs["noise_sigma"])
         env, calls = make_vec(*args, **kwargs), [kwargs["vectorization_mode"], 0]
         step = env.step
 
@@ -131,18 +134,23 @@ def test_vecenv_section(bench, tmp_path, monkeypatch):
 
     monkeypatch.setattr(gym, "make_vec", counting_make_vec)
     res = bench.main(["--sections", "vecenv", "--min-time", "0.03", "--vec-envs", "2", "--vec-steps", "30",
-                      "--vec-detectors", "none", "geometric", "--out", str(tmp_path)])
+                      "--vec-detectors", "none", "geometric", "--vec-noise", "0", "0.005",
+                      "--out", str(tmp_path)])
+    assert noises == [0.0] * 4 + [0.005] * 4  # the same range noise in both vectorisations, every detector
     # both envs step the same window (in steps, chunk by chunk, so resets count alike), plus one warm-up
-    assert counts == [["vector_entry_point", 31], ["sync", 31]] * 2
-    assert [r["detector"] for r in res["vecenv"]] == ["none", "geometric"]
+    assert counts == [["vector_entry_point", 31], ["sync", 31]] * 4
+    assert [(r["noise"], r["detector"]) for r in res["vecenv"]] == [
+        (0.0, "none"), (0.0, "geometric"), (0.005, "none"), (0.005, "geometric")]
     for r in res["vecenv"]:
         assert r["num_envs"] == 2 and r["native_env_steps_per_s"] > 0 and r["sync_env_steps_per_s"] > 0
         assert r["ratio"] == pytest.approx(r["native_env_steps_per_s"] / r["sync_env_steps_per_s"])
-    assert "| KinSeek-v1 | 2 | geometric |" in (tmp_path / "benchmark.md").read_text()
+    assert "| KinSeek-v1 | 2 | geometric | 0.5% |" in (tmp_path / "benchmark.md").read_text()
     with pytest.raises(SystemExit):
         bench.main(["--sections", "vecenv", "--vec-envs", "0", "--out", str(tmp_path)])
     with pytest.raises(SystemExit):
         bench.main(["--sections", "vecenv", "--vec-steps", "0", "--out", str(tmp_path)])
+    with pytest.raises(SystemExit):
+        bench.main(["--sections", "vecenv", "--vec-noise", "-0.01", "--out", str(tmp_path)])
 
 
 def test_naive_baseline_matches_the_world_scan(bench):
