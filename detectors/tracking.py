@@ -333,6 +333,81 @@ def _dense_layer(h, W, b):
     return out
 
 
+# exp, tanh and the logistic on arrays, compiled and vectorised (numba's math.exp / math.tanh are scalar libm
+# calls: ~4x numpy's SIMD ones); the track classifier (TrackKinModel) and the tracker's compiled kin decision
+# both use these, so that the two give the same bits. exp: round x / ln 2 to an integer k with the 1.5 * 2^52
+# trick (k in the low mantissa bits), r = x - k ln 2 in two parts (|r| <= ln 2 / 2), e^r by its Taylor series
+# to r^13 (truncation < 1e-17 relative), times 2^k built from k's bits: within 2 ulp of libm's (tested)
+_LOG2E, _LN2_HI, _LN2_LO = 1.4426950408889634, 6.93147180369123816490e-01, 1.90821492927058770002e-10
+_MAGIC, _MAGIC_BITS = 6755399441055744.0, 0x4338000000000000
+
+
+@numba.njit(cache=True, nogil=True)
+def _exp_into(x, out, lo, hi):
+    """``out[i] = exp(clip(x[i], lo, hi))`` on 1-D contiguous arrays, ``-700 <= lo <= hi <= 700``."""
+    n = x.shape[0]
+    s = np.empty(n)
+    for i in range(n):
+        y = min(max(x[i], lo), hi)
+        si = y * _LOG2E + _MAGIC
+        kf = si - _MAGIC
+        r = (y - kf * _LN2_HI) - kf * _LN2_LO
+        p = 1.0 / 6227020800.0
+        p = p * r + 1.0 / 479001600.0
+        p = p * r + 1.0 / 39916800.0
+        p = p * r + 1.0 / 3628800.0
+        p = p * r + 1.0 / 362880.0
+        p = p * r + 1.0 / 40320.0
+        p = p * r + 1.0 / 5040.0
+        p = p * r + 1.0 / 720.0
+        p = p * r + 1.0 / 120.0
+        p = p * r + 1.0 / 24.0
+        p = p * r + 1.0 / 6.0
+        p = p * r + 0.5
+        p = p * r + 1.0
+        out[i] = p * r + 1.0
+        s[i] = si
+    k = s.view(np.int64)  # k + the magic number's bits -> the bits of 2^k
+    for i in range(n):
+        k[i] = (k[i] - _MAGIC_BITS + 1023) << 52
+    two_k = k.view(np.float64)
+    for i in range(n):
+        out[i] *= two_k[i]
+
+
+@numba.njit(cache=True, nogil=True)
+def _tanh_inplace(a):
+    """``a[i] = tanh(a[i])`` on a 1-D contiguous array: ``1 - 2 / (e^2x + 1)`` with :func:`_exp_into`
+    (|x| clipped to 20, where tanh is 1 in float64); absolute error ~2e-16 (tested against numpy's)."""
+    n = a.shape[0]
+    t, e = np.empty(n), np.empty(n)
+    for i in range(n):
+        t[i] = 2.0 * a[i]
+    _exp_into(t, e, -40.0, 40.0)
+    for i in range(n):
+        a[i] = 1.0 - 2.0 / (e[i] + 1.0)
+
+
+@numba.njit(cache=True, nogil=True)
+def _sigmoid(z):
+    """``1 / (1 + e^-z)`` of a 1-D array (``z`` clipped to ±700: below ~1e-304 the value is ~0 anyway)."""
+    n = z.shape[0]
+    t, e = np.empty(n), np.empty(n)
+    for i in range(n):
+        t[i] = -z[i]
+    _exp_into(t, e, -700.0, 700.0)
+    for i in range(n):
+        e[i] = 1.0 / (1.0 + e[i])
+    return e
+
+
+def _tanh(h: np.ndarray) -> np.ndarray:
+    """:func:`_tanh_inplace` of a copy of ``h`` (any shape)."""
+    out = np.array(h, np.float64, order="C", copy=True)
+    _tanh_inplace(out.reshape(-1))
+    return out
+
+
 class TrackKinModel:
     """Track-level kin classifier: a small network in numpy over :data:`TRACK_FEATURES` (standardised),
     ``tanh`` hidden layers (none: logistic regression), one output logit.
@@ -393,13 +468,13 @@ class TrackKinModel:
             # machine that cost ~7x a single-threaded loop (measured at 64 observers)
             h = _dense_layer(np.ascontiguousarray(h), W, b)
             if i < len(self.layers) - 1:
-                h = np.tanh(h)  # numpy's SIMD tanh: ~4x numba's scalar libm call
+                h = _tanh(h)  # compiled and vectorised, the tracker's kin decision's tanh (the same bits)
         return h[:, 0]
 
     def kin_prob(self, X: np.ndarray) -> np.ndarray:
         """(n,) kin probability of the feature rows ``X`` (n, F), young tracks by the detector's decision."""
         X = np.asarray(X, np.float64).reshape(-1, len(TRACK_FEATURES))
-        p = 1.0 / (1.0 + np.exp(-self.logit(X)))
+        p = _sigmoid(np.ascontiguousarray(self.logit(X)))
         if self.min_frames > 0:
             young = X[:, _I_LOG_FRAMES] < math.log(self.min_frames) - 1e-9
             p = np.where(young, np.where(X[:, _I_HIT_ACC] > 0.75, 0.75, 0.25), p)
@@ -861,12 +936,12 @@ class KinTracker:
         m = self.kin_model
         dec = (self._kp_cache[0] is not None and self._kp_cache[0][0] == self._frame and m is not None
                and TRACK_FEATURES == _KERNEL_FEATURES)  # fmt: skip
-        W, b = m.layers[0] if dec else (_NO_W, _NO_B)
+        W, b, W2, b2, tail = _layers(m) if dec else (_NO_W, _NO_B, _NO_W, _NO_B, 0)
         c_ = np.ascontiguousarray
         args = (c_(obs, np.int64), c_(xy), c_(scores), c_(accepted), c_(delta), float(dt), pts, c_(own),
                 points is not None, c_(noise), poses, self.odometer, self.time + dt, self._next_id, self._prm,
                 self._F, self._I, self._B, self._x, self._P, self._anchor, self._fit_c, self._pts,
-                self._pts_aux, dec, m.mean if dec else _NO_B, m.scale if dec else _NO_B, W, b,
+                self._pts_aux, dec, m.mean if dec else _NO_B, m.scale if dec else _NO_B, W, b, W2, b2, tail,
                 _log_min(m) if dec else 0.0, bool(dec and m.hit_only))  # fmt: skip
         status, next_id, rows, kp, sel, h = _update_kernel(*args)
         if status == _BAD_SORT:  # points not grouped by candidate (segment_points gives them sorted)
@@ -996,16 +1071,15 @@ class KinTracker:
             rows, kp, sel, h = pend[1]  # computed in this frame's update call
         else:
             pr = self.params
-            W, b = m.layers[0]
             rows, kp, sel, h = _decide_packed(
                 self.n_observers, self._F, self._I, self._B, self._x, self._P, self._anchor, self.odometer,
-                pr.odom_heading_rate**2, pr.odom_position_rate**2, m.mean, m.scale, W, b, _log_min(m),
+                pr.odom_heading_rate**2, pr.odom_position_rate**2, m.mean, m.scale, *_layers(m), _log_min(m),
                 m.hit_only,
             )  # fmt: skip
-        if sel.size:
+        if sel.size:  # a network of more than one hidden layer: its later layers here
             for W, b in m.layers[1:]:  # TrackKinModel.logit's later layers
-                h = _dense_layer(np.tanh(h), W, b)
-            kp[sel] = 1.0 / (1.0 + np.exp(-h[:, 0]))
+                h = _dense_layer(_tanh(h), W, b)
+            kp[sel] = _sigmoid(np.ascontiguousarray(h[:, 0]))
         return rows, kp
 
     def _features(self, rows: np.ndarray) -> np.ndarray:
@@ -1106,6 +1180,17 @@ def _log_min(m: TrackKinModel) -> float:
 
 
 _NO_W, _NO_B = np.zeros((0, 0)), np.zeros(0)
+
+
+def _layers(m: TrackKinModel) -> tuple:
+    """``(W, b, W2, b2, tail)`` of :func:`_decide_kernel`: the first layer, the output layer when the
+    network has one hidden layer, and how much of it the kernel finishes (``tail``)."""
+    W, b = m.layers[0]
+    if len(m.layers) == 1:
+        return W, b, _NO_W, _NO_B, 1
+    if len(m.layers) == 2:
+        return W, b, *m.layers[1], 2
+    return W, b, _NO_W, _NO_B, 0
 
 
 def _kin_model(kin_model) -> TrackKinModel | None:
@@ -2111,8 +2196,8 @@ def _update_error(status, N, k, delta, xy, scores, obs, noise, pts) -> str:
 
 @numba.njit(cache=True, nogil=True)
 def _update_kernel(obs, xy, scores, accepted, delta, dt, pts, owner, has_points, noise, poses, odometer, now,
-                   next_id, prm, F, I, B, x, P, anchor, fit_c, buf, aux, dec, mean, scale, W, b, log_min,
-                   hit_only):  # fmt: skip
+                   next_id, prm, F, I, B, x, P, anchor, fit_c, buf, aux, dec, mean, scale, W, b, W2, b2, tail,
+                   log_min, hit_only):  # fmt: skip
     """One frame of every observer (:meth:`KinTracker.update_batch`) on the packed state (:data:`_F_COLS`,
     :data:`_I_COLS`, :data:`_B_COLS`): :func:`_update_frame`, then (``dec``) the kin decision's compiled
     part (:func:`_decide_kernel`) with the model's standardisation and first layer ``mean, scale, W, b``.
@@ -2145,7 +2230,7 @@ def _update_kernel(obs, xy, scores, accepted, delta, dt, pts, owner, has_points,
     rows, kp, sel, h = _decide_kernel(
         poses.shape[0], alive, confirmed, tobs, seen, x, P, anchor, anchor_var, anchor_odo, anchor_rng,
         odometer, hit, f_lgsum, f_lgsq, f_lgmax, f_lglast, f_accsum, f_acclast, f_beams, f_rng, moved, exist,
-        res_chi2, res_dof, prm[21], prm[22], mean, scale, W, b, log_min, hit_only,
+        res_chi2, res_dof, prm[21], prm[22], mean, scale, W, b, W2, b2, tail, log_min, hit_only,
     )  # fmt: skip
     return status, next_id, rows, kp, sel, h
 
@@ -2356,14 +2441,18 @@ def _features_kernel(rows, n_obs, alive, confirmed, obs, seen, x, P, anchor, anc
 @numba.njit(cache=True, nogil=True)
 def _decide_kernel(n_obs, alive, confirmed, obs, seen, x, P, anchor, anchor_var, anchor_odo, anchor_rng,
                    odometer, hit, lgsum, lgsq, lgmax, lglast, accsum, acclast, beams, f_rng, moved, exist,
-                   res_chi2, res_dof, head_rate2, pos_rate2, mean, scale, W, b, log_min,
+                   res_chi2, res_dof, head_rate2, pos_rate2, mean, scale, W, b, W2, b2, tail, log_min,
                    hit_only):  # fmt: skip
     """:meth:`KinTracker._decide`'s compiled part: every live track's row and kin probability where
     :meth:`TrackKinModel.kin_prob` does not need the network (0 for a track not updated this frame under
     ``hit_only``; the detector's decision, 0.75 / 0.25, for one seen in fewer frames than the model's
     ``min_frames``, ``log(frames) < log_min``), and for the others (``sel``, indices into the rows) the
     network's first layer ``standardised features @ W + b`` (:func:`_features_kernel`'s inputs and
-    :func:`_dense_layer`'s sums, the same operations in the same order)."""
+    :func:`_dense_layer`'s sums, the same operations in the same order). ``tail``: how much of the network
+    is finished here too — 1: ``W, b`` is the output (a logistic model), 2: ``tanh`` of the first layer
+    then the output layer ``W2, b2`` (the shipped model), both with :func:`_sigmoid`: ``kp`` complete and
+    ``sel`` empty; 0: ``sel`` and the first layer returned for :meth:`KinTracker._decide` to finish
+    (deeper networks). The same operations as :meth:`TrackKinModel.kin_prob`: the same bits."""
     n_conf = np.zeros(n_obs)  # the scene: each observer's confirmed tracks, and those that moved
     n_moved = np.zeros(n_obs, np.int64)
     n = 0
@@ -2457,12 +2546,29 @@ def _decide_kernel(n_obs, alive, confirmed, obs, seen, x, P, anchor, anchor_var,
             hj = ht[j]
             for c in range(n_sel):
                 hj[c] += v[c] * w
-    return rows, kp, sel[:n_sel], np.ascontiguousarray(ht.T)
+    if tail == 0:
+        return rows, kp, sel[:n_sel], np.ascontiguousarray(ht.T)
+    if tail == 2:  # tanh, then the output layer summed in the units' order (as _dense_layer's narrow path)
+        _tanh_inplace(ht.reshape(U * n_sel))
+        z = np.empty(n_sel)
+        for c in range(n_sel):
+            z[c] = b2[0]
+        for j in range(U):
+            w = W2[j, 0]
+            hj = ht[j]
+            for c in range(n_sel):
+                z[c] += hj[c] * w
+    else:
+        z = ht[0].copy()
+    p = _sigmoid(z)
+    for c in range(n_sel):
+        kp[sel[c]] = p[c]
+    return rows, kp, sel[:0], np.empty((0, 0))
 
 
 @numba.njit(cache=True, nogil=True)
-def _decide_packed(n_obs, F, I, B, x, P, anchor, odometer, head_rate2, pos_rate2, mean, scale, W, b, log_min,
-                   hit_only):  # fmt: skip
+def _decide_packed(n_obs, F, I, B, x, P, anchor, odometer, head_rate2, pos_rate2, mean, scale, W, b, W2, b2,
+                   tail, log_min, hit_only):  # fmt: skip
     """:func:`_decide_kernel` on the packed state (:data:`_F_COLS`, ...)."""
     (exist, _, _, _, _, anchor_var, anchor_odo, anchor_rng, _, res_chi2, res_dof, _, _, lgsum, lgsq, lgmax,
      lglast, accsum, acclast, beams, f_rng) = _f_cols(F, F.shape[1])  # fmt: skip
@@ -2470,7 +2576,7 @@ def _decide_packed(n_obs, F, I, B, x, P, anchor, odometer, head_rate2, pos_rate2
     return _decide_kernel(n_obs, alive, confirmed, I[1], I[2], x, P, anchor, anchor_var, anchor_odo,
                           anchor_rng, odometer, hit, lgsum, lgsq, lgmax, lglast, accsum, acclast, beams,
                           f_rng, moved, exist, res_chi2, res_dof, head_rate2, pos_rate2, mean, scale, W, b,
-                          log_min, hit_only)  # fmt: skip
+                          W2, b2, tail, log_min, hit_only)  # fmt: skip
 
 
 @numba.njit(cache=True, nogil=True)
