@@ -1298,6 +1298,7 @@ def _gate_pairs(n_obs, t_cnt, c_cnt, c_ord, z, rng, meas_sigma, meas_sigma_rel, 
     ``x`` (``kx``), with their ``y``, bound and position covariance in the same order."""
     n_g = 0
     mv_a, w_a = np.empty(c_ord.shape[0]), np.empty(c_ord.shape[0])
+    near = np.empty(xs.shape[0], np.int64)
     for o in range(n_obs):
         lo, hi = t_cnt[o], t_cnt[o + 1]
         if lo == hi:
@@ -1311,18 +1312,38 @@ def _gate_pairs(n_obs, t_cnt, c_cnt, c_ord, z, rng, meas_sigma, meas_sigma_rel, 
             c = c_ord[a]
             mv, w = mv_a[a - a0], w_a[a - a0]
             zx, zy = z[c, 0], z[c, 1]
-            l, h_ = lo, hi  # the first track with zx - x <= w (zx - x falls along the order)
-            while l < h_:  # branch-free halving (conditional moves)
-                mid = (l + h_) >> 1
-                right = zx - kx[mid] > w
-                l = mid + 1 if right else l
-                h_ = h_ if right else mid
-            for b in range(l, hi):
+            # the walk: from the first track with zx - x <= w to the first with zx - x < -w (zx - x falls
+            # along the order, so each is a count of the tracks before it: for the usual tens of tracks of an
+            # observer counted without a branch, vectorised; the halving's steps were mispredicted)
+            if hi - lo <= 64:
+                l = e = lo
+                for b in range(lo, hi):
+                    dx = zx - kx[b]
+                    l += dx > w
+                    e += dx >= -w
+            else:
+                l, h_ = lo, hi
+                while l < h_:
+                    mid = (l + h_) >> 1
+                    right = zx - kx[mid] > w
+                    l = mid + 1 if right else l
+                    h_ = h_ if right else mid
+                e, h_ = l, hi
+                while e < h_:
+                    mid = (e + h_) >> 1
+                    left = zx - kx[mid] < -w
+                    e = e if left else mid + 1
+                    h_ = mid if left else h_
+            # the bound's test over the walk without a branch (the tracks that pass, compacted in order: a
+            # track per branch was mispredicted often, ~1/6 of a learned frame went to this loop)
+            nb = 0
+            for b in range(l, e):
                 d0, d1 = zx - kx[b], zy - ky[b]
-                if d0 < -w:
-                    break
-                if d0 * d0 + d1 * d1 > gate_b * (lam_s[b] + mv):
-                    continue
+                near[nb] = b
+                nb += d0 * d0 + d1 * d1 <= gate_b * (lam_s[b] + mv)
+            for q in range(nb):
+                b = near[q]
+                d0, d1 = zx - kx[b], zy - ky[b]
                 a00, a01, a10, a11 = g00[b] + mv, g01[b], g10[b], g11[b] + mv
                 det = a00 * a11 - a01 * a10
                 m2 = (a11 * d0 * d0 - 2 * a01 * d0 * d1 + a00 * d1 * d1) / det
@@ -1792,11 +1813,11 @@ def _points_check(pts, owner, k):
 @numba.njit(cache=True, nogil=True)
 def _points_scan(pts, owner, k, cstart):
     """:func:`_points_scan_seq` (the same status and ``cstart``) without a branch per point: the checks
-    as branch-free counts (``v - v`` is 0 for a finite ``v``, NaN otherwise), and ``cstart`` by
-    counting each candidate's points (for owners sorted in ``[0, k)``, the number of points owned by an
-    earlier candidate is the first point owned by ``c`` or a later one). A frame of the learned feed has
-    ~6,000 candidates of ~2 points: the sequential scan's "next candidate?" branch was mispredicted at
-    about every other point. A bad input takes the sequential scan (its first bad point decides)."""
+    as branch-free counts (``v - v`` is 0 for a finite ``v``, NaN otherwise), and ``cstart`` without a
+    branch per point either (for owners sorted in ``[0, k)``, the number of points owned by an earlier
+    candidate is the first point owned by ``c`` or a later one). A frame of the learned feed has ~6,000
+    candidates of ~2 points: the sequential scan's "next candidate?" branch was mispredicted at about every
+    other point. A bad input takes the sequential scan (its first bad point decides)."""
     n = pts.shape[0]
     n_nonfinite = n_bad = n_desc = 0
     for i in range(n):
@@ -1810,11 +1831,16 @@ def _points_scan(pts, owner, k, cstart):
         n_desc += owner[i] < owner[i - 1]
     if n_desc:
         return 3
-    cstart[:] = 0
-    for i in range(n):
-        cstart[owner[i] + 1] += 1
-    for c in range(k):
-        cstart[c + 1] += cstart[c]
+    # each candidate's first point, stored from the last point back (the first one's index stays; stores
+    # only: counting ``cstart[owner[i] + 1] += 1`` chained each point on the store before it, ~6 cycles a
+    # point), then the first point owned by ``c`` or a later one from the back (candidates without points)
+    cstart[:] = n
+    for i in range(n - 1, -1, -1):
+        cstart[owner[i]] = i
+    run = n  # (in a register: read back from memory, each step waited on the store before it)
+    for c in range(k - 1, -1, -1):
+        run = min(cstart[c], run)
+        cstart[c] = run
     return 0
 
 
@@ -2042,19 +2068,19 @@ def _frame_fits_kernel(ti, ci, pts, sig, cstart, tobs, poses, z, r, iterations, 
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _centre_resid_kernel(ti, ci, pts, cstart, xy, obs, noise, sigma2, r, delta2, resid_clamp, lo_resid,
+def _centre_resid_kernel(ti, ci, pts, lo, hi, xy, obs, noise, sigma2, r, delta2, resid_clamp, lo_resid,
                          res_chi2, res_dof, iterations=0):  # fmt: skip
     """The per-frame residual sums from the candidate's centre (``frame_fit_warm_start`` 1, the default):
-    each updated track's candidate points (3 or more; robot frame) against a circle of the housing radius at
-    the candidate's own centre ``xy[c]`` (robot frame too: distances do not depend on the frame, so the points
-    need no transform). Each point's variance is ``sigma2 + (noise * range)^2``; the sums are
-    :func:`_frame_fits_kernel`'s: the noise-normalised chi-square, its dof (points - 2, as after a fit: the
-    detector placed the centre on these points) and, when the hand-tuned cue is on, its LLR; after
+    each updated track's candidate points (``pts[lo[c]:hi[c]]``, 3 or more; robot frame) against a circle
+    of the housing radius at the candidate's own centre ``xy[c]`` (robot frame too: distances do not depend
+    on the frame, so the points need no transform). Each point's variance is ``sigma2 + (noise * range)^2``;
+    the sums are :func:`_frame_fits_kernel`'s: the noise-normalised chi-square, its dof (points - 2, as after
+    a fit: the detector placed the centre on these points) and, when the hand-tuned cue is on, its LLR; after
     ``iterations`` Gauss-Newton steps of the centre (:func:`_fit_span`'s, weights ``1 / variance``; the
     default 1) from the candidate's centre, in the robot frame."""
     for j in range(ti.shape[0]):
         c = ci[j]
-        a, b = cstart[c], cstart[c + 1]
+        a, b = lo[c], hi[c]
         mf = b - a
         if mf < 3:
             continue
@@ -2284,43 +2310,49 @@ def _update_frame(obs, xy, scores, accepted, delta, dt, pts, owner, has_points, 
             return _BAD_POINTS, next_id
         if status == 3:
             return _BAD_SORT, next_id
-    # -- candidates below min_score are dropped (their points too, the rest renumbered)
+    # -- candidates below min_score are dropped (the rest renumbered). Their points stay where they are: kept
+    # candidate j's are pts[lo[j]:hi[j]] (copying the kept points was ~10 % of a learned frame, which drops
+    # ~5 of 6 candidates); only the fits from behind the points and the outline ring, which read each
+    # point's owner, get them copied in order (and cstart renumbered)
     min_score = prm[30]
-    new = np.empty(k, np.int64)
+    gn = prm[32] > 0.0 and prm[33] <= 0.0  # fits from behind the points: in the odometry frame, owners read
+    copy_pts = has_points and (gn or buf.shape[1] > 0)
+    kept = np.empty(k, np.int64)
     kk = 0
-    for c in range(k):
-        if min_score <= 0.0 or scores[c] >= min_score:
-            new[c] = kk
-            kk += 1
-        else:
-            new[c] = -1
+    for c in range(k):  # the kept candidates' indices, compacted without a branch
+        kept[kk] = c
+        kk += (min_score <= 0.0) | (scores[c] >= min_score)
     if kk < k:
         ob2, xy2, sc2 = np.empty(kk, np.int64), np.empty((kk, 2)), np.empty(kk)
         acc2 = np.empty(kk if accepted.shape[0] else 0, np.bool_)
-        for c in range(k):
-            j = new[c]
-            if j >= 0:
-                ob2[j], xy2[j, 0], xy2[j, 1], sc2[j] = obs[c], xy[c, 0], xy[c, 1], scores[c]
-                if accepted.shape[0]:
-                    acc2[j] = accepted[c]
+        for j in range(kk):
+            c = kept[j]
+            ob2[j], xy2[j, 0], xy2[j, 1], sc2[j] = obs[c], xy[c, 0], xy[c, 1], scores[c]
+        if accepted.shape[0]:
+            for j in range(kk):
+                acc2[j] = accepted[kept[j]]
         obs, xy, scores, accepted = ob2, xy2, sc2, acc2
-        if has_points:  # the kept candidates' point ranges, copied in order
+        if copy_pts:  # the kept candidates' point ranges, copied in order
             m = 0
-            for c in range(k):
-                if new[c] >= 0:
-                    m += cstart[c + 1] - cstart[c]
+            for j in range(kk):
+                m += cstart[kept[j] + 1] - cstart[kept[j]]
             pts2, own2, cs2 = np.empty((m, 2)), np.empty(m, np.int64), np.empty(kk + 1, np.int64)
             m = 0
-            for c in range(k):
-                j = new[c]
-                if j >= 0:
-                    cs2[j] = m
-                    for i in range(cstart[c], cstart[c + 1]):
-                        pts2[m, 0], pts2[m, 1], own2[m] = pts[i, 0], pts[i, 1], j
-                        m += 1
+            for j in range(kk):
+                c = kept[j]
+                cs2[j] = m
+                for i in range(cstart[c], cstart[c + 1]):
+                    pts2[m, 0], pts2[m, 1], own2[m] = pts[i, 0], pts[i, 1], j
+                    m += 1
             cs2[kk] = m
             pts, owner, cstart = pts2, own2, cs2
+            for j in range(kk):
+                kept[j] = j
         k = kk
+    lo, hi = np.empty(k if has_points else 0, np.int64), np.empty(k if has_points else 0, np.int64)
+    if has_points:
+        for j in range(k):
+            lo[j], hi[j] = cstart[kept[j]], cstart[kept[j] + 1]
     # -- ego-motion: each observer's new pose in its odometry frame; the odometer (wheel travel)
     cos, sin = np.empty(N), np.empty(N)
     for o in range(N):
@@ -2366,8 +2398,7 @@ def _update_frame(obs, xy, scores, accepted, delta, dt, pts, owner, has_points, 
         # the per-frame residual sums (always: the track classifier reads them, resid_z): by default fitted
         # from the candidate's own centre in the robot frame (no transform); fits from behind the points
         # (frame_fit_warm_start 0) and the outline's ring need the points in the odometry frame
-        gn = prm[32] > 0.0 and prm[33] <= 0.0  # fits from behind the points: in the odometry frame
-        if gn or buf.shape[1] > 0:
+        if copy_pts:
             odom, sig, dist = _points_prep(pts, owner, obs, noise, cos, sin, poses, prm[16])
             if gn:
                 _frame_fits_kernel(tracks, cands, odom, sig, cstart, tobs, poses, z, prm[7], int(prm[32]),
@@ -2377,10 +2408,10 @@ def _update_frame(obs, xy, scores, accepted, delta, dt, pts, owner, has_points, 
                                 head, fit_c, lo_shape, x, P, now, prm[7], prm[17], prm[18], int(prm[19]),
                                 prm[20], prm[21], prm[22])  # fmt: skip
         if not gn:
-            _centre_resid_kernel(tracks, cands, pts, cstart, xy, obs, noise, prm[16], prm[7], prm[17],
+            _centre_resid_kernel(tracks, cands, pts, lo, hi, xy, obs, noise, prm[16], prm[7], prm[17],
                                  prm[23], lo_resid, res_chi2, res_dof, int(prm[32]))  # fmt: skip
         for j in range(n_t):
-            bm[j] = cstart[cands[j] + 1] - cstart[cands[j]]
+            bm[j] = hi[cands[j]] - lo[cands[j]]
     _feature_kernel(tracks, n_m, lgs, ac, rg, bm, f_lgsum, f_lgsq, f_lgmax, f_lglast, f_accsum, f_acclast,
                     f_beams, f_rng, hit)  # fmt: skip
     hit_t = np.zeros(alive.shape[0], np.bool_)

@@ -312,7 +312,8 @@ def test_residuals_at_the_candidate_centre_against_numpy_and_the_fits_path(clamp
     for name, v in zip(("_lo_resid", "_res_chi2", "_res_dof"), sums, strict=True):
         getattr(ref, name)[: 2 * n] = v
     got = [v.copy() for v in sums]
-    _centre_resid_kernel(ti, ci, pts, cstart, xy, obs, noise, pr.shape_sigma**2, pr.r, pr.shape_delta**2,
+    lo, hi = cstart[:-1].copy(), cstart[1:].copy()
+    _centre_resid_kernel(ti, ci, pts, lo, hi, xy, obs, noise, pr.shape_sigma**2, pr.r, pr.shape_delta**2,
                          pr.resid_clamp, *got, iterations)  # fmt: skip
     ref._centre_resid(ti, ci, pts, cstart, xy, obs, noise)
     for name, g in zip(("_lo_resid", "_res_chi2", "_res_dof"), got, strict=True):
@@ -369,9 +370,9 @@ def test_fit_from_the_candidate_centre_reaches_scipy_least_squares():
         chi = {}
         for it in (0, 1, 8):
             out = [np.zeros(1), np.zeros(1), np.zeros(1)]
-            _centre_resid_kernel(np.zeros(1, np.int64), np.zeros(1, np.int64), pts, np.array([0, m]),
-                                 start[None], np.zeros(1, np.int64), noise, s2, r, pr.shape_delta**2, 0.0,
-                                 *out, it)  # fmt: skip
+            one = np.zeros(1, np.int64)
+            _centre_resid_kernel(one, one, pts, np.array([0]), np.array([m]), start[None], one, noise, s2, r,
+                                 pr.shape_delta**2, 0.0, *out, it)  # fmt: skip
             chi[it] = out[1][0]
         assert chi[8] == pytest.approx(best, rel=1e-6, abs=1e-9)
         assert best - 1e-9 <= chi[1] <= chi[0]
@@ -1001,3 +1002,40 @@ def test_compiled_exp_tanh_and_logistic_against_numpy():
     assert np.all(np.isfinite(s)) and s.min() >= 0 and s.max() <= 1
     # a (2, 3) block through _tanh keeps its shape
     assert _tanh(np.ones((2, 3))).shape == (2, 3)
+
+
+_FITS_BEHIND = {"frame_fit_iterations": 6, "frame_fit_warm_start": 0}
+
+
+@pytest.mark.parametrize("over", [{}, {"keep_points": 1}, _FITS_BEHIND, {"shape_clamp": 2.0}])
+def test_dropped_candidates_points_in_place_or_copied_equal_the_staged_steps(over):
+    """Candidates below ``min_score`` dropped (most of them, as in the learned feed) while their points stay
+    in place (the default: the kept candidates' point ranges read where they are) or are copied in order (the
+    fits from behind the points and the outline ring, which read each point's owner), with candidates of 0
+    to 6 points (empty ones first, last and in between) and unsorted points on some frames: every state array
+    bitwise the staged steps' (tests/detectors/reference_tracking.py), frame after frame."""
+    from tests.detectors.reference_tracking import StagedKinTracker
+
+    rng = np.random.default_rng(len(over) + 5)
+    pr = TrackerParams(**over)
+    fused, staged = KinTracker(pr, n_observers=2), StagedKinTracker(pr, n_observers=2)
+    pos = rng.uniform(-1.5, 1.5, (30, 2))
+    for f in range(15):
+        pos += rng.normal(0, 0.01, pos.shape)
+        xy = pos + rng.normal(0, 0.005, pos.shape)
+        obs = np.sort(rng.integers(0, 2, pos.shape[0]))
+        sc = np.where(rng.random(pos.shape[0]) < 0.3, rng.uniform(0.1, 1.0, pos.shape[0]), 0.05)
+        counts = rng.integers(0, 7, pos.shape[0])
+        counts[[0, 7, -1]] = 0
+        own = np.repeat(np.arange(pos.shape[0]), counts)
+        a = rng.uniform(0, 6.3, own.size)
+        pts = xy[own] + 0.035 * np.c_[np.cos(a), np.sin(a)]
+        if f % 3 == 1:
+            order = rng.permutation(own.size)
+            pts, own = pts[order], own[order]
+        delta = rng.normal(0, 0.01, (2, 3))
+        fused.update_batch(obs, xy, sc, delta, DT, pts, own)
+        staged.update_batch(obs, xy, sc, delta, DT, pts, own)
+        for name in KinTracker._FIELDS:
+            assert np.array_equal(getattr(fused, name), getattr(staged, name)), (f, name)
+    assert len(fused) > 5 and np.count_nonzero(fused._res_dof) > 3
