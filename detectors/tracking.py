@@ -830,6 +830,8 @@ class KinTracker:
         self._frame = 0  # frames since reset (keys the per-frame cache of the kin decision)
         self._kp_cache = (None, None)
         self._pending = None  # the decision's compiled part from the last update
+        self._slots_max = -1  # max_tracks of the last track_arrays call (the update fills its slots then)
+        self._pending_slots = None  # those slots, filled in this frame's update call
 
     @property
     def pose(self) -> np.ndarray:
@@ -940,31 +942,34 @@ class KinTracker:
         if n_alive + kept > self._alive.shape[0]:
             self._grow(n_alive + kept)
         poses = self.poses.copy()  # a new array per frame: earlier views of ``poses`` keep their values
-        # the kin decision's compiled part (its inputs and first layer) runs in the same call when the last
-        # frame's outputs were read (as an env does every step); track_arrays then finishes it
+        # the kin decision runs in the same call when the last frame's outputs were read (as an env does every
+        # step), and then the padded slots too (as many as that read asked for; a network of more than one
+        # hidden layer only up to its first layer: track_arrays finishes it and fills the slots)
         m = self.kin_model
         dec = (self._kp_cache[0] is not None and self._kp_cache[0][0] == self._frame and m is not None
                and TRACK_FEATURES == _KERNEL_FEATURES)  # fmt: skip
         W, b, W2, b2, tail = _layers(m) if dec else (_NO_W, _NO_B, _NO_W, _NO_B, 0)
+        slots = self._slots_max if dec and tail else -1
         c_ = np.ascontiguousarray
         args = (c_(obs, np.int64), c_(xy), c_(scores), c_(accepted), c_(delta), float(dt), pts, c_(own),
                 points is not None, c_(noise), poses, self.odometer, self.time + dt, self._next_id, self._prm,
                 self._F, self._I, self._B, self._x, self._P, self._anchor, self._fit_c, self._pts,
                 self._pts_aux, dec, m.mean if dec else _NO_B, m.scale if dec else _NO_B, W, b, W2, b2, tail,
-                _log_min(m) if dec else 0.0, bool(dec and m.hit_only))  # fmt: skip
-        status, next_id, rows, kp, sel, h = _update_kernel(*args)
+                _log_min(m) if dec else 0.0, bool(dec and m.hit_only), slots)  # fmt: skip
+        status, next_id, rows, kp, sel, h, so = _update_kernel(*args)
         if status == _BAD_SORT:  # points not grouped by candidate (segment_points gives them sorted)
             order = np.argsort(own, kind="stable")
             args = (*args[:6], np.ascontiguousarray(pts[order]), own[order], *args[8:])
-            status, next_id, rows, kp, sel, h = _update_kernel(*args)
+            status, next_id, rows, kp, sel, h, so = _update_kernel(*args)
         if status:
             raise ValueError(_update_error(status, N, k, delta, xy, scores, obs, noise, pts))
         self.poses = poses
         self.time += dt
         self._next_id = int(next_id)
         self._frame += 1
-        # the decision's first layer, for track_arrays of this frame (with this model and params)
+        # the decision (or its first layer) and the slots, for track_arrays of this frame (this model, params)
         self._pending = ((self._frame, m, self.params), (rows, kp, sel, h)) if dec else None
+        self._pending_slots = (self._frame, slots, so) if slots >= 0 else None
 
     def update_from_result(self, result: DetectionResult, ranges, angles, odom_delta, dt: float) -> None:
         """:meth:`update` from a detector's :class:`DetectionResult` on scan ``(ranges, angles)``: each
@@ -1013,6 +1018,7 @@ class KinTracker:
         self.odometer[observer] = other.odometer[0]
         self._kp_cache = (None, None)
         self._pending = None  # the decision's compiled part from the last update
+        self._pending_slots = None
         return other._id[src].copy()
 
     # -- steps ----------------------------------------------------------------------------------------
@@ -1168,9 +1174,19 @@ class KinTracker:
         # the kin decision of this frame's tracks, once per frame (an env reads it for the info and again for
         # the observation's track channel)
         key, cached = self._kp_cache
-        if key is None or key[0] != self._frame or key[1] is not self.kin_model or key[2] is not self.params:
+        fresh = (key is None or key[0] != self._frame or key[1] is not self.kin_model
+                 or key[2] is not self.params)  # fmt: skip
+        ps, self._pending_slots = self._pending_slots, None
+        self._slots_max = int(max_tracks)
+        if fresh:
+            pend = self._pending
             cached = self._decide()
             self._kp_cache = ((self._frame, self.kin_model, self.params), cached)
+            # the slots the update's call filled: the first read of this frame, as many slots, the decision
+            # that call made (each later read builds its own arrays: a caller may write into them)
+            if ps is not None and ps[0] == self._frame and ps[1] == max_tracks and pend is not None \
+                    and pend[0][1] is self.kin_model and pend[0][2] is self.params:
+                return {"tracks": ps[2][0], "mask": ps[2][1], "count": ps[2][2]}
         rows, kp = cached
         out, mask, count = _slots_kernel(rows, kp, self.n_observers, int(max_tracks), self._obs, self._id,
                                          self._confirmed, self._x, self.poses, self._exist, self._seen,
@@ -2241,11 +2257,13 @@ def _update_error(status, N, k, delta, xy, scores, obs, noise, pts) -> str:
 @numba.njit(cache=True, nogil=True)
 def _update_kernel(obs, xy, scores, accepted, delta, dt, pts, owner, has_points, noise, poses, odometer, now,
                    next_id, prm, F, I, B, x, P, anchor, fit_c, buf, aux, dec, mean, scale, W, b, W2, b2, tail,
-                   log_min, hit_only):  # fmt: skip
+                   log_min, hit_only, slots):  # fmt: skip
     """One frame of every observer (:meth:`KinTracker.update_batch`) on the packed state (:data:`_F_COLS`,
     :data:`_I_COLS`, :data:`_B_COLS`): :func:`_update_frame`, then (``dec``) the kin decision's compiled
-    part (:func:`_decide_kernel`) with the model's standardisation and first layer ``mean, scale, W, b``.
-    Returns ``(status, next_id, rows, kp, sel, h)`` (the decision's arrays empty unless ``dec``)."""
+    part (:func:`_decide_kernel`, the model's layers ``mean, scale, W, b, W2, b2, tail``) and (``slots`` >= 0)
+    :meth:`KinTracker.track_arrays`' padded slots (:func:`_slots_kernel`, ``slots`` of them per observer).
+    Returns ``(status, next_id, rows, kp, sel, h, (tracks, mask, count))`` (the decision's arrays empty unless
+    ``dec``, the slots unless ``slots >= 0``)."""
     # the frame's steps see the rows below n only: the rows from the last live one up are free, and births
     # (one per candidate at most) take the first free rows, so every row this frame reads or writes is below
     # n (a swarm's arrays have about twice its tracks: their loops over every row would mostly skip)
@@ -2269,14 +2287,21 @@ def _update_kernel(obs, xy, scores, accepted, delta, dt, pts, owner, has_points,
     )  # fmt: skip
     if not status:
         B[3][n:] = False  # "updated this frame" is cleared on every row (a row adopt() freed may hold it)
+    no_slots = (np.zeros((0, 0, 10), np.float32), np.zeros((0, 0), np.bool_), np.zeros(0, np.int64))
     if status or not dec:
-        return status, next_id, np.empty(0, np.int64), np.zeros(0), np.empty(0, np.int64), np.empty((0, 0))
+        return (status, next_id, np.empty(0, np.int64), np.zeros(0), np.empty(0, np.int64), np.empty((0, 0)),
+                no_slots)  # fmt: skip
     rows, kp, sel, h = _decide_kernel(
         poses.shape[0], alive, confirmed, tobs, seen, x, P, anchor, anchor_var, anchor_odo, anchor_rng,
         odometer, hit, f_lgsum, f_lgsq, f_lgmax, f_lglast, f_accsum, f_acclast, f_beams, f_rng, moved, exist,
         res_chi2, res_dof, prm[21], prm[22], mean, scale, W, b, W2, b2, tail, log_min, hit_only,
     )  # fmt: skip
-    return status, next_id, rows, kp, sel, h
+    if slots < 0:
+        return status, next_id, rows, kp, sel, h, no_slots
+    # track_arrays' slots while this frame's rows are in cache (_slots_kernel on the rows below n: every live
+    # row is; ``poses`` already the new poses)
+    so = _slots_kernel(rows, kp, poses.shape[0], slots, tobs, tid, confirmed, x, poses, exist, seen, age)
+    return status, next_id, rows, kp, sel, h, so
 
 
 @numba.njit(cache=True, nogil=True)

@@ -1039,3 +1039,25 @@ def test_dropped_candidates_points_in_place_or_copied_equal_the_staged_steps(ove
         for name in KinTracker._FIELDS:
             assert np.array_equal(getattr(fused, name), getattr(staged, name)), (f, name)
     assert len(fused) > 5 and np.count_nonzero(fused._res_dof) > 3
+
+
+def test_slots_filled_in_the_update_call_equal_track_arrays_own():
+    """When the last frame's outputs were read, the update's call fills ``track_arrays``' slots too (as many
+    as that read asked for): the first read of the frame returns them, a second read of the same frame builds
+    its own arrays (not the same objects: a caller may write into them) with the same values, and a read with
+    another ``max_tracks`` builds them afresh; a tracker read only now and then gives the same values."""
+    frames = list(_crowded_frames(21, n_obs=3, n_frames=14))
+    tr, lazy = KinTracker(n_observers=3), KinTracker(n_observers=3)
+    fused = 0
+    for f, (obs, xy, sc, delta, pts, own) in enumerate(frames):
+        for t in (tr, lazy):
+            t.update_batch(obs, xy, sc, delta, DT, pts, own, accepted=sc > 0.5)
+        n = 4 if f < 9 else 6  # the slot count changes once: that frame's read builds its own
+        fused += tr._pending_slots is not None and tr._pending_slots[1] == n
+        a, b = tr.track_arrays(n), tr.track_arrays(n)
+        assert all(a[k] is not b[k] and np.array_equal(a[k], b[k]) for k in ("tracks", "mask", "count"))
+        if f % 4 == 3:  # the lazy tracker reads some frames only: computed afresh
+            c = lazy.track_arrays(n)
+            assert all(np.array_equal(a[k], c[k]) for k in ("tracks", "mask", "count"))
+        assert a["tracks"].shape == (3, n, len(TRACK_FIELDS))
+    assert fused == len(frames) - 2  # every frame but the first and the one whose slot count changed
