@@ -418,8 +418,9 @@ def _tanh(h: np.ndarray) -> np.ndarray:
 
 
 class TrackKinModel:
-    """Track-level kin classifier: a small network in numpy over :data:`TRACK_FEATURES` (standardised),
-    ``tanh`` hidden layers (none: logistic regression), one output logit.
+    """Track-level kin classifier: a small network over :data:`TRACK_FEATURES` (standardised), ``tanh``
+    hidden layers (none: logistic regression), one output logit (numpy arrays; the layers' sums, ``tanh``
+    and the logistic are compiled, the tracker's compiled kin decision calls the same functions).
 
     Fitted with :meth:`fit` (scipy L-BFGS, deterministic) on training-seed sequence episodes
     (:func:`kin_envs.detection.sequences.track_samples`); the output is shifted by ``-logit(threshold)``
@@ -767,8 +768,9 @@ class KinTracker:
     observer in ``obs``), and one :meth:`update_batch` call advances all observers by one frame in one
     compiled call (:func:`_update_kernel`; the staged steps it replaced are kept as the test reference,
     ``tests/detectors/reference_tracking.py``, and it reproduces them bitwise); the Hungarian solver runs
-    only for the ambiguous gates. :meth:`track_arrays` computes the classifier's inputs and the padded slots
-    in compiled loops too, once per frame. :meth:`update` is the one-observer form.
+    only for the ambiguous gates. :meth:`track_arrays` computes the kin decision and the padded slots in
+    compiled loops too, once per frame — inside the update's call when the frame before's were read, as an
+    env reads them every step. :meth:`update` is the one-observer form.
 
     Example::
 
@@ -1074,9 +1076,10 @@ class KinTracker:
     def _decide(self) -> tuple[np.ndarray, np.ndarray]:
         """``(rows, kin probability)`` of every live track (ascending rows): :meth:`_kin_prob`'s values, for
         the learned model in one compiled pass (:func:`_decide_kernel`: the classifier's inputs and its
-        first layer only for the tracks it decides — updated this frame (``hit_only``) and seen in
-        ``min_frames`` frames or more —, the others' probability directly), then its later layers, numpy's
-        ``tanh`` and the logistic output on those rows only: the same values bit for bit (tested)."""
+        layers only for the tracks it decides — updated this frame (``hit_only``) and seen in
+        ``min_frames`` frames or more —, the others' probability directly; a network of more than one
+        hidden layer finishes here, on those rows only), with the compiled ``tanh`` and logistic that
+        :class:`TrackKinModel` uses too: the same values bit for bit (tested)."""
         m = self.kin_model
         if m is None or TRACK_FEATURES != _KERNEL_FEATURES:
             rows = np.flatnonzero(self._alive)
