@@ -111,6 +111,8 @@ from pathlib import Path
 
 import numba
 import numpy as np
+from numba import types
+from numba.extending import intrinsic
 
 from .base import DetectionResult
 from .features import scan_noise, segment_batch
@@ -333,9 +335,92 @@ def _dense_layer(h, W, b):
     return out
 
 
+# exp, tanh and the logistic on arrays, compiled and vectorised (numba's math.exp / math.tanh are scalar libm
+# calls: ~4x numpy's SIMD ones); the track classifier (TrackKinModel) and the tracker's compiled kin decision
+# both call these, so that the two give the same bits. exp: round x / ln 2 to an integer k with the 1.5 * 2^52
+# trick (k in the low mantissa bits), r = x - k ln 2 in two parts (|r| <= ln 2 / 2), e^r by its Taylor series
+# to r^13 (truncation < 1e-17 relative), times 2^k built from k's bits: within 1 ulp of numpy's (tested)
+_LOG2E, _LN2_HI, _LN2_LO = 1.4426950408889634, 6.93147180369123816490e-01, 1.90821492927058770002e-10
+_MAGIC, _MAGIC_BITS = 6755399441055744.0, 0x4338000000000000
+
+
+@intrinsic
+def _bits_of(typingctx, x):
+    """A float64's bits as an int64 (an LLVM bitcast: no memory, vectorises)."""
+    def codegen(context, builder, sig, args):
+        return builder.bitcast(args[0], context.get_value_type(types.int64))
+
+    return types.int64(types.float64), codegen
+
+
+@intrinsic
+def _float_of(typingctx, i):
+    """The float64 of an int64's bits (an LLVM bitcast)."""
+    def codegen(context, builder, sig, args):
+        return builder.bitcast(args[0], context.get_value_type(types.float64))
+
+    return types.float64(types.int64), codegen
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _exp1(y):
+    """``e^y`` for ``|y| <= 700`` (no check: callers clip), inlined into their vectorised loops."""
+    si = y * _LOG2E + _MAGIC
+    kf = si - _MAGIC
+    r = (y - kf * _LN2_HI) - kf * _LN2_LO
+    p = 1.0 / 6227020800.0
+    p = p * r + 1.0 / 479001600.0
+    p = p * r + 1.0 / 39916800.0
+    p = p * r + 1.0 / 3628800.0
+    p = p * r + 1.0 / 362880.0
+    p = p * r + 1.0 / 40320.0
+    p = p * r + 1.0 / 5040.0
+    p = p * r + 1.0 / 720.0
+    p = p * r + 1.0 / 120.0
+    p = p * r + 1.0 / 24.0
+    p = p * r + 1.0 / 6.0
+    p = p * r + 0.5
+    p = p * r + 1.0
+    p = p * r + 1.0
+    return p * _float_of((_bits_of(si) - _MAGIC_BITS + 1023) << 52)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _exp_into(x, out, lo, hi):
+    """``out[i] = exp(clip(x[i], lo, hi))`` on 1-D arrays, ``-700 <= lo <= hi <= 700``."""
+    for i in range(x.shape[0]):
+        out[i] = _exp1(min(max(x[i], lo), hi))
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")  # no zero-division checks: they stop vectorising
+def _tanh_inplace(a):
+    """``a[i] = tanh(a[i])`` on a 1-D contiguous array: ``1 - 2 / (e^2x + 1)`` with :func:`_exp1`
+    (|x| clipped to 20, where tanh is 1 in float64); absolute error ~3e-16 (tested against numpy's)."""
+    for i in range(a.shape[0]):
+        e = _exp1(min(max(2.0 * a[i], -40.0), 40.0))
+        a[i] = 1.0 - 2.0 / (e + 1.0)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _sigmoid(z):
+    """``1 / (1 + e^-z)`` of a 1-D array (``z`` clipped to ±700: below ~1e-304 the value is ~0 anyway)."""
+    out = np.empty(z.shape[0])
+    for i in range(z.shape[0]):
+        out[i] = 1.0 / (1.0 + _exp1(min(max(-z[i], -700.0), 700.0)))
+    return out
+
+
+def _tanh(h: np.ndarray) -> np.ndarray:
+    """:func:`_tanh_inplace` of a copy of ``h`` (any shape)."""
+    out = np.array(h, np.float64, order="C", copy=True)
+    _tanh_inplace(out.reshape(-1))
+    return out
+
+
 class TrackKinModel:
-    """Track-level kin classifier: a small network in numpy over :data:`TRACK_FEATURES` (standardised),
-    ``tanh`` hidden layers (none: logistic regression), one output logit.
+    """Track-level kin classifier: a small network over :data:`TRACK_FEATURES` (standardised), ``tanh``
+    hidden layers (none: logistic regression), one output logit (numpy arrays; the layers' sums, ``tanh``
+    and the logistic are compiled, the tracker's compiled kin decision calls the same functions).
 
     Fitted with :meth:`fit` (scipy L-BFGS, deterministic) on training-seed sequence episodes
     (:func:`kin_envs.detection.sequences.track_samples`); the output is shifted by ``-logit(threshold)``
@@ -393,13 +478,13 @@ class TrackKinModel:
             # machine that cost ~7x a single-threaded loop (measured at 64 observers)
             h = _dense_layer(np.ascontiguousarray(h), W, b)
             if i < len(self.layers) - 1:
-                h = np.tanh(h)  # numpy's SIMD tanh: ~4x numba's scalar libm call
+                h = _tanh(h)  # compiled and vectorised, the tracker's kin decision's tanh (the same bits)
         return h[:, 0]
 
     def kin_prob(self, X: np.ndarray) -> np.ndarray:
         """(n,) kin probability of the feature rows ``X`` (n, F), young tracks by the detector's decision."""
         X = np.asarray(X, np.float64).reshape(-1, len(TRACK_FEATURES))
-        p = 1.0 / (1.0 + np.exp(-self.logit(X)))
+        p = _sigmoid(np.ascontiguousarray(self.logit(X)))
         if self.min_frames > 0:
             young = X[:, _I_LOG_FRAMES] < math.log(self.min_frames) - 1e-9
             p = np.where(young, np.where(X[:, _I_HIT_ACC] > 0.75, 0.75, 0.25), p)
@@ -683,8 +768,9 @@ class KinTracker:
     observer in ``obs``), and one :meth:`update_batch` call advances all observers by one frame in one
     compiled call (:func:`_update_kernel`; the staged steps it replaced are kept as the test reference,
     ``tests/detectors/reference_tracking.py``, and it reproduces them bitwise); the Hungarian solver runs
-    only for the ambiguous gates. :meth:`track_arrays` computes the classifier's inputs and the padded slots
-    in compiled loops too, once per frame. :meth:`update` is the one-observer form.
+    only for the ambiguous gates. :meth:`track_arrays` computes the kin decision and the padded slots in
+    compiled loops too, once per frame — inside the update's call when the frame before's were read, as an
+    env reads them every step. :meth:`update` is the one-observer form.
 
     Example::
 
@@ -746,6 +832,8 @@ class KinTracker:
         self._frame = 0  # frames since reset (keys the per-frame cache of the kin decision)
         self._kp_cache = (None, None)
         self._pending = None  # the decision's compiled part from the last update
+        self._slots_max = -1  # max_tracks of the last track_arrays call (the update fills its slots then)
+        self._pending_slots = None  # those slots, filled in this frame's update call
 
     @property
     def pose(self) -> np.ndarray:
@@ -856,31 +944,34 @@ class KinTracker:
         if n_alive + kept > self._alive.shape[0]:
             self._grow(n_alive + kept)
         poses = self.poses.copy()  # a new array per frame: earlier views of ``poses`` keep their values
-        # the kin decision's compiled part (its inputs and first layer) runs in the same call when the last
-        # frame's outputs were read (as an env does every step); track_arrays then finishes it
+        # the kin decision runs in the same call when the last frame's outputs were read (as an env does every
+        # step), and then the padded slots too (as many as that read asked for; a network of more than one
+        # hidden layer only up to its first layer: track_arrays finishes it and fills the slots)
         m = self.kin_model
         dec = (self._kp_cache[0] is not None and self._kp_cache[0][0] == self._frame and m is not None
                and TRACK_FEATURES == _KERNEL_FEATURES)  # fmt: skip
-        W, b = m.layers[0] if dec else (_NO_W, _NO_B)
+        W, b, W2, b2, tail = _layers(m) if dec else (_NO_W, _NO_B, _NO_W, _NO_B, 0)
+        slots = self._slots_max if dec and tail else -1
         c_ = np.ascontiguousarray
         args = (c_(obs, np.int64), c_(xy), c_(scores), c_(accepted), c_(delta), float(dt), pts, c_(own),
                 points is not None, c_(noise), poses, self.odometer, self.time + dt, self._next_id, self._prm,
                 self._F, self._I, self._B, self._x, self._P, self._anchor, self._fit_c, self._pts,
-                self._pts_aux, dec, m.mean if dec else _NO_B, m.scale if dec else _NO_B, W, b,
-                _log_min(m) if dec else 0.0, bool(dec and m.hit_only))  # fmt: skip
-        status, next_id, rows, kp, sel, h = _update_kernel(*args)
+                self._pts_aux, dec, m.mean if dec else _NO_B, m.scale if dec else _NO_B, W, b, W2, b2, tail,
+                _log_min(m) if dec else 0.0, bool(dec and m.hit_only), slots)  # fmt: skip
+        status, next_id, rows, kp, sel, h, so = _update_kernel(*args)
         if status == _BAD_SORT:  # points not grouped by candidate (segment_points gives them sorted)
             order = np.argsort(own, kind="stable")
             args = (*args[:6], np.ascontiguousarray(pts[order]), own[order], *args[8:])
-            status, next_id, rows, kp, sel, h = _update_kernel(*args)
+            status, next_id, rows, kp, sel, h, so = _update_kernel(*args)
         if status:
             raise ValueError(_update_error(status, N, k, delta, xy, scores, obs, noise, pts))
         self.poses = poses
         self.time += dt
         self._next_id = int(next_id)
         self._frame += 1
-        # the decision's first layer, for track_arrays of this frame (with this model and params)
+        # the decision (or its first layer) and the slots, for track_arrays of this frame (this model, params)
         self._pending = ((self._frame, m, self.params), (rows, kp, sel, h)) if dec else None
+        self._pending_slots = (self._frame, slots, so) if slots >= 0 else None
 
     def update_from_result(self, result: DetectionResult, ranges, angles, odom_delta, dt: float) -> None:
         """:meth:`update` from a detector's :class:`DetectionResult` on scan ``(ranges, angles)``: each
@@ -929,6 +1020,7 @@ class KinTracker:
         self.odometer[observer] = other.odometer[0]
         self._kp_cache = (None, None)
         self._pending = None  # the decision's compiled part from the last update
+        self._pending_slots = None
         return other._id[src].copy()
 
     # -- steps ----------------------------------------------------------------------------------------
@@ -984,9 +1076,10 @@ class KinTracker:
     def _decide(self) -> tuple[np.ndarray, np.ndarray]:
         """``(rows, kin probability)`` of every live track (ascending rows): :meth:`_kin_prob`'s values, for
         the learned model in one compiled pass (:func:`_decide_kernel`: the classifier's inputs and its
-        first layer only for the tracks it decides — updated this frame (``hit_only``) and seen in
-        ``min_frames`` frames or more —, the others' probability directly), then its later layers, numpy's
-        ``tanh`` and the logistic output on those rows only: the same values bit for bit (tested)."""
+        layers only for the tracks it decides — updated this frame (``hit_only``) and seen in
+        ``min_frames`` frames or more —, the others' probability directly; a network of more than one
+        hidden layer finishes here, on those rows only), with the compiled ``tanh`` and logistic that
+        :class:`TrackKinModel` uses too: the same values bit for bit (tested)."""
         m = self.kin_model
         if m is None or TRACK_FEATURES != _KERNEL_FEATURES:
             rows = np.flatnonzero(self._alive)
@@ -996,16 +1089,15 @@ class KinTracker:
             rows, kp, sel, h = pend[1]  # computed in this frame's update call
         else:
             pr = self.params
-            W, b = m.layers[0]
             rows, kp, sel, h = _decide_packed(
                 self.n_observers, self._F, self._I, self._B, self._x, self._P, self._anchor, self.odometer,
-                pr.odom_heading_rate**2, pr.odom_position_rate**2, m.mean, m.scale, W, b, _log_min(m),
+                pr.odom_heading_rate**2, pr.odom_position_rate**2, m.mean, m.scale, *_layers(m), _log_min(m),
                 m.hit_only,
             )  # fmt: skip
-        if sel.size:
+        if sel.size:  # a network of more than one hidden layer: its later layers here
             for W, b in m.layers[1:]:  # TrackKinModel.logit's later layers
-                h = _dense_layer(np.tanh(h), W, b)
-            kp[sel] = 1.0 / (1.0 + np.exp(-h[:, 0]))
+                h = _dense_layer(_tanh(h), W, b)
+            kp[sel] = _sigmoid(np.ascontiguousarray(h[:, 0]))
         return rows, kp
 
     def _features(self, rows: np.ndarray) -> np.ndarray:
@@ -1085,9 +1177,19 @@ class KinTracker:
         # the kin decision of this frame's tracks, once per frame (an env reads it for the info and again for
         # the observation's track channel)
         key, cached = self._kp_cache
-        if key is None or key[0] != self._frame or key[1] is not self.kin_model or key[2] is not self.params:
+        fresh = (key is None or key[0] != self._frame or key[1] is not self.kin_model
+                 or key[2] is not self.params)  # fmt: skip
+        ps, self._pending_slots = self._pending_slots, None
+        self._slots_max = int(max_tracks)
+        if fresh:
+            pend = self._pending
             cached = self._decide()
             self._kp_cache = ((self._frame, self.kin_model, self.params), cached)
+            # the slots the update's call filled: the first read of this frame, as many slots, the decision
+            # that call made (each later read builds its own arrays: a caller may write into them)
+            if ps is not None and ps[0] == self._frame and ps[1] == max_tracks and pend is not None \
+                    and pend[0][1] is self.kin_model and pend[0][2] is self.params:
+                return {"tracks": ps[2][0], "mask": ps[2][1], "count": ps[2][2]}
         rows, kp = cached
         out, mask, count = _slots_kernel(rows, kp, self.n_observers, int(max_tracks), self._obs, self._id,
                                          self._confirmed, self._x, self.poses, self._exist, self._seen,
@@ -1106,6 +1208,17 @@ def _log_min(m: TrackKinModel) -> float:
 
 
 _NO_W, _NO_B = np.zeros((0, 0)), np.zeros(0)
+
+
+def _layers(m: TrackKinModel) -> tuple:
+    """``(W, b, W2, b2, tail)`` of :func:`_decide_kernel`: the first layer, the output layer when the
+    network has one hidden layer, and how much of it the kernel finishes (``tail``)."""
+    W, b = m.layers[0]
+    if len(m.layers) == 1:
+        return W, b, _NO_W, _NO_B, 1
+    if len(m.layers) == 2:
+        return W, b, *m.layers[1], 2
+    return W, b, _NO_W, _NO_B, 0
 
 
 def _kin_model(kin_model) -> TrackKinModel | None:
@@ -1204,6 +1317,7 @@ def _gate_pairs(n_obs, t_cnt, c_cnt, c_ord, z, rng, meas_sigma, meas_sigma_rel, 
     ``x`` (``kx``), with their ``y``, bound and position covariance in the same order."""
     n_g = 0
     mv_a, w_a = np.empty(c_ord.shape[0]), np.empty(c_ord.shape[0])
+    near = np.empty(xs.shape[0], np.int64)
     for o in range(n_obs):
         lo, hi = t_cnt[o], t_cnt[o + 1]
         if lo == hi:
@@ -1217,18 +1331,38 @@ def _gate_pairs(n_obs, t_cnt, c_cnt, c_ord, z, rng, meas_sigma, meas_sigma_rel, 
             c = c_ord[a]
             mv, w = mv_a[a - a0], w_a[a - a0]
             zx, zy = z[c, 0], z[c, 1]
-            l, h_ = lo, hi  # the first track with zx - x <= w (zx - x falls along the order)
-            while l < h_:  # branch-free halving (conditional moves)
-                mid = (l + h_) >> 1
-                right = zx - kx[mid] > w
-                l = mid + 1 if right else l
-                h_ = h_ if right else mid
-            for b in range(l, hi):
+            # the walk: from the first track with zx - x <= w to the first with zx - x < -w (zx - x falls
+            # along the order, so each is a count of the tracks before it: for the usual tens of tracks of an
+            # observer counted without a branch, vectorised; the halving's steps were mispredicted)
+            if hi - lo <= 64:
+                l = e = lo
+                for b in range(lo, hi):
+                    dx = zx - kx[b]
+                    l += dx > w
+                    e += dx >= -w
+            else:
+                l, h_ = lo, hi
+                while l < h_:
+                    mid = (l + h_) >> 1
+                    right = zx - kx[mid] > w
+                    l = mid + 1 if right else l
+                    h_ = h_ if right else mid
+                e, h_ = l, hi
+                while e < h_:
+                    mid = (e + h_) >> 1
+                    left = zx - kx[mid] < -w
+                    e = e if left else mid + 1
+                    h_ = mid if left else h_
+            # the bound's test over the walk without a branch (the tracks that pass, compacted in order: a
+            # track per branch was mispredicted often, ~1/6 of a learned frame went to this loop)
+            nb = 0
+            for b in range(l, e):
                 d0, d1 = zx - kx[b], zy - ky[b]
-                if d0 < -w:
-                    break
-                if d0 * d0 + d1 * d1 > gate_b * (lam_s[b] + mv):
-                    continue
+                near[nb] = b
+                nb += d0 * d0 + d1 * d1 <= gate_b * (lam_s[b] + mv)
+            for q in range(nb):
+                b = near[q]
+                d0, d1 = zx - kx[b], zy - ky[b]
                 a00, a01, a10, a11 = g00[b] + mv, g01[b], g10[b], g11[b] + mv
                 det = a00 * a11 - a01 * a10
                 m2 = (a11 * d0 * d0 - 2 * a01 * d0 * d1 + a00 * d1 * d1) / det
@@ -1698,11 +1832,11 @@ def _points_check(pts, owner, k):
 @numba.njit(cache=True, nogil=True)
 def _points_scan(pts, owner, k, cstart):
     """:func:`_points_scan_seq` (the same status and ``cstart``) without a branch per point: the checks
-    as branch-free counts (``v - v`` is 0 for a finite ``v``, NaN otherwise), and ``cstart`` by
-    counting each candidate's points (for owners sorted in ``[0, k)``, the number of points owned by an
-    earlier candidate is the first point owned by ``c`` or a later one). A frame of the learned feed has
-    ~6,000 candidates of ~2 points: the sequential scan's "next candidate?" branch was mispredicted at
-    about every other point. A bad input takes the sequential scan (its first bad point decides)."""
+    as branch-free counts (``v - v`` is 0 for a finite ``v``, NaN otherwise), and ``cstart`` without a
+    branch per point either (for owners sorted in ``[0, k)``, the number of points owned by an earlier
+    candidate is the first point owned by ``c`` or a later one). A frame of the learned feed has ~6,000
+    candidates of ~2 points: the sequential scan's "next candidate?" branch was mispredicted at about every
+    other point. A bad input takes the sequential scan (its first bad point decides)."""
     n = pts.shape[0]
     n_nonfinite = n_bad = n_desc = 0
     for i in range(n):
@@ -1716,11 +1850,16 @@ def _points_scan(pts, owner, k, cstart):
         n_desc += owner[i] < owner[i - 1]
     if n_desc:
         return 3
-    cstart[:] = 0
-    for i in range(n):
-        cstart[owner[i] + 1] += 1
-    for c in range(k):
-        cstart[c + 1] += cstart[c]
+    # each candidate's first point, stored from the last point back (the first one's index stays; stores
+    # only: counting ``cstart[owner[i] + 1] += 1`` chained each point on the store before it, ~6 cycles a
+    # point), then the first point owned by ``c`` or a later one from the back (candidates without points)
+    cstart[:] = n
+    for i in range(n - 1, -1, -1):
+        cstart[owner[i]] = i
+    run = n  # (in a register: read back from memory, each step waited on the store before it)
+    for c in range(k - 1, -1, -1):
+        run = min(cstart[c], run)
+        cstart[c] = run
     return 0
 
 
@@ -1948,33 +2087,42 @@ def _frame_fits_kernel(ti, ci, pts, sig, cstart, tobs, poses, z, r, iterations, 
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _centre_resid_kernel(ti, ci, pts, cstart, xy, obs, noise, sigma2, r, delta2, resid_clamp, lo_resid,
+def _centre_resid_kernel(ti, ci, pts, lo, hi, xy, obs, noise, sigma2, r, delta2, resid_clamp, lo_resid,
                          res_chi2, res_dof, iterations=0):  # fmt: skip
     """The per-frame residual sums from the candidate's centre (``frame_fit_warm_start`` 1, the default):
-    each updated track's candidate points (3 or more; robot frame) against a circle of the housing radius at
-    the candidate's own centre ``xy[c]`` (robot frame too: distances do not depend on the frame, so the points
-    need no transform). Each point's variance is ``sigma2 + (noise * range)^2``; the sums are
-    :func:`_frame_fits_kernel`'s: the noise-normalised chi-square, its dof (points - 2, as after a fit: the
-    detector placed the centre on these points) and, when the hand-tuned cue is on, its LLR; after
+    each updated track's candidate points (``pts[lo[c]:hi[c]]``, 3 or more; robot frame) against a circle
+    of the housing radius at the candidate's own centre ``xy[c]`` (robot frame too: distances do not depend
+    on the frame, so the points need no transform). Each point's variance is ``sigma2 + (noise * range)^2``;
+    the sums are :func:`_frame_fits_kernel`'s: the noise-normalised chi-square, its dof (points - 2, as after
+    a fit: the detector placed the centre on these points) and, when the hand-tuned cue is on, its LLR; after
     ``iterations`` Gauss-Newton steps of the centre (:func:`_fit_span`'s, weights ``1 / variance``; the
-    default 1) from the candidate's centre, in the robot frame."""
+    default 1) from the candidate's centre, in the robot frame. Divisions: each point's weight once, one
+    reciprocal of the distance per step (the residuals reuse the weights: ``e^2 w``)."""
+    m_max = 0
+    for j in range(ti.shape[0]):
+        m_max = max(m_max, hi[ci[j]] - lo[ci[j]])
+    wbuf = np.empty(m_max)
     for j in range(ti.shape[0]):
         c = ci[j]
-        a, b = cstart[c], cstart[c + 1]
+        a, b = lo[c], hi[c]
         mf = b - a
         if mf < 3:
             continue
         t = ti[j]
         cx, cy = xy[c, 0], xy[c, 1]
         n2 = noise[obs[c]] * noise[obs[c]]
+        for p in range(a, b):  # each point's weight, 1 / variance, once (the divider bounds this kernel)
+            px, py = pts[p, 0], pts[p, 1]
+            wbuf[p - a] = 1.0 / (sigma2 + n2 * (px * px + py * py))
         for _ in range(iterations):
             a00 = a01 = a11 = g0 = g1 = 0.0
             for p in range(a, b):
                 px, py = pts[p, 0], pts[p, 1]
-                w = 1.0 / (sigma2 + n2 * (px * px + py * py))
+                w = wbuf[p - a]
                 dx, dy = px - cx, py - cy
                 d = max(math.sqrt(dx * dx + dy * dy), 1e-12)
-                jx, jy = -dx / d, -dy / d
+                inv = 1.0 / d
+                jx, jy = -dx * inv, -dy * inv
                 ei = d - r
                 a00 += w * jx * jx
                 a01 += w * jx * jy
@@ -1993,10 +2141,10 @@ def _centre_resid_kernel(ti, ci, pts, cstart, xy, obs, noise, sigma2, r, delta2,
         chi2 = llr = 0.0
         for p in range(a, b):
             px, py = pts[p, 0], pts[p, 1]
-            v0 = sigma2 + n2 * (px * px + py * py)
             e = math.sqrt((px - cx) * (px - cx) + (py - cy) * (py - cy)) - r
-            chi2 += e * e / v0
+            chi2 += e * e * wbuf[p - a]
             if resid_clamp > 0.0:
+                v0 = sigma2 + n2 * (px * px + py * py)
                 v1 = v0 + delta2
                 llr += 0.5 * math.log(v1 / v0) * (mf - 2) / mf - 0.5 * e * e * (1.0 / v0 - 1.0 / v1)
         res_chi2[t] += chi2
@@ -2111,12 +2259,14 @@ def _update_error(status, N, k, delta, xy, scores, obs, noise, pts) -> str:
 
 @numba.njit(cache=True, nogil=True)
 def _update_kernel(obs, xy, scores, accepted, delta, dt, pts, owner, has_points, noise, poses, odometer, now,
-                   next_id, prm, F, I, B, x, P, anchor, fit_c, buf, aux, dec, mean, scale, W, b, log_min,
-                   hit_only):  # fmt: skip
+                   next_id, prm, F, I, B, x, P, anchor, fit_c, buf, aux, dec, mean, scale, W, b, W2, b2, tail,
+                   log_min, hit_only, slots):  # fmt: skip
     """One frame of every observer (:meth:`KinTracker.update_batch`) on the packed state (:data:`_F_COLS`,
     :data:`_I_COLS`, :data:`_B_COLS`): :func:`_update_frame`, then (``dec``) the kin decision's compiled
-    part (:func:`_decide_kernel`) with the model's standardisation and first layer ``mean, scale, W, b``.
-    Returns ``(status, next_id, rows, kp, sel, h)`` (the decision's arrays empty unless ``dec``)."""
+    part (:func:`_decide_kernel`, the model's layers ``mean, scale, W, b, W2, b2, tail``) and (``slots`` >= 0)
+    :meth:`KinTracker.track_arrays`' padded slots (:func:`_slots_kernel`, ``slots`` of them per observer).
+    Returns ``(status, next_id, rows, kp, sel, h, (tracks, mask, count))`` (the decision's arrays empty unless
+    ``dec``, the slots unless ``slots >= 0``)."""
     # the frame's steps see the rows below n only: the rows from the last live one up are free, and births
     # (one per candidate at most) take the first free rows, so every row this frame reads or writes is below
     # n (a swarm's arrays have about twice its tracks: their loops over every row would mostly skip)
@@ -2140,14 +2290,21 @@ def _update_kernel(obs, xy, scores, accepted, delta, dt, pts, owner, has_points,
     )  # fmt: skip
     if not status:
         B[3][n:] = False  # "updated this frame" is cleared on every row (a row adopt() freed may hold it)
+    no_slots = (np.zeros((0, 0, 10), np.float32), np.zeros((0, 0), np.bool_), np.zeros(0, np.int64))
     if status or not dec:
-        return status, next_id, np.empty(0, np.int64), np.zeros(0), np.empty(0, np.int64), np.empty((0, 0))
+        return (status, next_id, np.empty(0, np.int64), np.zeros(0), np.empty(0, np.int64), np.empty((0, 0)),
+                no_slots)  # fmt: skip
     rows, kp, sel, h = _decide_kernel(
         poses.shape[0], alive, confirmed, tobs, seen, x, P, anchor, anchor_var, anchor_odo, anchor_rng,
         odometer, hit, f_lgsum, f_lgsq, f_lgmax, f_lglast, f_accsum, f_acclast, f_beams, f_rng, moved, exist,
-        res_chi2, res_dof, prm[21], prm[22], mean, scale, W, b, log_min, hit_only,
+        res_chi2, res_dof, prm[21], prm[22], mean, scale, W, b, W2, b2, tail, log_min, hit_only,
     )  # fmt: skip
-    return status, next_id, rows, kp, sel, h
+    if slots < 0:
+        return status, next_id, rows, kp, sel, h, no_slots
+    # track_arrays' slots while this frame's rows are in cache (_slots_kernel on the rows below n: every live
+    # row is; ``poses`` already the new poses)
+    so = _slots_kernel(rows, kp, poses.shape[0], slots, tobs, tid, confirmed, x, poses, exist, seen, age)
+    return status, next_id, rows, kp, sel, h, so
 
 
 @numba.njit(cache=True, nogil=True)
@@ -2190,43 +2347,49 @@ def _update_frame(obs, xy, scores, accepted, delta, dt, pts, owner, has_points, 
             return _BAD_POINTS, next_id
         if status == 3:
             return _BAD_SORT, next_id
-    # -- candidates below min_score are dropped (their points too, the rest renumbered)
+    # -- candidates below min_score are dropped (the rest renumbered). Their points stay where they are: kept
+    # candidate j's are pts[lo[j]:hi[j]] (copying the kept points was ~10 % of a learned frame, which drops
+    # ~5 of 6 candidates); only the fits from behind the points and the outline ring, which read each
+    # point's owner, get them copied in order (and cstart renumbered)
     min_score = prm[30]
-    new = np.empty(k, np.int64)
+    gn = prm[32] > 0.0 and prm[33] <= 0.0  # fits from behind the points: in the odometry frame, owners read
+    copy_pts = has_points and (gn or buf.shape[1] > 0)
+    kept = np.empty(k, np.int64)
     kk = 0
-    for c in range(k):
-        if min_score <= 0.0 or scores[c] >= min_score:
-            new[c] = kk
-            kk += 1
-        else:
-            new[c] = -1
+    for c in range(k):  # the kept candidates' indices, compacted without a branch
+        kept[kk] = c
+        kk += (min_score <= 0.0) | (scores[c] >= min_score)
     if kk < k:
         ob2, xy2, sc2 = np.empty(kk, np.int64), np.empty((kk, 2)), np.empty(kk)
         acc2 = np.empty(kk if accepted.shape[0] else 0, np.bool_)
-        for c in range(k):
-            j = new[c]
-            if j >= 0:
-                ob2[j], xy2[j, 0], xy2[j, 1], sc2[j] = obs[c], xy[c, 0], xy[c, 1], scores[c]
-                if accepted.shape[0]:
-                    acc2[j] = accepted[c]
+        for j in range(kk):
+            c = kept[j]
+            ob2[j], xy2[j, 0], xy2[j, 1], sc2[j] = obs[c], xy[c, 0], xy[c, 1], scores[c]
+        if accepted.shape[0]:
+            for j in range(kk):
+                acc2[j] = accepted[kept[j]]
         obs, xy, scores, accepted = ob2, xy2, sc2, acc2
-        if has_points:  # the kept candidates' point ranges, copied in order
+        if copy_pts:  # the kept candidates' point ranges, copied in order
             m = 0
-            for c in range(k):
-                if new[c] >= 0:
-                    m += cstart[c + 1] - cstart[c]
+            for j in range(kk):
+                m += cstart[kept[j] + 1] - cstart[kept[j]]
             pts2, own2, cs2 = np.empty((m, 2)), np.empty(m, np.int64), np.empty(kk + 1, np.int64)
             m = 0
-            for c in range(k):
-                j = new[c]
-                if j >= 0:
-                    cs2[j] = m
-                    for i in range(cstart[c], cstart[c + 1]):
-                        pts2[m, 0], pts2[m, 1], own2[m] = pts[i, 0], pts[i, 1], j
-                        m += 1
+            for j in range(kk):
+                c = kept[j]
+                cs2[j] = m
+                for i in range(cstart[c], cstart[c + 1]):
+                    pts2[m, 0], pts2[m, 1], own2[m] = pts[i, 0], pts[i, 1], j
+                    m += 1
             cs2[kk] = m
             pts, owner, cstart = pts2, own2, cs2
+            for j in range(kk):
+                kept[j] = j
         k = kk
+    lo, hi = np.empty(k if has_points else 0, np.int64), np.empty(k if has_points else 0, np.int64)
+    if has_points:
+        for j in range(k):
+            lo[j], hi[j] = cstart[kept[j]], cstart[kept[j] + 1]
     # -- ego-motion: each observer's new pose in its odometry frame; the odometer (wheel travel)
     cos, sin = np.empty(N), np.empty(N)
     for o in range(N):
@@ -2272,8 +2435,7 @@ def _update_frame(obs, xy, scores, accepted, delta, dt, pts, owner, has_points, 
         # the per-frame residual sums (always: the track classifier reads them, resid_z): by default fitted
         # from the candidate's own centre in the robot frame (no transform); fits from behind the points
         # (frame_fit_warm_start 0) and the outline's ring need the points in the odometry frame
-        gn = prm[32] > 0.0 and prm[33] <= 0.0  # fits from behind the points: in the odometry frame
-        if gn or buf.shape[1] > 0:
+        if copy_pts:
             odom, sig, dist = _points_prep(pts, owner, obs, noise, cos, sin, poses, prm[16])
             if gn:
                 _frame_fits_kernel(tracks, cands, odom, sig, cstart, tobs, poses, z, prm[7], int(prm[32]),
@@ -2283,10 +2445,10 @@ def _update_frame(obs, xy, scores, accepted, delta, dt, pts, owner, has_points, 
                                 head, fit_c, lo_shape, x, P, now, prm[7], prm[17], prm[18], int(prm[19]),
                                 prm[20], prm[21], prm[22])  # fmt: skip
         if not gn:
-            _centre_resid_kernel(tracks, cands, pts, cstart, xy, obs, noise, prm[16], prm[7], prm[17],
+            _centre_resid_kernel(tracks, cands, pts, lo, hi, xy, obs, noise, prm[16], prm[7], prm[17],
                                  prm[23], lo_resid, res_chi2, res_dof, int(prm[32]))  # fmt: skip
         for j in range(n_t):
-            bm[j] = cstart[cands[j] + 1] - cstart[cands[j]]
+            bm[j] = hi[cands[j]] - lo[cands[j]]
     _feature_kernel(tracks, n_m, lgs, ac, rg, bm, f_lgsum, f_lgsq, f_lgmax, f_lglast, f_accsum, f_acclast,
                     f_beams, f_rng, hit)  # fmt: skip
     hit_t = np.zeros(alive.shape[0], np.bool_)
@@ -2353,17 +2515,21 @@ def _features_kernel(rows, n_obs, alive, confirmed, obs, seen, x, P, anchor, anc
     return X
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")  # every divisor > 0: no checks, loops vectorise
 def _decide_kernel(n_obs, alive, confirmed, obs, seen, x, P, anchor, anchor_var, anchor_odo, anchor_rng,
                    odometer, hit, lgsum, lgsq, lgmax, lglast, accsum, acclast, beams, f_rng, moved, exist,
-                   res_chi2, res_dof, head_rate2, pos_rate2, mean, scale, W, b, log_min,
+                   res_chi2, res_dof, head_rate2, pos_rate2, mean, scale, W, b, W2, b2, tail, log_min,
                    hit_only):  # fmt: skip
     """:meth:`KinTracker._decide`'s compiled part: every live track's row and kin probability where
     :meth:`TrackKinModel.kin_prob` does not need the network (0 for a track not updated this frame under
     ``hit_only``; the detector's decision, 0.75 / 0.25, for one seen in fewer frames than the model's
     ``min_frames``, ``log(frames) < log_min``), and for the others (``sel``, indices into the rows) the
     network's first layer ``standardised features @ W + b`` (:func:`_features_kernel`'s inputs and
-    :func:`_dense_layer`'s sums, the same operations in the same order)."""
+    :func:`_dense_layer`'s sums, the same operations in the same order). ``tail``: how much of the network
+    is finished here too — 1: ``W, b`` is the output (a logistic model), 2: ``tanh`` of the first layer
+    then the output layer ``W2, b2`` (the shipped model), both with :func:`_sigmoid`: ``kp`` complete and
+    ``sel`` empty; 0: ``sel`` and the first layer returned for :meth:`KinTracker._decide` to finish
+    (deeper networks). The same operations as :meth:`TrackKinModel.kin_prob`: the same bits."""
     n_conf = np.zeros(n_obs)  # the scene: each observer's confirmed tracks, and those that moved
     n_moved = np.zeros(n_obs, np.int64)
     n = 0
@@ -2457,12 +2623,29 @@ def _decide_kernel(n_obs, alive, confirmed, obs, seen, x, P, anchor, anchor_var,
             hj = ht[j]
             for c in range(n_sel):
                 hj[c] += v[c] * w
-    return rows, kp, sel[:n_sel], np.ascontiguousarray(ht.T)
+    if tail == 0:
+        return rows, kp, sel[:n_sel], np.ascontiguousarray(ht.T)
+    if tail == 2:  # tanh, then the output layer summed in the units' order (as _dense_layer's narrow path)
+        _tanh_inplace(ht.reshape(U * n_sel))
+        z = np.empty(n_sel)
+        for c in range(n_sel):
+            z[c] = b2[0]
+        for j in range(U):
+            w = W2[j, 0]
+            hj = ht[j]
+            for c in range(n_sel):
+                z[c] += hj[c] * w
+    else:
+        z = ht[0].copy()
+    p = _sigmoid(z)
+    for c in range(n_sel):
+        kp[sel[c]] = p[c]
+    return rows, kp, sel[:0], np.empty((0, 0))
 
 
 @numba.njit(cache=True, nogil=True)
-def _decide_packed(n_obs, F, I, B, x, P, anchor, odometer, head_rate2, pos_rate2, mean, scale, W, b, log_min,
-                   hit_only):  # fmt: skip
+def _decide_packed(n_obs, F, I, B, x, P, anchor, odometer, head_rate2, pos_rate2, mean, scale, W, b, W2, b2,
+                   tail, log_min, hit_only):  # fmt: skip
     """:func:`_decide_kernel` on the packed state (:data:`_F_COLS`, ...)."""
     (exist, _, _, _, _, anchor_var, anchor_odo, anchor_rng, _, res_chi2, res_dof, _, _, lgsum, lgsq, lgmax,
      lglast, accsum, acclast, beams, f_rng) = _f_cols(F, F.shape[1])  # fmt: skip
@@ -2470,7 +2653,7 @@ def _decide_packed(n_obs, F, I, B, x, P, anchor, odometer, head_rate2, pos_rate2
     return _decide_kernel(n_obs, alive, confirmed, I[1], I[2], x, P, anchor, anchor_var, anchor_odo,
                           anchor_rng, odometer, hit, lgsum, lgsq, lgmax, lglast, accsum, acclast, beams,
                           f_rng, moved, exist, res_chi2, res_dof, head_rate2, pos_rate2, mean, scale, W, b,
-                          log_min, hit_only)  # fmt: skip
+                          W2, b2, tail, log_min, hit_only)  # fmt: skip
 
 
 @numba.njit(cache=True, nogil=True)

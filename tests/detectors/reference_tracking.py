@@ -225,7 +225,8 @@ class StagedKinTracker(KinTracker):
                     px, py = float(pts[p, 0]), float(pts[p, 1])
                     w = 1.0 / (s2 + n2 * (px * px + py * py))
                     d = max(math.sqrt((px - cx) * (px - cx) + (py - cy) * (py - cy)), 1e-12)
-                    jac = np.array([-(px - cx) / d, -(py - cy) / d])
+                    inv = 1.0 / d
+                    jac = np.array([-(px - cx) * inv, -(py - cy) * inv])
                     A[0, 0] += w * jac[0] * jac[0]
                     A[0, 1] += w * jac[0] * jac[1]
                     A[1, 1] += w * jac[1] * jac[1]
@@ -243,7 +244,7 @@ class StagedKinTracker(KinTracker):
                 px, py = float(pts[p, 0]), float(pts[p, 1])
                 v0 = s2 + n2 * (px * px + py * py)
                 e = math.sqrt((px - cx) * (px - cx) + (py - cy) * (py - cy)) - r
-                chi2 += e * e / v0
+                chi2 += e * e * (1.0 / v0)  # the weight, 1 / variance
                 if clamp > 0.0:
                     v1 = v0 + delta2
                     llr += 0.5 * math.log(v1 / v0) * (mf - 2) / mf - 0.5 * e * e * (1.0 / v0 - 1.0 / v1)

@@ -312,7 +312,8 @@ def test_residuals_at_the_candidate_centre_against_numpy_and_the_fits_path(clamp
     for name, v in zip(("_lo_resid", "_res_chi2", "_res_dof"), sums, strict=True):
         getattr(ref, name)[: 2 * n] = v
     got = [v.copy() for v in sums]
-    _centre_resid_kernel(ti, ci, pts, cstart, xy, obs, noise, pr.shape_sigma**2, pr.r, pr.shape_delta**2,
+    lo, hi = cstart[:-1].copy(), cstart[1:].copy()
+    _centre_resid_kernel(ti, ci, pts, lo, hi, xy, obs, noise, pr.shape_sigma**2, pr.r, pr.shape_delta**2,
                          pr.resid_clamp, *got, iterations)  # fmt: skip
     ref._centre_resid(ti, ci, pts, cstart, xy, obs, noise)
     for name, g in zip(("_lo_resid", "_res_chi2", "_res_dof"), got, strict=True):
@@ -369,9 +370,9 @@ def test_fit_from_the_candidate_centre_reaches_scipy_least_squares():
         chi = {}
         for it in (0, 1, 8):
             out = [np.zeros(1), np.zeros(1), np.zeros(1)]
-            _centre_resid_kernel(np.zeros(1, np.int64), np.zeros(1, np.int64), pts, np.array([0, m]),
-                                 start[None], np.zeros(1, np.int64), noise, s2, r, pr.shape_delta**2, 0.0,
-                                 *out, it)  # fmt: skip
+            one = np.zeros(1, np.int64)
+            _centre_resid_kernel(one, one, pts, np.array([0]), np.array([m]), start[None], one, noise, s2, r,
+                                 pr.shape_delta**2, 0.0, *out, it)  # fmt: skip
             chi[it] = out[1][0]
         assert chi[8] == pytest.approx(best, rel=1e-6, abs=1e-9)
         assert best - 1e-9 <= chi[1] <= chi[0]
@@ -971,3 +972,92 @@ def test_adopt_refuses_a_bad_observer_or_tracker():
         with pytest.raises(ValueError, match="one-observer KinTracker with the same params"):
             tr.adopt(0, other)
     assert tr.adopt(1, KinTracker()).shape == (0,)  # an empty tracker adopts nothing
+
+
+def test_compiled_exp_tanh_and_logistic_against_numpy():
+    """The classifier's compiled ``exp`` (``_exp_into``), ``tanh`` and logistic (the track classifier and the
+    tracker's kin decision share them) against numpy's on a grid over their whole range and random values:
+    exp within 2 ulp (relative), tanh and the logistic within 4e-16 (absolute); the clips hold (no inf, no
+    NaN) and tanh is odd and saturates to ±1."""
+    from detectors.tracking import _exp_into, _sigmoid, _tanh
+
+    rng = np.random.default_rng(3)
+    tiny = [0.0, -0.0, 1e-300, -1e-300]
+    x = np.concatenate([np.linspace(-700, 700, 100001), rng.normal(0, 4, 50000), tiny])
+    e = np.empty_like(x)
+    _exp_into(x, e, -700.0, 700.0)
+    np.testing.assert_allclose(e, np.exp(x), rtol=2 * np.finfo(float).eps, atol=0)
+    _exp_into(np.array([-1e6, 1e6]), e[:2], -700.0, 700.0)  # clipped
+    np.testing.assert_allclose(e[:2], np.exp([-700.0, 700.0]), rtol=2 * np.finfo(float).eps)
+    for lim in (1.0, 50.0):
+        h = x[np.abs(x) < lim]
+        t = _tanh(h)
+        np.testing.assert_allclose(t, np.tanh(h), rtol=0, atol=4e-16)
+        np.testing.assert_allclose(t, -_tanh(-h), rtol=0, atol=4e-16)
+    assert _tanh(np.array([25.0, -25.0, 1e9])).tolist() == [1.0, -1.0, 1.0]
+    s = _sigmoid(x)
+    with np.errstate(over="ignore"):
+        want = 1.0 / (1.0 + np.exp(-x))
+    np.testing.assert_allclose(s, want, rtol=0, atol=4e-16)
+    assert np.all(np.isfinite(s)) and s.min() >= 0 and s.max() <= 1
+    # a (2, 3) block through _tanh keeps its shape
+    assert _tanh(np.ones((2, 3))).shape == (2, 3)
+
+
+_FITS_BEHIND = {"frame_fit_iterations": 6, "frame_fit_warm_start": 0}
+
+
+@pytest.mark.parametrize("over", [{}, {"keep_points": 1}, _FITS_BEHIND, {"shape_clamp": 2.0}])
+def test_dropped_candidates_points_in_place_or_copied_equal_the_staged_steps(over):
+    """Candidates below ``min_score`` dropped (most of them, as in the learned feed) while their points stay
+    in place (the default: the kept candidates' point ranges read where they are) or are copied in order (the
+    fits from behind the points and the outline ring, which read each point's owner), with candidates of 0
+    to 6 points (empty ones first, last and in between) and unsorted points on some frames: every state array
+    bitwise the staged steps' (tests/detectors/reference_tracking.py), frame after frame."""
+    from tests.detectors.reference_tracking import StagedKinTracker
+
+    rng = np.random.default_rng(len(over) + 5)
+    pr = TrackerParams(**over)
+    fused, staged = KinTracker(pr, n_observers=2), StagedKinTracker(pr, n_observers=2)
+    pos = rng.uniform(-1.5, 1.5, (30, 2))
+    for f in range(15):
+        pos += rng.normal(0, 0.01, pos.shape)
+        xy = pos + rng.normal(0, 0.005, pos.shape)
+        obs = np.sort(rng.integers(0, 2, pos.shape[0]))
+        sc = np.where(rng.random(pos.shape[0]) < 0.3, rng.uniform(0.1, 1.0, pos.shape[0]), 0.05)
+        counts = rng.integers(0, 7, pos.shape[0])
+        counts[[0, 7, -1]] = 0
+        own = np.repeat(np.arange(pos.shape[0]), counts)
+        a = rng.uniform(0, 6.3, own.size)
+        pts = xy[own] + 0.035 * np.c_[np.cos(a), np.sin(a)]
+        if f % 3 == 1:
+            order = rng.permutation(own.size)
+            pts, own = pts[order], own[order]
+        delta = rng.normal(0, 0.01, (2, 3))
+        fused.update_batch(obs, xy, sc, delta, DT, pts, own)
+        staged.update_batch(obs, xy, sc, delta, DT, pts, own)
+        for name in KinTracker._FIELDS:
+            assert np.array_equal(getattr(fused, name), getattr(staged, name)), (f, name)
+    assert len(fused) > 5 and np.count_nonzero(fused._res_dof) > 3
+
+
+def test_slots_filled_in_the_update_call_equal_track_arrays_own():
+    """When the last frame's outputs were read, the update's call fills ``track_arrays``' slots too (as many
+    as that read asked for): the first read of the frame returns them, a second read of the same frame builds
+    its own arrays (not the same objects: a caller may write into them) with the same values, and a read with
+    another ``max_tracks`` builds them afresh; a tracker read only now and then gives the same values."""
+    frames = list(_crowded_frames(21, n_obs=3, n_frames=14))
+    tr, lazy = KinTracker(n_observers=3), KinTracker(n_observers=3)
+    fused = 0
+    for f, (obs, xy, sc, delta, pts, own) in enumerate(frames):
+        for t in (tr, lazy):
+            t.update_batch(obs, xy, sc, delta, DT, pts, own, accepted=sc > 0.5)
+        n = 4 if f < 9 else 6  # the slot count changes once: that frame's read builds its own
+        fused += tr._pending_slots is not None and tr._pending_slots[1] == n
+        a, b = tr.track_arrays(n), tr.track_arrays(n)
+        assert all(a[k] is not b[k] and np.array_equal(a[k], b[k]) for k in ("tracks", "mask", "count"))
+        if f % 4 == 3:  # the lazy tracker reads some frames only: computed afresh
+            c = lazy.track_arrays(n)
+            assert all(np.array_equal(a[k], c[k]) for k in ("tracks", "mask", "count"))
+        assert a["tracks"].shape == (3, n, len(TRACK_FIELDS))
+    assert fused == len(frames) - 2  # every frame but the first and the one whose slot count changed
