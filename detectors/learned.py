@@ -838,7 +838,7 @@ class LearnedKinDetector(KinDetector):
         #: the fused driver runs the network itself (else ``_run_driver``)
         self._network_compiled = inference in ("auto", "numba")
         self._drv_args = None
-        self._then_fast = None  # _detect_table_then's cached call (kernel, shape, trig, settings, args, ...)
+        self._then_fast = None  # _detect_table_then's kept call (shape, trig, settings, ws, args, ...)
         if inference == "torch":
             _ = self.model  # built now: a bad device or checkpoint fails here, not in the first call
         else:
@@ -1193,45 +1193,47 @@ class LearnedKinDetector(KinDetector):
 
     def _detect_table_then(self, kernel, ranges, angles, *extra):
         """:meth:`_detect_table_trusted` (same input contract) with the caller's compiled work on its table in
-        the same compiled call: ``kernel(r, front_args, rows_max, mean, std, weights, weights_t, biases,
-        sizes, back_args, dup_radius, w_radius, *extra, ws)``, a numba function that passes its arguments but
-        ``extra`` to :func:`detectors._learned_driver.fused_table` and works on the ``(scan row, table)`` it
-        returns. Its output, or ``None`` where the table would not come from ``fused_table`` (thresholds by
-        expected beams; inference ``"blas"`` / ``"torch"``): the caller then reads
-        :meth:`_detect_table_trusted`. (The envs match and pad the table so: one dispatch, and the table
-        never crosses into Python.)"""
+        the same compiled call: ``kernel(r, args, *extra, ws)``, a numba function that passes ``r``, ``args``
+        (:func:`detectors._learned_driver.fused_table`'s constant arguments as one
+        :class:`~detectors._learned_driver.DriverArgs`) and ``ws`` to
+        :func:`~detectors._learned_driver.fused_table_args` and works on the ``(scan row, table)`` it returns.
+        Its output, or ``None`` where the table would not come from ``fused_table`` (thresholds by expected
+        beams; inference ``"blas"`` / ``"torch"``): the caller then reads :meth:`_detect_table_trusted`. (The
+        envs match and pad the table so: one dispatch, and the table never crosses into Python.)"""
         fast = self._then_fast
         # a single-robot env's step: the lidar's own float32 (1, n) scan on the validated layout, settings as
-        # when the call's arguments were cached below: the kernel straight away (the checks and the argument
+        # when the call's arguments were kept below: the kernel straight away (the checks and the argument
         # assembly of the path below are ~10 Python calls, ~7-11 us of a KinSeek step, run cold there)
-        if (fast is not None and fast[0] is kernel and angles is self._angles_src
-                and type(ranges) is np.ndarray and ranges.dtype is _F32 and ranges.shape == fast[1]
-                and ranges.flags.c_contiguous and fast[2] is self._trig
-                and getattr(_WORK, "ws", None) is fast[5]
-                and fast[3] == (self.threshold, self.pre_gate, self.positioning, self.window_config,
+        if (fast is not None and angles is self._angles_src
+                and type(ranges) is np.ndarray and ranges.dtype is _F32 and ranges.shape == fast[0]
+                and ranges.flags.c_contiguous and fast[1] is self._trig
+                and getattr(_WORK, "ws", None) is fast[3]
+                and fast[2] == (self.threshold, self.pre_gate, self.positioning, self.window_config,
                                 self.suppress_duplicates)):  # fmt: skip
-            ws = fast[5]
-            res = kernel(ranges, *fast[4], *extra, ws)
-            if ws[6][0] > fast[6]:  # (as _grow_driver_rows: more rows than the work arrays hold)
-                _grow_driver_rows(ws, int(fast[4][0][17]))
+            ws = fast[3]
+            res = kernel(ranges, fast[4], *extra, ws)
+            if ws[6][0] > fast[5]:  # (as _grow_driver_rows: more rows than the work arrays hold)
+                _grow_driver_rows(ws, fast[6])
             return res
-        if self._beam_table is not None and self.threshold is None:
+        if (self._beam_table is not None and self.threshold is None) or not self._network_compiled:
             return None
         rb = self._table_input(ranges, angles)
+        front_args, back_args = self._driver_consts(self._uses_cascade(rb))
+        mean, std, w, b, sizes = self._numba_weights
         radius = float(self._dup_radius) if self.suppress_duplicates else -1.0
-        res = self._call_driver(kernel, rb, self._uses_cascade(rb), radius, float(self._dup_radius), *extra)
-        if res is not None and rb is ranges and rb.dtype == np.float32 and rb.shape[0] == 1:
-            # (the lidar's scan as it is, no cascade on one scan: _call_driver's arguments, kept for the next)
-            front_args, back_args = self._driver_consts(False)
-            mean, std, w, b, sizes = self._numba_weights
-            n_feat = int(front_args[17])
-            args = (front_args, _DRIVER_ROWS_MAX, mean, std, w, self._numba_weights_t[2], b, sizes, back_args,
-                    radius, float(self._dup_radius))  # fmt: skip
+        args = _drv.driver_args(front_args, _DRIVER_ROWS_MAX, mean, std, w, self._numba_weights_t[2], b,
+                                sizes, back_args, radius, float(self._dup_radius))  # fmt: skip
+        n_feat = int(front_args[17])
+        ws = _driver_work(rb.shape[0] * rb.shape[1], n_feat)
+        res = kernel(rb, args, *extra, ws)
+        _grow_driver_rows(ws, n_feat)
+        if rb is ranges and rb.dtype == np.float32 and rb.shape[0] == 1:
+            # (the lidar's scan as it is, no cascade on one scan: these arguments, kept for the next call)
+            ws = _driver_work(rb.shape[0] * rb.shape[1], n_feat)  # (this thread's, grown or not)
+            rows = min(ws[4].shape[0] // (n_feat + 3), ws[3].shape[0] // _drv._R_F64)  # network rows ws holds
             state = (self.threshold, self.pre_gate, self.positioning, self.window_config,
                      self.suppress_duplicates)  # fmt: skip
-            ws = _driver_work(rb.shape[0] * rb.shape[1], n_feat)  # (this thread's, as the call above used)
-            rows = min(ws[4].shape[0] // (n_feat + 3), ws[3].shape[0] // _drv._R_F64)  # network rows ws holds
-            self._then_fast = (kernel, rb.shape, self._trig, state, args, ws, rows)
+            self._then_fast = (rb.shape, self._trig, state, ws, args, rows, n_feat)
         return res
 
     def _detect_arrays(self, ranges, angles, trusted: bool) -> BatchDetections:

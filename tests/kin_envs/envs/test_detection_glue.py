@@ -608,7 +608,7 @@ def test_learned_one_scan_call_with_cached_arguments_follows_the_settings():
                     assert a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
                 n_det += len(owner)
                 fast = det._then_fast
-                n_fast += fast is not None and fast[5] is getattr(L._WORK, "ws", None)
+                n_fast += fast is not None and fast[3] is getattr(L._WORK, "ws", None)
     assert n_det > 50 and n_fast > 20
 
 
