@@ -926,31 +926,32 @@ class DriverArgsType(types.StructRef):
 
 
 class DriverArgs(structref.StructRefProxy):
-    """:func:`fused_table`'s constant arguments as one object: ``front_args, rows_max, mean, std, weights,
-    weights_t, biases, sizes, back_args, dup_radius, w_radius`` (made by :func:`driver_args`). A compiled
-    call unboxes it as one pointer, where the arguments themselves are ~25 arrays (a MemInfo each, on every
-    call) and ~40 scalars in nested tuples that the dispatcher types one by one: the single-robot envs'
-    entry (``LearnedKinDetector._detect_table_then``) passes it."""
+    """:func:`fused_table`'s arguments but the ranges as one object: ``front_args, rows_max, mean, std,
+    weights, weights_t, biases, sizes, back_args, dup_radius, w_radius, ws`` (made by :func:`driver_args`;
+    ``ws`` the work arrays, :func:`new_work`). A compiled call unboxes it as one pointer, where the
+    arguments themselves are ~30 arrays (a MemInfo each, on every call) and ~40 scalars in nested tuples
+    that the dispatcher types one by one: the single-robot envs' entry
+    (``LearnedKinDetector._detect_table_then``) keeps one and passes it."""
 
 
 structref.define_proxy(DriverArgs, DriverArgsType, ["front_args", "rows_max", "mean", "std", "weights",
                                                    "weights_t", "biases", "sizes", "back_args", "dup_radius",
-                                                   "w_radius"])  # fmt: skip
+                                                   "w_radius", "ws"])  # fmt: skip
 
 
 @numba.njit(cache=True)
 def driver_args(front_args, rows_max, mean, std, weights, weights_t, biases, sizes, back_args, dup_radius,
-                w_radius):  # fmt: skip
+                w_radius, ws):  # fmt: skip
     """A :class:`DriverArgs` of these arguments (the arrays are referenced, not copied)."""
     return DriverArgs(front_args, rows_max, mean, std, weights, weights_t, biases, sizes, back_args,
-                      dup_radius, w_radius)  # fmt: skip
+                      dup_radius, w_radius, ws)  # fmt: skip
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def fused_table_args(r, a, ws):
-    """:func:`fused_table` with its constant arguments from the :class:`DriverArgs` ``a``."""
+def fused_table_args(r, a):
+    """:func:`fused_table` with its other arguments from the :class:`DriverArgs` ``a``."""
     return fused_table(r, a.front_args, a.rows_max, a.mean, a.std, a.weights, a.weights_t, a.biases, a.sizes,
-                       a.back_args, a.dup_radius, a.w_radius, ws)  # fmt: skip
+                       a.back_args, a.dup_radius, a.w_radius, a.ws)  # fmt: skip
 
 
 @numba.njit(cache=True, nogil=True)

@@ -1193,10 +1193,10 @@ class LearnedKinDetector(KinDetector):
 
     def _detect_table_then(self, kernel, ranges, angles, *extra):
         """:meth:`_detect_table_trusted` (same input contract) with the caller's compiled work on its table in
-        the same compiled call: ``kernel(r, args, *extra, ws)``, a numba function that passes ``r``, ``args``
-        (:func:`detectors._learned_driver.fused_table`'s constant arguments as one
-        :class:`~detectors._learned_driver.DriverArgs`) and ``ws`` to
-        :func:`~detectors._learned_driver.fused_table_args` and works on the ``(scan row, table)`` it returns.
+        the same compiled call: ``kernel(r, args, *extra)``, a numba function that passes ``r`` and ``args``
+        (:func:`detectors._learned_driver.fused_table`'s other arguments, the work arrays included, as one
+        :class:`~detectors._learned_driver.DriverArgs`) to :func:`~detectors._learned_driver.fused_table_args`
+        and works on the ``(scan row, table)`` it returns.
         Its output, or ``None`` where the table would not come from ``fused_table`` (thresholds by expected
         beams; inference ``"blas"`` / ``"torch"``): the caller then reads :meth:`_detect_table_trusted`. (The
         envs match and pad the table so: one dispatch, and the table never crosses into Python.)"""
@@ -1211,7 +1211,7 @@ class LearnedKinDetector(KinDetector):
                 and fast[2] == (self.threshold, self.pre_gate, self.positioning, self.window_config,
                                 self.suppress_duplicates)):  # fmt: skip
             ws = fast[3]
-            res = kernel(ranges, fast[4], *extra, ws)
+            res = kernel(ranges, fast[4], *extra)
             if ws[6][0] > fast[5]:  # (as _grow_driver_rows: more rows than the work arrays hold)
                 _grow_driver_rows(ws, fast[6])
             return res
@@ -1221,19 +1221,20 @@ class LearnedKinDetector(KinDetector):
         front_args, back_args = self._driver_consts(self._uses_cascade(rb))
         mean, std, w, b, sizes = self._numba_weights
         radius = float(self._dup_radius) if self.suppress_duplicates else -1.0
-        args = _drv.driver_args(front_args, _DRIVER_ROWS_MAX, mean, std, w, self._numba_weights_t[2], b,
-                                sizes, back_args, radius, float(self._dup_radius))  # fmt: skip
         n_feat = int(front_args[17])
+        consts = (front_args, _DRIVER_ROWS_MAX, mean, std, w, self._numba_weights_t[2], b, sizes, back_args,
+                  radius, float(self._dup_radius))  # fmt: skip
         ws = _driver_work(rb.shape[0] * rb.shape[1], n_feat)
-        res = kernel(rb, args, *extra, ws)
+        res = kernel(rb, _drv.driver_args(*consts, ws), *extra)
         _grow_driver_rows(ws, n_feat)
         if rb is ranges and rb.dtype == np.float32 and rb.shape[0] == 1:
-            # (the lidar's scan as it is, no cascade on one scan: these arguments, kept for the next call)
-            ws = _driver_work(rb.shape[0] * rb.shape[1], n_feat)  # (this thread's, grown or not)
+            # (the lidar's scan as it is, no cascade on one scan: the arguments, kept for the next call with
+            # this thread's work arrays, grown or not)
+            ws = _driver_work(rb.shape[0] * rb.shape[1], n_feat)
             rows = min(ws[4].shape[0] // (n_feat + 3), ws[3].shape[0] // _drv._R_F64)  # network rows ws holds
             state = (self.threshold, self.pre_gate, self.positioning, self.window_config,
                      self.suppress_duplicates)  # fmt: skip
-            self._then_fast = (rb.shape, self._trig, state, ws, args, rows, n_feat)
+            self._then_fast = (rb.shape, self._trig, state, ws, _drv.driver_args(*consts, ws), rows, n_feat)
         return res
 
     def _detect_arrays(self, ranges, angles, trusted: bool) -> BatchDetections:

@@ -19,12 +19,12 @@ from kin_envs.envs.common import _match_pad_kernel
 
 
 @numba.njit(cache=True, nogil=True)
-def learned_match_pad(r, args, match, ws):
+def learned_match_pad(r, args, match):
     """``(padded floats (5, n_rows, slots), padded ints (4, n_rows, slots), count (n_rows,))`` of the scans
-    ``r``: ``fused_table``'s constant arguments as one :class:`detectors._learned_driver.DriverArgs` (the
-    detector's, ``LearnedKinDetector._detect_table_then``), ``match = (observers, poses, tol2, slots,
-    int_pads, hit_kind, hit_index, robot_kind)``, the rest of ``_match_pad_kernel``'s, and the work arrays."""
-    row, tab = fused_table_args(r, args, ws)
+    ``r``: ``fused_table``'s other arguments as one :class:`detectors._learned_driver.DriverArgs` (the
+    detector's, ``LearnedKinDetector._detect_table_then``) and ``match = (observers, poses, tol2, slots,
+    int_pads, hit_kind, hit_index, robot_kind)``, the rest of ``_match_pad_kernel``'s."""
+    row, tab = fused_table_args(r, args)
     observers, poses, tol2, slots, int_pads, hit_kind, hit_index, robot_kind = match
     out = _match_pad_kernel(tab, row, observers, poses, tol2, r.shape[0], slots, int_pads, hit_kind,
                             hit_index, robot_kind, False)  # fmt: skip
