@@ -59,6 +59,8 @@ import math
 
 import numba
 import numpy as np
+from numba.core import types
+from numba.experimental import structref
 
 from . import _kernels as _k
 from .features import (
@@ -913,6 +915,43 @@ def duplicates_kernel(scan, x, y, p, radius, out):
         while k >= 0 and out[k] >= 0:
             k = out[k]
         out[j] = k
+
+
+@structref.register
+class DriverArgsType(types.StructRef):
+    """numba type of :class:`DriverArgs`."""
+
+    def preprocess_fields(self, fields):
+        return tuple((n, types.unliteral(t)) for n, t in fields)
+
+
+class DriverArgs(structref.StructRefProxy):
+    """:func:`fused_table`'s arguments but the ranges as one object: ``front_args, rows_max, mean, std,
+    weights, weights_t, biases, sizes, back_args, dup_radius, w_radius, ws`` (made by :func:`driver_args`;
+    ``ws`` the work arrays, :func:`new_work`). A compiled call unboxes it as one pointer, where the
+    arguments themselves are ~30 arrays (a MemInfo each, on every call) and ~40 scalars in nested tuples
+    that the dispatcher types one by one: the single-robot envs' entry
+    (``LearnedKinDetector._detect_table_then``) keeps one and passes it."""
+
+
+structref.define_proxy(DriverArgs, DriverArgsType, ["front_args", "rows_max", "mean", "std", "weights",
+                                                   "weights_t", "biases", "sizes", "back_args", "dup_radius",
+                                                   "w_radius", "ws"])  # fmt: skip
+
+
+@numba.njit(cache=True)
+def driver_args(front_args, rows_max, mean, std, weights, weights_t, biases, sizes, back_args, dup_radius,
+                w_radius, ws):  # fmt: skip
+    """A :class:`DriverArgs` of these arguments (the arrays are referenced, not copied)."""
+    return DriverArgs(front_args, rows_max, mean, std, weights, weights_t, biases, sizes, back_args,
+                      dup_radius, w_radius, ws)  # fmt: skip
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def fused_table_args(r, a):
+    """:func:`fused_table` with its other arguments from the :class:`DriverArgs` ``a``."""
+    return fused_table(r, a.front_args, a.rows_max, a.mean, a.std, a.weights, a.weights_t, a.biases, a.sizes,
+                       a.back_args, a.dup_radius, a.w_radius, a.ws)  # fmt: skip
 
 
 @numba.njit(cache=True, nogil=True)

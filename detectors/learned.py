@@ -158,6 +158,9 @@ _BEAM_KEYS = ("beam_edges", "table")
 _WORK = threading.local()
 
 
+_F32 = np.dtype(np.float32)
+
+
 def _driver_work(cells: int, n_feat: int) -> tuple:
     """This thread's work arrays (:func:`detectors._learned_driver.new_work`) for a batch of ``cells``
     beams: kept and reused across calls (grown when a batch needs more; a call only uses them inside
@@ -835,6 +838,7 @@ class LearnedKinDetector(KinDetector):
         #: the fused driver runs the network itself (else ``_run_driver``)
         self._network_compiled = inference in ("auto", "numba")
         self._drv_args = None
+        self._then_fast = None  # _detect_table_then's kept call (shape, trig, settings, ws, args, ...)
         if inference == "torch":
             _ = self.model  # built now: a bad device or checkpoint fails here, not in the first call
         else:
@@ -1189,18 +1193,49 @@ class LearnedKinDetector(KinDetector):
 
     def _detect_table_then(self, kernel, ranges, angles, *extra):
         """:meth:`_detect_table_trusted` (same input contract) with the caller's compiled work on its table in
-        the same compiled call: ``kernel(r, front_args, rows_max, mean, std, weights, weights_t, biases,
-        sizes, back_args, dup_radius, w_radius, *extra, ws)``, a numba function that passes its arguments but
-        ``extra`` to :func:`detectors._learned_driver.fused_table` and works on the ``(scan row, table)`` it
-        returns. Its output, or ``None`` where the table would not come from ``fused_table`` (thresholds by
-        expected beams; inference ``"blas"`` / ``"torch"``): the caller then reads
-        :meth:`_detect_table_trusted`. (The envs match and pad the table so: one dispatch, and the table
-        never crosses into Python.)"""
-        if self._beam_table is not None and self.threshold is None:
+        the same compiled call: ``kernel(r, args, *extra)``, a numba function that passes ``r`` and ``args``
+        (:func:`detectors._learned_driver.fused_table`'s other arguments, the work arrays included, as one
+        :class:`~detectors._learned_driver.DriverArgs`) to :func:`~detectors._learned_driver.fused_table_args`
+        and works on the ``(scan row, table)`` it returns.
+        Its output, or ``None`` where the table would not come from ``fused_table`` (thresholds by expected
+        beams; inference ``"blas"`` / ``"torch"``): the caller then reads :meth:`_detect_table_trusted`. (The
+        envs match and pad the table so: one dispatch, and the table never crosses into Python.)"""
+        fast = self._then_fast
+        # a single-robot env's step: the lidar's own float32 (1, n) scan on the validated layout, settings as
+        # when the call's arguments were kept below: the kernel straight away (the checks and the argument
+        # assembly of the path below are ~10 Python calls, ~7-11 us of a KinSeek step, run cold there)
+        if (fast is not None and angles is self._angles_src
+                and type(ranges) is np.ndarray and ranges.dtype is _F32 and ranges.shape == fast[0]
+                and ranges.flags.c_contiguous and fast[1] is self._trig
+                and getattr(_WORK, "ws", None) is fast[3]
+                and fast[2] == (self.threshold, self.pre_gate, self.positioning, self.window_config,
+                                self.suppress_duplicates)):  # fmt: skip
+            ws = fast[3]
+            res = kernel(ranges, fast[4], *extra)
+            if ws[6][0] > fast[5]:  # (as _grow_driver_rows: more rows than the work arrays hold)
+                _grow_driver_rows(ws, fast[6])
+            return res
+        if (self._beam_table is not None and self.threshold is None) or not self._network_compiled:
             return None
         rb = self._table_input(ranges, angles)
+        front_args, back_args = self._driver_consts(self._uses_cascade(rb))
+        mean, std, w, b, sizes = self._numba_weights
         radius = float(self._dup_radius) if self.suppress_duplicates else -1.0
-        return self._call_driver(kernel, rb, self._uses_cascade(rb), radius, float(self._dup_radius), *extra)
+        n_feat = int(front_args[17])
+        consts = (front_args, _DRIVER_ROWS_MAX, mean, std, w, self._numba_weights_t[2], b, sizes, back_args,
+                  radius, float(self._dup_radius))  # fmt: skip
+        ws = _driver_work(rb.shape[0] * rb.shape[1], n_feat)
+        res = kernel(rb, _drv.driver_args(*consts, ws), *extra)
+        _grow_driver_rows(ws, n_feat)
+        if rb is ranges and rb.dtype == np.float32 and rb.shape[0] == 1:
+            # (the lidar's scan as it is, no cascade on one scan: the arguments, kept for the next call with
+            # this thread's work arrays, grown or not)
+            ws = _driver_work(rb.shape[0] * rb.shape[1], n_feat)
+            rows = min(ws[4].shape[0] // (n_feat + 3), ws[3].shape[0] // _drv._R_F64)  # network rows ws holds
+            state = (self.threshold, self.pre_gate, self.positioning, self.window_config,
+                     self.suppress_duplicates)  # fmt: skip
+            self._then_fast = (rb.shape, self._trig, state, ws, _drv.driver_args(*consts, ws), rows, n_feat)
+        return res
 
     def _detect_arrays(self, ranges, angles, trusted: bool) -> BatchDetections:
         if self._beam_table is not None and self.threshold is None:

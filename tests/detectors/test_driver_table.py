@@ -127,3 +127,25 @@ def test_float32_ranges_go_in_as_they_are():
         bad = r32.copy()
         bad[3, 5] = -1.0
         det._detect_table_trusted(bad, angles.copy())
+
+
+@pytest.mark.parametrize("kw", ({}, {"positioning": "fit", "suppress_duplicates": False}))
+def test_table_entry_with_its_arguments_in_one_object_is_the_entry(kw):
+    # fused_table_args (the single-robot envs' kernel takes fused_table's other arguments, work arrays
+    # included, as one DriverArgs structref) against fused_table with the arguments themselves, bit for bit:
+    # scans of every kind, one scan and batches (cascade on and off)
+    det = LearnedKinDetector(reports=False, **kw)
+    mean, std, w, b, sizes = det._numba_weights
+    wt = det._numba_weights_t[2]
+    n_det = 0
+    for ranges, angles in CASES:
+        rb = det._driver_input(ranges, angles, True)
+        front_args, back_args = det._driver_consts(det._uses_cascade(rb))
+        expanded = (front_args, _learned._DRIVER_ROWS_MAX, mean, std, w, wt, b, sizes, back_args, 0.07, 0.07)
+        args = _drv.driver_args(*expanded, _drv.new_work(rb.size, rb.size, front_args[17]))
+        assert isinstance(args, _drv.DriverArgs)
+        row, table = _drv.fused_table_args(rb, args)
+        ref_row, ref_table = _drv.fused_table(rb, *expanded, _drv.new_work(rb.size, rb.size, front_args[17]))
+        assert np.array_equal(row, ref_row) and table.tobytes() == ref_table.tobytes()
+        n_det += row.shape[0]
+    assert n_det > 20

@@ -571,6 +571,47 @@ def test_learned_table_matched_in_the_driver_is_the_two_calls():
     assert n_det > 500 and n_empty > 10 and n_over > 20
 
 
+def test_learned_one_scan_call_with_cached_arguments_follows_the_settings():
+    # LearnedKinDetector._detect_table_then keeps a one-scan call's arguments (a single-robot env's step): the
+    # same values as the two calls (detection_arrays, then _match_pad) when the settings change on the same
+    # detector between calls (threshold, duplicates, pre-gate; the cache is rebuilt), for a scan whose network
+    # rows outgrow the kept work arrays (they grow), and for scans the cache does not serve (a float64 or
+    # strided copy of the scan: the checked path)
+    from detectors import LearnedKinDetector
+    from detectors import learned as L
+    from kin_envs import LidarSpec, World, scenes
+    from kin_envs.envs.common import _match_pad, _one_observer, _padded_in_detector, detection_arrays
+
+    scene = scenes.random_arena(12, 4, seed=3).replace(lidar=LidarSpec(noise_sigma=0.01))
+    w = World(scene, seed=3)
+    scan, poses = w.scan(), w.poses
+    n = scan.angles.shape[0]
+    comb = np.where(np.arange(n) % 2 == 0, 1.0, 1.5).astype(np.float32)[None, :]  # 180 one-beam segments
+    det = LearnedKinDetector(reports=False)
+    settings = [{}, {"threshold": 0.3}, {"suppress_duplicates": False}, {"pre_gate": False},
+                {"threshold": None}, {"suppress_duplicates": True, "pre_gate": True}]  # fmt: skip
+    n_det = n_fast = 0
+    for change in settings:
+        for k, v in change.items():
+            setattr(det, k, v)
+        for i in (0, 5, 11, 5):
+            r = slice(i, i + 1)
+            rows = [scan.ranges[r], np.ascontiguousarray(scan.ranges[r], dtype=np.float64),
+                    np.repeat(scan.ranges[r], 2, axis=1)[:, ::2], comb]  # fmt: skip
+            for ranges in rows:
+                hits = (scan.hit_kind[r], scan.hit_index[r])
+                observers = _one_observer(int(scan.robots[i]))
+                got = _padded_in_detector(det, ranges, scan.angles, observers, poses, 16, hits)
+                owner, tab = detection_arrays(det, ranges, scan.angles, True)
+                ref = _match_pad(owner, tab, observers, poses, 1, 16, hits, False)[3:]
+                for a, b in zip(got, ref, strict=True):
+                    assert a.dtype == b.dtype and a.shape == b.shape and a.tobytes() == b.tobytes()
+                n_det += len(owner)
+                fast = det._then_fast
+                n_fast += fast is not None and fast[3] is getattr(L._WORK, "ws", None)
+    assert n_det > 50 and n_fast > 20
+
+
 def test_detector_pad_falls_back_without_the_compiled_table():
     # a learned detector whose table does not come from the fused driver (BLAS inference) and a detector
     # without the hook take the two calls: the envs' lean entries (flat=False) give the padded columns of
