@@ -14,13 +14,10 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from kin_envs.envs.common import KIN_MATCH_TOLERANCE
-from kin_envs.envs.info import DETECTION_FIELDS, PAD_VALUES
+from kin_envs.envs.common import _INT_PADS, KIN_MATCH_TOLERANCE, _put_detection
+from kin_envs.envs.info import DETECTION_FIELDS
 
 __all__ = ["match_pad_worlds"]
-
-#: pad values of the int fields (first_beam, last_beam, n_beams, kin_index), pad_rows' (floats pad to 0)
-_INT_PADS = np.array([PAD_VALUES.get(f, 0) for f in DETECTION_FIELDS[5:]], dtype=np.int64)
 
 
 def match_pad_worlds(owner: np.ndarray, tab: np.ndarray, poses: np.ndarray, n: int, slots: int):
@@ -114,17 +111,6 @@ def _match_pad_worlds(tab, owner, poses, cos_obs, sin_obs, n, tol2, k, slots, in
                     best = q
                     best_d2 = d2
             kin = best - obs if (not nan and best >= 0 and best_d2 <= tol2) else -1
-            row[a] = r
-            for f in range(5):
-                flo[f, a] = tab[t, f]
-            for f in range(3):
-                ints[f, a] = np.int64(tab[t, 5 + f])
-            ints[3, a] = kin
-            slot = a - lo
-            if slot < slots:
-                for f in range(5):
-                    pf[f, r, slot] = tab[t, f]
-                for f in range(4):
-                    pi[f, r, slot] = ints[f, a]
+            _put_detection(tab, t, r, a, a - lo, slots, kin, True, row, flo, ints, pf, pi)
         lo = hi
     return True, row, flo, ints, pf, pi, count

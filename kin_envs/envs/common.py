@@ -718,6 +718,26 @@ def _min_separation2(poses, xs, xs_order):
     return smin2
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _put_detection(tab, t, r, k, slot, slots, kin, flat, row, flo, ints, pf, pi):
+    """Table row ``t`` of scan row ``r``, matched to robot ``kin`` (-1: none), into flat column ``k``
+    (when ``flat``) and padded slot ``slot`` of row ``r`` (when ``slot < slots``); shared by the
+    single-env and the vector env's kernels so that both write the same columns."""
+    if flat:
+        row[k] = r
+        for f in range(5):
+            flo[f, k] = tab[t, f]
+        for f in range(3):
+            ints[f, k] = np.int64(tab[t, 5 + f])
+        ints[3, k] = kin
+    if slot < slots:
+        for f in range(5):
+            pf[f, r, slot] = tab[t, f]
+        for f in range(3):
+            pi[f, r, slot] = np.int64(tab[t, 5 + f])
+        pi[3, r, slot] = kin
+
+
 @numba.njit(cache=True, nogil=True)
 def _match_pad_kernel(
     tab, owner, observers, poses, tol2, n_rows, slots, int_pads, hit_kind, hit_index, robot_kind, flat=True
@@ -850,20 +870,7 @@ def _match_pad_kernel(
                     if d2 <= tol2 and (d2 < best_d2 or (d2 == best_d2 and q < best)):
                         best = q
                         best_d2 = d2
-            if flat:
-                row[k] = r
-                for f in range(5):
-                    flo[f, k] = tab[t, f]
-                for f in range(3):
-                    ints[f, k] = np.int64(tab[t, 5 + f])
-                ints[3, k] = best
-            slot = k - lo
-            if slot < slots:
-                for f in range(5):
-                    pf[f, r, slot] = tab[t, f]
-                for f in range(3):
-                    pi[f, r, slot] = np.int64(tab[t, 5 + f])
-                pi[3, r, slot] = best
+            _put_detection(tab, t, r, k, k - lo, slots, best, flat, row, flo, ints, pf, pi)
     return row, flo, ints, pf, pi, count
 
 
