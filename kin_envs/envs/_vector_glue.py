@@ -14,8 +14,14 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from kin_envs.envs.common import _INT_PADS, KIN_MATCH_TOLERANCE, _put_detection
-from kin_envs.envs.info import DETECTION_FIELDS
+from kin_envs.envs.common import (
+    _INT_PADS,
+    KIN_MATCH_TOLERANCE,
+    _detection_blocks,
+    _detection_cols,
+    _put_detection,
+    _sort_by_range,
+)
 
 __all__ = ["match_pad_worlds"]
 
@@ -35,10 +41,7 @@ def match_pad_worlds(owner: np.ndarray, tab: np.ndarray, poses: np.ndarray, n: i
     )  # fmt: skip
     if not ok:
         return None
-    names = DETECTION_FIELDS
-    flat = dict(zip(names, (*flo, *ints), strict=True))
-    padded = dict(zip(names, (*pf, *pi), strict=True))
-    return (row, flat), (padded, count)
+    return (row, _detection_cols(flo, ints)), (_detection_cols(pf, pi), count)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -59,13 +62,7 @@ def _match_pad_worlds(tab, owner, poses, cos_obs, sin_obs, n, tol2, k, slots, in
     for i in range(n_det):
         if owner[i] < 0 or owner[i] >= k:
             raise ValueError("detection rows must be scan rows in [0, K)")
-    row = np.empty(n_det, dtype=np.int64)
-    flo = np.empty((5, n_det))
-    ints = np.empty((4, n_det), dtype=np.int64)
-    pf = np.zeros((5, k, slots))
-    pi = np.empty((4, k, slots), dtype=np.int64)
-    for f in range(4):
-        pi[f] = int_pads[f]
+    row, flo, ints, pf, pi = _detection_blocks(n_det, k, slots, int_pads)
     count = np.zeros(k, dtype=np.int64)
     order = np.arange(n_det)
     lo = 0
@@ -74,19 +71,7 @@ def _match_pad_worlds(tab, owner, poses, cos_obs, sin_obs, n, tol2, k, slots, in
         hi = lo + 1
         while hi < n_det and owner[hi] == r:
             hi += 1
-        # stable insertion sort of the row by range, NaN last (np.lexsort's order)
-        for a in range(lo + 1, hi):
-            t = order[a]
-            key = tab[t, 0]
-            b = a
-            while b > lo:
-                prev = tab[order[b - 1], 0]
-                if (np.isnan(prev) and not np.isnan(key)) or prev > key:
-                    order[b] = order[b - 1]
-                    b -= 1
-                else:
-                    break
-            order[b] = t
+        _sort_by_range(tab, order, lo, hi)  # stable, NaN last (np.lexsort's order)
         obs = r * n
         px = poses[obs, 0]
         py = poses[obs, 1]

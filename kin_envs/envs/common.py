@@ -719,6 +719,21 @@ def _min_separation2(poses, xs, xs_order):
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
+def _detection_blocks(n_flat, n_rows, slots, int_pads):
+    """``(row (n_flat,), floats (5, n_flat), ints (4, n_flat), padded floats (5, n_rows, slots), padded
+    ints (4, n_rows, slots))``, the padded blocks filled with ``pad_rows``' values (``int_pads``; the
+    floats' pad is 0), the flat ones to be written by :func:`_put_detection`."""
+    row = np.empty(n_flat, dtype=np.int64)
+    flo = np.empty((5, n_flat))
+    ints = np.empty((4, n_flat), dtype=np.int64)
+    pf = np.zeros((5, n_rows, slots))
+    pi = np.empty((4, n_rows, slots), dtype=np.int64)
+    for f in range(4):
+        pi[f] = int_pads[f]
+    return row, flo, ints, pf, pi
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
 def _put_detection(tab, t, r, k, slot, slots, kin, flat, row, flo, ints, pf, pi):
     """Table row ``t`` of scan row ``r``, matched to robot ``kin`` (-1: none), into flat column ``k``
     (when ``flat``) and padded slot ``slot`` of row ``r`` (when ``slot < slots``); shared by the
@@ -798,14 +813,7 @@ def _match_pad_kernel(
     n_beams = hit_kind.shape[1]
     sep2 = _min_separation2(poses, xs, xs_order) if hits else 0.0
 
-    n_flat = n_det if flat else 0
-    row = np.empty(n_flat, dtype=np.int64)
-    flo = np.empty((5, n_flat))
-    ints = np.empty((4, n_flat), dtype=np.int64)
-    pf = np.zeros((5, n_rows, slots))
-    pi = np.empty((4, n_rows, slots), dtype=np.int64)
-    for f in range(4):
-        pi[f] = int_pads[f]  # pad_rows' values (PAD_VALUES); the floats' pad is 0
+    row, flo, ints, pf, pi = _detection_blocks(n_det if flat else 0, n_rows, slots, int_pads)
     count = np.empty(n_rows, dtype=np.int64)
     longest = 0
     for r in range(n_rows):
