@@ -19,7 +19,7 @@ Sections (``--sections``, comma separated; default all available):
 * ``memory``: RSS of a 256-robot swarm with the learned detector over ``--memory-steps`` steps.
 * ``vecenv``: env-steps/s of ``KinSeek-v1``'s native vector env (``gym.make_vec``, K sub-envs,
   ``--vec-envs``) against Gymnasium's ``SyncVectorEnv`` over K envs, same run, per detector
-  (``--vec-detectors``).
+  (``--vec-detectors``) and range noise (``--vec-noise``: 0, KinSeek's default, and 1 %).
 * ``ros``: recording an 8-robot World run to a bag (steps/s, against the same run unrecorded) and
   reading its scans back (scans/s, against running the geometric detector on them), per bag format
   (needs the ``ros`` extra).
