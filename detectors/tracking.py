@@ -1708,7 +1708,7 @@ def _frame_kernel(z, obs, rng, dt, n_obs, alive, tobs, tid, next_id, x, P, poses
     born = np.empty(k - n_m, np.int64)
     n_b = 0
     for c in range(k):
-        if not taken[c] and scores[c] >= birth_floor:
+        if not taken[c] and (birth_floor <= 0.0 or scores[c] >= birth_floor):  # (0: any score, even < 0)
             born[n_b] = c
             n_b += 1
     born = born[:n_b]

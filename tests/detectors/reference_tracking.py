@@ -102,7 +102,9 @@ class StagedKinTracker(KinTracker):
         if int(self._alive.sum()) + k > self._alive.shape[0]:  # room for every candidate to start a track
             self._grow(int(self._alive.sum()) + k)
         pre = self._alive.copy()  # the tracks before this frame's births (existence: hit or miss)
-        ti, ci, tb, born = self._associate_and_birth(z, obs, rng, dt, scores >= self.params.birth_min_score)
+        ti, ci, tb, born = self._associate_and_birth(
+            z, obs, rng, dt, (scores >= self.params.birth_min_score) | (self.params.birth_min_score <= 0)
+        )
         tracks, cands = np.concatenate([ti, tb]), np.concatenate([ci, born])
         self._score_cue(tracks, scores[cands], None if accepted is None else accepted[cands], rng[cands])
         beams = np.zeros(k)

@@ -415,6 +415,9 @@ def test_birth_floor_starts_no_track_from_a_low_score_candidate_but_updates_one(
     gated.update([[2.02, 0.0]], [0.2], STILL, DT)  # below min_score: dropped, the track misses
     (t,) = gated.tracks()
     assert t.frames_seen == 1 and t.x == pytest.approx(2.0)
+    off = KinTracker(TrackerParams(min_score=0.0))  # the default floor 0: any score starts a track, as before
+    off.update([[1.0, 0.0], [2.0, 0.0]], [-0.5, 0.0], STILL, DT)
+    assert len(off) == 2
     with pytest.raises(ValueError, match="birth_min_score"):
         TrackerParams(birth_min_score=1.0)
     with pytest.raises(ValueError, match="birth_min_score"):
