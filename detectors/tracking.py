@@ -207,6 +207,17 @@ class TrackerParams:
         min_score: candidates scoring below this are dropped before association: a permissive detector
             scores every segment, and those of walls slide along the wall as the observer moves, which
             would read as motion.
+        birth_min_score: an unmatched candidate starts a track only if it scores at least this (0: every
+            one does); a candidate below it still updates a track it is associated with (unlike
+            ``min_score``, which drops it before association). For the learned detector's permissive feed
+            0.6 cuts the live tracks at 64 observers by ~1/3 (its 0.1-0.6 candidates, mostly walls and
+            clutter, started them; every stage scales with the tracks), within 0.02 of no floor on every
+            held-out figure with the shipped classifier. Off by default: scores are the detector's own
+            scale, and the geometric detector's accepted detections of kin score below 0.6 about 40 % of
+            the time (an env's default feed), where a floor would keep them from ever starting a track.
+        frame_residuals: 1 computes the per-frame residuals (cue r, the classifier's ``resid_z``) every
+            frame; 0 skips them (``resid_z`` reads 0: for a kin model fitted with them off, which does not
+            read it; the residual cue, ``resid_clamp``, needs them).
         frame_fit_iterations, frame_fit_warm_start: the per-frame residuals (the classifier's ``resid_z``):
             each candidate's points against a circle of radius ``r`` fitted by ``frame_fit_iterations``
             Gauss-Newton steps (0: none) from where ``frame_fit_warm_start`` says: 1 (default) the
@@ -258,6 +269,8 @@ class TrackerParams:
     static_penalty: float = 0.0
     kin_threshold: float = 0.5
     min_score: float = 0.1
+    birth_min_score: float = 0.0
+    frame_residuals: int = 1
     frame_fit_iterations: int = 1
     frame_fit_warm_start: int = 1
     keep_points: int = 0
@@ -274,8 +287,9 @@ class TrackerParams:
         for name in ("odom_heading_rate", "odom_position_rate"):  # 0: exact odometry
             if getattr(self, name) < 0:
                 raise ValueError(f"TrackerParams.{name} must be >= 0, got {getattr(self, name)!r}")
-        if not 0 <= self.min_score < 1:
-            raise ValueError(f"TrackerParams.min_score must be in [0, 1), got {self.min_score!r}")
+        for name in ("min_score", "birth_min_score"):
+            if not 0 <= getattr(self, name) < 1:
+                raise ValueError(f"TrackerParams.{name} must be in [0, 1), got {getattr(self, name)!r}")
         for name in ("p_detect", "birth_existence", "confirm_existence", "delete_existence", "kin_prior",
                      "score_prior", "kin_threshold"):  # fmt: skip
             if not 0 < getattr(self, name) < 1:
@@ -298,6 +312,11 @@ class TrackerParams:
             raise ValueError("TrackerParams: frame_fit_iterations 0 (no fit) needs frame_fit_warm_start 1 "
                              "(the residuals at the candidate's own centre), got "
                              f"{self.frame_fit_warm_start!r}")  # fmt: skip
+        if self.frame_residuals not in (0, 1):
+            raise ValueError(f"TrackerParams.frame_residuals must be 0 or 1, got {self.frame_residuals!r}")
+        if self.frame_residuals == 0 and self.resid_clamp != 0:
+            raise ValueError("TrackerParams: resid_clamp (the per-frame residual cue) needs frame_residuals "
+                             f"1, got resid_clamp {self.resid_clamp!r} with frame_residuals 0")  # fmt: skip
         if self.keep_points not in (0, 1):
             raise ValueError(f"TrackerParams.keep_points must be 0 or 1, got {self.keep_points!r}")
 
@@ -569,7 +588,11 @@ class TrackKinModel:
             return f, np.concatenate([np.r_[gW.ravel(), gb] for gW, gb in reversed(grads)])
 
         res = minimize(loss, theta0, jac=True, method="L-BFGS-B", options={"maxiter": int(max_iter)})
-        return cls(mean, scale, unpack(res.x), min_frames=min_frames, hit_only=hit_only,
+        layers = unpack(res.x)
+        # an input constant over the rows (e.g. resid_z with TrackerParams.frame_residuals 0) carries nothing:
+        # its first-layer weights exactly 0, so that the tracker's compiled decision skips it
+        layers[0][0][np.std(X, axis=0) <= 1e-9] = 0.0
+        return cls(mean, scale, layers, min_frames=min_frames, hit_only=hit_only,
                    info={**(info or {}), "loss": float(res.fun), "hidden": [int(h) for h in hidden],
                          "l2": l2})  # fmt: skip
 
@@ -1422,10 +1445,11 @@ def _kalman_update(xt, Pt, zx, zy, mv):
 def _frame_kernel(z, obs, rng, dt, n_obs, alive, tobs, tid, next_id, x, P, poses, exist, lo_score, lo_shape,
                   lo_motion, lo_resid, res_chi2, res_dof, score_sum, n_scored, seen, age, static_t, moved,
                   confirmed, npts, head, fit_c, anchor, anchor_var, anchor_odo, anchor_rng, odometer, q,
-                  meas_sigma, meas_sigma_rel, speed_var, gate, birth_exist, confirm_exist, r):  # fmt: skip
+                  meas_sigma, meas_sigma_rel, speed_var, gate, birth_exist, confirm_exist, r, scores,
+                  birth_floor):  # fmt: skip
     """One frame's predict (constant velocity), Mahalanobis gating, assignment (a pair alone in both its
     gates is forced; the rest per observer by :func:`_hungarian`), Kalman update (:func:`_kalman_update`), and
-    births."""
+    births (of the unmatched candidates scoring ``>= birth_floor``)."""
     cap = alive.shape[0]
     k = z.shape[0]
     # predict
@@ -1680,15 +1704,15 @@ def _frame_kernel(z, obs, rng, dt, n_obs, alive, tobs, tid, next_id, x, P, poses
         taken[c] = True
         _kalman_update(x[t], P[t], z[c, 0], z[c, 1], (meas_sigma + meas_sigma_rel * rng[c]) ** 2)
         seen[t] += 1
-    # births: unmatched candidates in index order take the first free rows
-    n_b = k - n_m
-    born = np.empty(n_b, np.int64)
-    tb = np.empty(n_b, np.int64)
-    j = 0
+    # births: unmatched candidates scoring >= birth_floor, in index order, take the first free rows
+    born = np.empty(k - n_m, np.int64)
+    n_b = 0
     for c in range(k):
-        if not taken[c]:
-            born[j] = c
-            j += 1
+        if not taken[c] and (birth_floor <= 0.0 or scores[c] >= birth_floor):  # (0: any score, even < 0)
+            born[n_b] = c
+            n_b += 1
+    born = born[:n_b]
+    tb = np.empty(n_b, np.int64)
     t = 0
     for j in range(n_b):
         while alive[t]:
@@ -2237,6 +2261,7 @@ def _param_array(pr: TrackerParams) -> np.ndarray:
         pr.shape_clamp, pr.odom_heading_rate**2, pr.odom_position_rate**2, pr.resid_clamp, pr.p_detect,
         pr.clutter_ratio, pr.max_range, pr.delete_existence, pr.motion_dist, pr.motion_gain, pr.min_score,
         0.5 * pr.wheel_base, float(int(pr.frame_fit_iterations)), float(pr.frame_fit_warm_start),
+        pr.birth_min_score, float(pr.frame_residuals),
     ], np.float64)  # fmt: skip
 
 
@@ -2353,7 +2378,7 @@ def _update_frame(obs, xy, scores, accepted, delta, dt, pts, owner, has_points, 
     # point's owner, get them copied in order (and cstart renumbered)
     min_score = prm[30]
     gn = prm[32] > 0.0 and prm[33] <= 0.0  # fits from behind the points: in the odometry frame, owners read
-    copy_pts = has_points and (gn or buf.shape[1] > 0)
+    copy_pts = has_points and ((gn and prm[35] > 0.0) or buf.shape[1] > 0)
     kept = np.empty(k, np.int64)
     kk = 0
     for c in range(k):  # the kept candidates' indices, compacted without a branch
@@ -2413,7 +2438,7 @@ def _update_frame(obs, xy, scores, accepted, delta, dt, pts, owner, has_points, 
         z, obs, rng, dt, N, alive, tobs, tid, next_id, x, P, poses, exist, lo_score, lo_shape, lo_motion,
         lo_resid, res_chi2, res_dof, score_sum, n_scored, seen, age, static_t, moved, confirmed, npts, head,
         fit_c, anchor, anchor_var, anchor_odo, anchor_rng, odometer, prm[0], prm[1], prm[2], prm[3], prm[4],
-        prm[5], prm[6], prm[7],
+        prm[5], prm[6], prm[7], scores, prm[34],
     )  # fmt: skip
     n_m, n_t = ti.shape[0], ti.shape[0] + tb.shape[0]
     tracks, cands = np.empty(n_t, np.int64), np.empty(n_t, np.int64)
@@ -2437,14 +2462,14 @@ def _update_frame(obs, xy, scores, accepted, delta, dt, pts, owner, has_points, 
         # (frame_fit_warm_start 0) and the outline's ring need the points in the odometry frame
         if copy_pts:
             odom, sig, dist = _points_prep(pts, owner, obs, noise, cos, sin, poses, prm[16])
-            if gn:
+            if gn and prm[35] > 0.0:
                 _frame_fits_kernel(tracks, cands, odom, sig, cstart, tobs, poses, z, prm[7], int(prm[32]),
                                    prm[33] > 0.0, prm[17], prm[23], lo_resid, res_chi2, res_dof)  # fmt: skip
             if buf.shape[1] > 0:
                 _outline_kernel(tracks, cands, odom, sig, dist, cstart, tobs, odometer, moved, buf, aux, npts,
                                 head, fit_c, lo_shape, x, P, now, prm[7], prm[17], prm[18], int(prm[19]),
                                 prm[20], prm[21], prm[22])  # fmt: skip
-        if not gn:
+        if not gn and prm[35] > 0.0:
             _centre_resid_kernel(tracks, cands, pts, lo, hi, xy, obs, noise, prm[16], prm[7], prm[17],
                                  prm[23], lo_resid, res_chi2, res_dof, int(prm[32]))  # fmt: skip
         for j in range(n_t):
@@ -2553,6 +2578,13 @@ def _decide_kernel(n_obs, alive, confirmed, obs, seen, x, P, anchor, anchor_var,
         share[o] = n_moved[o] / max(n_conf[o], 1.0)
         log_moved[o] = math.log1p(n_moved[o])
     log_n, log1p_b = np.full(64, np.nan), np.full(64, np.nan)
+    # inputs whose first-layer weights are all 0 (a model fitted on fewer inputs) are neither computed nor
+    # summed: the sums of the others are the same bits (a 0 weight adds +-0)
+    use = np.zeros(F, np.bool_)
+    for q in range(F):
+        for j in range(U):
+            use[q] |= W[q, j] != 0.0
+    u_std, u_mot, u_spd, u_res = use[1], use[12], use[15], use[18]
     i = n_sel = 0
     for t in range(alive.shape[0]):
         if not alive[t]:
@@ -2572,16 +2604,11 @@ def _decide_kernel(n_obs, alive, confirmed, obs, seen, x, P, anchor, anchor_var,
             kp[i - 1] = 0.75 if (acclast[t] if hit[t] else 0.0) > 0.75 else 0.25
             continue
         o = obs[t]
-        dx, dy = x[t, 0] - anchor[t, 0], x[t, 1] - anchor[t, 1]
-        disp = math.sqrt(dx * dx + dy * dy)
-        drift = (odometer[o] - anchor_odo[t]) * (head_rate2 * anchor_rng[t] ** 2 + pos_rate2)
-        var = anchor_var[t] + 0.5 * (P[t, 0, 0] + P[t, 1, 1]) + drift
-        speed_sd = math.sqrt(max(0.5 * (P[t, 2, 2] + P[t, 3, 3]), 1e-12))
         mn = lgsum[t] / nf
-        dof = res_dof[t]
         c = n_sel
         xf[0, c] = mn
-        xf[1, c] = math.sqrt(max(lgsq[t] / nf - mn * mn, 0.0))
+        if u_std:
+            xf[1, c] = math.sqrt(max(lgsq[t] / nf - mn * mn, 0.0))
         xf[2, c] = lgmax[t]
         xf[3, c] = lglast[t]
         xf[4, c] = lglast[t] if hit[t] else -6.0
@@ -2599,13 +2626,22 @@ def _decide_kernel(n_obs, alive, confirmed, obs, seen, x, P, anchor, anchor_var,
         else:
             xf[10, c] = math.log1p(bt)
         xf[11, c] = f_rng[t]
-        xf[12, c] = min(disp / math.sqrt(var), 10.0)
+        if u_mot:
+            dx, dy = x[t, 0] - anchor[t, 0], x[t, 1] - anchor[t, 1]
+            disp = math.sqrt(dx * dx + dy * dy)
+            drift = (odometer[o] - anchor_odo[t]) * (head_rate2 * anchor_rng[t] ** 2 + pos_rate2)
+            var = anchor_var[t] + 0.5 * (P[t, 0, 0] + P[t, 1, 1]) + drift
+            xf[12, c] = min(disp / math.sqrt(var), 10.0)
         xf[13, c] = 1.0 if moved[t] else 0.0
         xf[14, c] = exist[t]
-        xf[15, c] = min(math.sqrt(x[t, 2] * x[t, 2] + x[t, 3] * x[t, 3]) / speed_sd, 10.0)
+        if u_spd:
+            speed_sd = math.sqrt(max(0.5 * (P[t, 2, 2] + P[t, 3, 3]), 1e-12))
+            xf[15, c] = min(math.sqrt(x[t, 2] * x[t, 2] + x[t, 3] * x[t, 3]) / speed_sd, 10.0)
         xf[16, c] = share[o]
         xf[17, c] = log_moved[o]
-        xf[18, c] = min(max((res_chi2[t] - dof) / math.sqrt(2.0 * max(dof, 1.0)), -10.0), 10.0)
+        if u_res:
+            dof = res_dof[t]
+            xf[18, c] = min(max((res_chi2[t] - dof) / math.sqrt(2.0 * max(dof, 1.0)), -10.0), 10.0)
         sel[n_sel] = i - 1
         n_sel += 1
     # standardised inputs @ W + b, each sum in the inputs' order (as _dense_layer's): the same bits
@@ -2614,6 +2650,8 @@ def _decide_kernel(n_obs, alive, confirmed, obs, seen, x, P, anchor, anchor_var,
         for c in range(n_sel):
             ht[j, c] = b[j]
     for q in range(F):
+        if not use[q]:
+            continue
         mq, sq = mean[q], scale[q]
         v = xf[q, :n_sel]
         for c in range(n_sel):

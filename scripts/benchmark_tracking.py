@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
+import json
 import math
 import sys
 import time
@@ -256,6 +257,9 @@ def main(argv: list[str] | None = None) -> list[dict]:
     p.add_argument("--kin-model", default="learned",
                    help="the tracker's kin decision: learned (the shipped track classifier), hand (the "
                         "hand-tuned fusion) or a model JSON path")  # fmt: skip
+    p.add_argument("--tracker-params", default=None,
+                   help="TrackerParams fields as JSON for the tracker of every part, e.g. "
+                        "'{\"birth_min_score\": 0.6}' (default: the shipped defaults)")  # fmt: skip
     p.add_argument("--cost-robots", type=int, default=64,
                    help="observers of the tracking-cost measurement (0: skip it)")  # fmt: skip
     p.add_argument("--cost-warm-fits", action="store_true",
@@ -278,6 +282,15 @@ def main(argv: list[str] | None = None) -> list[dict]:
         from detectors.tracking import KinTracker
 
         KinTracker(kin_model=args.kin_model)  # a bad --kin-model fails before the episodes
+        tracker_params = None
+        if args.tracker_params is not None:
+            from detectors.tracking import TrackerParams
+
+            try:
+                tracker_params = TrackerParams.from_dict(json.loads(args.tracker_params))
+            except json.JSONDecodeError as e:
+                msg = f"--tracker-params must be a JSON object, got {args.tracker_params!r}: {e}"
+                raise ValueError(msg) from None
     except (ValueError, TypeError) as e:
         p.error(str(e))
     # the learned detector runs without torch (its npz): set torch's threads only where torch is installed
@@ -303,8 +316,9 @@ def main(argv: list[str] | None = None) -> list[dict]:
         spec = SEQUENCE_SPLITS[split]
         n = spec.n_episodes if args.full else args.episodes
         want_gif = figures and not args.no_gif and recording is None and split == "lookalike" and nz > 0
-        r = run_sequences(detector, split, n, nz, baselines=baselines, record=0 if want_gif else None,
-                          kin_model=args.kin_model, diagnose=True, mot=mot)  # fmt: skip
+        r = run_sequences(detector, split, n, nz, tracker_params, baselines=baselines,
+                          record=0 if want_gif else None, kin_model=args.kin_model, diagnose=True,
+                          mot=mot)  # fmt: skip
         if want_gif:
             recording = r.pop("recording")
         results.append(r)
@@ -313,7 +327,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
         from detectors.tracking import TrackerParams
 
         alt = TrackerParams(frame_fit_iterations=2, frame_fit_warm_start=1) if args.cost_warm_fits else None
-        cost = tracking_cost(detector, n_robots=args.cost_robots, kin_model=args.kin_model, alt_params=alt)
+        cost = tracking_cost(detector, n_robots=args.cost_robots, tracker_params=tracker_params,
+                             kin_model=args.kin_model, alt_params=alt)  # fmt: skip
     with atomic_write(args.out / "results.md", "w") as f:
         f.write(report(results, cost))
     write_json(args.out / "results.json", {"results": results, "cost": cost}, default=float)

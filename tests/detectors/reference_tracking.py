@@ -102,7 +102,9 @@ class StagedKinTracker(KinTracker):
         if int(self._alive.sum()) + k > self._alive.shape[0]:  # room for every candidate to start a track
             self._grow(int(self._alive.sum()) + k)
         pre = self._alive.copy()  # the tracks before this frame's births (existence: hit or miss)
-        ti, ci, tb, born = self._associate_and_birth(z, obs, rng, dt)
+        ti, ci, tb, born = self._associate_and_birth(
+            z, obs, rng, dt, (scores >= self.params.birth_min_score) | (self.params.birth_min_score <= 0)
+        )
         tracks, cands = np.concatenate([ti, tb]), np.concatenate([ci, born])
         self._score_cue(tracks, scores[cands], None if accepted is None else accepted[cands], rng[cands])
         beams = np.zeros(k)
@@ -127,9 +129,10 @@ class StagedKinTracker(KinTracker):
     def _meas_var(self, rng: np.ndarray) -> np.ndarray:
         return (self.params.meas_sigma + self.params.meas_sigma_rel * rng) ** 2
 
-    def _associate_and_birth(self, z, obs, rng, dt):
-        """Predict, gate, assign, Kalman-update and start tracks for unmatched candidates (one compiled
-        kernel). Returns (matched track rows, their candidates, born track rows, their candidates)."""
+    def _associate_and_birth(self, z, obs, rng, dt, birth_ok):
+        """Predict, gate, assign, Kalman-update and start tracks for unmatched candidates where ``birth_ok``
+        (one compiled kernel). Returns (matched track rows, their candidates, born track rows, their
+        candidates)."""
         pr = self.params
         ti, ci, tb, born, next_id = _frame_kernel_before(
             np.ascontiguousarray(z), obs, rng, float(dt), self.n_observers, self._alive, self._obs, self._id,
@@ -138,7 +141,7 @@ class StagedKinTracker(KinTracker):
             self._seen, self._age, self._static_t, self._moved, self._confirmed, self._npts, self._head,
             self._fit_c, self._anchor, self._anchor_var, self._anchor_odo, self._anchor_rng, self.odometer,
             pr.process_accel**2, pr.meas_sigma, pr.meas_sigma_rel, pr.init_speed_sigma**2, pr.gate_chi2,
-            pr.birth_existence, pr.confirm_existence, pr.r,
+            pr.birth_existence, pr.confirm_existence, pr.r, birth_ok,
         )  # fmt: skip
         self._next_id = int(next_id)
         return ti, ci, tb, born
@@ -185,14 +188,14 @@ class StagedKinTracker(KinTracker):
             pts, owner = np.ascontiguousarray(pts[order]), owner[order]
         cstart = np.searchsorted(owner, np.arange(k + 1))
         centre = pr.frame_fit_warm_start == 1  # from the candidate's own centre: in the robot frame
-        if centre:
+        if centre and pr.frame_residuals:
             self._centre_resid(ti, ci, pts, cstart, xy, obs, noise)
         ring = self._pts.shape[1] > 0  # the outline's points kept (its cue on, or keep_points)
         if centre and not ring:
             return  # nothing reads the odometry-frame points
         odom, sig, d = _points_prep(pts, owner, obs, noise, cos, sin, self.poses,
                                     pr.shape_sigma**2)  # fmt: skip
-        if not centre:
+        if not centre and pr.frame_residuals:
             self._frame_fits(ti, ci, odom, sig, cstart, z)
         if not ring:
             return
@@ -332,12 +335,13 @@ class ReferenceKinTracker(StagedKinTracker):
     """:class:`KinTracker` with the numpy steps (predict, gate, Hungarian, Kalman update, birth,
     existence, motion, confirm / delete)."""
 
-    def _associate_and_birth(self, z, obs, rng, dt):
+    def _associate_and_birth(self, z, obs, rng, dt, birth_ok):
         rows = np.flatnonzero(self._alive)
         self._predict(rows, dt)
         ti, ci = self._associate(rows, z, obs, rng)
         self._kalman_update(ti, z[ci], rng[ci])
         born = np.setdiff1d(np.arange(z.shape[0]), ci, assume_unique=True)
+        born = born[birth_ok[born]]
         tb = self._birth(z[born], obs[born], rng[born])
         return ti, ci, tb, born
 
@@ -566,7 +570,7 @@ def _frame_kernel_before(z, obs, rng, dt, n_obs, alive, tobs, tid, next_id, x, P
                          lo_shape, lo_motion, lo_resid, res_chi2, res_dof, score_sum, n_scored, seen, age,
                          static_t, moved, confirmed, npts, head, fit_c, anchor, anchor_var, anchor_odo,
                          anchor_rng, odometer, q, meas_sigma, meas_sigma_rel, speed_var, gate, birth_exist,
-                         confirm_exist, r):  # fmt: skip
+                         confirm_exist, r, birth_ok):  # fmt: skip
     """One frame's predict (constant velocity), Mahalanobis gating, assignment (a pair alone in both its
     gates is forced; the rest per observer by :func:`_hungarian`), Joseph-form Kalman update, and births."""
     cap = alive.shape[0]
@@ -789,13 +793,15 @@ def _frame_kernel_before(z, obs, rng, dt, n_obs, alive, tobs, tid, next_id, x, P
         taken[c] = True
         _kalman_update(x[t], P[t], z[c, 0], z[c, 1], (meas_sigma + meas_sigma_rel * rng[c]) ** 2)
         seen[t] += 1
-    # births: unmatched candidates in index order take the first free rows
+    # births: unmatched candidates (where birth_ok) in index order take the first free rows
     n_b = k - n_m
+    for c in range(k):
+        n_b -= not taken[c] and not birth_ok[c]
     born = np.empty(n_b, np.int64)
     tb = np.empty(n_b, np.int64)
     j = 0
     for c in range(k):
-        if not taken[c]:
+        if not taken[c] and birth_ok[c]:
             born[j] = c
             j += 1
     t = 0

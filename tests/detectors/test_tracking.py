@@ -399,6 +399,31 @@ def test_low_scores_are_dropped():
     assert t.x == pytest.approx(2.0) and t.points.shape == (12, 2)  # its own points only
 
 
+def test_birth_floor_starts_no_track_from_a_low_score_candidate_but_updates_one():
+    """``birth_min_score``: an unmatched candidate below it starts no track, one at or above it does, and a
+    candidate below it still updates the track it is associated with (``min_score`` would drop it)."""
+    tr = KinTracker(TrackerParams(birth_min_score=0.5))
+    tr.update([[1.0, 0.0], [2.0, 0.0], [3.0, 0.0]], [0.3, 0.5, 0.9], STILL, DT)
+    assert sorted(t.x for t in tr.tracks()) == pytest.approx([2.0, 3.0])  # 0.3 < the floor: no track
+    tr.update([[1.0, 0.0], [2.02, 0.0], [3.0, 0.0]], [0.3, 0.2, 0.9], STILL, DT)
+    (a, b) = sorted(tr.tracks(), key=lambda t: t.x)
+    assert a.frames_seen == 2 and 2.0 < a.x < 2.02  # updated by a 0.2 candidate, pulled towards it
+    assert b.frames_seen == 2 and b.x == pytest.approx(3.0)
+    assert len(tr) == 2  # and the 0.3 candidate at 1 m, unmatched again, started nothing
+    gated = KinTracker(TrackerParams(min_score=0.25, birth_min_score=0.5))
+    gated.update([[2.0, 0.0]], [0.9], STILL, DT)
+    gated.update([[2.02, 0.0]], [0.2], STILL, DT)  # below min_score: dropped, the track misses
+    (t,) = gated.tracks()
+    assert t.frames_seen == 1 and t.x == pytest.approx(2.0)
+    off = KinTracker(TrackerParams(min_score=0.0))  # the default floor 0: any score starts a track, as before
+    off.update([[1.0, 0.0], [2.0, 0.0]], [-0.5, 0.0], STILL, DT)
+    assert len(off) == 2
+    with pytest.raises(ValueError, match="birth_min_score"):
+        TrackerParams(birth_min_score=1.0)
+    with pytest.raises(ValueError, match="birth_min_score"):
+        TrackerParams(birth_min_score=-0.1)
+
+
 def test_track_arrays_fixed_shape():
     tr = KinTracker()
     for k in range(5):
@@ -500,16 +525,19 @@ def _compare(a: KinTracker, b: KinTracker) -> None:
             assert x.age == y.age
 
 
+@pytest.mark.parametrize("birth_floor", [0.0, 0.5])
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_compiled_frame_kernels_match_the_numpy_implementation(seed):
+def test_compiled_frame_kernels_match_the_numpy_implementation(seed, birth_floor):
     """The compiled predict / gate / assign / update / birth / existence / motion kernels give the same
     tracks as the previous numpy implementation (tests/detectors/reference_tracking.py) on crowded
-    sequences: crossing movers, clutter, missed detections, ambiguous gates, 4 observers."""
+    sequences: crossing movers, clutter, missed detections, ambiguous gates, 4 observers; with a birth
+    floor (``birth_min_score``) about half the unmatched candidates start no track."""
     from tests.detectors.reference_tracking import ReferenceKinTracker
 
     rng = np.random.default_rng(seed)
     n_obs, n_obj = 4, 12
-    pr = TrackerParams(score_per_metre=0.5, score_n0=1.0, score_prior=0.7)  # every term of the score cue
+    pr = TrackerParams(score_per_metre=0.5, score_n0=1.0, score_prior=0.7,  # every term of the score cue
+                       birth_min_score=birth_floor)  # fmt: skip
     fast, ref = KinTracker(pr, n_observers=n_obs), ReferenceKinTracker(pr, n_observers=n_obs)
     pos = rng.uniform(-1.5, 1.5, (n_obs, n_obj, 2))
     pos[:, n_obj // 2 :] = pos[:, : n_obj // 2] + rng.normal(0, 0.04, (n_obs, n_obj // 2, 2))  # close pairs
@@ -707,17 +735,24 @@ def test_fused_update_equals_the_staged_steps_with_dropped_and_unsorted_points(s
     assert len(fused) > 5
 
 
-@pytest.mark.parametrize("hidden", [(), (8,), (5, 3)])
-def test_the_compiled_kin_decision_is_bitwise_the_models(hidden):
+_LEFT_OUT = ("std_logit", "hit_logit", "motion_z", "speed_z", "resid_z", "log_moved")
+
+
+@pytest.mark.parametrize("hidden, left_out", [((), ()), ((8,), ()), ((5, 3), ()), ((8,), _LEFT_OUT),
+                                              ((4,), _LEFT_OUT[1:4]), ((), _LEFT_OUT[:1])])  # fmt: skip
+def test_the_compiled_kin_decision_is_bitwise_the_models(hidden, left_out):
     """track_arrays' kin decision (``KinTracker._decide``: the classifier's inputs and first layer compiled,
     only for the tracks the network decides) gives every track ``TrackKinModel.kin_prob`` of its features
     bit for bit: logistic, one and two tanh layers, young tracks (``min_frames``), ``hit_only`` on and
-    off; the padded slots carry it."""
-    rng = np.random.default_rng(len(hidden))
+    off, and models with inputs left out (their first-layer rows 0: not computed by the compiled decision);
+    the padded slots carry it."""
+    rng = np.random.default_rng(len(hidden) + 3 * len(left_out))
     F = len(TRACK_FEATURES)
     X = rng.normal(0, 1, (200, F))
     y = (X[:, 0] + 0.5 * rng.normal(0, 1, 200) > 0).astype(float)
     base = TrackKinModel.fit(X, y, hidden=hidden, max_iter=30)
+    for name in left_out:
+        base.layers[0][0][TRACK_FEATURES.index(name)] = 0.0
     base = TrackKinModel(rng.normal(0, 0.5, F), rng.uniform(0.5, 2, F), base.layers)
     frames = list(_crowded_frames(7, n_frames=12))
     seen = set()  # which branches of the decision the tracks took
@@ -1007,7 +1042,9 @@ def test_compiled_exp_tanh_and_logistic_against_numpy():
 _FITS_BEHIND = {"frame_fit_iterations": 6, "frame_fit_warm_start": 0}
 
 
-@pytest.mark.parametrize("over", [{}, {"keep_points": 1}, _FITS_BEHIND, {"shape_clamp": 2.0}])
+@pytest.mark.parametrize("over", [{}, {"keep_points": 1}, _FITS_BEHIND, {"shape_clamp": 2.0},
+                                  {"birth_min_score": 0.5}, {"frame_residuals": 0},
+                                  {**_FITS_BEHIND, "frame_residuals": 0, "keep_points": 1}])  # fmt: skip
 def test_dropped_candidates_points_in_place_or_copied_equal_the_staged_steps(over):
     """Candidates below ``min_score`` dropped (most of them, as in the learned feed) while their points stay
     in place (the default: the kept candidates' point ranges read where they are) or are copied in order (the
@@ -1038,7 +1075,43 @@ def test_dropped_candidates_points_in_place_or_copied_equal_the_staged_steps(ove
         staged.update_batch(obs, xy, sc, delta, DT, pts, own)
         for name in KinTracker._FIELDS:
             assert np.array_equal(getattr(fused, name), getattr(staged, name)), (f, name)
-    assert len(fused) > 5 and np.count_nonzero(fused._res_dof) > 3
+    assert len(fused) > 5 and (np.count_nonzero(fused._res_dof) > 3) == bool(pr.frame_residuals)
+
+
+def test_frame_residuals_off_leave_resid_z_at_zero_and_a_fit_drops_that_input():
+    """``frame_residuals=0``: no per-frame residuals (``resid_z`` reads 0, everything else as with them on);
+    ``TrackKinModel.fit`` gives an input that is constant over its rows first-layer weights of exactly 0,
+    so that the compiled decision skips it (and still equals the model's ``kin_prob``); bad values raise."""
+    frames = list(_crowded_frames(3, n_frames=10))
+    on, off = KinTracker(n_observers=3), KinTracker(TrackerParams(frame_residuals=0), n_observers=3)
+    for obs, xy, sc, delta, pts, own in frames:
+        on.update_batch(obs, xy, sc, delta, DT, pts, own)
+        off.update_batch(obs, xy, sc, delta, DT, pts, own)
+    assert np.count_nonzero(on._res_dof) > 5 and not np.any(off._res_dof) and not np.any(off._res_chi2)
+    for name in KinTracker._FIELDS:  # the residuals touch nothing else
+        if name not in ("_res_dof", "_res_chi2"):
+            assert np.array_equal(getattr(on, name), getattr(off, name)), name
+    i = TRACK_FEATURES.index("resid_z")
+    f_on, f_off = on.track_features(1)["features"], off.track_features(1)["features"]
+    assert np.all(f_off[:, i] == 0) and np.any(f_on[:, i] != 0)
+    assert np.array_equal(np.delete(f_on, i, 1), np.delete(f_off, i, 1))
+    rng = np.random.default_rng(0)
+    X = rng.normal(0, 1, (300, len(TRACK_FEATURES)))
+    X[:, i] = 0.0
+    y = (X[:, 0] > 0).astype(float)
+    m = TrackKinModel.fit(X, y, hidden=(4,), max_iter=40)
+    assert np.all(m.layers[0][0][i] == 0) and np.all(np.abs(np.delete(m.layers[0][0], i, 0)).sum(1) > 0)
+    m = TrackKinModel(rng.normal(0, 0.5, len(TRACK_FEATURES)), m.scale, m.layers, hit_only=True)
+    tr = KinTracker(TrackerParams(frame_residuals=0), n_observers=3, kin_model=m)
+    for obs, xy, sc, delta, pts, own in frames:
+        tr.update_batch(obs, xy, sc, delta, DT, pts, own)
+        tr.track_arrays(8)  # the decision in the next update's call
+        rows, kp = tr._decide()
+        assert np.array_equal(kp, m.kin_prob(tr._features_fast(rows)))
+    with pytest.raises(ValueError, match="frame_residuals"):
+        TrackerParams(frame_residuals=2)
+    with pytest.raises(ValueError, match="resid_clamp"):
+        TrackerParams(frame_residuals=0, resid_clamp=2.0)
 
 
 def test_slots_filled_in_the_update_call_equal_track_arrays_own():

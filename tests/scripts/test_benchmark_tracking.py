@@ -11,7 +11,8 @@ def test_one_episode_run(tmp_path):
     mod = load_script("benchmark_tracking")
     out = tmp_path / "seq"
     argv = ["--splits", "lookalike", "--episodes", "1", "--noise", "0.01", "--detector", "geometric"]
-    results = mod.main([*argv, "--baselines", "--cost-robots", "4", "--out", str(out)])
+    results = mod.main([*argv, "--baselines", "--cost-robots", "4", "--out", str(out),
+                        "--tracker-params", '{"birth_min_score": 0.2}'])  # fmt: skip
     assert [r["split"] for r in results] == ["lookalike"]
     for name in ("results.md", "results.json", "f1_vs_frames.png", "tracks.gif", "run.json"):
         assert (out / name).stat().st_size > 0, name
@@ -48,11 +49,16 @@ def test_tune_tracker_script(tmp_path):
         mod.main(["--swarm-episodes", "0", "--out", str(tmp_path / "x")])
 
 
-@pytest.mark.parametrize("argv", [["--episodes", "0"], ["--noise", "5"], ["--full", "--episodes", "2"]])
-def test_bad_arguments(argv, tmp_path):
+@pytest.mark.parametrize("argv", [["--episodes", "0"], ["--noise", "5"], ["--full", "--episodes", "2"],
+                                  ["--tracker-params", '{"bogus": 1}'], ["--tracker-params", "{"],
+                                  ["--tracker-params", '{"birth_min_score": 1.5}']])  # fmt: skip
+def test_bad_arguments(argv, tmp_path, capsys):
     mod = load_script("benchmark_tracking")
     with pytest.raises(SystemExit):
         mod.main([*argv, "--out", str(tmp_path)])
+    if "--tracker-params" in argv:  # the message names what is wrong
+        err = capsys.readouterr().err
+        assert any(w in err for w in ("bogus", "JSON object", "birth_min_score")), err
 
 
 def test_runs_on_the_core_install(tmp_path, monkeypatch, caplog):
