@@ -434,10 +434,12 @@ def _front_table(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin,
     cells = n_rows * n
     d = wf[:cells].reshape((n_rows, n))
     _k.preprocess_rows(r, d_max, d_th, circular, False, d)
-    noise = np.empty(n_rows)
+    # (the scans' noise columns in wf's second quarter, which this path does not use otherwise: 3 n_rows <=
+    # 2 cells)
+    noise = wf[cells : cells + n_rows]
     noise_n = np.empty(n_rows, dtype=np.int64)
     _scan_noise_kernel(d, d_th, d_max, circular, noise, noise_n)
-    scan_cols = np.empty((n_rows, 2))
+    scan_cols = wf[cells + n_rows : cells + 3 * n_rows].reshape((n_rows, 2))
     _scan_columns(noise, noise_n, scan_cols)
     cols = _segment_columns(wi, wb, cells)
     scan, first, count, prev, nxt, p_near, n_near = cols
@@ -473,7 +475,7 @@ def _front_table(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin,
     d_flat = d.reshape(-1)
     # the survivors' stage-1 values the features kernel would compute again (its `pre`)
     use_pre = cascade and n_context == 2
-    pre = np.empty((n_cand if use_pre else 0, 9), dtype=np.float32)
+    pre = np.empty((n_cand, 9), dtype=np.float32) if use_pre else rx[:0].reshape((0, 9))
     if cascade and n_cand > 0:
         xc = np.empty((_CAS_CHUNK, 13))  # (the 13th column: omega_in_range, for pre)
         s1 = wf[3 * cells : 3 * cells + n_cand]

@@ -994,10 +994,11 @@ def _features_kernel(
 @numba.njit(cache=True, error_model="numpy", nogil=True)
 def _scan_noise_kernel(d, d_th, d_max, circular, out, count):
     n_rows, n = d.shape
-    buf = np.empty(n)
-    lo_buf = np.empty(n)  # _quantile_into's scratch
-    hi_buf = np.empty(n)
-    val = np.empty(n)
+    fw = np.empty(4 * n)  # (one allocation: four arrays' were ~0.3 us of a one-scan call)
+    buf = fw[:n]
+    lo_buf = fw[n : 2 * n]  # _quantile_into's scratch
+    hi_buf = fw[2 * n : 3 * n]
+    val = fw[3 * n :]
     ok = np.empty(n, dtype=np.bool_)
     for b in range(n_rows):
         row = d[b]
