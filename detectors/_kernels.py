@@ -546,13 +546,19 @@ def mlp_forward(x, mean, std, weights, biases, sizes, out):
     n_rows, n_in = x.shape
     blk = 64
     width = max(sizes.max(), n_in)
-    a = np.zeros((width, blk), dtype=np.float32)
-    h = np.zeros((width, blk), dtype=np.float32)
-    row = np.zeros(n_in, dtype=np.float32)
+    # (not zeroed, 2 x 16 kB a call: every value read is written first, but a first short block's padding
+    # lanes of the inputs, zeroed below; later blocks' padding lanes hold the previous block's finite values)
+    a = np.empty((width, blk), dtype=np.float32)
+    h = np.empty((width, blk), dtype=np.float32)
+    row = np.empty(n_in, dtype=np.float32)
     n_layers = weights.shape[0]
     for s in range(0, n_rows, blk):
         m = min(blk, n_rows - s)
         lanes = min(blk, (m + 7) // 8 * 8)  # whole SIMD vectors; a short block does not pay for 64
+        if s == 0:
+            for k in range(n_in):
+                for r_ in range(m, lanes):
+                    a[k, r_] = 0.0
         # a row's inputs as SIMD divisions (np.true_divide: the IEEE quotients of `/`, without the
         # zero-divisor check and branch that keep `/` scalar), then into the block's column; read
         # through x itself (a row view per row took a reference count pair on x, two atomics a row)
