@@ -49,7 +49,7 @@ def preprocess_rows(r, d_max, d_th, circular, noise_filter, out):
     (a real RPLIDAR reports 0.0 for an invalid reading), clip at ``d_max``, optional spike filter
     (as :func:`detectors.geometric.preprocess`)."""
     n_rows, n = r.shape
-    row = np.empty(n)
+    row = np.empty(n) if noise_filter else out[0, :0]  # (the filter's scratch; none without it)
     for b in range(n_rows):
         if not noise_filter:  # straight into out (the same values; no copy of every row)
             for i in range(n):

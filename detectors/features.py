@@ -1513,6 +1513,13 @@ def _one_beam_scan_bins(scan_cols, tab):
     # log_scan_noise as the stage sees it (float32)
     base = np.empty(scan_cols.shape[0], dtype=np.int64)
     x7 = np.empty(scan_cols.shape[0])
+    _one_beam_scan_bins_into(scan_cols, tab, base, x7)
+    return base, x7
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def _one_beam_scan_bins_into(scan_cols, tab, base, x7):
+    # _one_beam_scan_bins into the caller's arrays
     full = tab.shape[0] == _C1_N7 and tab.shape[1] == 4 and tab.shape[2] == _C1_ND and tab.shape[3] == 6
     for b in range(scan_cols.shape[0]):
         v = float(np.float32(scan_cols[b, 0]))
@@ -1526,7 +1533,6 @@ def _one_beam_scan_bins(scan_cols, tab):
             elif k < _C1_N7 - 1 and v >= _C1_X7_LO + _C1_X7_W * (k + 1):
                 k += 1
             base[b] = k * (4 * _C1_ND * 6)
-    return base, x7
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
