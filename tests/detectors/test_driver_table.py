@@ -173,7 +173,10 @@ def test_table_entry_does_not_read_what_its_work_arrays_held():
                 _drv._front_table(other, *o_args, ws)
             elif fill != "fresh":
                 for arr in ws[:6]:
-                    arr.fill(fill if arr.dtype.kind == "f" else (-1 if arr.dtype.kind == "i" else True))
+                    if arr.dtype.kind == "f":  # (the float32 features: their largest value)
+                        arr.fill(fill if np.isnan(fill) else min(fill, float(np.finfo(arr.dtype).max)))
+                    else:
+                        arr.fill(-1 if arr.dtype.kind == "i" else True)
             fronts.append([np.array(a) for a in _drv._front_table(rb, *front_args, ws)[:8]])
             tables.append(_drv.fused_table(rb, *expanded, ws))
         for got, ref in zip(fronts[1:], [fronts[0]] * 3, strict=True):
