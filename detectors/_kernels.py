@@ -548,9 +548,10 @@ def mlp_forward(x, mean, std, weights, biases, sizes, out):
     width = max(sizes.max(), n_in)
     # (not zeroed, 2 x 16 kB a call: every value read is written first, but a first short block's padding
     # lanes of the inputs, zeroed below; later blocks' padding lanes hold the previous block's finite values)
-    a = np.empty((width, blk), dtype=np.float32)
-    h = np.empty((width, blk), dtype=np.float32)
-    row = np.empty(n_in, dtype=np.float32)
+    buf = np.empty((2 * width + 1, blk), dtype=np.float32)  # (one allocation)
+    a = buf[:width]
+    h = buf[width : 2 * width]
+    row = buf[2 * width, :n_in] if n_in <= blk else np.empty(n_in, dtype=np.float32)
     n_layers = weights.shape[0]
     for s in range(0, n_rows, blk):
         m = min(blk, n_rows - s)

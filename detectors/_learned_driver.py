@@ -786,8 +786,9 @@ def mlp_rows4(x, mean, std, weights_t, biases, sizes, out):
     as fast as the block kernel up to ~250 rows (measured under load)."""
     n_rows, n_in = x.shape
     width = max(sizes.max(), n_in)
-    a = np.zeros((4, width), dtype=np.float32)
-    h = np.zeros((4, width), dtype=np.float32)
+    buf = np.zeros((8, width), dtype=np.float32)  # (one allocation)
+    a = buf[:4]
+    h = buf[4:]
     n_layers = weights_t.shape[0]
     for r0 in range(0, n_rows, 4):
         m = min(4, n_rows - r0)
