@@ -49,7 +49,7 @@ def preprocess_rows(r, d_max, d_th, circular, noise_filter, out):
     (a real RPLIDAR reports 0.0 for an invalid reading), clip at ``d_max``, optional spike filter
     (as :func:`detectors.geometric.preprocess`)."""
     n_rows, n = r.shape
-    row = np.empty(n)
+    row = np.empty(n) if noise_filter else out[0, :0]  # (the filter's scratch; none without it)
     for b in range(n_rows):
         if not noise_filter:  # straight into out (the same values; no copy of every row)
             for i in range(n):
@@ -546,13 +546,20 @@ def mlp_forward(x, mean, std, weights, biases, sizes, out):
     n_rows, n_in = x.shape
     blk = 64
     width = max(sizes.max(), n_in)
-    a = np.zeros((width, blk), dtype=np.float32)
-    h = np.zeros((width, blk), dtype=np.float32)
-    row = np.zeros(n_in, dtype=np.float32)
+    # (not zeroed, 2 x 16 kB a call: every value read is written first, but a first short block's padding
+    # lanes of the inputs, zeroed below; later blocks' padding lanes hold the previous block's finite values)
+    buf = np.empty((2 * width + 1, blk), dtype=np.float32)  # (one allocation)
+    a = buf[:width]
+    h = buf[width : 2 * width]
+    row = buf[2 * width, :n_in] if n_in <= blk else np.empty(n_in, dtype=np.float32)
     n_layers = weights.shape[0]
     for s in range(0, n_rows, blk):
         m = min(blk, n_rows - s)
         lanes = min(blk, (m + 7) // 8 * 8)  # whole SIMD vectors; a short block does not pay for 64
+        if s == 0:
+            for k in range(n_in):
+                for r_ in range(m, lanes):
+                    a[k, r_] = 0.0
         # a row's inputs as SIMD divisions (np.true_divide: the IEEE quotients of `/`, without the
         # zero-divisor check and branch that keep `/` scalar), then into the block's column; read
         # through x itself (a row view per row took a reference count pair on x, two atomics a row)

@@ -70,7 +70,7 @@ from .features import (
     _cascade_scores,
     _features_kernel,
     _one_beam_bound,
-    _one_beam_scan_bins,
+    _one_beam_scan_bins_into,
     _scan_columns,
     _scan_noise_kernel,
 )
@@ -343,20 +343,23 @@ def _add_windows(d, cols, s, wide, noise, cos_a, sin_a, step, r_kin, slack, marg
 @numba.njit(cache=True, error_model="numpy", nogil=True)
 def _table_segments(d, d_th, d_max, circular, pre_gate, skip_upto, step, r_kin, slack, margin, cascade,
                     scan_cols, tab, threshold, scan, first, count, prev, nxt, prev_nearer,
-                    next_nearer, windows, wide):  # fmt: skip
+                    next_nearer, windows, wide, scratch):  # fmt: skip
     """:func:`detectors._kernels.segment_rows` writing only the segments that go on to stage 1 (or, without
     the cascade, to the network) in :func:`_front`'s lean path: those the pre-gate keeps (of more than
     ``skip_upto`` beams: ``count <= max_beams``) and, with the cascade, not one-beam segments whose bound
     (:func:`detectors.features._cascade_one_beam_filter`) is below ``threshold``. The same tests with the
     same expressions, in the same pass as the segmentation (the segment's beams and neighbours are in
     cache, and the ~65 % of a swarm's segments dropped here are never written nor read again). With
-    ``windows`` the segments the pre-gate drops are written too, their indices into ``wide``. Returns
+    ``windows`` the segments the pre-gate drops are written too, their indices into ``wide``. ``scratch``:
+    ``n + 1 + 2 B`` float64 values (room for the beam breaks and the bound's per-scan bins). Returns
     ``(how many, how many of them wide)``, in segment order."""
     n_rows, n = d.shape
-    pos = np.empty(n + 1, dtype=np.int64)
+    pos = scratch[: n + 1].view(np.int64)
+    x7 = scratch[n + 1 : n + 1 + n_rows]
+    base = scratch[n + 1 + n_rows : n + 1 + 2 * n_rows].view(np.int64)
+    _one_beam_scan_bins_into(scan_cols, tab, base, x7)
     d_flat = d.reshape(-1)
     d_bits = d_flat.view(np.int64)
-    base, x7 = _one_beam_scan_bins(scan_cols, tab)
     tab_flat = tab.reshape(-1)
     # (base >= 0 only with a full table: _one_beam_bound reads it at a clamped index; else every bound is inf)
     use_bound = cascade and n_rows > 0 and base.max() >= 0
@@ -434,10 +437,12 @@ def _front_table(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin,
     cells = n_rows * n
     d = wf[:cells].reshape((n_rows, n))
     _k.preprocess_rows(r, d_max, d_th, circular, False, d)
-    noise = np.empty(n_rows)
+    # (the scans' noise columns in wf's second quarter, which this path does not use otherwise: 3 n_rows <=
+    # 2 cells)
+    noise = wf[cells : cells + n_rows]
     noise_n = np.empty(n_rows, dtype=np.int64)
     _scan_noise_kernel(d, d_th, d_max, circular, noise, noise_n)
-    scan_cols = np.empty((n_rows, 2))
+    scan_cols = wf[cells + n_rows : cells + 3 * n_rows].reshape((n_rows, 2))
     _scan_columns(noise, noise_n, scan_cols)
     cols = _segment_columns(wi, wb, cells)
     scan, first, count, prev, nxt, p_near, n_near = cols
@@ -445,9 +450,14 @@ def _front_table(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin,
     skip_upto = int(1.0 + math.floor(margin)) if step > 0.0 and margin >= 0.0 else 0
     windows = windows and pre_gate
     wide = wi[6 * cells : 7 * cells]  # (a wide segment has >= 4 beams: at most cells / 4 of them)
+    # _table_segments' scratch after the noise columns in wf's second and third quarters (unused here) when
+    # they have room (n >= 6)
+    sc0 = cells + 3 * n_rows
+    n_sc = n + 1 + 2 * n_rows
+    scratch = wf[sc0 : sc0 + n_sc] if sc0 + n_sc <= 3 * cells else np.empty(n_sc)
     s, n_wide = _table_segments(d, d_th, d_max, circular, pre_gate, skip_upto, step, r_kin, slack, margin,
                                 cascade, scan_cols, c_one_beam, c_threshold, scan, first, count, prev, nxt,
-                                p_near, n_near, windows, wide)  # fmt: skip
+                                p_near, n_near, windows, wide, scratch)  # fmt: skip
     n_win = 0
     if n_wide > 0:
         n_win, _ = _add_windows(d, cols, s, wide[:n_wide], noise, cos_a, sin_a, step, r_kin, slack, margin,
@@ -473,7 +483,7 @@ def _front_table(r, d_th, d_max, circular, pre_gate, step, r_kin, slack, margin,
     d_flat = d.reshape(-1)
     # the survivors' stage-1 values the features kernel would compute again (its `pre`)
     use_pre = cascade and n_context == 2
-    pre = np.empty((n_cand if use_pre else 0, 9), dtype=np.float32)
+    pre = np.empty((n_cand, 9), dtype=np.float32) if use_pre else rx[:0].reshape((0, 9))
     if cascade and n_cand > 0:
         xc = np.empty((_CAS_CHUNK, 13))  # (the 13th column: omega_in_range, for pre)
         s1 = wf[3 * cells : 3 * cells + n_cand]
@@ -695,8 +705,11 @@ def back_table(out, d, scan, first, count, rows, frames, scan_cols, n_seg, ang, 
     windows (rows ``>= n_seg``, :func:`_window_dets`) as ``(scan row, table)``."""
     thr_scan = _scan_thresholds(scan_cols, scan.shape[0], fixed_threshold, edges, values)
     n_srow = _segment_rows(rows, n_seg)
-    det_o = np.empty(n_srow, dtype=np.int64)
-    p_o = np.empty(n_srow)
+    # (the accepted rows and their p(kin) in one allocation; with none, as in most one-scan calls, no arrays
+    # but the outputs)
+    buf = np.empty(2 * n_srow)
+    det_o = buf[:n_srow].view(np.int64)
+    p_o = buf[n_srow:]
     n_det = 0
     for o in range(n_srow):
         p = 1.0 / (1.0 + math.exp(-out[o, 0]))
@@ -705,9 +718,13 @@ def back_table(out, d, scan, first, count, rows, frames, scan_cols, n_seg, ang, 
             p_o[n_det] = p
             n_det += 1
     det_o = det_o[:n_det]
-    det = rows[det_o]
-    table = _table(out, d, scan, first, count, det, det_o, p_o[:n_det], frames, ang, regression, t_mean,
-                   t_std, r_kin, max_iter, xtol, lam0, lam_max)  # fmt: skip
+    if n_det > 0:
+        det = rows[det_o]
+        table = _table(out, d, scan, first, count, det, det_o, p_o[:n_det], frames, ang, regression, t_mean,
+                       t_std, r_kin, max_iter, xtol, lam0, lam_max)  # fmt: skip
+    else:
+        det = rows[:0]
+        table = np.empty((0, 8))
     if n_srow == rows.shape[0]:  # no window reached the network (always without windows): no allocation
         return scan[det], table, rows[:0], table[:0]
     w_scan, _, w_table = _window_dets(out, d, (scan, first, count, rows[:0]), n_seg, rows, n_srow, frames,
@@ -769,8 +786,9 @@ def mlp_rows4(x, mean, std, weights_t, biases, sizes, out):
     as fast as the block kernel up to ~250 rows (measured under load)."""
     n_rows, n_in = x.shape
     width = max(sizes.max(), n_in)
-    a = np.zeros((4, width), dtype=np.float32)
-    h = np.zeros((4, width), dtype=np.float32)
+    buf = np.zeros((8, width), dtype=np.float32)  # (one allocation)
+    a = buf[:4]
+    h = buf[4:]
     n_layers = weights_t.shape[0]
     for r0 in range(0, n_rows, 4):
         m = min(4, n_rows - r0)

@@ -657,21 +657,70 @@ def _features_kernel(
     """
     tan_flat = _tan_flat(tan_tab)
     n_off = tan_tab.shape[0]
-    px = np.empty(n_beams)
-    py = np.empty(n_beams)
-    pd = np.empty(n_beams)
-    pu = np.empty(n_beams)
-    pv = np.empty(n_beams)
-    pe = np.empty(n_beams)
     kp = n_points
-    # resampling positions t = j (n - 1) / (kp - 1) per segment length n, once per call instead of
-    # a division and a floor per point and segment (the same expressions: same bits)
     n_top = 1
     for o in range(which.shape[0]):
         n_top = max(n_top, count[which[o]])
-    rs_lo = np.empty((n_top + 1, kp), dtype=np.int64)
-    rs_hi = np.empty((n_top + 1, kp), dtype=np.int64)
-    rs_w = np.empty((n_top + 1, kp))
+    n_sel = which.shape[0]
+    n_rs = (n_top + 1) * kp
+    # the call's scratch arrays as views of one int64 and one float64 allocation (~26 arrays: their
+    # allocations and frees were ~1-2 us of a one-scan call); the same values
+    lm = _FIT_LANES_MAX
+    iw = np.empty(4 * (lm + 2) + 2 * n_rs + n_sel, dtype=np.int64)
+    lane_n = iw[: lm + 1]
+    lane0 = iw[lm + 2 : 2 * lm + 4]  # first lane of each beam count
+    pt0 = iw[2 * lm + 4 : 3 * lm + 6]  # first point slot of each beam count
+    fill = iw[3 * lm + 6 : 4 * lm + 7]
+    rs_lo = iw[4 * lm + 8 : 4 * lm + 8 + n_rs].reshape((n_top + 1, kp))
+    rs_hi = iw[4 * lm + 8 + n_rs : 4 * lm + 8 + 2 * n_rs].reshape((n_top + 1, kp))
+    # the circle fits of segments of 2.._FIT_LANES_MAX beams run after the row loop, grouped by beam count
+    # with the segments in the SIMD lanes (_fit_lanes); the others' in it, one segment at a time
+    lane_n[:] = 0
+    for o in range(n_sel):
+        n = count[which[o]]
+        if n >= 2 and n <= lm:
+            lane_n[n] += 1
+    lane0[0] = 0
+    pt0[0] = 0
+    for n in range(lm + 1):
+        lane0[n + 1] = lane0[n] + lane_n[n]
+        pt0[n + 1] = pt0[n] + n * lane_n[n]
+    n_lanes = lane0[lm + 1]
+    n_pts = pt0[lm + 1]
+    c_top = 0
+    for n in range(2, lm + 1):
+        c_top = max(c_top, lane_n[n])
+    l_o = iw[4 * lm + 8 + 2 * n_rs : 4 * lm + 8 + 2 * n_rs + n_lanes]
+    n_lw = (14 + lm) * c_top
+    fw = np.empty(6 * n_beams + n_rs + n_lw + 7 * n_lanes + 2 * n_pts + 2 * n_sel)
+    px = fw[:n_beams]
+    py = fw[n_beams : 2 * n_beams]
+    pd = fw[2 * n_beams : 3 * n_beams]
+    pu = fw[3 * n_beams : 4 * n_beams]
+    pv = fw[4 * n_beams : 5 * n_beams]
+    pe = fw[5 * n_beams : 6 * n_beams]
+    o_f = 6 * n_beams
+    rs_w = fw[o_f : o_f + n_rs].reshape((n_top + 1, kp))
+    o_f += n_rs
+    lw = fw[o_f : o_f + n_lw]  # _fit_lanes' scratch, for every beam count
+    o_f += n_lw
+    l_cx = fw[o_f : o_f + n_lanes]
+    l_cy = fw[o_f + n_lanes : o_f + 2 * n_lanes]
+    l_ox = fw[o_f + 2 * n_lanes : o_f + 3 * n_lanes]
+    l_oy = fw[o_f + 3 * n_lanes : o_f + 4 * n_lanes]
+    l_cphi = fw[o_f + 4 * n_lanes : o_f + 5 * n_lanes]
+    l_sphi = fw[o_f + 5 * n_lanes : o_f + 6 * n_lanes]
+    l_dcest = fw[o_f + 6 * n_lanes : o_f + 7 * n_lanes]
+    o_f += 7 * n_lanes
+    l_px = fw[o_f : o_f + n_pts]
+    l_py = fw[o_f + n_pts : o_f + 2 * n_pts]
+    o_f += 2 * n_pts
+    l_rms = fw[o_f : o_f + n_sel]  # each row's line_rms, its log error written after the loop
+    lg = fw[o_f + n_sel : o_f + 2 * n_sel]
+    for n in range(lm + 1):
+        fill[n] = lane0[n]
+    # resampling positions t = j (n - 1) / (kp - 1) per segment length n, once per call instead of
+    # a division and a floor per point and segment (the same expressions: same bits)
     for n in range(1, n_top + 1):
         for j in range(kp):
             t = j * (n - 1) / (kp - 1)
@@ -684,38 +733,8 @@ def _features_kernel(
     for b in range(scan_noise.shape[0]):
         scan_cols[b, 0] = math.log(scan_noise[b] + 1e-4)
         scan_cols[b, 1] = math.log1p(float(noise_n[b]))
-    # the circle fits of segments of 2.._FIT_LANES_MAX beams run after this loop, grouped by beam count with
-    # the segments in the SIMD lanes (_fit_lanes); the others' here, one segment at a time
-    n_sel = which.shape[0]
-    lane_n = np.zeros(_FIT_LANES_MAX + 1, dtype=np.int64)
-    for o in range(n_sel):
-        n = count[which[o]]
-        if n >= 2 and n <= _FIT_LANES_MAX:
-            lane_n[n] += 1
-    lane0 = np.zeros(_FIT_LANES_MAX + 2, dtype=np.int64)  # first lane of each beam count
-    pt0 = np.zeros(_FIT_LANES_MAX + 2, dtype=np.int64)  # first point slot of each beam count
-    for n in range(_FIT_LANES_MAX + 1):
-        lane0[n + 1] = lane0[n] + lane_n[n]
-        pt0[n + 1] = pt0[n] + n * lane_n[n]
-    n_lanes = lane0[_FIT_LANES_MAX + 1]
-    c_top = 0
-    for n in range(2, _FIT_LANES_MAX + 1):
-        c_top = max(c_top, lane_n[n])
-    lw = np.empty((14 + _FIT_LANES_MAX) * c_top)  # _fit_lanes' scratch, for every beam count
-    fill = lane0[:-1].copy()
-    l_o = np.empty(n_lanes, dtype=np.int64)
-    l_cx = np.empty(n_lanes)
-    l_cy = np.empty(n_lanes)
-    l_ox = np.empty(n_lanes)
-    l_oy = np.empty(n_lanes)
-    l_cphi = np.empty(n_lanes)
-    l_sphi = np.empty(n_lanes)
-    l_dcest = np.empty(n_lanes)
-    l_px = np.empty(pt0[_FIT_LANES_MAX + 1])
-    l_py = np.empty(pt0[_FIT_LANES_MAX + 1])
     col_g = 2 * kp + 2 * n_context
     use_pre = pre.shape[0] > 0 and n_context == 2
-    l_rms = np.empty(n_sel)  # each row's line_rms, its log error written after the loop
     for o in range(n_sel):
         # the segments a few rows ahead are scattered over the batch's arrays: their reads requested now
         if o + 2 * _PREFETCH < n_sel:
@@ -961,7 +980,6 @@ def _features_kernel(
                 w = rs_w[n, j]
                 e = pe[lo] * (1.0 - w) + pe[hi] * w if fit_ok else 0.0
                 x[o, col + j] = min(max(e, -_RES_CLIP), _RES_CLIP)
-    lg = np.empty(n_sel)
     for o in range(n_sel):
         lg[o] = _log_err_f32(l_rms[o])
     for o in range(n_sel):
@@ -976,10 +994,11 @@ def _features_kernel(
 @numba.njit(cache=True, error_model="numpy", nogil=True)
 def _scan_noise_kernel(d, d_th, d_max, circular, out, count):
     n_rows, n = d.shape
-    buf = np.empty(n)
-    lo_buf = np.empty(n)  # _quantile_into's scratch
-    hi_buf = np.empty(n)
-    val = np.empty(n)
+    fw = np.empty(4 * n)  # (one allocation: four arrays' were ~0.3 us of a one-scan call)
+    buf = fw[:n]
+    lo_buf = fw[n : 2 * n]  # _quantile_into's scratch
+    hi_buf = fw[2 * n : 3 * n]
+    val = fw[3 * n :]
     ok = np.empty(n, dtype=np.bool_)
     for b in range(n_rows):
         row = d[b]
@@ -1494,6 +1513,13 @@ def _one_beam_scan_bins(scan_cols, tab):
     # log_scan_noise as the stage sees it (float32)
     base = np.empty(scan_cols.shape[0], dtype=np.int64)
     x7 = np.empty(scan_cols.shape[0])
+    _one_beam_scan_bins_into(scan_cols, tab, base, x7)
+    return base, x7
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def _one_beam_scan_bins_into(scan_cols, tab, base, x7):
+    # _one_beam_scan_bins into the caller's arrays
     full = tab.shape[0] == _C1_N7 and tab.shape[1] == 4 and tab.shape[2] == _C1_ND and tab.shape[3] == 6
     for b in range(scan_cols.shape[0]):
         v = float(np.float32(scan_cols[b, 0]))
@@ -1507,7 +1533,6 @@ def _one_beam_scan_bins(scan_cols, tab):
             elif k < _C1_N7 - 1 and v >= _C1_X7_LO + _C1_X7_W * (k + 1):
                 k += 1
             base[b] = k * (4 * _C1_ND * 6)
-    return base, x7
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)

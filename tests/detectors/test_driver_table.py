@@ -149,3 +149,40 @@ def test_table_entry_with_its_arguments_in_one_object_is_the_entry(kw):
         assert np.array_equal(row, ref_row) and table.tobytes() == ref_table.tobytes()
         n_det += row.shape[0]
     assert n_det > 20
+
+
+def test_table_entry_does_not_read_what_its_work_arrays_held():
+    # the work arrays also hold the scans' noise columns and the stage-1 scores (the env entry allocates no
+    # array of its own for them): filled with NaN, huge values or another batch's values, the same rows,
+    # features, frames, noise columns and detections bit for bit
+    det = LearnedKinDetector(reports=False)
+    mean, std, w, b, sizes = det._numba_weights
+    wt = det._numba_weights_t[2]
+    n_det = n_rows = 0
+    for ranges, angles in CASES:
+        rb = det._driver_input(ranges, angles, True)
+        front_args, back_args = det._driver_consts(det._uses_cascade(rb))
+        expanded = (front_args, _learned._DRIVER_ROWS_MAX, mean, std, w, wt, b, sizes, back_args, 0.07, 0.07)
+        fronts, tables = [], []
+        for fill in ("fresh", np.nan, 1e300, "other"):
+            ws = _drv.new_work(rb.size, rb.size, front_args[17])
+            if fill == "other":  # another batch's call on them first (a larger, clustered swarm)
+                other = det._driver_input(*CASES[1], True)
+                o_args = det._driver_consts(det._uses_cascade(other))[0]
+                ws = _drv.new_work(max(rb.size, other.size), max(rb.size, other.size), front_args[17])
+                _drv._front_table(other, *o_args, ws)
+            elif fill != "fresh":
+                for arr in ws[:6]:
+                    if arr.dtype.kind == "f":  # (the float32 features: their largest value)
+                        arr.fill(fill if np.isnan(fill) else min(fill, float(np.finfo(arr.dtype).max)))
+                    else:
+                        arr.fill(-1 if arr.dtype.kind == "i" else True)
+            fronts.append([np.array(a) for a in _drv._front_table(rb, *front_args, ws)[:8]])
+            tables.append(_drv.fused_table(rb, *expanded, ws))
+        for got, ref in zip(fronts[1:], [fronts[0]] * 3, strict=True):
+            assert all(g.tobytes() == r.tobytes() for g, r in zip(got, ref, strict=True))
+        for got in tables[1:]:
+            assert np.array_equal(got[0], tables[0][0]) and got[1].tobytes() == tables[0][1].tobytes()
+        n_det += tables[0][0].shape[0]
+        n_rows += fronts[0][4].shape[0]
+    assert n_det > 20 and n_rows > 1000
