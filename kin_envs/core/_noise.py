@@ -158,12 +158,13 @@ def apply_noise(true, ranges, rows_per_world, h, sigma, dropout, range_min, rang
                     z = 0.0 + 1.0 * _standard_normal(f64, f_dbl, state)
                     d = d + z * sigma * d
                 work[i] = d
-    for w in range(k):  # then the uniforms (each world's second call), and the writes
-        state, f_dbl = h[w, 0], h[w, 2]
-        for i in range(w * per, (w + 1) * per):
-            if np.isfinite(flat[i]):
-                d = work[i]
-                invalid = d < range_min or d > range_max
-                if dropout > 0 and _next_double(f_dbl, state) < dropout:
-                    invalid = True
-                out[i] = range_max if invalid else d
+    if dropout > 0:  # then the uniforms (each world's second call): a dropped reading reads range_max
+        for w in range(k):
+            state, f_dbl = h[w, 0], h[w, 2]
+            for i in range(w * per, (w + 1) * per):
+                if np.isfinite(flat[i]) and _next_double(f_dbl, state) < dropout:
+                    work[i] = range_max
+    for i in range(flat.size):  # (a pass of its own: no calls in it, so it vectorises)
+        if np.isfinite(flat[i]):
+            d = work[i]
+            out[i] = range_max if (d < range_min or d > range_max) else d
