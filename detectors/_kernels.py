@@ -363,6 +363,13 @@ def geometric_segments(
         stage[i] = ACCEPTED if err < F_threshold else SHAPE
 
 
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _mod_two_pi(x):
+    """``x % (2 pi)``, the same value: Python's float modulo is ``fmod`` (slow) and ``fmod(x, 2 pi)`` is ``x``
+    itself for ``0 < x < 2 pi``, where the sign fix-up does nothing."""
+    return x if (x > 0.0 and x < _TWO_PI) else x % _TWO_PI
+
+
 @numba.njit(cache=True, error_model="numpy", nogil=True)
 def accepted_segments(d, ang, sweep, scan, first, count, prev, nxt, prev_nearer, next_nearer, r,
                       F_threshold, mean_metric, occlusion_unbounded, min_points, max_iter, xtol, lam0,
@@ -399,19 +406,25 @@ def accepted_segments(d, ang, sweep, scan, first, count, prev, nxt, prev_nearer,
         last = (f + n - 1) % n_beams
         dc = dmin + r  # eq. 2
         am = ang[mb]
-        o_min = _half_width(dc, ((ang[f] - am) * -sweep) % _TWO_PI) + _half_width(
-            dc, ((ang[last] - am) * sweep) % _TWO_PI
-        )
+        a_first = _mod_two_pi((ang[f] - am) * -sweep)
+        a_last = _mod_two_pi((ang[last] - am) * sweep)
+        # tan(x) >= x on [0, pi/2): dc (a_first + a_last) bounds omega_min from below, so a segment it puts
+        # over the diameter (with a margin far above the few ulps of the tans, products and sum) is one
+        # that omega_min rejects, without the two tans
+        if a_first < _HALF_PI and a_last < _HALF_PI and dc < math.inf:
+            if dc * (a_first + a_last) * (1.0 - 1e-12) > diameter:
+                continue
+        o_min = _half_width(dc, a_first) + _half_width(dc, a_last)
         if o_min > diameter:  # eq. 3, the lower bound
             continue
         p = prev[i]
         q = nxt[i]
         h_p = math.inf
         if not (p < 0 or (occlusion_unbounded and prev_nearer[i])):
-            h_p = _half_width(dc, ((ang[p] - am) * -sweep) % _TWO_PI)
+            h_p = _half_width(dc, _mod_two_pi((ang[p] - am) * -sweep))
         h_q = math.inf
         if not (q < 0 or (occlusion_unbounded and next_nearer[i])):
-            h_q = _half_width(dc, ((ang[q] - am) * sweep) % _TWO_PI)
+            h_q = _half_width(dc, _mod_two_pi((ang[q] - am) * sweep))
         if not diameter < h_p + h_q:  # eq. 3, the upper bound
             continue
         j = f
