@@ -77,6 +77,7 @@ class WorldBatch:
         self._layout_ok = False
         self._phys: dict | None = None
         self._noise_rngs: list | None = None
+        self._noise_ids: list[int] | None = None
         self._noise_h: np.ndarray | None = None
 
     def __len__(self) -> int:
@@ -321,11 +322,12 @@ class WorldBatch:
     def _noise_handles(self) -> np.ndarray | None:
         """``(K, 3)`` noise handles of the worlds' RNGs (``World._noise_handles``; rebuilt when a world or
         its ``rng`` is another object), ``None`` if one of them is not a PCG64 ``Generator``."""
-        rngs = [w.rng for w in self._worlds]
-        if rngs != self._noise_rngs:  # (identity: Generators compare by it)
+        # identity, by id: the objects are kept in _noise_rngs (their addresses stay valid, ids not reused)
+        ids = [id(w.rng) for w in self._worlds]
+        if ids != self._noise_ids:
             hs = [w._noise_handles() for w in self._worlds]
             self._noise_h = None if any(h is None for h in hs) else np.concatenate(hs)
-            self._noise_rngs = rngs
+            self._noise_rngs, self._noise_ids = [w.rng for w in self._worlds], ids
         return self._noise_h
 
     def _noise_numpy(self, true: np.ndarray, ranges: np.ndarray, on: list[int], spec) -> None:
