@@ -363,6 +363,85 @@ def geometric_segments(
         stage[i] = ACCEPTED if err < F_threshold else SHAPE
 
 
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _mod_two_pi(x):
+    """``x % (2 pi)``, the same value: Python's float modulo is ``fmod`` (slow) and ``fmod(x, 2 pi)`` is ``x``
+    itself for ``0 < x < 2 pi``, where the sign fix-up does nothing."""
+    return x if (x > 0.0 and x < _TWO_PI) else x % _TWO_PI
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def accepted_segments(d, ang, sweep, scan, first, count, prev, nxt, prev_nearer, next_nearer, r,
+                      F_threshold, mean_metric, occlusion_unbounded, min_points, max_iter, xtol, lam0,
+                      lam_max, accepted, F, r_c, theta_c):  # fmt: skip
+    """:func:`geometric_segments` for a caller that keeps the accepted segments only (the envs' table):
+    ``accepted[i]`` is ``stage[i] == ACCEPTED`` and, for those, ``F``, ``r_c``, ``theta_c`` are its values,
+    bit for bit (the same expressions in the same order); other rows of them are left unset. A segment with
+    fewer than ``min_points`` beams is rejected before any arithmetic (its stage, DIAMETER or
+    TOO_FEW_POINTS, is a rejection either way), the next-beam half-width only when the first passes and the
+    points only for a fit: ~40-60 % of the segments of a swarm's or KinSeek's scans have 1-2 beams."""
+    n_beams = ang.shape[0]
+    cos_a = np.cos(ang)
+    sin_a = np.sin(ang)
+    px = np.empty(n_beams)
+    py = np.empty(n_beams)
+    diameter = 2.0 * r
+    for i in range(scan.shape[0]):
+        accepted[i] = False
+        n = count[i]
+        if n < min_points:
+            continue
+        b = scan[i]
+        f = first[i]
+        kmin = 0
+        dmin = d[b, f]
+        j = f
+        for k in range(n):
+            v = d[b, j]
+            if v < dmin:  # the first minimum in scan order, as np.argmin
+                dmin = v
+                kmin = k
+            j = j + 1 if j < n_beams - 1 else 0
+        mb = (f + kmin) % n_beams
+        last = (f + n - 1) % n_beams
+        dc = dmin + r  # eq. 2
+        am = ang[mb]
+        a_first = _mod_two_pi((ang[f] - am) * -sweep)
+        a_last = _mod_two_pi((ang[last] - am) * sweep)
+        # tan(x) >= x on [0, pi/2): dc (a_first + a_last) bounds omega_min from below, so a segment it puts
+        # over the diameter (with a margin far above the few ulps of the tans, products and sum) is one
+        # that omega_min rejects, without the two tans
+        if a_first < _HALF_PI and a_last < _HALF_PI and dc < math.inf:
+            if dc * (a_first + a_last) * (1.0 - 1e-12) > diameter:
+                continue
+        o_min = _half_width(dc, a_first) + _half_width(dc, a_last)
+        if o_min > diameter:  # eq. 3, the lower bound
+            continue
+        p = prev[i]
+        q = nxt[i]
+        h_p = math.inf
+        if not (p < 0 or (occlusion_unbounded and prev_nearer[i])):
+            h_p = _half_width(dc, _mod_two_pi((ang[p] - am) * -sweep))
+        h_q = math.inf
+        if not (q < 0 or (occlusion_unbounded and next_nearer[i])):
+            h_q = _half_width(dc, _mod_two_pi((ang[q] - am) * sweep))
+        if not diameter < h_p + h_q:  # eq. 3, the upper bound
+            continue
+        j = f
+        for k in range(n):
+            v = d[b, j]
+            px[k] = v * cos_a[j]
+            py[k] = v * sin_a[j]
+            j = j + 1 if j < n_beams - 1 else 0
+        rc, tc, sabs = lm_fit(px, py, n, r, dc, am, max_iter, xtol, lam0, lam_max)  # eq. 7 start
+        err = sabs / n if mean_metric else sabs
+        if err < F_threshold:
+            accepted[i] = True
+            F[i] = err
+            r_c[i] = rc
+            theta_c[i] = wrap(tc)
+
+
 @numba.njit(cache=True, error_model="numpy", nogil=True)
 def fit_centres(d, ang, scan, first, count, which, r, max_iter, xtol, lam0, lam_max, out):
     """Observer-frame ``x, y`` of the circle fit (eq. 7 start at the first min beam) of the

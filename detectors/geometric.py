@@ -1045,44 +1045,40 @@ class GeometricKinDetector(KinDetector):
 @numba.njit(cache=True, error_model="numpy", nogil=True)
 def _detect_table(rb, a, d_max, d_th, circular, noise_filter, sweep, r, F_threshold, mean_metric,
                   occlusion_unbounded, min_points, lm_max_iter, xtol, lam0, lam_max):  # fmt: skip
-    """:meth:`GeometricKinDetector._stages` (the same compiled stages, in the same order, on the same
-    arguments) then :func:`_accepted_table`, in one call."""
+    """:meth:`GeometricKinDetector._stages` (the same compiled stages on the same arguments, the shape
+    stage only for the segments that can be accepted: :func:`detectors._kernels.accepted_segments`) then
+    :func:`_accepted_table`, in one call."""
     d = np.empty(rb.shape)
     _k.preprocess_rows(rb, d_max, d_th, circular, noise_filter, d)
     scan, first, count, prev, nxt, p_near, n_near = _k._segment_views(d, d_th, d_max, circular)
     S = scan.shape[0]
-    stage = np.empty(S, dtype=np.int8)
-    min_beam = np.empty(S, dtype=np.int64)
-    d_cest = np.empty(S)
-    omega_min = np.empty(S)
-    omega_max = np.empty(S)
+    accepted = np.empty(S, dtype=np.bool_)
     F = np.empty(S)
     r_c = np.empty(S)
     theta_c = np.empty(S)
-    _k.geometric_segments(
+    _k.accepted_segments(
         d, a, sweep, scan, first, count, prev, nxt, p_near, n_near, r, F_threshold, mean_metric,
-        occlusion_unbounded, min_points, lm_max_iter, xtol, lam0, lam_max, stage, min_beam, d_cest, omega_min,
-        omega_max, F, r_c, theta_c,
+        occlusion_unbounded, min_points, lm_max_iter, xtol, lam0, lam_max, accepted, F, r_c, theta_c,
     )  # fmt: skip
-    return _accepted_table(stage, scan, first, count, r_c, theta_c, F, F_threshold, a.shape[0])
+    return _accepted_table(accepted, scan, first, count, r_c, theta_c, F, F_threshold, a.shape[0])
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
-def _accepted_table(stage, scan, first, count, r_c, theta_c, F, F_threshold, n):
+def _accepted_table(accepted, scan, first, count, r_c, theta_c, F, F_threshold, n):
     """:meth:`GeometricKinDetector._detect_table_trusted`'s gather of the accepted segments, in segment order:
     ``(scan row (D,), table (D, 8): range, bearing, (x, y left for the caller), score, first_beam, last_beam,
     n_beams; the ranges (D,) and bearings (D,) as contiguous arrays)``, each value the expression
     :meth:`GeometricKinDetector._detect_arrays` evaluates in numpy (the same IEEE operations)."""
     n_det = 0
-    for i in range(stage.shape[0]):
-        n_det += stage[i] == _k.ACCEPTED
+    for i in range(accepted.shape[0]):
+        n_det += accepted[i]
     row = np.empty(n_det, dtype=np.int64)
     table = np.empty((n_det, 8))
     rc = np.empty(n_det)
     bearing = np.empty(n_det)
     k = 0
-    for i in range(stage.shape[0]):
-        if stage[i] != _k.ACCEPTED:
+    for i in range(accepted.shape[0]):
+        if not accepted[i]:
             continue
         row[k] = scan[i]
         rc[k] = table[k, 0] = r_c[i]

@@ -19,6 +19,7 @@ import numba
 import numpy as np
 
 from kin_envs.core._chipmunk_calls import ChipmunkCalls, address, drive
+from kin_envs.core._noise import apply_noise
 from kin_envs.core.interrupts import atomic
 from kin_envs.core.lidar import (
     _cast_one,
@@ -75,6 +76,9 @@ class WorldBatch:
             raise ValueError("WorldBatch: needs at least one world")
         self._layout_ok = False
         self._phys: dict | None = None
+        self._noise_rngs: list | None = None
+        self._noise_ids: list[int] | None = None
+        self._noise_h: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self._worlds)
@@ -315,6 +319,34 @@ class WorldBatch:
                             poses=combined.poses[sl], range_max=combined.range_max)
         return scans, poses
 
+    def _noise_handles(self) -> np.ndarray | None:
+        """``(K, 3)`` noise handles of the worlds' RNGs (``World._noise_handles``; rebuilt when a world or
+        its ``rng`` is another object), ``None`` if one of them is not a PCG64 ``Generator``."""
+        # identity, by id: the objects are kept in _noise_rngs (their addresses stay valid, ids not reused)
+        ids = [id(w.rng) for w in self._worlds]
+        if ids != self._noise_ids:
+            hs = [w._noise_handles() for w in self._worlds]
+            self._noise_h = None if any(h is None for h in hs) else np.concatenate(hs)
+            self._noise_rngs, self._noise_ids = [w.rng for w in self._worlds], ids
+        return self._noise_h
+
+    def _noise_numpy(self, true: np.ndarray, ranges: np.ndarray, on: list[int], spec) -> None:
+        """The noise with NumPy's calls (a world's RNG is not a PCG64 ``Generator``): the order of
+        ``World.scan``'s draws, world by world, that ``apply_noise`` reproduces."""
+        ws = self._worlds
+        hit = np.isfinite(true)
+        per_world = hit.reshape(len(on), -1).sum(axis=1).tolist()
+        d = true[hit].astype(np.float64)
+        if spec.noise_sigma > 0:
+            z = np.concatenate([ws[j].rng.normal(0.0, 1.0, c) for j, c in zip(on, per_world, strict=True)])
+            d += z * spec.noise_sigma * d
+        invalid = (d < spec.range_min) | (d > spec.range_max)
+        if spec.dropout_prob > 0:
+            u = np.concatenate([ws[j].rng.random(c) for j, c in zip(on, per_world, strict=True)])
+            invalid |= u < spec.dropout_prob
+        d[invalid] = spec.range_max
+        ranges[hit] = d
+
     def scan_combined(self, robots: Sequence[int] | None = None, noise: bool = True,
                       active: np.ndarray | None = None) -> tuple[Scan, np.ndarray, list[int]]:
         """:meth:`scan` as one :class:`Scan` whose rows are the scanned robots of the active worlds
@@ -389,20 +421,14 @@ class WorldBatch:
             for a, b in zip((ranges, true, kind, index), out, strict=True):
                 a[rs] = b
         if noise and (spec.noise_sigma > 0 or spec.dropout_prob > 0):
-            # World.scan's noise; each world draws from its own RNG in the same order
-            hit = np.isfinite(true)
-            per_world = hit.reshape(len(on), -1).sum(axis=1).tolist()
-            d = true[hit].astype(np.float64)
-            if spec.noise_sigma > 0:
-                z = np.concatenate([ws[j].rng.normal(0.0, 1.0, c)
-                                    for j, c in zip(on, per_world, strict=True)])
-                d += z * spec.noise_sigma * d
-            invalid = (d < spec.range_min) | (d > spec.range_max)
-            if spec.dropout_prob > 0:
-                u = np.concatenate([ws[j].rng.random(c) for j, c in zip(on, per_world, strict=True)])
-                invalid |= u < spec.dropout_prob
-            d[invalid] = spec.range_max
-            ranges[hit] = d
+            # World.scan's noise, each world drawing from its own RNG in the same order: one compiled call
+            # over all worlds (kin_envs.core._noise, bitwise NumPy's draws), or NumPy's calls
+            h = self._noise_handles()
+            if h is not None:
+                apply_noise(true, ranges, m, h if sel is None else h[on], float(spec.noise_sigma),
+                            float(spec.dropout_prob), float(spec.range_min), float(spec.range_max))
+            else:
+                self._noise_numpy(true, ranges, on, spec)
         combined = Scan(ranges=ranges, angles=spec.angles, hit_kind=kind, hit_index=index,
                         true_ranges=true, robots=np.tile(ix, len(on)), poses=origin,
                         range_max=spec.range_max)

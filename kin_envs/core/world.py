@@ -26,6 +26,8 @@ from pymunk._chipmunk import ffi as _ffi
 from pymunk._chipmunk import lib as _cp
 
 from kin_envs.core._chipmunk_calls import ChipmunkCalls, address, drive
+from kin_envs.core._noise import apply_noise
+from kin_envs.core._noise import handles as noise_handles
 from kin_envs.core._validate import FieldTypeError, check_number, dataclass_from_dict, make_rng
 from kin_envs.core.interrupts import atomic
 from kin_envs.core.lidar import (
@@ -482,6 +484,7 @@ class World:
         self._scan_consts = (*self._lidar_call, (self.n_robots, 3), (self.n_robots, spec.n_beams),
                              spec.noise_sigma > 0 or spec.dropout_prob > 0, spec.angles, spec.range_max)
         self._scan_dispatch = True
+        self._noise_call: tuple = (None,)  # set on the first noisy scan (World._noise_setup)
 
     def _update_lidar_geometry(self, poses: np.ndarray) -> None:
         self._circles[: self.n_robots, :2] = poses[:, :2]
@@ -730,16 +733,16 @@ class World:
             entry = compiled_entry(kernel, (idx, wf, wi, poses, ranges, true_ranges, hit_kind, hit_index))
             self._scan_consts = (entry, *self._scan_consts[1:])
         if noise and noisy:
-            spec = self.scene.lidar
-            hit = np.isfinite(true_ranges)
-            d = true_ranges[hit].astype(np.float64)
-            if spec.noise_sigma > 0:
-                d += self.rng.normal(0.0, 1.0, d.size) * spec.noise_sigma * d
-            invalid = (d < spec.range_min) | (d > spec.range_max)
-            if spec.dropout_prob > 0:
-                invalid |= self.rng.random(d.size) < spec.dropout_prob
-            d[invalid] = spec.range_max
-            ranges[hit] = d
+            nc = self._noise_call
+            if nc[0] is not self.rng:  # (a new Generator: its bit generator's addresses, once)
+                nc = self._noise_setup()
+            if nc[1] is None:
+                self._noise_numpy(true_ranges, ranges)
+            else:  # NumPy's draws and arithmetic in one compiled call (kin_envs.core._noise; bitwise)
+                args = (true_ranges, ranges, shape[0], nc[1], *nc[2])
+                nc[3](*args)
+                if nc[3] is apply_noise:  # compiled now: call it directly from now on
+                    self._noise_call = (*nc[:3], compiled_entry(apply_noise, args))
         # the frozen dataclass's __init__ (a checked setattr per field) cost ~2 µs of a ~15 µs one-robot scan;
         # item by item into the new instance's dict: ~0.2 us less than dict.update with keywords
         out = _new(Scan)
@@ -753,3 +756,31 @@ class World:
         od["poses"] = poses
         od["range_max"] = range_max
         return out
+
+    def _noise_setup(self) -> tuple:
+        """``World.scan``'s noise for the current ``self.rng``: ``(rng, handles, constants, call)``, the
+        ``(1, 3)`` handles of a PCG64 ``Generator`` for ``kin_envs.core._noise.apply_noise`` (``None`` for any
+        other generator: the NumPy path); kept until ``self.rng`` is another object."""
+        spec, rng = self.scene.lidar, self.rng
+        h = noise_handles(rng)
+        consts = tuple(map(float, (spec.noise_sigma, spec.dropout_prob, spec.range_min, spec.range_max)))
+        self._noise_call = (rng, None if h is None else h.reshape(1, 3), consts, apply_noise)
+        return self._noise_call
+
+    def _noise_handles(self) -> np.ndarray | None:
+        """The ``(1, 3)`` noise handles of ``self.rng`` (``_noise_setup``), for ``WorldBatch``."""
+        nc = self._noise_call
+        return (nc if nc[0] is self.rng else self._noise_setup())[1]
+
+    def _noise_numpy(self, true_ranges: np.ndarray, ranges: np.ndarray) -> None:
+        """The range noise with NumPy's own calls (any other generator; what ``apply_noise`` reproduces)."""
+        spec = self.scene.lidar
+        hit = np.isfinite(true_ranges)
+        d = true_ranges[hit].astype(np.float64)
+        if spec.noise_sigma > 0:
+            d += self.rng.normal(0.0, 1.0, d.size) * spec.noise_sigma * d
+        invalid = (d < spec.range_min) | (d > spec.range_max)
+        if spec.dropout_prob > 0:
+            invalid |= self.rng.random(d.size) < spec.dropout_prob
+        d[invalid] = spec.range_max
+        ranges[hit] = d

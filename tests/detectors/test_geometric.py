@@ -837,7 +837,8 @@ def test_non_circular_scan_does_not_wrap():
 @pytest.mark.parametrize(
     "params",
     [GeometricParams(), GeometricParams(shape_metric="mean", F_threshold=2),
-     GeometricParams(F_threshold=0.02)],  # fmt: skip
+     GeometricParams(F_threshold=0.02), GeometricParams(min_points=2, occlusion_unbounded=True),
+     GeometricParams(min_points=5, noise_filter=True, F_threshold=0.5)],  # fmt: skip
 )
 def test_table_entry_is_the_batch_arrays_stacked(params):
     # _detect_table_trusted (the envs' entry: accepted segments gathered in one compiled call) against
@@ -860,3 +861,43 @@ def test_table_entry_is_the_batch_arrays_stacked(params):
             assert table.tobytes() == ref.tobytes()
             n_det += row.size
     assert n_det > 40
+
+
+@pytest.mark.parametrize(
+    "params",
+    [GeometricParams(), GeometricParams(shape_metric="mean", F_threshold=2), GeometricParams(min_points=2),
+     GeometricParams(min_points=4, occlusion_unbounded=True, F_threshold=0.3)],  # fmt: skip
+)
+def test_accepted_segments_kernel_is_the_stages_accepted_rows(params):
+    # detectors._kernels.accepted_segments (the table's shape stage, skipping what cannot be accepted) against
+    # geometric_segments: the same accepted set and, for it, the same F, r_c, theta_c bit for bit; noisy
+    # swarm scans (1-2 % range noise: many short segments) of random arenas
+    from detectors import _kernels as _k
+    from detectors.geometric import _LM_LAMBDA0, _LM_LAMBDA_MAX, _LM_XTOL
+    from kin_envs import LidarSpec, World, scenes
+
+    det = GeometricKinDetector(params, reports=False)
+    p = params
+    n_acc = n_seg = 0
+    for seed in range(8):
+        lidar = LidarSpec(noise_sigma=0.01 * (seed % 3), dropout_prob=0.01 * (seed % 2))
+        scan = World(scenes.random_arena(24, 20, seed=seed).replace(lidar=lidar), seed=seed).scan()
+        d = np.empty(scan.ranges.shape)
+        _k.preprocess_rows(scan.ranges.astype(np.float64), float(p.d_max), float(p.d_th), det._circular,
+                           p.noise_filter, d)  # fmt: skip
+        seg = _k._segment_views(d, float(p.d_th), float(p.d_max), det._circular)
+        S = seg[0].shape[0]
+        args = (d, scan.angles, det._sweep, *seg, float(p.r), float(p.F_threshold), p.shape_metric == "mean",
+                p.occlusion_unbounded, p.min_points, p.lm_max_iter, _LM_XTOL, _LM_LAMBDA0,
+                _LM_LAMBDA_MAX)  # fmt: skip
+        stage, min_beam = np.empty(S, np.int8), np.empty(S, np.int64)
+        vals = [np.empty(S) for _ in range(6)]  # d_cest, omega_min, omega_max, F, r_c, theta_c
+        _k.geometric_segments(*args, stage, min_beam, *vals)
+        accepted, F, r_c, theta_c = np.empty(S, np.bool_), np.empty(S), np.empty(S), np.empty(S)
+        _k.accepted_segments(*args, accepted, F, r_c, theta_c)
+        assert np.array_equal(accepted, stage == _k.ACCEPTED)
+        for got, ref in zip((F, r_c, theta_c), vals[3:], strict=True):
+            assert got[accepted].tobytes() == ref[accepted].tobytes()
+        n_acc += int(accepted.sum())
+        n_seg += S
+    assert n_acc > 30 and n_seg > 10 * n_acc  # most segments rejected, at every stage

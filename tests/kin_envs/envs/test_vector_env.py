@@ -66,6 +66,46 @@ def test_same_trajectories_variants(kwargs):
     assert_same_as_sync(SEEK, 3, 30, **{**QUICK, **kwargs})
 
 
+# the learned detector's batched call (the native env: one call over the K scans, with its cascade) drops
+# a detection that its one-scan call (each env of SyncVectorEnv) keeps: step 11 here, sub-env 0, a 2-beam
+# segment scored 0.389; the same on main 1527949, before this branch's changes (found by helper vec16)
+_LEARNED_BATCH_GAP = pytest.mark.xfail(strict=True, reason="learned: batch != one-scan call at 1 % noise")
+
+
+@pytest.mark.parametrize("detector", ["geometric", pytest.param("learned", marks=_LEARNED_BATCH_GAP)])
+def test_same_trajectories_at_one_percent_noise(detector):
+    # the benchmark's noisy setting (issue 14's >= 10x at 1 % range noise): the K worlds' noise drawn in one
+    # compiled call from their own Generators, detections on the noisy scans; autoresets within the run, and
+    # a reset in between that replaces one sub-env's Generator (new addresses for the compiled draws)
+    ends = assert_same_as_sync(SEEK, 4, 60, seed=11, detector=detector, noise_sigma=0.01, **QUICK)
+    assert ends >= 8
+    kw = dict(detector=detector, noise_sigma=0.01, dropout_prob=0.02, **QUICK)
+    native = gym.make_vec(SEEK, num_envs=3, vectorization_mode="vector_entry_point", **kw)
+    singles = [gym.make(SEEK, **kw) for _ in range(3)]
+    native.reset(seed=20)
+    for i, e in enumerate(singles):
+        e.reset(seed=20 + i)
+    rng = np.random.default_rng(0)
+    done = np.zeros(3, bool)
+    for t in range(40):
+        if t == 7:  # sub-env 1 reseeded on its own: a new np_random, and so a new World.rng
+            mask = np.array([False, True, False])
+            obs, _ = native.reset(seed=[None, 99, None], options={"reset_mask": mask})
+            assert np.array_equal(singles[1].reset(seed=99)[0], obs[1])
+            done[1] = False
+        a = rng.uniform(-1, 1, (3, 2)).astype(np.float32)
+        obs, rew, term, trunc, _ = native.step(a)
+        for i, e in enumerate(singles):
+            if done[i]:  # NEXT_STEP autoreset: this step resets it
+                o = e.reset()[0]
+            else:
+                o, r, te, tr, _ = e.step(a[i])
+                assert (r, te, tr) == (rew[i], term[i], trunc[i])
+            assert np.array_equal(o, obs[i]), (t, i)
+        done = term | trunc
+    native.close()
+
+
 def test_vector_api_and_autoreset_mode():
     env = gym.make_vec(SEEK, num_envs=3)  # the registered vector entry point is the default
     u = env.unwrapped
