@@ -1309,13 +1309,25 @@ class LearnedKinDetector(KinDetector):
         return (_merged(src, idx, det, win[:, 9].astype(np.int64)), _merged(src, idx, det_f.T, win[:, :5]).T,
                 _merged(src, idx, det_i.T, w_i.T).T)  # fmt: skip
 
+    _alone = False  # inside :meth:`_scans_alone`
+
     def _uses_cascade(self, rb: np.ndarray) -> bool:
         """Whether a call on the checked ranges ``rb`` runs the cascade: on batches (>= 2 scans) when
-        it is on. One-scan calls (a single-agent env's ~30 segments) go without: there it costs
-        more than it saves (measured; README, Performance), so a scan alone can differ from the same
-        scan in a batch where the cascade drops a segment the full model would accept (~0.04 % of the
-        accepted kin segments, ``scripts/fit_cascade.py``)."""
-        return self._cascade is not None and rb.shape[0] > 1
+        it is on, outside :meth:`_scans_alone`. One-scan calls (a single-agent env's ~30 segments) go
+        without: there it costs more than it saves (measured; README, Performance), so a scan alone can
+        differ from the same scan in a batch where the cascade drops a segment the full model would
+        accept (~0.04 % of the accepted kin segments, ``scripts/fit_cascade.py``)."""
+        return self._cascade is not None and rb.shape[0] > 1 and not self._alone
+
+    @contextlib.contextmanager
+    def _scans_alone(self):
+        """Within it, a batched call gives every scan the detections of that scan alone (a one-scan
+        call's: no cascade): what a native vector env needs to return exactly what K single envs do."""
+        before, self._alone = self._alone, True
+        try:
+            yield self
+        finally:
+            self._alone = before
 
     def _driver_args(self) -> tuple:
         """The fused driver's constant arguments ``(front_args, front_args with the cascade or None,
