@@ -69,7 +69,7 @@ def test_same_trajectories_variants(kwargs):
 @pytest.mark.parametrize("detector", ["geometric", "learned"])
 def test_same_trajectories_at_one_percent_noise(detector):
     # (learned: at step 11, sub-env 0, the batch's cascade dropped a 2-beam detection scored 0.389 that the
-    # one-scan call keeps, until the native env ran its batch as one-scan calls, LearnedKinDetector._scans_alone)
+    # one-scan call keeps, until the native env ran its batch as one-scan calls: _scans_alone)
     # the benchmark's noisy setting (issue 14's >= 10x at 1 % range noise): the K worlds' noise drawn in one
     # compiled call from their own Generators, detections on the noisy scans; autoresets within the run, and
     # a reset in between that replaces one sub-env's Generator (new addresses for the compiled draws)
