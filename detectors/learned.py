@@ -722,7 +722,7 @@ class LearnedKinDetector(KinDetector):
             classifier"). Dropped segments get stage ``"diameter"``, ``p_kin`` NaN and the bound in
             ``seg_values["max_beams"]``. With ``False`` the outputs are those of every segment
             through the network.
-        cascade: (batch calls of two or more scans; one-scan calls run without it) a cheap first
+        cascade: (every call, one scan or a batch: a scan's detections never depend on its batch) a cheap first
             stage after the pre-gate (default ``None``: on when the checkpoint
             has a cascade file, :func:`cascade_path`, and the ``p(kin)`` thresholds are not below
             the ones it was fitted for; ``True``: required; ``False``: off; or a cascade file's
@@ -1228,7 +1228,7 @@ class LearnedKinDetector(KinDetector):
         res = kernel(rb, _drv.driver_args(*consts, ws), *extra)
         _grow_driver_rows(ws, n_feat)
         if rb is ranges and rb.dtype == np.float32 and rb.shape[0] == 1:
-            # (the lidar's scan as it is, no cascade on one scan: the arguments, kept for the next call with
+            # (the lidar's scan as it is: the arguments, kept for the next call with
             # this thread's work arrays, grown or not)
             ws = _driver_work(rb.shape[0] * rb.shape[1], n_feat)
             rows = min(ws[4].shape[0] // (n_feat + 3), ws[3].shape[0] // _drv._R_F64)  # network rows ws holds
@@ -1309,25 +1309,13 @@ class LearnedKinDetector(KinDetector):
         return (_merged(src, idx, det, win[:, 9].astype(np.int64)), _merged(src, idx, det_f.T, win[:, :5]).T,
                 _merged(src, idx, det_i.T, w_i.T).T)  # fmt: skip
 
-    _alone = False  # inside :meth:`_scans_alone`
-
     def _uses_cascade(self, rb: np.ndarray) -> bool:
-        """Whether a call on the checked ranges ``rb`` runs the cascade: on batches (>= 2 scans) when
-        it is on, outside :meth:`_scans_alone`. One-scan calls (a single-agent env's ~30 segments) go
-        without: there it costs more than it saves (measured; README, Performance), so a scan alone can
-        differ from the same scan in a batch where the cascade drops a segment the full model would
-        accept (~0.04 % of the accepted kin segments, ``scripts/fit_cascade.py``)."""
-        return self._cascade is not None and rb.shape[0] > 1 and not self._alone
-
-    @contextlib.contextmanager
-    def _scans_alone(self):
-        """Within it, a batched call gives every scan the detections of that scan alone (a one-scan
-        call's: no cascade): what a native vector env needs to return exactly what K single envs do."""
-        before, self._alone = self._alone, True
-        try:
-            yield self
-        finally:
-            self._alone = before
+        """Whether a call on the checked ranges ``rb`` runs the cascade: whenever it is on, on one scan as
+        on a batch, so that a scan's detections never depend on the batch it comes in (a native vector
+        env returns what K single envs do). (Until session 16 one-scan calls went without; the cascade
+        costs about what it saves on one scan, measured, and dropped ~0.04 % of the accepted kin
+        segments there that a batch's cascade drops too.)"""
+        return self._cascade is not None
 
     def _driver_args(self) -> tuple:
         """The fused driver's constant arguments ``(front_args, front_args with the cascade or None,

@@ -23,7 +23,6 @@ autoresets).
 
 from __future__ import annotations
 
-import contextlib
 import functools
 from typing import Any, ClassVar
 
@@ -315,22 +314,19 @@ class KinVectorEnv(VectorEnv):
         dets = feed = None
         kin: dict[str, tuple[dict[str, np.ndarray], np.ndarray]] = {}
         if self.detector is not None:
-            # a learned detector's cascade runs on batches only: the K scans as K one-scan calls
-            alone = getattr(self.detector, "_scans_alone", None)
-            with alone() if alone is not None else contextlib.nullcontext():
-                if first_feeder := self.envs[0]._feeder:
-                    (row, cols), feed = first_feeder.detect(ranges, angles, observers, flat_poses,
-                                                            world_of_robot, combined.range_max)  # fmt: skip
+            if first_feeder := self.envs[0]._feeder:
+                (row, cols), feed = first_feeder.detect(ranges, angles, observers, flat_poses, world_of_robot,
+                                                        combined.range_max)  # fmt: skip
+            else:
+                # matched to each world's robots and padded in one compiled call (detect_rows' general
+                # path and pad_rows, bit for bit), unless the detector gives its rows out of order
+                owner, tab = detection_arrays(self.detector, ranges, angles, True)
+                glued = match_pad_worlds(owner, tab, flat_poses, n, self.config.max_detections)
+                if glued is not None:
+                    dets, kin["kin_detections"] = glued
                 else:
-                    # matched to each world's robots and padded in one compiled call (detect_rows' general
-                    # path and pad_rows, bit for bit), unless the detector gives its rows out of order
-                    owner, tab = detection_arrays(self.detector, ranges, angles, True)
-                    glued = match_pad_worlds(owner, tab, flat_poses, n, self.config.max_detections)
-                    if glued is not None:
-                        dets, kin["kin_detections"] = glued
-                    else:
-                        row, cols = detect_rows(self.detector, ranges, angles, observers, flat_poses,
-                                                robot_world=world_of_robot, trusted=True)  # fmt: skip
+                    row, cols = detect_rows(self.detector, ranges, angles, observers, flat_poses,
+                                            robot_world=world_of_robot, trusted=True)  # fmt: skip
             if dets is None:
                 ki = cols["kin_index"]
                 cols["kin_index"] = np.where(ki >= 0, ki - row * n, -1)
