@@ -722,8 +722,8 @@ class LearnedKinDetector(KinDetector):
             classifier"). Dropped segments get stage ``"diameter"``, ``p_kin`` NaN and the bound in
             ``seg_values["max_beams"]``. With ``False`` the outputs are those of every segment
             through the network.
-        cascade: (every call, one scan or a batch: a scan's detections never depend on its batch) a cheap first
-            stage after the pre-gate (default ``None``: on when the checkpoint
+        cascade: (every call, one scan or a batch: a scan's detections never depend on its batch) a cheap
+            first stage after the pre-gate (default ``None``: on when the checkpoint
             has a cascade file, :func:`cascade_path`, and the ``p(kin)`` thresholds are not below
             the ones it was fitted for; ``True``: required; ``False``: off; or a cascade file's
             path). A one-hidden-layer network on :data:`detectors.features.CASCADE_FEATURES`

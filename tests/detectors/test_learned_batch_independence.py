@@ -1,5 +1,6 @@
-"""The learned detector gives a scan the same detections alone as in a batch: its cascade runs on every call
-(until session 16 one-scan calls went without, and a native vector env's batch differed from K single envs)."""
+"""The learned detector gives a scan the same detections alone as in a batch: its cascade runs on every
+call (until session 16 one-scan calls went without, and a native vector env's batch differed from K single
+envs)."""
 
 import numpy as np
 import pytest
