@@ -264,14 +264,13 @@ def test_fused_driver_with_a_small_random_network(tmp_path):
     card = json.loads(cascade_path(None).read_text())
     card["checkpoint_weights_sha256"] = load_checkpoint(path)[1]["weights_sha256"]
     cascade_path(path).write_text(json.dumps(card))
-    plain = LearnedKinDetector(path, reports=False, cascade=False)
     for cascade in (True, False):
         det = LearnedKinDetector(path, reports=False, cascade=cascade)
         n_det = 0
         for ranges, angles in _random_arena_batches():
             for r in (ranges[:1], ranges[3:5], ranges):
-                # (one-scan calls run without the cascade: LearnedKinDetector._uses_cascade)
-                ref = (plain if r.shape[0] == 1 else det)._detect_arrays_staged(r.astype(np.float64), angles)
+                # (one scan as a batch: the cascade on every call, LearnedKinDetector._uses_cascade)
+                ref = det._detect_arrays_staged(r.astype(np.float64), angles)
                 assert_same(det.detect_arrays(r, angles), ref)
                 n_det += ref.n_detections
         assert n_det > 0
