@@ -260,13 +260,32 @@ def _lm_eval(px, py, n, r, rc, tc):
 
 
 @numba.njit(cache=True, error_model="numpy", inline="always")
+def _mod_two_pi(x):
+    """``x % (2 pi)``, the same value: Python's float modulo is ``fmod`` (slow) and ``fmod(x, 2 pi)`` is ``x``
+    itself for ``0 < x < 2 pi``, where the sign fix-up does nothing."""
+    return x if (x > 0.0 and x < _TWO_PI) else x % _TWO_PI
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
 def wrap(a):
     """Angle to (-pi, pi] (as :func:`detectors.base.wrap_angle` on arrays)."""
-    x = a + math.pi
-    # x % 2 pi is x itself for 0 < x < 2 pi (fmod returns x exactly): the same value without fmod (an
-    # atan2's angle, the detections' bearings, always takes this branch)
-    w = x - math.pi if (x > 0.0 and x < _TWO_PI) else x % _TWO_PI - math.pi
+    # (an atan2's angle, the detections' bearings, always takes _mod_two_pi's branch without fmod)
+    w = _mod_two_pi(a + math.pi) - math.pi
     return w + _TWO_PI if w <= -math.pi else w
+
+
+@numba.njit(cache=True, error_model="numpy", inline="always")
+def _omega_max(dc, am, ang, p, q, p_nearer, q_nearer, sweep, occlusion_unbounded):
+    """eq. 5's ``omega_max``: the half-widths at ``d_cest`` from the min beam's angle ``am`` to the previous
+    beam ``p`` and to the next beam ``q`` (inf where there is none, or where it is nearer and
+    ``occlusion_unbounded``)."""
+    h_p = math.inf
+    if not (p < 0 or (occlusion_unbounded and p_nearer)):
+        h_p = _half_width(dc, _mod_two_pi((ang[p] - am) * -sweep))
+    h_q = math.inf
+    if not (q < 0 or (occlusion_unbounded and q_nearer)):
+        h_q = _half_width(dc, _mod_two_pi((ang[q] - am) * sweep))
+    return h_p + h_q
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
@@ -330,18 +349,11 @@ def geometric_segments(
         am = ang[mb]
         # angles turned along the sweep from the first / previous beam to the min beam and from
         # it to the last / next beam
-        o_min = _half_width(dc, ((ang[f] - am) * -sweep) % _TWO_PI) + _half_width(
-            dc, ((ang[last] - am) * sweep) % _TWO_PI
+        o_min = _half_width(dc, _mod_two_pi((ang[f] - am) * -sweep)) + _half_width(
+            dc, _mod_two_pi((ang[last] - am) * sweep)
         )
-        p = prev[i]
-        q = nxt[i]
-        h_p = math.inf
-        if not (p < 0 or (occlusion_unbounded and prev_nearer[i])):
-            h_p = _half_width(dc, ((ang[p] - am) * -sweep) % _TWO_PI)
-        h_q = math.inf
-        if not (q < 0 or (occlusion_unbounded and next_nearer[i])):
-            h_q = _half_width(dc, ((ang[q] - am) * sweep) % _TWO_PI)
-        o_max = h_p + h_q
+        o_max = _omega_max(dc, am, ang, prev[i], nxt[i], prev_nearer[i], next_nearer[i], sweep,
+                           occlusion_unbounded)
         min_beam[i] = mb
         d_cest[i] = dc
         omega_min[i] = o_min
@@ -361,13 +373,6 @@ def geometric_segments(
         r_c[i] = rc
         theta_c[i] = wrap(tc)
         stage[i] = ACCEPTED if err < F_threshold else SHAPE
-
-
-@numba.njit(cache=True, error_model="numpy", inline="always")
-def _mod_two_pi(x):
-    """``x % (2 pi)``, the same value: Python's float modulo is ``fmod`` (slow) and ``fmod(x, 2 pi)`` is ``x``
-    itself for ``0 < x < 2 pi``, where the sign fix-up does nothing."""
-    return x if (x > 0.0 and x < _TWO_PI) else x % _TWO_PI
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
@@ -417,15 +422,9 @@ def accepted_segments(d, ang, sweep, scan, first, count, prev, nxt, prev_nearer,
         o_min = _half_width(dc, a_first) + _half_width(dc, a_last)
         if o_min > diameter:  # eq. 3, the lower bound
             continue
-        p = prev[i]
-        q = nxt[i]
-        h_p = math.inf
-        if not (p < 0 or (occlusion_unbounded and prev_nearer[i])):
-            h_p = _half_width(dc, _mod_two_pi((ang[p] - am) * -sweep))
-        h_q = math.inf
-        if not (q < 0 or (occlusion_unbounded and next_nearer[i])):
-            h_q = _half_width(dc, _mod_two_pi((ang[q] - am) * sweep))
-        if not diameter < h_p + h_q:  # eq. 3, the upper bound
+        o_max = _omega_max(dc, am, ang, prev[i], nxt[i], prev_nearer[i], next_nearer[i], sweep,
+                           occlusion_unbounded)
+        if not diameter < o_max:  # eq. 3, the upper bound
             continue
         j = f
         for k in range(n):
