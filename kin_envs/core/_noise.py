@@ -27,7 +27,7 @@ from numba import types
 from numba.extending import intrinsic
 from numba.np.random._constants import fi_double, ki_double, wi_double, ziggurat_nor_inv_r, ziggurat_nor_r
 
-__all__ = ["apply_noise", "handles", "normals", "uniforms"]
+__all__ = ["apply_noise", "apply_noise_numpy", "handles", "normals", "uniforms"]
 
 _VOID_P = ir.IntType(8).as_pointer()
 
@@ -168,3 +168,19 @@ def apply_noise(true, ranges, rows_per_world, h, sigma, dropout, range_min, rang
         if np.isfinite(flat[i]):
             d = work[i]
             out[i] = range_max if (d < range_min or d > range_max) else d
+
+
+def apply_noise_numpy(true, ranges, rngs, sigma, dropout, range_min, range_max) -> None:
+    """:func:`apply_noise` with NumPy's own calls, for any generators (what it reproduces): the rows of
+    ``true`` split evenly over ``rngs`` (world ``w``'s rows drawn from ``rngs[w]``); each world's normals
+    ``rng.normal(0.0, 1.0, hits)``, then each world's uniforms ``rng.random(hits)``."""
+    hit = np.isfinite(true)
+    counts = hit.reshape(len(rngs), -1).sum(axis=1).tolist()
+    d = true[hit].astype(np.float64)
+    if sigma > 0:
+        d += np.concatenate([g.normal(0.0, 1.0, c) for g, c in zip(rngs, counts, strict=True)]) * sigma * d
+    invalid = (d < range_min) | (d > range_max)
+    if dropout > 0:
+        invalid |= np.concatenate([g.random(c) for g, c in zip(rngs, counts, strict=True)]) < dropout
+    d[invalid] = range_max
+    ranges[hit] = d

@@ -19,7 +19,7 @@ import numba
 import numpy as np
 
 from kin_envs.core._chipmunk_calls import ChipmunkCalls, address, drive
-from kin_envs.core._noise import apply_noise
+from kin_envs.core._noise import apply_noise, apply_noise_numpy
 from kin_envs.core.interrupts import atomic
 from kin_envs.core.lidar import (
     _cast_one,
@@ -330,23 +330,6 @@ class WorldBatch:
             self._noise_rngs, self._noise_ids = [w.rng for w in self._worlds], ids
         return self._noise_h
 
-    def _noise_numpy(self, true: np.ndarray, ranges: np.ndarray, on: list[int], spec) -> None:
-        """The noise with NumPy's calls (a world's RNG is not a PCG64 ``Generator``): the order of
-        ``World.scan``'s draws, world by world, that ``apply_noise`` reproduces."""
-        ws = self._worlds
-        hit = np.isfinite(true)
-        per_world = hit.reshape(len(on), -1).sum(axis=1).tolist()
-        d = true[hit].astype(np.float64)
-        if spec.noise_sigma > 0:
-            z = np.concatenate([ws[j].rng.normal(0.0, 1.0, c) for j, c in zip(on, per_world, strict=True)])
-            d += z * spec.noise_sigma * d
-        invalid = (d < spec.range_min) | (d > spec.range_max)
-        if spec.dropout_prob > 0:
-            u = np.concatenate([ws[j].rng.random(c) for j, c in zip(on, per_world, strict=True)])
-            invalid |= u < spec.dropout_prob
-        d[invalid] = spec.range_max
-        ranges[hit] = d
-
     def scan_combined(self, robots: Sequence[int] | None = None, noise: bool = True,
                       active: np.ndarray | None = None) -> tuple[Scan, np.ndarray, list[int]]:
         """:meth:`scan` as one :class:`Scan` whose rows are the scanned robots of the active worlds
@@ -428,7 +411,8 @@ class WorldBatch:
                 apply_noise(true, ranges, m, h if sel is None else h[on], float(spec.noise_sigma),
                             float(spec.dropout_prob), float(spec.range_min), float(spec.range_max))
             else:
-                self._noise_numpy(true, ranges, on, spec)
+                apply_noise_numpy(true, ranges, [ws[j].rng for j in on], float(spec.noise_sigma),
+                                  float(spec.dropout_prob), float(spec.range_min), float(spec.range_max))
         combined = Scan(ranges=ranges, angles=spec.angles, hit_kind=kind, hit_index=index,
                         true_ranges=true, robots=np.tile(ix, len(on)), poses=origin,
                         range_max=spec.range_max)

@@ -26,7 +26,7 @@ from pymunk._chipmunk import ffi as _ffi
 from pymunk._chipmunk import lib as _cp
 
 from kin_envs.core._chipmunk_calls import ChipmunkCalls, address, drive
-from kin_envs.core._noise import apply_noise
+from kin_envs.core._noise import apply_noise, apply_noise_numpy
 from kin_envs.core._noise import handles as noise_handles
 from kin_envs.core._validate import FieldTypeError, check_number, dataclass_from_dict, make_rng
 from kin_envs.core.interrupts import atomic
@@ -737,7 +737,7 @@ class World:
             if nc[0] is not self.rng:  # (a new Generator: its bit generator's addresses, once)
                 nc = self._noise_setup()
             if nc[1] is None:
-                self._noise_numpy(true_ranges, ranges)
+                apply_noise_numpy(true_ranges, ranges, [self.rng], *nc[2])
             else:  # NumPy's draws and arithmetic in one compiled call (kin_envs.core._noise; bitwise)
                 args = (true_ranges, ranges, shape[0], nc[1], *nc[2])
                 nc[3](*args)
@@ -771,16 +771,3 @@ class World:
         """The ``(1, 3)`` noise handles of ``self.rng`` (``_noise_setup``), for ``WorldBatch``."""
         nc = self._noise_call
         return (nc if nc[0] is self.rng else self._noise_setup())[1]
-
-    def _noise_numpy(self, true_ranges: np.ndarray, ranges: np.ndarray) -> None:
-        """The range noise with NumPy's own calls (any other generator; what ``apply_noise`` reproduces)."""
-        spec = self.scene.lidar
-        hit = np.isfinite(true_ranges)
-        d = true_ranges[hit].astype(np.float64)
-        if spec.noise_sigma > 0:
-            d += self.rng.normal(0.0, 1.0, d.size) * spec.noise_sigma * d
-        invalid = (d < spec.range_min) | (d > spec.range_max)
-        if spec.dropout_prob > 0:
-            invalid |= self.rng.random(d.size) < spec.dropout_prob
-        d[invalid] = spec.range_max
-        ranges[hit] = d
