@@ -904,7 +904,9 @@ class LearnedKinDetector(KinDetector):
 
     @property
     def cascade(self) -> bool:
-        """Whether the cascade's first stage runs (see ``cascade``)."""
+        """Whether the cascade's first stage runs (see ``cascade``): on every call, one scan as a batch, so
+        that a scan's detections never depend on the batch it comes in (until session 16 one-scan calls
+        went without it; there it costs about what it saves, measured)."""
         return self._cascade is not None
 
     def _load_cascade(self, cascade) -> dict | None:
@@ -1172,7 +1174,7 @@ class LearnedKinDetector(KinDetector):
         # arrays to Python costs ~0.9 ms per 64 dense-arena scans, measured)
         # (duplicate suppression inside the compiled call: a radius < 0 turns it off)
         radius = float(self._dup_radius) if self.suppress_duplicates else -1.0
-        res = self._call_driver(_drv.fused_table, rb, self._uses_cascade(rb), radius, float(self._dup_radius))
+        res = self._call_driver(_drv.fused_table, rb, self.cascade, radius, float(self._dup_radius))
         if res is not None:
             return res
         fr, bk = self._run_driver(np.ascontiguousarray(rb, dtype=np.float64))
@@ -1218,7 +1220,7 @@ class LearnedKinDetector(KinDetector):
         if (self._beam_table is not None and self.threshold is None) or not self._network_compiled:
             return None
         rb = self._table_input(ranges, angles)
-        front_args, back_args = self._driver_consts(self._uses_cascade(rb))
+        front_args, back_args = self._driver_consts(self.cascade)
         mean, std, w, b, sizes = self._numba_weights
         radius = float(self._dup_radius) if self.suppress_duplicates else -1.0
         n_feat = int(front_args[17])
@@ -1243,7 +1245,7 @@ class LearnedKinDetector(KinDetector):
             # which the fused driver does not implement
             return self._detect_arrays_staged(ranges, angles, trusted)
         rb = self._driver_input(ranges, angles, trusted)
-        cascade = self._uses_cascade(rb)
+        cascade = self.cascade
         # the whole call compiled, the columns handed back in a few blocks (not the driver's
         # intermediate arrays: returning them to Python costs ~0.9 ms per 64 dense-arena scans)
         packed = self._call_driver(_drv.fused_packed, rb, cascade)
@@ -1308,14 +1310,6 @@ class LearnedKinDetector(KinDetector):
                                                                                             7].astype(np.int64)])
         return (_merged(src, idx, det, win[:, 9].astype(np.int64)), _merged(src, idx, det_f.T, win[:, :5]).T,
                 _merged(src, idx, det_i.T, w_i.T).T)  # fmt: skip
-
-    def _uses_cascade(self, rb: np.ndarray) -> bool:
-        """Whether a call on the checked ranges ``rb`` runs the cascade: whenever it is on, on one scan as
-        on a batch, so that a scan's detections never depend on the batch it comes in (a native vector
-        env returns what K single envs do). (Until session 16 one-scan calls went without; the cascade
-        costs about what it saves on one scan, measured, and dropped ~0.04 % of the accepted kin
-        segments there that a batch's cascade drops too.)"""
-        return self._cascade is not None
 
     def _driver_args(self) -> tuple:
         """The fused driver's constant arguments ``(front_args, front_args with the cascade or None,
@@ -1406,7 +1400,7 @@ class LearnedKinDetector(KinDetector):
     def _run_driver(self, rb: np.ndarray):
         """The driver's two kernels with the network in between in Python (BLAS or torch
         inference): ``(front outputs, back outputs)`` for :func:`~detectors._learned_driver.pack`."""
-        front_args, back_args = self._driver_consts(self._uses_cascade(rb))
+        front_args, back_args = self._driver_consts(self.cascade)
         fr = _drv.front(rb, *front_args, False)
         return fr, _drv.back_rest(self._forward(fr[10]), fr, back_args)
 

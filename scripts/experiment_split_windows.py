@@ -104,7 +104,7 @@ def split_detector(
             if win.n_windows == 0:
                 return res
             sub = win.batch
-            if self.cascade_windows and self._uses_cascade(rb):  # stage 1 on the windows too
+            if self.cascade_windows and self.cascade:  # stage 1 on the windows too
                 noise = scan_noise(sub, self.feature_config)
                 _, s1 = _cascade(sub, self.feature_config, np.arange(sub.n_segments), self._trig, noise,
                                  self._cascade["model"])  # fmt: skip

@@ -47,7 +47,7 @@ def test_table_front_gives_the_lean_fronts_rows_and_the_same_detections(kw):
     n_rows = n_det = 0
     for ranges, angles in CASES:
         rb = det._driver_input(ranges, angles, True)
-        cascade = det._uses_cascade(rb)
+        cascade = det.cascade
         front_args, _ = det._driver_consts(cascade)
         lean = _drv.front(rb, *front_args, True)
         ws = _drv.new_work(rb.size, rb.size, front_args[17])
@@ -140,7 +140,7 @@ def test_table_entry_with_its_arguments_in_one_object_is_the_entry(kw):
     n_det = 0
     for ranges, angles in CASES:
         rb = det._driver_input(ranges, angles, True)
-        front_args, back_args = det._driver_consts(det._uses_cascade(rb))
+        front_args, back_args = det._driver_consts(det.cascade)
         expanded = (front_args, _learned._DRIVER_ROWS_MAX, mean, std, w, wt, b, sizes, back_args, 0.07, 0.07)
         args = _drv.driver_args(*expanded, _drv.new_work(rb.size, rb.size, front_args[17]))
         assert isinstance(args, _drv.DriverArgs)
@@ -161,14 +161,14 @@ def test_table_entry_does_not_read_what_its_work_arrays_held():
     n_det = n_rows = 0
     for ranges, angles in CASES:
         rb = det._driver_input(ranges, angles, True)
-        front_args, back_args = det._driver_consts(det._uses_cascade(rb))
+        front_args, back_args = det._driver_consts(det.cascade)
         expanded = (front_args, _learned._DRIVER_ROWS_MAX, mean, std, w, wt, b, sizes, back_args, 0.07, 0.07)
         fronts, tables = [], []
         for fill in ("fresh", np.nan, 1e300, "other"):
             ws = _drv.new_work(rb.size, rb.size, front_args[17])
             if fill == "other":  # another batch's call on them first (a larger, clustered swarm)
                 other = det._driver_input(*CASES[1], True)
-                o_args = det._driver_consts(det._uses_cascade(other))[0]
+                o_args = det._driver_consts(det.cascade)[0]
                 ws = _drv.new_work(max(rb.size, other.size), max(rb.size, other.size), front_args[17])
                 _drv._front_table(other, *o_args, ws)
             elif fill != "fresh":

@@ -269,7 +269,7 @@ def test_fused_driver_with_a_small_random_network(tmp_path):
         n_det = 0
         for ranges, angles in _random_arena_batches():
             for r in (ranges[:1], ranges[3:5], ranges):
-                # (one scan as a batch: the cascade on every call, LearnedKinDetector._uses_cascade)
+                # (one scan as a batch: the cascade on every call, LearnedKinDetector.cascade)
                 ref = det._detect_arrays_staged(r.astype(np.float64), angles)
                 assert_same(det.detect_arrays(r, angles), ref)
                 n_det += ref.n_detections
