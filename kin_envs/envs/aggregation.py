@@ -64,10 +64,6 @@ class AggregationConfig(CommonConfig):
         super().__post_init__()
         w = self.env_id
         check_int(w, "n_robots", self.n_robots, 2, 256)
-        if self.obs_tracks:
-            raise ValueError(
-                f"{w}: obs_tracks=True is not supported here yet (tracker=True adds info['kin_tracks'])"
-            )
         check_float(w, "area_per_robot", self.area_per_robot, 0.2, 100.0)
         if self.arena_size is None:
             object.__setattr__(
@@ -109,7 +105,8 @@ class AggregationEnv(ParallelEnv):
     ## Observation Space
 
     Per agent, as ``KinSeek-v0``: the agent's scan as ``range / 12 m``, the optional detector
-    channel (``obs_detections``: ``"topk"`` or ``"mask"``), ``frame_stack`` frames, float32.
+    channel (``obs_detections``: ``"topk"`` or ``"mask"``; with ``obs_tracks=True`` filled from the
+    agent's confirmed kin tracks instead of its raw detections), ``frame_stack`` frames, float32.
 
     ``state()`` is the global ``(n_robots, 3)`` float32 array of poses ``x, y`` (m, arena
     centred on the origin) and ``theta`` (rad, CCW from +x); ``state_space`` bounds it.
@@ -172,7 +169,8 @@ class AggregationEnv(ParallelEnv):
       ``"kin_model"``: the track classifier, ``"learned"`` (default, shipped), ``"hand"`` (the hand-tuned
       fusion) or a path to a track-classifier JSON; ``"feed"``: ``"accepted"`` or ``"permissive"``, see
       ``kin_envs.envs.common.CommonConfig``; an unknown key or a bad value raises naming it) and
-      ``max_tracks`` (16 info slots; ``obs_tracks`` is not supported here yet);
+      ``max_tracks`` (16 info slots), ``obs_tracks`` (False; True fills every agent's detection channel
+      from its own confirmed kin tracks, as in ``KinSeek-v1``: needs ``tracker`` and ``obs_detections``);
     * rendering: ``render_mode`` (None, ``"rgb_array"``, ``"human"``), ``render_size`` (512 px),
       ``render_beams`` (True) and ``render_agent`` (0: whose beams and detections are drawn).
 
@@ -347,7 +345,12 @@ class AggregationEnv(ParallelEnv):
             delta = np.zeros((n, 3)) if first else self.world.odometry_delta
             track_update(self.tracker, scan, dets, delta, self.world.config.control_dt, feed)
             entries["kin_tracks"] = track_info(self.tracker, cfg.max_tracks)
-        frame = self._obs.frame(scan.ranges, dets)
+        if cfg.obs_tracks:  # every agent's detection channel from its own confirmed kin tracks
+            from kin_envs.envs.tracks import track_rows
+
+            frame = self._obs.frame(scan.ranges, track_rows(self.tracker, cfg.max_tracks, scan.angles))
+        else:
+            frame = self._obs.frame(scan.ranges, dets)
         if self.padded_info:
             entries["kin_truth"] = truth
             if padded is None and dets is not None:

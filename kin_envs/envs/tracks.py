@@ -7,7 +7,7 @@ import numpy as np
 
 from kin_envs.core.world import Scan
 
-__all__ = ["PermissiveFeed", "VectorTracker", "track_info", "track_rows", "track_update"]
+__all__ = ["PermissiveFeed", "VectorTracker", "housing_beams", "track_info", "track_rows", "track_update"]
 
 
 def track_update(tracker, scan: Scan, dets, odom_delta: np.ndarray, dt: float, feed=None) -> None:
@@ -111,9 +111,14 @@ def track_info(tracker, max_tracks: int) -> tuple[dict[str, np.ndarray], np.ndar
     return cols, a["count"]
 
 
-def track_rows(tracker, max_tracks: int) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+def track_rows(tracker, max_tracks: int, angles=None) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """The confirmed kin tracks of every observer as detection rows ``(row, cols)`` (the layout of
-    :func:`kin_envs.envs.common.detect_rows`: sorted by observer, then nearest first), for ``obs_tracks``."""
+    :func:`kin_envs.envs.common.detect_rows`: sorted by observer, then nearest first), for ``obs_tracks``.
+
+    ``angles``: the scan's beam directions (robot frame, rad, evenly spaced): then ``first_beam`` /
+    ``last_beam`` / ``n_beams`` are the beams the tracked housing (radius ``tracker.params.r``) would lie on,
+    seen from the track's centre (every beam within ``asin(r / range)`` of its bearing, at least the nearest
+    one), as an ``obs_detections="mask"`` channel needs them; without, -1 / -1 / 0."""
     a = tracker.track_arrays(max_tracks)
     o, s = np.nonzero(a["mask"])
     t = a["tracks"][o, s]
@@ -128,7 +133,31 @@ def track_rows(tracker, max_tracks: int) -> tuple[np.ndarray, dict[str, np.ndarr
             "score": t[:, 6].astype(np.float64), "first_beam": np.full(m, -1, np.int64),
             "last_beam": np.full(m, -1, np.int64), "n_beams": np.zeros(m, np.int64),
             "kin_index": np.full(m, -1, np.int64)}  # fmt: skip
+    if angles is not None and m:
+        cols["first_beam"], cols["last_beam"], cols["n_beams"] = housing_beams(
+            angles, cols["bearing"], rng, tracker.params.r)
     return o.astype(np.int64), cols
+
+
+def housing_beams(angles, bearing, rng, r: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(first, last, count)`` beams (wrapping at the seam: ``first > last`` allowed) of evenly spaced
+    ``angles`` (rad, either turning direction) that a circle of radius ``r`` (m) centred at ``bearing``
+    (rad, same frame) and ``rng`` (m) covers: within ``asin(min(1, r / rng))`` of the bearing, or the
+    nearest beam when none is."""
+    angles = np.asarray(angles, np.float64).reshape(-1)
+    n = angles.shape[0]
+    step = float(np.arctan2(np.sin(angles[1] - angles[0]), np.cos(angles[1] - angles[0]))) if n > 1 else 1.0
+    off = angles - (angles[0] + step * np.arange(n))
+    if n < 2 or step == 0 or not np.allclose(np.arctan2(np.sin(off), np.cos(off)), 0.0, atol=1e-9):
+        raise ValueError(f"housing_beams: angles must be >= 2 evenly spaced beam directions, got {angles!r}")
+    d = np.arctan2(np.sin(bearing - angles[0]), np.cos(bearing - angles[0])) / step  # centre, in beams
+    half = np.arcsin(np.minimum(1.0, r / np.maximum(rng, r))) / abs(step)
+    lo, hi = np.ceil(d - half), np.floor(d + half)
+    none = lo > hi
+    lo[none] = hi[none] = np.round(d[none])
+    lo, hi = lo.astype(np.int64), hi.astype(np.int64)
+    count = np.minimum(hi - lo + 1, n)
+    return lo % n, (lo + count - 1) % n, count
 
 
 class VectorTracker:

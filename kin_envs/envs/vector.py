@@ -181,7 +181,7 @@ class KinVectorEnv(VectorEnv):
         rendering): its own tracker during its reset, the shared one's observer ``i`` otherwise."""
         if self._in_reset:
             return SingleRobotEnv._track_rows(self.envs[i])
-        row, cols = track_rows(self._tracks, self.config.max_tracks)
+        row, cols = track_rows(self._tracks, self.config.max_tracks, self.envs[i].world.scene.lidar.angles)
         sel = row == i
         return np.zeros(int(sel.sum()), np.int64), {f: c[sel] for f, c in cols.items()}
 
@@ -352,7 +352,7 @@ class KinVectorEnv(VectorEnv):
             cols, count = track_info(self._tracks, self.config.max_tracks)
             kin["kin_tracks"] = ({f: c[on_a] for f, c in cols.items()}, count[on_a])
             if self.config.obs_tracks:
-                t_row, t_c = track_rows(self._tracks, self.config.max_tracks)
+                t_row, t_c = track_rows(self._tracks, self.config.max_tracks, angles)
                 pos = np.full(self.num_envs, -1, np.int64)
                 pos[on_a] = np.arange(on_a.size)
                 keep = pos[t_row] >= 0

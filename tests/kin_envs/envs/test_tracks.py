@@ -150,7 +150,7 @@ def test_swarm_env_tracks_every_agent_with_fixed_shape_info():
     env.step({ag: np.zeros(2, np.float32) for ag in env.agents})
     assert env.render().shape == (512, 512, 3)  # the track overlay of render_agent
     with pytest.raises(ValueError, match="obs_tracks"):
-        aggregation_v1.parallel_env(tracker=True, obs_detections="topk", obs_tracks=True)
+        aggregation_v1.parallel_env(tracker=True, obs_tracks=True)  # no detection channel to fill
     with pytest.raises(ValueError, match="needs a detector"):
         aggregation_v1.parallel_env(tracker=True, detector=None)
 
@@ -308,3 +308,119 @@ def test_permissive_feed_in_the_swarm_and_the_native_vector_env():
 
     assert_same_as_sync(SEEK, 3, 30, tracker={"feed": "permissive"}, noise_sigma=0.02, n_distractors=4,
                         max_steps=25, kin_like_cylinders=True)  # fmt: skip
+
+
+def _expected_topk(info, top_k, range_max, threshold=0.5):
+    """An agent's top-k detection channel rebuilt from its own info["kin_tracks"] (confirmed kin tracks,
+    nearest first): [1, range / range_max, sin(bearing), cos(bearing)] per slot, zeros after."""
+    t, c = info["kin_tracks"], info["kin_tracks_count"]
+    keep = (t["confirmed"][:c] > 0) & (t["kin_prob"][:c] >= threshold)
+    x, y = t["x"][:c][keep], t["y"][:c][keep]
+    rng = np.hypot(x, y)
+    order = np.argsort(rng, kind="stable")[:top_k]
+    out = np.zeros(4 * top_k)
+    for j, i in enumerate(order):
+        b = np.arctan2(y[i], x[i])
+        out[4 * j: 4 * j + 4] = 1.0, min(rng[i] / range_max, 1.0), np.sin(b), np.cos(b)
+    return out
+
+
+def test_swarm_env_observes_its_tracks():
+    """aggregation_v1 with obs_tracks=True: every agent's detection channel holds its own confirmed kin
+    tracks (rebuilt here from its info["kin_tracks"]), not its raw detections; the scan part is the same as
+    without; the PettingZoo API holds and seeded runs repeat."""
+    from pettingzoo.test import parallel_api_test
+
+    from kin_envs import aggregation_v1
+
+    kw = dict(n_robots=10, tracker=True, obs_detections="topk", obs_top_k=3, noise_sigma=0.005, max_cycles=40)
+    parallel_api_test(aggregation_v1.parallel_env(**kw, obs_tracks=True), num_cycles=20)
+
+    def run(obs_tracks):
+        env = aggregation_v1.parallel_env(**kw, obs_tracks=obs_tracks)
+        obs, _ = env.reset(seed=9)
+        rng = np.random.default_rng(9)
+        seq = []
+        for _ in range(25):
+            acts = {a: rng.uniform([0.2, -1], [1, 1]).astype(np.float32) for a in env.agents}
+            obs, _, _, _, infos = env.step(acts)
+            seq.append((obs, infos))
+        return seq, env.unwrapped._obs.layout.range_max
+
+    with_tracks, range_max = run(True)
+    without, _ = run(False)
+    filled = differs = 0
+    for (obs, infos), (obs0, _) in zip(with_tracks, without, strict=True):
+        for a, o in obs.items():
+            np.testing.assert_array_equal(o[:360], obs0[a][:360])  # the same world, scans and tracks
+            want = _expected_topk(infos[a], 3, range_max)
+            np.testing.assert_allclose(o[360:], want, rtol=1e-5, atol=1e-6, err_msg=a)
+            filled += int(want[0] == 1.0)
+            differs += int(not np.array_equal(o[360:], obs0[a][360:]))
+    assert filled > 20 and differs > 0  # tracks were observed, and they are not the raw detections
+    again, _ = run(True)
+    for (obs, _), (obs2, _) in zip(with_tracks, again, strict=True):
+        for a in obs:
+            np.testing.assert_array_equal(obs[a], obs2[a])
+
+
+def test_housing_beams_are_the_beams_whose_rays_hit_the_housing():
+    """housing_beams against the ray-circle condition, beam by beam: a ray at angle theta from the origin
+    meets a circle of radius r centred at range rho, bearing beta iff |rho sin(theta - beta)| <= r and
+    cos(theta - beta) > 0; at least the nearest beam when no ray meets it; either turning direction."""
+    from kin_envs.core.lidar import LidarSpec
+    from kin_envs.envs.tracks import housing_beams
+
+    rng = np.random.default_rng(0)
+    cw = np.asarray(LidarSpec().angles)  # beam i is i steps clockwise
+    ccw = np.linspace(-np.pi, np.pi, 90, endpoint=False)
+    for angles in (cw, ccw):
+        n = angles.size
+        bearing = rng.uniform(-np.pi, np.pi, 400)
+        rho = np.r_[rng.uniform(0.036, 0.2, 50), rng.uniform(0.2, 12.0, 350)]
+        first, last, count = housing_beams(angles, bearing, rho, 0.035)
+        for b, p, f, la, c in zip(bearing, rho, first, last, count, strict=True):
+            d = angles - b
+            hit = (np.abs(p * np.sin(d)) <= 0.035) & (np.cos(d) > 0)
+            got = np.zeros(n, bool)
+            got[(f + np.arange(c)) % n] = True
+            assert (f + c - 1) % n == la
+            if hit.any():
+                np.testing.assert_array_equal(got, hit, err_msg=f"bearing {b}, range {p}")
+            else:
+                assert c == 1 and f == np.argmin(np.abs(np.arctan2(np.sin(d), np.cos(d))))
+    with pytest.raises(ValueError, match="evenly spaced"):
+        housing_beams(np.array([0.0, 0.1, 0.3]), np.zeros(1), np.ones(1), 0.035)
+
+
+def test_mask_channel_of_track_observations_covers_the_kin():
+    """KinFollow-v1 with obs_detections="mask" and obs_tracks=True: the mask marks the beams whose rays meet
+    a housing at a reported kin track's centre (it was all zeros before: tracks have no segment beams);
+    when that track sits on the kin, they are most of the beams that hit the kin's housing."""
+    from kin_envs.core.lidar import HitKind
+
+    env = gym.make(IDS[1], tracker=True, obs_detections="mask", obs_tracks=True)
+    obs, _ = env.reset(seed=3)
+    env.action_space.seed(3)
+    angles = env.unwrapped.world.scene.lidar.angles
+    on_target = reported = 0
+    for _ in range(80):
+        obs, _, term, trunc, info = env.step(env.action_space.sample())
+        mask = obs[360:] > 0
+        t, c = info["kin_tracks"], info["kin_tracks_count"]
+        kin = (t["confirmed"][:c] > 0) & (t["kin_prob"][:c] >= 0.5)
+        x, y = t["x"][:c][kin], t["y"][:c][kin]
+        # rays from the origin meeting a 3.5 cm circle at (x, y): |rho sin(theta - beta)| <= r, in front
+        d = angles[None] - np.arctan2(y, x)[:, None]
+        want = ((np.abs(np.hypot(x, y)[:, None] * np.sin(d)) <= 0.035) & (np.cos(d) > 0)).any(axis=0)
+        assert np.count_nonzero(mask != want) <= 1  # float32 info: a beam at the edge may flip
+        reported += int(mask.any())
+        scan = env.unwrapped._last_scan
+        on_kin = (scan.hit_kind[0] == HitKind.ROBOT.value) & (scan.ranges[0] < scan.range_max)
+        truth = unpad(info, "kin_truth")
+        if kin.sum() == 1 and len(truth["x"]) and np.hypot(x - truth["x"], y - truth["y"]).min() < 0.02:
+            on_target += 1
+            assert (mask & on_kin).sum() >= 0.5 * on_kin.sum()
+        if term or trunc:
+            break
+    assert reported >= 10 and on_target >= 5

@@ -59,8 +59,10 @@ def test_same_trajectories_as_separate_envs_across_autoresets(env_id):
         # one tracker over the K learners: the same tracks (ids included) as K envs' own trackers
         {"tracker": True, "noise_sigma": 0.02},
         {"tracker": {"kin_model": "hand"}, "obs_detections": "topk", "obs_tracks": True, "noise_sigma": 0.02},
+        {"tracker": True, "obs_detections": "mask", "obs_tracks": True},
     ],
-    ids=["topk-stack", "mask-discrete", "nodet", "learned", "tracker", "tracker-obs-hand"],
+    ids=["topk-stack", "mask-discrete", "nodet", "learned", "tracker", "tracker-obs-hand",
+         "tracker-obs-mask"],
 )
 def test_same_trajectories_variants(kwargs):
     assert_same_as_sync(SEEK, 3, 30, **{**QUICK, **kwargs})
