@@ -12,7 +12,7 @@ __all__ = ["Aggregator"]
 
 
 class Aggregator(KinSeeker):
-    """A per-robot aggregation controller for ``aggregation_v1`` (one instance per agent).
+    """A per-robot aggregation controller for ``aggregation_v2`` (one instance per agent).
 
     It is the kin-seeker steering to the *nearest* detection and stopping ``stop_distance`` from it
     (inside the env's 0.6 m ``kin_radius``, but clear of contact, which the env penalises).

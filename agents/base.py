@@ -10,10 +10,10 @@ memoryless ones (:meth:`PolicyGroup.shared`, batched through :meth:`Policy.act_m
 
 Example::
 
-    env = gymnasium.make("kin_envs/KinSeek-v1")
+    env = gymnasium.make("kin_envs/KinSeek-v2")
     stats = run_episode(env, KinSeeker.for_env(env), seed=0)
 
-    par = aggregation_v1.parallel_env(n_robots=8)
+    par = aggregation_v2.parallel_env(n_robots=8)
     group = PolicyGroup.per_agent(lambda: Aggregator.for_env(par), par.possible_agents)
     result = run_parallel_episode(par, group, seed=0)
 """

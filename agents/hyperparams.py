@@ -34,9 +34,11 @@ _SINGLE_SAC = {
 HYPERPARAMS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
     "kin_envs/KinSeek-v0": {"ppo": _SINGLE_PPO, "sac": _SINGLE_SAC},
     "kin_envs/KinFollow-v0": {"ppo": _SINGLE_PPO, "sac": _SINGLE_SAC},
-    # v1: the same task and dynamics (only the info layout changed)
+    # v1 and v2: the same task and dynamics (v1: the info layout changed; v2: the tracker's default feed)
     "kin_envs/KinSeek-v1": {"ppo": _SINGLE_PPO, "sac": _SINGLE_SAC},
     "kin_envs/KinFollow-v1": {"ppo": _SINGLE_PPO, "sac": _SINGLE_SAC},
+    "kin_envs/KinSeek-v2": {"ppo": _SINGLE_PPO, "sac": _SINGLE_SAC},
+    "kin_envs/KinFollow-v2": {"ppo": _SINGLE_PPO, "sac": _SINGLE_SAC},
     "aggregation_v0": {
         "ppo": {
             # n_envs = copies of the whole swarm; every robot is one SB3 env of the shared policy
@@ -49,7 +51,7 @@ HYPERPARAMS: dict[str, dict[str, dict[str, dict[str, Any]]]] = {
         },
     },
 }
-HYPERPARAMS["aggregation_v1"] = HYPERPARAMS["aggregation_v0"]
+HYPERPARAMS["aggregation_v1"] = HYPERPARAMS["aggregation_v2"] = HYPERPARAMS["aggregation_v0"]
 
 
 def hyperparams_for(env_id: str, algo: str) -> dict[str, dict[str, Any]]:

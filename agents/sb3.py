@@ -6,11 +6,11 @@ SB3, SuperSuit and torch are imported lazily, inside the functions that need the
 Example::
 
     policy = SB3Policy.load("runs/seek/model.zip")            # PPO or SAC, read from the zip
-    env = gymnasium.make("kin_envs/KinSeek-v1", obs_detections="topk")
+    env = gymnasium.make("kin_envs/KinSeek-v2", obs_detections="topk")
     policy.check_env(env)                                     # ValueError if the spaces differ
     obs, info = env.reset(seed=0); action = policy.act(obs, info)
 
-    par = aggregation_v1.parallel_env(n_robots=8, obs_detections="topk")
+    par = aggregation_v2.parallel_env(n_robots=8, obs_detections="topk")
     group = PolicyGroup.shared(policy.check_env(par), par.possible_agents)  # one batched call per step
 """
 

@@ -6,7 +6,7 @@ observation drives the obstacle avoidance while wandering. No privileged state i
 
 Example::
 
-    env = gymnasium.make("kin_envs/KinSeek-v1")
+    env = gymnasium.make("kin_envs/KinSeek-v2")
     policy = KinSeeker.for_env(env, seed=0)
     obs, info = env.reset(seed=0)
     while True:

@@ -1133,6 +1133,24 @@ def scan_noise(batch: SegmentBatch, config: FeatureConfig | None = None) -> tupl
     return out, count
 
 
+def scan_noise_of(ranges, angles, config: FeatureConfig | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`scan_noise` of ``segment_batch(ranges, angles, config)`` without its segmentation, which the
+    estimate does not read (the same values; about half the cost of a 64-scan batch)."""
+    c = config or FeatureConfig()
+    r = np.ascontiguousarray(ranges, dtype=np.float64)
+    a = np.asarray(angles, dtype=np.float64).reshape(-1)
+    if r.ndim != 2 or r.shape[1] != a.shape[0]:
+        raise ValueError(f"scan_noise_of: expected ranges (B, n) and angles (n,), got {r.shape} and "
+                         f"{a.shape}")  # fmt: skip
+    circ = is_circular_sweep(a)
+    d = np.empty(r.shape)
+    _k.preprocess_rows(r, float(c.d_max), float(c.d_th), circ, False, d)
+    out = np.empty(r.shape[0])
+    count = np.empty(r.shape[0], dtype=np.int64)
+    _scan_noise_kernel(d, float(c.d_th), float(c.d_max), circ, out, count)
+    return out, count
+
+
 def segment_features(
     batch: SegmentBatch, config: FeatureConfig | None = None, which: np.ndarray | None = None
 ) -> SegmentFeatures:

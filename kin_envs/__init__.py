@@ -1,8 +1,8 @@
 """kin-envs: a fast 2D multi-robot lidar world for kin detection research.
 
 ``import kin_envs`` is light: it never imports torch or pygame. It registers the Gymnasium ids
-(``kin_envs/KinSeek-v1``, ``kin_envs/KinFollow-v1``, and their v0) with string entry points and
-exposes the PettingZoo swarm as ``kin_envs.aggregation_v1`` (and ``aggregation_v0``).
+(``kin_envs/KinSeek-v2``, ``kin_envs/KinFollow-v2``, and their v1 and v0) with string entry points and
+exposes the PettingZoo swarm as ``kin_envs.aggregation_v2`` (and ``aggregation_v1``, ``aggregation_v0``).
 
 The library reports through the ``kin_envs`` logger (``logging``; silent unless the application
 configures logging). It first checks that the top-level packages ``detectors`` and ``agents`` are
@@ -26,7 +26,7 @@ from detectors._numba_cache import guard_dependencies as _guard  # noqa: E402
 _guard(_Path(__file__).resolve().parent, also=[_Path(_detectors.__file__).resolve().parent])
 logging.getLogger(__name__).addHandler(logging.NullHandler())
 
-from kin_envs import aggregation_v0, aggregation_v1, scenes  # noqa: E402
+from kin_envs import aggregation_v0, aggregation_v1, aggregation_v2, scenes  # noqa: E402
 from kin_envs.core.lidar import HitKind, LidarSpec  # noqa: E402
 from kin_envs.core.scenes import RobotSpec, Scene  # noqa: E402
 from kin_envs.core.world import Contact, Scan, World, WorldConfig  # noqa: E402
@@ -47,6 +47,7 @@ __all__ = [
     "WorldConfig",
     "aggregation_v0",
     "aggregation_v1",
+    "aggregation_v2",
     "record_episode",
     "scenes",
 ]

@@ -4,7 +4,7 @@
     par = aggregation_v0.parallel_env(n_robots=16)   # ParallelEnv
     aec = aggregation_v0.env(n_robots=16)            # AECEnv (parallel_to_aec)
 
-Kept to reproduce earlier results; new code should use :mod:`kin_envs.aggregation_v1` (fixed-shape
+Kept to reproduce earlier results; new code should use :mod:`kin_envs.aggregation_v2` (fixed-shape
 info). See :class:`kin_envs.envs.aggregation.AggregationEnv` for the specification.
 """
 

@@ -284,9 +284,10 @@ def record(args: argparse.Namespace) -> int:
     from kin_envs.ros import record_episode
 
     kwargs = parse_json_object(args.env_kwargs, "--env-kwargs") or {}
-    from kin_envs import aggregation_v0, aggregation_v1
+    from kin_envs import aggregation_v0, aggregation_v1, aggregation_v2
 
-    swarms = {"aggregation_v1": aggregation_v1, "aggregation_v0": aggregation_v0}
+    swarms = {"aggregation_v2": aggregation_v2, "aggregation_v1": aggregation_v1,
+              "aggregation_v0": aggregation_v0}  # fmt: skip
     swarm = swarms.get(args.env.removeprefix("kin_envs."))
     if swarm is not None:
         env = swarm.parallel_env(**kwargs)
@@ -398,8 +399,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("out", help="bag to create: a ROS 2 bag directory, or OUT.bag for ROS 1")
     r.add_argument(
         "--env",
-        default="kin_envs/KinSeek-v1",
-        help="Gymnasium id, or aggregation_v1 / aggregation_v0 (PettingZoo)",
+        default="kin_envs/KinSeek-v2",
+        help="Gymnasium id, or aggregation_v2 / aggregation_v1 / aggregation_v0 (PettingZoo)",
     )
     r.add_argument("--env-kwargs", default=None, help="env keyword arguments: a JSON object or a JSON file")
     r.add_argument(

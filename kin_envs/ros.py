@@ -292,7 +292,7 @@ def record_episode(
     """Run one episode of a Gymnasium env or a PettingZoo parallel env of kin_envs and record it.
 
     Args:
-        env: ``gymnasium.make("kin_envs/...")`` or ``aggregation_v1.parallel_env(...)``.
+        env: ``gymnasium.make("kin_envs/...")`` or ``aggregation_v2.parallel_env(...)``.
         path: the bag to create (see :class:`WorldRecorder`).
         seed: reset seed; the random actions (without ``policy``) are seeded with it too.
         steps: stop after this many steps (default: the episode's end).

@@ -14,10 +14,10 @@ Sections (``--sections``, comma separated; default all available):
 * ``detector``: scans/s of the geometric and learned detectors batched on one core (all 64 scans of
   a dense arena per call), array path vs objects vs the previous implementation, warm; start-up
   (incl. numba compilation) on its own line.
-* ``envs``: env steps/s for KinSeek-v1 and aggregation_v1 (16, 64, 256 robots) with the detector off,
+* ``envs``: env steps/s for KinSeek-v2 and aggregation_v2 (16, 64, 256 robots) with the detector off,
   geometric and learned, as a user gets them (no thread settings), and the ratio to detector off.
 * ``memory``: RSS of a 256-robot swarm with the learned detector over ``--memory-steps`` steps.
-* ``vecenv``: env-steps/s of ``KinSeek-v1``'s native vector env (``gym.make_vec``, K sub-envs,
+* ``vecenv``: env-steps/s of ``KinSeek-v2``'s native vector env (``gym.make_vec``, K sub-envs,
   ``--vec-envs``) against Gymnasium's ``SyncVectorEnv`` over K envs, same run, per detector
   (``--vec-detectors``) and range noise (``--vec-noise``: 0, KinSeek's default, and 1 %).
 * ``ros``: recording an 8-robot World run to a bag (steps/s, against the same run unrecorded) and
@@ -296,12 +296,12 @@ def dense_arena_scans(n_robots: int = 64, n_obstacles: int = 50, noise: float = 
 
 
 def kin_seek_scans(n: int = 32, noise: float = 0.01):
-    """``n`` learner scans of ``KinSeek-v1`` episodes (seeds 0..n-1, 1 % noise) as the env's lidar gives
+    """``n`` learner scans of ``KinSeek-v2`` episodes (seeds 0..n-1, 1 % noise) as the env's lidar gives
     them (float32 ``(1, n_beams)`` rows, the lidar's ``angles`` array): what a single-agent env's
     detector sees each step (~30-40 segments, against ~100 in the dense arena)."""
     import gymnasium as gym
 
-    env = gym.make("kin_envs/KinSeek-v1", detector=None, noise_sigma=noise)
+    env = gym.make("kin_envs/KinSeek-v2", detector=None, noise_sigma=noise)
     rows = []
     for seed in range(n):
         env.reset(seed=seed)
@@ -388,9 +388,9 @@ def bench_detector(min_time: float) -> list[dict]:
 
 
 def _agg_step(n: int, detector) -> Callable[[], None]:
-    from kin_envs import aggregation_v1
+    from kin_envs import aggregation_v2
 
-    penv = aggregation_v1.parallel_env(n_robots=n, detector=detector, noise_sigma=0.01)
+    penv = aggregation_v2.parallel_env(n_robots=n, detector=detector, noise_sigma=0.01)
     penv.reset(seed=0)
     acts = {a: penv.action_space(a).sample() for a in penv.agents}
 
@@ -405,7 +405,7 @@ def _agg_step(n: int, detector) -> Callable[[], None]:
 def _seek_step(detector) -> Callable[[], None]:
     import gymnasium as gym
 
-    env = gym.make("kin_envs/KinSeek-v1", detector=detector, noise_sigma=0.01)
+    env = gym.make("kin_envs/KinSeek-v2", detector=detector, noise_sigma=0.01)
     env.reset(seed=0)
 
     def step_seek(env=env):
@@ -433,8 +433,8 @@ def bench_envs(min_time: float, robots=(16, 64, 256)) -> list[dict]:
     except ImportError:
         dets = (None, "geometric")
     rows = []
-    for env_id, n in [("KinSeek-v1", 1)] + [("aggregation_v1", n) for n in robots]:
-        steps = {str(d): (_seek_step(d) if env_id == "KinSeek-v1" else _agg_step(n, d)) for d in dets}
+    for env_id, n in [("KinSeek-v2", 1)] + [("aggregation_v2", n) for n in robots]:
+        steps = {str(d): (_seek_step(d) if env_id == "KinSeek-v2" else _agg_step(n, d)) for d in dets}
         samples = interleaved_samples(steps, min_time * len(dets))
         rates = {k: float(np.median(v)) for k, v in samples.items()}
         for d in dets:
@@ -463,14 +463,14 @@ def bench_memory(min_time: float, steps: int = 2000, n_robots: int = 256) -> lis
     halves. ``settle_mb`` is the first half's (half-time - warm)."""
     import resource
 
-    from kin_envs import aggregation_v1
+    from kin_envs import aggregation_v2
 
     try:
         import detectors.learned  # noqa: F401
     except ImportError as e:
         print(f"  memory: skipped ({e})")
         return []
-    penv = aggregation_v1.parallel_env(n_robots=n_robots, detector="learned", noise_sigma=0.01)
+    penv = aggregation_v2.parallel_env(n_robots=n_robots, detector="learned", noise_sigma=0.01)
     penv.reset(seed=0)
     rng = np.random.default_rng(0)
     warm_at, half_at = max(1, steps // 10), max(1, steps // 2)
@@ -525,7 +525,7 @@ def bench_vecenv(min_time: float, num_envs: int = 64, detectors=("none", "geomet
     for noise, det in itertools.product(noises, detectors):
         envs, fns = {}, {}
         for mode in ("vector_entry_point", "sync"):
-            env = gym.make_vec("kin_envs/KinSeek-v1", num_envs=num_envs, vectorization_mode=mode,
+            env = gym.make_vec("kin_envs/KinSeek-v2", num_envs=num_envs, vectorization_mode=mode,
                                detector=None if det == "none" else det, noise_sigma=noise)
             env.reset(seed=0)
             env.action_space.seed(0)
@@ -546,12 +546,12 @@ def bench_vecenv(min_time: float, num_envs: int = 64, detectors=("none", "geomet
         rates = {k: steps * num_envs / spent[k] for k in fns}
         for env in envs.values():
             env.close()
-        row = {"env": "KinSeek-v1", "num_envs": num_envs, "detector": det, "noise": noise,
+        row = {"env": "KinSeek-v2", "num_envs": num_envs, "detector": det, "noise": noise,
                "native_env_steps_per_s": rates["vector_entry_point"],
                "sync_env_steps_per_s": rates["sync"],
                "ratio": rates["vector_entry_point"] / rates["sync"]}
         rows.append(row)
-        print(f"  KinSeek-v1 x{num_envs} detector={det:9s} noise={noise:g} "
+        print(f"  KinSeek-v2 x{num_envs} detector={det:9s} noise={noise:g} "
               f"native {row['native_env_steps_per_s']:8.0f} "
               f"env-steps/s, SyncVectorEnv {row['sync_env_steps_per_s']:7.0f}: {row['ratio']:.1f}x",
               flush=True)
@@ -690,7 +690,7 @@ def to_markdown(results: dict) -> str:
         ]
         lines += [
             "",
-            "Single scan: one scan of the dense arena (~110 segments); KinSeek scan: a KinSeek-v1 learner "
+            "Single scan: one scan of the dense arena (~110 segments); KinSeek scan: a KinSeek-v2 learner "
             "scan (~30-40 segments) per call through `detect_arrays`, and through the env's own entry "
             "(`kin_envs.envs.common.detection_arrays(trusted=True)`, no per-call input checks).",
         ]
@@ -772,7 +772,7 @@ def main(argv: list[str] | None = None) -> dict:
         help="lidar_scaling: obstacle counts",
     )
     p.add_argument(
-        "--env-robots", type=int, nargs="+", default=[16, 64, 256], help="envs: aggregation_v1 robot counts"
+        "--env-robots", type=int, nargs="+", default=[16, 64, 256], help="envs: aggregation_v2 robot counts"
     )
     p.add_argument(
         "--memory-steps", type=int, default=2000, help="memory: steps of the 256-robot learned-detector swarm"

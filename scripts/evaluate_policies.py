@@ -1,12 +1,12 @@
 """Evaluate policies over the same seeded episodes: a markdown table with 95 % CIs and learning curves.
 
-Single-robot envs (``--env kin_envs/KinSeek-v1``): success rate (Wilson interval, scipy's
+Single-robot envs (``--env kin_envs/KinSeek-v2``): success rate (Wilson interval, scipy's
 ``binomtest``), return, collision steps and steps to success (bootstrap BCa intervals of the mean,
 which stay within the range of the data; steps to success over successful episodes).
 
-Swarm (``--env aggregation_v1``; ``aggregation_v0`` is accepted too): cluster metrics averaged over
-the last ``--metric-cycles`` cycles of each episode: mean distance from each robot to its nearest
-other robot, and the largest-cluster fraction (robots linked when their centres are within
+Swarm (``--env aggregation_v2``; ``aggregation_v1`` and ``aggregation_v0`` are accepted too): cluster metrics
+averaged over the last ``--metric-cycles`` cycles of each episode: mean distance from each robot to its
+nearest other robot, and the largest-cluster fraction (robots linked when their centres are within
 ``--link-radius``; the size of the largest connected group / n), plus the per-robot return;
 bootstrap intervals over episodes.
 
@@ -21,9 +21,9 @@ Outputs in ``--out``: ``results.md``, ``results.json``, ``learning_curve.png`` (
 
 Example::
 
-    python scripts/evaluate_policies.py --env kin_envs/KinSeek-v1 --episodes 200 \\
+    python scripts/evaluate_policies.py --env kin_envs/KinSeek-v2 --episodes 200 \\
         --model ppo-topk=runs/seek_topk/model.zip --model ppo-scan=runs/seek_scan/model.zip
-    python scripts/evaluate_policies.py --env aggregation_v1 --n-robots 8 --model runs/swarm/model.zip
+    python scripts/evaluate_policies.py --env aggregation_v2 --n-robots 8 --model runs/swarm/model.zip
 """
 
 from __future__ import annotations
@@ -58,13 +58,15 @@ from agents import (  # noqa: E402
     run_parallel_episode,
 )
 from detectors.fileio import atomic_write, write_json, write_text  # noqa: E402
-from kin_envs import aggregation_v0, aggregation_v1  # noqa: E402
+from kin_envs import aggregation_v0, aggregation_v1, aggregation_v2  # noqa: E402
 from kin_envs.cli import add_logging_args, check_output_dir, script_logger, setup_logging, write_run_info  # noqa: E402
 from kin_envs.cli import progress as tqdm  # noqa: E402
 
-SWARM_ID = "aggregation_v1"
-#: the PettingZoo swarm ids: v1 (fixed-shape info) and v0 (kept to reproduce earlier runs)
-SWARM_ENVS = {"aggregation_v1": aggregation_v1, "aggregation_v0": aggregation_v0}
+SWARM_ID = "aggregation_v2"
+#: the PettingZoo swarm ids: v2 (the latest), v1 (v2 with the tracker fed "accepted") and v0 (kept to
+#: reproduce earlier runs)
+SWARM_ENVS = {"aggregation_v2": aggregation_v2, "aggregation_v1": aggregation_v1,
+              "aggregation_v0": aggregation_v0}  # fmt: skip
 BUILTIN = {"random": RandomPolicy, "wander": Wanderer, "scripted": KinSeeker, "aggregator": Aggregator}
 DEFAULT_POLICIES = {"single": ["random", "scripted"], "swarm": ["random", "wander", "aggregator"]}
 DEFAULT_SWARM_KWARGS = {"obs_detections": "topk"}
@@ -171,7 +173,7 @@ def make_env(env_id: str, kwargs: dict, n_robots: int):
         return SWARM_ENVS[env_id].parallel_env(n_robots=n_robots, **kw)
     if env_id not in gymnasium.registry:
         raise ValueError(f"unknown env id {env_id!r}; expected {SWARM_ID!r} or a registered id such as "
-                         "'kin_envs/KinSeek-v1'")
+                         "'kin_envs/KinSeek-v2'")
     return gymnasium.make(env_id, **kwargs)
 
 
@@ -317,8 +319,8 @@ def plot_curves(curves: dict[str, dict], path: Path) -> bool:
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--env", default="kin_envs/KinSeek-v1",
-                   help=f"a registered id or {SWARM_ID!r} (or aggregation_v0)")
+    p.add_argument("--env", default="kin_envs/KinSeek-v2",
+                   help=f"a registered id or {SWARM_ID!r} (or aggregation_v1, aggregation_v0)")
     p.add_argument("--env-kwargs", default=None, help="env kwargs of the built-in policies, JSON object")
     p.add_argument("--policies", nargs="*", default=None,
                    help=f"built-in policies {sorted(BUILTIN)} (default: {DEFAULT_POLICIES})")

@@ -12,7 +12,7 @@ and ``run.json`` (command, config, seed, versions, timing, final evaluation).
 
 Example::
 
-    python scripts/train_single.py --env kin_envs/KinSeek-v1 --env-kwargs '{"obs_detections": "topk"}' \\
+    python scripts/train_single.py --env kin_envs/KinSeek-v2 --env-kwargs '{"obs_detections": "topk"}' \\
         --timesteps 300000 --out runs/seek_topk
     python scripts/train_single.py --env-kwargs '{"detector": null}' --out runs/seek_scan
 """
@@ -59,7 +59,7 @@ LIVE_EVAL_DIR = ".live"
 class TrainConfig:
     """Validated settings of one training run (``from_dict`` rejects unknown keys)."""
 
-    env_id: str = "kin_envs/KinSeek-v1"
+    env_id: str = "kin_envs/KinSeek-v2"
     env_kwargs: dict = field(default_factory=dict)
     algo: str = "ppo"
     total_timesteps: int = 300_000
@@ -205,7 +205,7 @@ def final_evaluation(out: Path) -> dict[str, Any] | None:
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--env", default="kin_envs/KinSeek-v1", help="registered Gymnasium id")
+    p.add_argument("--env", default="kin_envs/KinSeek-v2", help="registered Gymnasium id")
     p.add_argument("--env-kwargs", default=None, help="env kwargs as a JSON object (or a JSON file)")
     p.add_argument("--algo", default="ppo", choices=ALGOS, help="SB3 algorithm (default: %(default)s)")
     p.add_argument("--timesteps", type=int, default=None, help="total env steps (default: shipped)")

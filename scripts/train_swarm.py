@@ -1,4 +1,4 @@
-"""Train one PPO policy shared by every robot of the ``aggregation_v1`` swarm.
+"""Train one PPO policy shared by every robot of the ``aggregation_v2`` swarm.
 
 SuperSuit turns the PettingZoo parallel env into an SB3 vec env with one sub-env per robot
 (``pettingzoo_env_to_vec_env_v1``) and concatenates ``--n-copies`` swarms
@@ -16,7 +16,7 @@ seed, versions, timing).
 Example::
 
     python scripts/train_swarm.py --n-robots 8 --timesteps 1000000 --out runs/swarm
-    python scripts/evaluate_policies.py --env aggregation_v1 --model runs/swarm/model.zip
+    python scripts/evaluate_policies.py --env aggregation_v2 --model runs/swarm/model.zip
 """
 
 from __future__ import annotations
@@ -37,10 +37,10 @@ if str(ROOT) not in sys.path:  # run as a file: make agents / kin_envs importabl
 from agents.hyperparams import hyperparams_for  # noqa: E402
 from agents.sb3 import atomic_checkpoints  # noqa: E402
 from detectors.fileio import atomic_write  # noqa: E402
-from kin_envs import aggregation_v1  # noqa: E402
+from kin_envs import aggregation_v2  # noqa: E402
 from kin_envs.cli import add_logging_args, parse_json_object, setup_logging, write_run_info  # noqa: E402
 
-ENV_ID = "aggregation_v1"
+ENV_ID = "aggregation_v2"
 #: the swarm's env kwargs unless --env-kwargs says otherwise: the detector channel in the observation
 DEFAULT_ENV_KWARGS = {"obs_detections": "topk"}
 
@@ -79,7 +79,7 @@ class SwarmTrainConfig:
 
     def make_env(self):
         """The PettingZoo parallel env (bad kwargs raise the env's ``ValueError``)."""
-        return aggregation_v1.parallel_env(n_robots=self.n_robots, **self.env_kwargs)
+        return aggregation_v2.parallel_env(n_robots=self.n_robots, **self.env_kwargs)
 
 
 def build_config(args: argparse.Namespace) -> SwarmTrainConfig:
@@ -127,7 +127,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--n-robots", type=int, default=8, help="robots per swarm (default: %(default)s)")
     p.add_argument("--env-kwargs", default=None,
-                   help=f"aggregation_v1 kwargs, JSON object or file (default {DEFAULT_ENV_KWARGS})")
+                   help=f"aggregation_v2 kwargs, JSON object or file (default {DEFAULT_ENV_KWARGS})")
     p.add_argument("--n-copies", type=int, default=None, help="swarms run side by side (default: shipped)")
     p.add_argument("--timesteps", type=int, default=None,
                    help="total robot-steps (one swarm step of n robots = n; default: shipped)")

@@ -1,4 +1,4 @@
-"""Train one PPO policy shared by every robot of the ``aggregation_v1`` swarm with RLlib (Ray).
+"""Train one PPO policy shared by every robot of the ``aggregation_v2`` swarm with RLlib (Ray).
 
 The RLlib counterpart of ``scripts/train_swarm.py`` for runs that outgrow one machine: the
 PettingZoo parallel env goes through RLlib's ``ParallelPettingZooEnv``; every robot maps to the
@@ -47,12 +47,12 @@ if str(ROOT) not in sys.path:  # run as a file: make kin_envs importable from th
     sys.path.insert(0, str(ROOT))
 
 from detectors.fileio import LiveLog  # noqa: E402
-from kin_envs import aggregation_v1  # noqa: E402
+from kin_envs import aggregation_v2  # noqa: E402
 from kin_envs.cli import add_logging_args, script_logger, setup_logging, write_run_info  # noqa: E402
 from kin_envs.cli import progress as tqdm  # noqa: E402
 from kin_envs.distributed import ray_session, ship_by_value  # noqa: E402
 
-ENV_NAME = "kin_envs_aggregation_v1"
+ENV_NAME = "kin_envs_aggregation_v2"
 POLICY_ID = "shared"
 #: env kwargs unless --env-kwargs says otherwise: as scripts/train_swarm.py (detector channel on)
 DEFAULT_ENV_KWARGS = {"obs_detections": "topk"}
@@ -62,7 +62,7 @@ def make_env(env_config: dict):
     """RLlib env creator (top level: env runners on other machines rebuild the env from it)."""
     from ray.rllib.env.wrappers.pettingzoo_env import ParallelPettingZooEnv
 
-    return ParallelPettingZooEnv(aggregation_v1.parallel_env(**env_config))
+    return ParallelPettingZooEnv(aggregation_v2.parallel_env(**env_config))
 
 
 def policy_mapping_fn(agent_id, episode=None, **kwargs) -> str:
@@ -77,7 +77,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument(
         "--env-kwargs",
         default=None,
-        help=f"more aggregation_v1 kwargs, JSON (default {json.dumps(DEFAULT_ENV_KWARGS)})",
+        help=f"more aggregation_v2 kwargs, JSON (default {json.dumps(DEFAULT_ENV_KWARGS)})",
     )
     p.add_argument("--iterations", type=int, default=100, help="PPO iterations (train() calls)")
     p.add_argument("--env-runners", type=int, default=2, help="Ray env-runner actors (0: sample here)")
@@ -138,7 +138,7 @@ def parse_args(argv=None) -> argparse.Namespace:
         "max_cycles": args.max_cycles,
     }
     try:  # fail here, not inside an env runner: unknown names and bad values raise ValueError
-        aggregation_v1.parallel_env(**args.env_config).close()
+        aggregation_v2.parallel_env(**args.env_config).close()
     except ValueError as e:
         p.error(f"--env-kwargs: {e}")
     return args
@@ -255,7 +255,7 @@ def main(argv=None) -> dict:
             with contextlib.suppress(OSError):  # the empty ~/ray_results/<time> every Algorithm makes
                 Path(algo.logdir).rmdir()
         run = {
-            "env": "aggregation_v1",
+            "env": "aggregation_v2",
             "env_config": args.env_config,
             "python_hash_seed": os.environ.get("PYTHONHASHSEED"),
             "ray": {"address": args.address, "num_cpus": args.num_cpus, "cluster_cpus": cpus},

@@ -51,11 +51,12 @@ class SingleRobotEnv(gym.Env):
         self.render_mode = check_render_mode(render_mode, self.metadata["render_modes"], where)
         self.detector = resolve_detector(self.config.detector, where)
         self.tracker = self.config.make_tracker()
-        self._feeder = None  # tracker={"feed": "permissive"}: the detector call that also feeds the tracker
-        if self.config.tracker_feed == "permissive":
-            from kin_envs.envs.tracks import PermissiveFeed
+        self._feeder = None  # the permissive feed: the detector call that also feeds the tracker
+        if self.tracker is not None:
+            from kin_envs.envs.tracks import make_feeder
 
-            self._feeder = PermissiveFeed(self.detector, self.tracker.params.range_noise)
+            noise = self.tracker.params.range_noise
+            self._feeder = make_feeder(self.config.tracker_feed, self.detector, noise)
         self._feed = None
         # the step's detections, padded for the info (fixed-shape info, no permissive feed: see _detect)
         self._padded_dets: tuple[dict[str, np.ndarray], int] | None = None

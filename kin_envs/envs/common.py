@@ -149,17 +149,23 @@ class CommonConfig:
             ``False`` (off), ``True`` (default parameters) or a dict of ``detectors.TrackerParams``
             fields plus optionally ``"kin_model"``: the track classifier, ``"learned"`` (default, the
             shipped one), ``"hand"`` (the hand-tuned fusion of the cues) or a path to a track-classifier
-            JSON (``scripts/fit_track_classifier.py``), and optionally ``"feed"``: ``"accepted"`` (default:
-            the detector's operating-point detections, all flagged accepted) or ``"permissive"`` (what the
+            JSON (``scripts/fit_track_classifier.py``), and optionally ``"feed"``: ``"accepted"`` (the
+            detector's operating-point detections, all flagged accepted), ``"permissive"`` (what the
             track classifier is fitted on and the sequence benchmark runs: every candidate of the detector at
             its permissive operating point with its score and accepted flag, and each scan's noise estimate;
-            ``info["kin_detections"]`` unchanged). Adds ``info["kin_tracks"]``. Needs a detector.
+            ``info["kin_detections"]`` unchanged) or ``"auto"`` (``"permissive"`` where it costs no second
+            detector call, i.e. the shipped geometric detector; ``"accepted"`` otherwise). The default is the
+            env version's: ``"accepted"`` up to v1, ``"auto"`` from v2 (with the geometric detector under
+            range noise the accepted feed's tracks are no better than its raw detections). Adds
+            ``info["kin_tracks"]``. Needs a detector.
         max_tracks: slots of ``info["kin_tracks"]`` (fixed-shape info).
         obs_tracks: fill the observation's detection channel from the tracker's confirmed kin tracks
             (their centre; score = kin probability) instead of the frame's raw detections.
     """
 
     env_id: ClassVar[str] = "kin_envs"
+    #: ``tracker["feed"]`` when not given: ``"accepted"`` up to the v1 ids, ``"auto"`` from v2
+    default_tracker_feed: ClassVar[str] = "accepted"
 
     noise_sigma: float = 0.0
     dropout_prob: float = 0.0
@@ -241,10 +247,12 @@ class CommonConfig:
 
     @property
     def tracker_feed(self) -> str | None:
-        """``tracker["feed"]``: ``"accepted"`` (default) or ``"permissive"``; ``None`` without a tracker."""
+        """``tracker["feed"]`` as asked: ``"accepted"``, ``"permissive"`` or ``"auto"`` (the version's
+        :attr:`default_tracker_feed` when not given); ``None`` without a tracker."""
         if self.tracker is None:
             return None
-        return "accepted" if self.tracker is True else self.tracker.get("feed", "accepted")
+        given = None if self.tracker is True else self.tracker.get("feed")
+        return self.default_tracker_feed if given is None else given
 
     def lidar_spec(self) -> LidarSpec:
         return LidarSpec(noise_sigma=float(self.noise_sigma), dropout_prob=float(self.dropout_prob))
@@ -253,7 +261,7 @@ class CommonConfig:
 #: the track classifiers ``tracker={"kin_model": ...}`` names (any other string is a model JSON path)
 TRACKER_KIN_MODELS = ("learned", "hand")
 #: what ``tracker={"feed": ...}`` feeds the tracker (see :class:`CommonConfig`)
-TRACKER_FEEDS = ("accepted", "permissive")
+TRACKER_FEEDS = ("accepted", "permissive", "auto")
 _TRACKER_KEYS = ("kin_model", "feed")
 
 
@@ -269,7 +277,7 @@ def _tracker_options(where: str, opts: Mapping):
     if bad:
         raise ValueError(f"{where}: tracker has unknown key(s) {bad}; expected 'kin_model', 'feed' or "
                          f"detectors.TrackerParams fields {names}")  # fmt: skip
-    feed = opts.get("feed", "accepted")
+    feed = opts.get("feed", "auto")
     if not (isinstance(feed, str) and feed in TRACKER_FEEDS):
         raise ValueError(f"{where}: tracker['feed'] must be one of {list(TRACKER_FEEDS)}, got {feed!r}")
     try:

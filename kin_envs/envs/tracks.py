@@ -7,7 +7,10 @@ import numpy as np
 
 from kin_envs.core.world import Scan
 
-__all__ = ["PermissiveFeed", "VectorTracker", "housing_beams", "track_info", "track_rows", "track_update"]
+__all__ = [
+    "PermissiveFeed", "VectorTracker", "housing_beams", "make_feeder", "track_info", "track_rows",
+    "track_update",
+]
 
 
 def track_update(tracker, scan: Scan, dets, odom_delta: np.ndarray, dt: float, feed=None) -> None:
@@ -34,6 +37,14 @@ class _Given:
         return self.arrays
 
 
+def make_feeder(feed: str | None, detector, range_noise: float):
+    """The env's :class:`PermissiveFeed` for ``tracker["feed"]`` (``"permissive"``; ``"auto"`` when it costs
+    no second detector call: :meth:`PermissiveFeed.one_call_for`), or ``None`` (the accepted detections)."""
+    if feed == "permissive" or (feed == "auto" and PermissiveFeed.one_call_for(detector)):
+        return PermissiveFeed(detector, range_noise)
+    return None
+
+
 class PermissiveFeed:
     """``tracker={"feed": "permissive"}``: each step's detector call gives both the shipped detections
     (``info["kin_detections"]``, bitwise those of the detector alone) and the tracker's input as the
@@ -49,22 +60,29 @@ class PermissiveFeed:
     segment with the network, without the cascade)."""
 
     def __init__(self, detector, range_noise: float) -> None:
-        from detectors.geometric import GeometricKinDetector
         from kin_envs.detection.benchmark import PERMISSIVE_F_THRESHOLD, permissive
 
         self.detector = detector
         self.range_noise = float(range_noise)
-        self.one_call = (type(detector) is GeometricKinDetector
-                         and detector.params.F_threshold < PERMISSIVE_F_THRESHOLD)  # fmt: skip
+        self.one_call = self.one_call_for(detector)
         self._f_perm = float(PERMISSIVE_F_THRESHOLD)
         self.permissive = None if self.one_call else permissive(detector)
+
+    @staticmethod
+    def one_call_for(detector) -> bool:
+        """Whether ``detector``'s own batched call also gives its permissive candidates (the shipped
+        geometric detector, whose arrays keep every segment's circle fit): no second detector call."""
+        from detectors.geometric import GeometricKinDetector
+        from kin_envs.detection.benchmark import PERMISSIVE_F_THRESHOLD
+
+        return type(detector) is GeometricKinDetector and detector.params.F_threshold < PERMISSIVE_F_THRESHOLD
 
     def detect(self, ranges, angles, observers, poses, robot_world=None, range_max: float = np.inf):
         """``(dets, feed)``: the shipped detections ``(row, cols)`` of
         :func:`kin_envs.envs.common.detect_rows` (trusted: the env's own scans) and the tracker's
         candidates ``(row, xy, scores, accepted, points, owner, noise)`` (rows of ``ranges``)."""
         from detectors._kernels import ACCEPTED, SHAPE
-        from detectors.features import scan_noise, segment_batch
+        from detectors.features import scan_noise_of
         from detectors.tracking import segment_points
         from kin_envs.envs.common import detect_rows
 
@@ -95,7 +113,7 @@ class PermissiveFeed:
             key = lambda r, a, z: (r * n + a) * n + z  # noqa: E731
             accepted = np.isin(key(row, first, last), key(d_row, d_cols["first_beam"], d_cols["last_beam"]))
         pts, own = segment_points(ranges, angles, row, first, last, range_max)
-        est, count = scan_noise(segment_batch(ranges, angles))
+        est, count = scan_noise_of(ranges, angles)  # (the segmentation is not needed for it)
         est = np.where(count >= 5, est, np.nan)
         noise = np.where(np.isnan(est), self.range_noise, est)
         return dets, (row, xy, scores, accepted, pts, own, noise)

@@ -1,6 +1,6 @@
-"""Native Gymnasium vector envs of the single-robot tasks (``KinSeek-v1``, ``KinFollow-v1``).
+"""Native Gymnasium vector envs of the single-robot tasks (``KinSeek-v2``, ``KinFollow-v2``, and their v1).
 
-``gymnasium.make_vec("kin_envs/KinSeek-v1", num_envs=K)`` (the registered ``vector_entry_point``)
+``gymnasium.make_vec("kin_envs/KinSeek-v2", num_envs=K)`` (the registered ``vector_entry_point``)
 returns a :class:`KinSeekVectorEnv`. It holds K ordinary envs (their scenes, tasks, RNGs and
 frame stacks) but runs the expensive parts of a step once for all of them:
 
@@ -37,11 +37,14 @@ from kin_envs.envs._vector_glue import match_pad_worlds
 from kin_envs.envs.base import LEARNER, SingleRobotEnv
 from kin_envs.envs.common import detect_rows, detection_arrays, kin_truth_padded
 from kin_envs.envs.info import DETECTION_FIELDS, INT_FIELDS, KIN_TRUTH_FIELDS, pad_rows
-from kin_envs.envs.kin_follow import KinFollowEnv
-from kin_envs.envs.kin_seek import KinSeekEnv
+from kin_envs.envs.kin_follow import KinFollowEnv, KinFollowEnvV1
+from kin_envs.envs.kin_seek import KinSeekEnv, KinSeekEnvV1
 from kin_envs.envs.tracks import VectorTracker, track_info, track_rows
 
-__all__ = ["KinFollowVectorEnv", "KinSeekVectorEnv", "KinVectorEnv", "stack_infos"]
+__all__ = [
+    "KinFollowVectorEnv", "KinFollowVectorEnvV1", "KinSeekVectorEnv", "KinSeekVectorEnvV1", "KinVectorEnv",
+    "stack_infos",
+]
 
 _KIN_KEYS = ("kin_truth", "kin_detections", "kin_tracks")
 
@@ -498,14 +501,14 @@ def _widen(info: dict[str, Any], ids: list[int], k: int) -> dict[str, Any]:
 
 
 class KinSeekVectorEnv(KinVectorEnv):
-    """K ``KinSeek-v1`` envs stepped together (``gymnasium.make_vec("kin_envs/KinSeek-v1", K)``).
+    """K ``KinSeek-v2`` envs stepped together (``gymnasium.make_vec("kin_envs/KinSeek-v2", K)``).
 
     ## Description
 
     The task of :class:`kin_envs.envs.kin_seek.KinSeekEnv` K times, with one batch of physics,
     one lidar call and one detector call per step for all K sub-envs (the module docstring says how).
     Returns exactly what
-    ``make_vec("kin_envs/KinSeek-v1", K, vectorization_mode="sync")`` returns for the same seeds and
+    ``make_vec("kin_envs/KinSeek-v2", K, vectorization_mode="sync")`` returns for the same seeds and
     actions (tested across autoresets).
 
     ## Action Space
@@ -543,21 +546,22 @@ class KinSeekVectorEnv(KinVectorEnv):
 
     ## Version History
 
-    * v1: the native vector env of ``KinSeek-v1``, with the single env's version and behaviour.
+    * v2: the native vector env of ``KinSeek-v2``, with the single env's version and behaviour.
+    * v1: the native vector env of ``KinSeek-v1`` (:class:`KinSeekVectorEnvV1`).
     """
 
     env_class: ClassVar[type[SingleRobotEnv]] = KinSeekEnv
 
 
 class KinFollowVectorEnv(KinVectorEnv):
-    """K ``KinFollow-v1`` envs stepped together (``gymnasium.make_vec("kin_envs/KinFollow-v1", K)``).
+    """K ``KinFollow-v2`` envs stepped together (``gymnasium.make_vec("kin_envs/KinFollow-v2", K)``).
 
     ## Description
 
     The task of :class:`kin_envs.envs.kin_follow.KinFollowEnv` K times, with one batch of physics,
     one lidar call and one detector call per step for all K sub-envs (the module docstring says how).
     Returns exactly what
-    ``make_vec("kin_envs/KinFollow-v1", K, vectorization_mode="sync")`` returns for the same seeds and
+    ``make_vec("kin_envs/KinFollow-v2", K, vectorization_mode="sync")`` returns for the same seeds and
     actions (tested across autoresets).
 
     ## Action Space
@@ -595,7 +599,22 @@ class KinFollowVectorEnv(KinVectorEnv):
 
     ## Version History
 
-    * v1: the native vector env of ``KinFollow-v1``, with the single env's version and behaviour.
+    * v2: the native vector env of ``KinFollow-v2``, with the single env's version and behaviour.
+    * v1: the native vector env of ``KinFollow-v1`` (:class:`KinFollowVectorEnvV1`).
     """
 
     env_class: ClassVar[type[SingleRobotEnv]] = KinFollowEnv
+
+
+class KinSeekVectorEnvV1(KinSeekVectorEnv):
+    """``gymnasium.make_vec("kin_envs/KinSeek-v1", num_envs=K)``: :class:`KinSeekVectorEnv` over
+    :class:`kin_envs.envs.kin_seek.KinSeekEnvV1` (``tracker=True`` feeds the tracker ``"accepted"``)."""
+
+    env_class: ClassVar[type[SingleRobotEnv]] = KinSeekEnvV1
+
+
+class KinFollowVectorEnvV1(KinFollowVectorEnv):
+    """``gymnasium.make_vec("kin_envs/KinFollow-v1", num_envs=K)``: :class:`KinFollowVectorEnv` over
+    :class:`kin_envs.envs.kin_follow.KinFollowEnvV1` (``tracker=True`` feeds the tracker ``"accepted"``)."""
+
+    env_class: ClassVar[type[SingleRobotEnv]] = KinFollowEnvV1

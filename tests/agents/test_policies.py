@@ -24,7 +24,7 @@ from agents import (
     steer_to_action,
 )
 from agents.scripted import ScriptedKinSeeker as LegacySeeker
-from kin_envs import aggregation_v1
+from kin_envs import aggregation_v2
 
 
 def test_import_agents_is_torch_free():
@@ -45,7 +45,7 @@ ALL = [RandomPolicy.for_env, Wanderer.for_env, KinSeeker.for_env, Aggregator.for
 @pytest.mark.parametrize("action_type", ["continuous", "discrete"])
 @pytest.mark.parametrize("make", ALL)
 def test_actions_are_in_the_space(make, action_type):
-    env = gym.make("kin_envs/KinSeek-v1", action_type=action_type, max_steps=30)
+    env = gym.make("kin_envs/KinSeek-v2", action_type=action_type, max_steps=30)
     policy = make(env, seed=0)
     assert isinstance(policy, Policy)
     obs, info = env.reset(seed=3)
@@ -59,7 +59,7 @@ def test_actions_are_in_the_space(make, action_type):
 
 @pytest.mark.parametrize("make", [RandomPolicy.for_env, Wanderer.for_env, KinSeeker.for_env])
 def test_same_seed_same_episode(make):
-    env = gym.make("kin_envs/KinSeek-v1", max_steps=60)
+    env = gym.make("kin_envs/KinSeek-v2", max_steps=60)
     a = run_episode(env, make(env), seed=5)
     b = run_episode(env, make(env), seed=5)
     c = run_episode(env, make(env), seed=6)
@@ -74,14 +74,14 @@ def test_wanderer_drives_without_collisions():
         def act(self, obs, info):
             return np.array([1.0, 1.0], np.float32)
 
-    env = gym.make("kin_envs/KinSeek-v1", detector=None, max_steps=200, n_distractors=12)
+    env = gym.make("kin_envs/KinSeek-v2", detector=None, max_steps=200, n_distractors=12)
     straight = sum(run_episode(env, Straight(), seed=s).collisions for s in range(4))
     wander = sum(run_episode(env, Wanderer.for_env(env), seed=s).collisions for s in range(4))
     assert straight > 200 and wander <= 10, (straight, wander)
 
 
 def test_seeker_reads_topk_channel_without_info():
-    env = gym.make("kin_envs/KinSeek-v1", obs_detections="topk", frame_stack=2)
+    env = gym.make("kin_envs/KinSeek-v2", obs_detections="topk", frame_stack=2)
     policy = KinSeeker.for_env(env, seed=0)
     wins = 0
     for s in range(6):
@@ -104,7 +104,7 @@ def test_steer_to_action():
 
 
 def test_bad_input_raises():
-    env = gym.make("kin_envs/KinSeek-v1")
+    env = gym.make("kin_envs/KinSeek-v2")
     layout, _ = env_layout(env)
     with pytest.raises(ValueError, match="action_type"):
         Wanderer(layout, "jerky")
@@ -118,14 +118,14 @@ def test_bad_input_raises():
         env_layout(object())
     with pytest.raises(ValueError, match="Box or Discrete"):
         RandomPolicy(gym.spaces.MultiBinary(3))
-    blind = gym.make("kin_envs/KinSeek-v1", detector=None)
+    blind = gym.make("kin_envs/KinSeek-v2", detector=None)
     obs, info = blind.reset(seed=0)
     with pytest.raises(ValueError, match="kin_detections"):
         Aggregator.for_env(blind).act(obs, info)
 
 
 def test_policy_group_refuses_to_share_memory():
-    par = aggregation_v1.parallel_env(n_robots=3, detector=None)
+    par = aggregation_v2.parallel_env(n_robots=3, detector=None)
     w = Wanderer.for_env(par)
     with pytest.raises(ValueError, match="per-agent memory"):
         PolicyGroup.shared(w, par.possible_agents)
@@ -135,7 +135,7 @@ def test_policy_group_refuses_to_share_memory():
 
 @pytest.mark.parametrize("action_type", ["continuous", "discrete"])
 def test_swarm_groups_run_and_are_seeded(action_type):
-    par = aggregation_v1.parallel_env(n_robots=4, max_cycles=40, action_type=action_type)
+    par = aggregation_v2.parallel_env(n_robots=4, max_cycles=40, action_type=action_type)
 
     def final_state(group, seed):
         run_parallel_episode(par, group, seed)
@@ -150,7 +150,7 @@ def test_swarm_groups_run_and_are_seeded(action_type):
 
 
 def test_aggregator_gathers_better_than_wandering():
-    par = aggregation_v1.parallel_env(n_robots=6, max_cycles=250)
+    par = aggregation_v2.parallel_env(n_robots=6, max_cycles=250)
 
     def mean_nearest(factory):
         out = []

@@ -9,7 +9,7 @@ import pytest
 import kin_envs  # noqa: F401  (registers the ids)
 from agents import PolicyGroup, run_episode, run_parallel_episode
 from agents.sb3 import SB3Policy, detect_algo, shared_vec_env
-from kin_envs import aggregation_v1
+from kin_envs import aggregation_v2
 
 torch = pytest.importorskip("torch")
 sb3 = pytest.importorskip("stable_baselines3")
@@ -23,7 +23,7 @@ def one_thread():
 @pytest.fixture(scope="module")
 def ppo_path(tmp_path_factory):
     """A tiny PPO model trained on KinSeek with the topk detector channel (shape 360 + 12)."""
-    env = gym.make("kin_envs/KinSeek-v1", obs_detections="topk", max_steps=20)
+    env = gym.make("kin_envs/KinSeek-v2", obs_detections="topk", max_steps=20)
     model = sb3.PPO("MlpPolicy", env, n_steps=32, batch_size=32, n_epochs=1, seed=0, device="cpu")
     model.learn(32)
     path = tmp_path_factory.mktemp("ppo") / "model.zip"
@@ -33,7 +33,7 @@ def ppo_path(tmp_path_factory):
 
 def test_reloaded_model_acts_in_gymnasium(ppo_path):
     policy = SB3Policy.load(ppo_path)
-    env = gym.make("kin_envs/KinSeek-v1", obs_detections="topk", max_steps=20)
+    env = gym.make("kin_envs/KinSeek-v2", obs_detections="topk", max_steps=20)
     policy.check_env(env)
     a = run_episode(env, policy, seed=0)
     b = run_episode(env, policy, seed=0)
@@ -43,12 +43,12 @@ def test_reloaded_model_acts_in_gymnasium(ppo_path):
 
 def test_reloaded_model_acts_in_pettingzoo_parallel_and_aec(ppo_path):
     policy = SB3Policy.load(ppo_path)
-    par = aggregation_v1.parallel_env(n_robots=3, obs_detections="topk", max_cycles=5)
+    par = aggregation_v2.parallel_env(n_robots=3, obs_detections="topk", max_cycles=5)
     group = PolicyGroup.shared(policy.check_env(par), par.possible_agents)
     res = run_parallel_episode(par, group, seed=0)
     assert res["length"] == 5 and set(res["returns"]) == set(par.possible_agents)
 
-    aec = aggregation_v1.env(n_robots=3, obs_detections="topk", max_cycles=3)
+    aec = aggregation_v2.env(n_robots=3, obs_detections="topk", max_cycles=3)
     policy.check_env(aec)
     aec.reset(seed=0)
     steps = 0
@@ -63,7 +63,7 @@ def test_reloaded_model_acts_in_pettingzoo_parallel_and_aec(ppo_path):
 
 def test_batched_and_single_actions_agree(ppo_path):
     policy = SB3Policy.load(ppo_path)
-    par = aggregation_v1.parallel_env(n_robots=4, obs_detections="topk")
+    par = aggregation_v2.parallel_env(n_robots=4, obs_detections="topk")
     obs, infos = par.reset(seed=1)
     many = policy.act_many(list(obs.values()), list(infos.values()))
     for a, o in zip(many, obs.values(), strict=True):
@@ -73,9 +73,9 @@ def test_batched_and_single_actions_agree(ppo_path):
 def test_space_mismatch_raises(ppo_path):
     policy = SB3Policy.load(ppo_path)
     with pytest.raises(ValueError, match=r"shape \(372,\).*\(360,\)"):
-        policy.check_env(gym.make("kin_envs/KinSeek-v1"))
+        policy.check_env(gym.make("kin_envs/KinSeek-v2"))
     with pytest.raises(ValueError, match="action_type"):
-        policy.check_env(gym.make("kin_envs/KinSeek-v1", obs_detections="topk", action_type="discrete"))
+        policy.check_env(gym.make("kin_envs/KinSeek-v2", obs_detections="topk", action_type="discrete"))
     with pytest.raises(ValueError, match="no model file"):
         SB3Policy.load(ppo_path.parent / "missing.zip")
     with pytest.raises(ValueError, match="Stable-Baselines3 model"):
@@ -83,7 +83,7 @@ def test_space_mismatch_raises(ppo_path):
 
 
 def test_discrete_model_returns_ints(tmp_path):
-    env = gym.make("kin_envs/KinSeek-v1", detector=None, action_type="discrete", max_steps=10)
+    env = gym.make("kin_envs/KinSeek-v2", detector=None, action_type="discrete", max_steps=10)
     model = sb3.PPO("MlpPolicy", env, n_steps=16, batch_size=16, n_epochs=1, seed=0, device="cpu")
     policy = SB3Policy(model)
     obs, info = env.reset(seed=0)
@@ -93,7 +93,7 @@ def test_discrete_model_returns_ints(tmp_path):
 
 def test_detect_algo_reads_the_zip(ppo_path, tmp_path):
     assert detect_algo(ppo_path) == "ppo"
-    env = gym.make("kin_envs/KinSeek-v1", detector=None, max_steps=10)
+    env = gym.make("kin_envs/KinSeek-v2", detector=None, max_steps=10)
     sac = sb3.SAC("MlpPolicy", env, learning_starts=5, buffer_size=100, batch_size=8, seed=0,
                   device="cpu", policy_kwargs={"net_arch": [16]})
     sac.learn(10)
@@ -107,7 +107,7 @@ def test_detect_algo_reads_the_zip(ppo_path, tmp_path):
 
 def _swarm_run(seed: int):
     """First rollout observations and parameters after one PPO update on the shared vec env."""
-    par = aggregation_v1.parallel_env(n_robots=3, detector=None, max_cycles=20)
+    par = aggregation_v2.parallel_env(n_robots=3, detector=None, max_cycles=20)
     venv = shared_vec_env(par, n_copies=2)
     model = sb3.PPO("MlpPolicy", venv, n_steps=16, batch_size=48, n_epochs=1, seed=seed, device="cpu",
                     policy_kwargs={"net_arch": [16]})
@@ -130,7 +130,7 @@ def test_shared_vec_env_seeding_is_reproducible():
 
 
 def test_shared_vec_env_reset_seed_argument():
-    venv = shared_vec_env(aggregation_v1.parallel_env(n_robots=2, detector=None), n_copies=2)
+    venv = shared_vec_env(aggregation_v2.parallel_env(n_robots=2, detector=None), n_copies=2)
     a = venv.reset(seed=3)
     b = venv.reset(seed=3)
     c = venv.reset()  # no seed: continues the RNG streams
@@ -138,7 +138,7 @@ def test_shared_vec_env_reset_seed_argument():
     assert not np.array_equal(a, c)
     assert not np.array_equal(a[:2], a[2:])  # copy i is seeded with seed + i
     with pytest.raises(ValueError, match="n_copies"):
-        shared_vec_env(aggregation_v1.parallel_env(n_robots=2), n_copies=0)
+        shared_vec_env(aggregation_v2.parallel_env(n_robots=2), n_copies=0)
 
 
 def test_scan_conv_extractor_trains_saves_and_reloads(tmp_path):
@@ -147,7 +147,7 @@ def test_scan_conv_extractor_trains_saves_and_reloads(tmp_path):
     pk = resolve_policy_kwargs({"features_extractor_class": "agents.sb3:ScanConvExtractor",
                                 "features_extractor_kwargs": {"frame_stack": 2}, "net_arch": [16]})
     assert pk["features_extractor_class"] is ScanConvExtractor
-    env = gym.make("kin_envs/KinSeek-v1", obs_detections="topk", frame_stack=2, max_steps=10)
+    env = gym.make("kin_envs/KinSeek-v2", obs_detections="topk", frame_stack=2, max_steps=10)
     model = sb3.PPO("MlpPolicy", env, n_steps=16, batch_size=16, n_epochs=1, seed=0, device="cpu",
                     policy_kwargs=pk)
     model.learn(16)
@@ -171,7 +171,7 @@ def test_sb3_wrappers_on_the_shared_vec_env_build_without_warnings():
 
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        venv = VecMonitor(shared_vec_env(aggregation_v1.parallel_env(n_robots=2, detector=None), n_copies=2))
+        venv = VecMonitor(shared_vec_env(aggregation_v2.parallel_env(n_robots=2, detector=None), n_copies=2))
     assert venv.render_mode is None and venv.num_envs == 4
     assert venv.get_attr("render_mode", [0, 3]) == [None, None]
     venv.close()

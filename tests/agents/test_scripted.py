@@ -35,17 +35,17 @@ def random_policy(space):
 
 
 def test_scripted_beats_random():
-    env = gym.make("kin_envs/KinSeek-v1")
+    env = gym.make("kin_envs/KinSeek-v2")
     scripted = success_rate(env, lambda s: ScriptedKinSeeker.for_env(env, seed=s))
     # same layouts (the detector draws no random numbers); the random policy needs no detections
-    blind = gym.make("kin_envs/KinSeek-v1", detector=None)
+    blind = gym.make("kin_envs/KinSeek-v2", detector=None)
     random = success_rate(blind, random_policy(blind.action_space))
     assert scripted >= 0.5, scripted
     assert scripted >= random + 0.4, (scripted, random)
 
 
 def test_scripted_discrete_actions():
-    env = gym.make("kin_envs/KinSeek-v1", action_type="discrete", max_steps=50)
+    env = gym.make("kin_envs/KinSeek-v2", action_type="discrete", max_steps=50)
     policy = ScriptedKinSeeker.for_env(env, seed=0)
     obs, info = env.reset(seed=0)
     for _ in range(50):
@@ -57,7 +57,7 @@ def test_scripted_discrete_actions():
 
 
 def test_scripted_needs_detections():
-    env = gym.make("kin_envs/KinSeek-v1", detector=None)
+    env = gym.make("kin_envs/KinSeek-v2", detector=None)
     policy = ScriptedKinSeeker.for_env(env)
     obs, info = env.reset(seed=0)
     with pytest.raises(ValueError, match="kin_detections"):
@@ -65,7 +65,7 @@ def test_scripted_needs_detections():
 
 
 def test_scripted_continuous_actions_in_space():
-    env = gym.make("kin_envs/KinSeek-v1", frame_stack=2, obs_detections="topk")
+    env = gym.make("kin_envs/KinSeek-v2", frame_stack=2, obs_detections="topk")
     policy = ScriptedKinSeeker.for_env(env, seed=1)
     obs, info = env.reset(seed=1)
     for _ in range(20):

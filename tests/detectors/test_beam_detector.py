@@ -195,11 +195,11 @@ def test_envs_take_detector_beam():
     import gymnasium as gym
     from gymnasium.utils.env_checker import check_env
 
-    from kin_envs import aggregation_v1
+    from kin_envs import aggregation_v2
 
-    env = gym.make("kin_envs/KinSeek-v1", detector="beam", obs_detections="topk")
+    env = gym.make("kin_envs/KinSeek-v2", detector="beam", obs_detections="topk")
     check_env(env.unwrapped, skip_render_check=True)
-    swarm = aggregation_v1.parallel_env(n_robots=4, detector="beam")
+    swarm = aggregation_v2.parallel_env(n_robots=4, detector="beam")
     swarm.reset(seed=0)
     _, _, _, _, infos = swarm.step({a: swarm.action_space(a).sample() for a in swarm.agents})
     assert len(infos) == 4

@@ -77,11 +77,11 @@ def test_table_front_gives_the_lean_fronts_rows_and_the_same_detections(kw):
 
 
 def _swarm_scans():
-    # a clustered 64-robot swarm (aggregation_v1, 1 % noise; steps 40, 50, 60): split housings, so a few
+    # a clustered 64-robot swarm (aggregation_v2, 1 % noise; steps 40, 50, 60): split housings, so a few
     # duplicates every step
-    from kin_envs import aggregation_v1
+    from kin_envs import aggregation_v2
 
-    env = aggregation_v1.parallel_env(n_robots=64, detector=None, noise_sigma=0.01)
+    env = aggregation_v2.parallel_env(n_robots=64, detector=None, noise_sigma=0.01)
     env.reset(seed=5)
     for i, a in enumerate(env.agents):  # seeded: the duplicates counted below must not vary between runs
         env.action_space(a).seed(100 + i)

@@ -128,6 +128,25 @@ def test_scan_noise_estimate(sigma, lo, hi):
     assert np.all(n > 100)
 
 
+def test_scan_noise_without_the_segmentation_is_the_same():
+    """scan_noise_of(ranges, angles) equals scan_noise(segment_batch(ranges, angles)) bitwise: noisy and
+    noise-free scans, no-returns (0, inf, NaN), a partial (270 degree) sweep; bad shapes raise."""
+    from detectors.features import scan_noise_of
+
+    rng = np.random.default_rng(4)
+    for sigma in (0.0, 0.005, 0.02):
+        scan = scan_of(scenes.detection_scene(3, lidar=LidarSpec(noise_sigma=sigma)))
+        r = scan.ranges.astype(np.float64)
+        r[rng.random(r.shape) < 0.05] = rng.choice([0.0, np.inf, np.nan])
+        for angles, rows in ((scan.angles, r), (scan.angles[:270], r[:, :270])):
+            want = scan_noise(segment_batch(rows, angles))
+            got = scan_noise_of(rows, angles)
+            np.testing.assert_array_equal(got[0], want[0])
+            np.testing.assert_array_equal(got[1], want[1])
+    with pytest.raises(ValueError, match="ranges"):
+        scan_noise_of(np.ones((2, 5)), np.zeros(6))
+
+
 @pytest.mark.parametrize("number", [1, 2])
 def test_scan_noise_of_a_noise_free_empty_world(number):
     # only small round and polygonal objects return beams: their shape must not read as noise

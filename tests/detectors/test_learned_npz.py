@@ -332,17 +332,17 @@ out = {"detections": int(arr.n_detections), "x": arr.x.tolist(), "y": arr.y.toli
 
 import gymnasium as gym
 import kin_envs
-from kin_envs import aggregation_v1
+from kin_envs import aggregation_v2
 from kin_envs.envs.common import resolve_detector
 
 out["resolve"] = type(resolve_detector("learned")).__name__
-env = gym.make("kin_envs/KinSeek-v1", detector="learned")
+env = gym.make("kin_envs/KinSeek-v2", detector="learned")
 env.reset(seed=0)
 env.action_space.seed(0)
 for _ in range(5):
     env.step(env.action_space.sample())
 env.close()
-par = aggregation_v1.parallel_env(n_robots=8, detector="learned")
+par = aggregation_v2.parallel_env(n_robots=8, detector="learned")
 obs, _ = par.reset(seed=0)
 for _ in range(5):
     obs, *_ = par.step({a: par.action_space(a).sample() for a in par.agents})
@@ -365,12 +365,12 @@ _NORMAL = r"""
 import json, sys
 import gymnasium as gym
 import kin_envs
-from kin_envs import aggregation_v1
+from kin_envs import aggregation_v2
 
-env = gym.make("kin_envs/KinSeek-v1", detector="learned")
+env = gym.make("kin_envs/KinSeek-v2", detector="learned")
 env.reset(seed=0)
 env.step(env.action_space.sample())
-par = aggregation_v1.parallel_env(n_robots=8, detector="learned")
+par = aggregation_v2.parallel_env(n_robots=8, detector="learned")
 par.reset(seed=0)
 par.step({a: par.action_space(a).sample() for a in par.agents})
 print("OUT " + json.dumps(sorted(k for k in sys.modules if k.split(".")[0] == "torch")))

@@ -26,7 +26,7 @@ def swarm_bag(tmp_path_factory):
         "record",
         str(bag),
         "--env",
-        "aggregation_v1",
+        "aggregation_v2",
         "--env-kwargs",
         '{"n_robots": 3, "arena_size": 2.0}',
     ]
@@ -45,7 +45,7 @@ def test_entry_point_is_declared():
 
 def test_record_writes_the_bag_and_its_run_record(swarm_bag):
     run = json.loads(Path(str(swarm_bag) + ".run.json").read_text())
-    assert run["env"] == "aggregation_v1" and run["seed"] == 1 and run["steps"] == 4
+    assert run["env"] == "aggregation_v2" and run["seed"] == 1 and run["steps"] == 4
     assert run["command"].startswith("kin-envs record")
     assert (swarm_bag / "metadata.yaml").is_file() and list(swarm_bag.glob("*.mcap"))
 
@@ -241,15 +241,15 @@ def test_detect_corrupt_and_missing_bags(tmp_path, capsys):
 
 
 def test_record_errors(tmp_path, capsys, swarm_bag):
-    assert main(["record", str(swarm_bag), "--env", "aggregation_v1", "--quiet"]) == 2
+    assert main(["record", str(swarm_bag), "--env", "aggregation_v2", "--quiet"]) == 2
     assert "already exists" in capsys.readouterr().err
     assert main(["record", str(tmp_path / "x"), "--env", "kin_envs/Nope-v0", "--quiet"]) == 2
     assert "--env 'kin_envs/Nope-v0'" in capsys.readouterr().err
     # the id without its namespace (as the README's table spells the names): the message lists the ids
-    assert main(["record", str(tmp_path / "x"), "--env", "KinSeek-v1", "--quiet"]) == 2
+    assert main(["record", str(tmp_path / "x"), "--env", "KinSeek-v2", "--quiet"]) == 2
     err = capsys.readouterr().err
-    assert "--env 'KinSeek-v1'" in err and "Expected one of kin_envs/KinFollow-v0" in err
-    assert "kin_envs/KinSeek-v1" in err and "aggregation_v1" in err
+    assert "--env 'KinSeek-v2'" in err and "Expected one of kin_envs/KinFollow-v0" in err
+    assert "kin_envs/KinSeek-v2" in err and "aggregation_v2" in err
     assert not list(tmp_path.iterdir())
 
 

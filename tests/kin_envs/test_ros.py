@@ -150,10 +150,10 @@ def test_record_episode_gym_does_not_change_the_episode(tmp_path):
     import gymnasium as gym
 
     kw = {"n_distractors": 2, "noise_sigma": 0.01}
-    ref = _gym_rollout(gym.make("kin_envs/KinSeek-v1", **kw), 3, 4)
+    ref = _gym_rollout(gym.make("kin_envs/KinSeek-v2", **kw), 3, 4)
 
     seen = []
-    env = gym.make("kin_envs/KinSeek-v1", **kw)
+    env = gym.make("kin_envs/KinSeek-v2", **kw)
     info = record_episode(
         env, tmp_path / "seek", seed=3, steps=4, policy=None, detector=GeometricKinDetector()
     )
@@ -166,9 +166,9 @@ def test_record_episode_gym_does_not_change_the_episode(tmp_path):
 
 
 def test_record_episode_parallel(tmp_path):
-    from kin_envs import aggregation_v1
+    from kin_envs import aggregation_v2
 
-    env = aggregation_v1.parallel_env(n_robots=3, detector=None)
+    env = aggregation_v2.parallel_env(n_robots=3, detector=None)
     info = record_episode(env, tmp_path / "swarm", seed=0, steps=3, storage="sqlite3")
     assert info == {"steps": 3, "records": 4, "path": str(tmp_path / "swarm")}
     for i in range(3):
@@ -179,10 +179,10 @@ def test_record_episode_parallel(tmp_path):
 
 def test_same_seed_same_bag_contents(tmp_path):
     from detectors.ros import open_reader
-    from kin_envs import aggregation_v1
+    from kin_envs import aggregation_v2
 
     def contents(name, seed):
-        env = aggregation_v1.parallel_env(n_robots=3, noise_sigma=0.01)
+        env = aggregation_v2.parallel_env(n_robots=3, noise_sigma=0.01)
         record_episode(env, tmp_path / name, seed=seed, steps=3)
         with open_reader(tmp_path / name) as r:
             return [(c.topic, t, bytes(raw)) for c, t, raw in r.messages()]

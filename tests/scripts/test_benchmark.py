@@ -94,12 +94,12 @@ def test_env_and_memory_sections(bench, tmp_path):
     rows = {(r["env"], r["robots"], r["detector"]): r for r in res["envs"]}
     assert set(rows) == {
         (e, n, d)
-        for e, n in (("KinSeek-v1", 1), ("aggregation_v1", 4))
+        for e, n in (("KinSeek-v2", 1), ("aggregation_v2", 4))
         for d in ("None", "geometric", "learned")
     }
     assert all(r["steps_per_s"] > 0 for r in rows.values())
-    assert rows[("aggregation_v1", 4, "None")]["of_detector_off"] == 1.0
-    assert rows[("aggregation_v1", 4, "None")]["of_detector_off_paired_ci"] == [1.0, 1.0]
+    assert rows[("aggregation_v2", 4, "None")]["of_detector_off"] == 1.0
+    assert rows[("aggregation_v2", 4, "None")]["of_detector_off_paired_ci"] == [1.0, 1.0]
     for r in rows.values():
         lo, hi = r["of_detector_off_paired_ci"]
         assert 0 < lo <= r["of_detector_off_paired"] <= hi
@@ -144,7 +144,7 @@ def test_vecenv_section(bench, tmp_path, monkeypatch):
     for r in res["vecenv"]:
         assert r["num_envs"] == 2 and r["native_env_steps_per_s"] > 0 and r["sync_env_steps_per_s"] > 0
         assert r["ratio"] == pytest.approx(r["native_env_steps_per_s"] / r["sync_env_steps_per_s"])
-    assert "| KinSeek-v1 | 2 | geometric | 0.5% |" in (tmp_path / "benchmark.md").read_text()
+    assert "| KinSeek-v2 | 2 | geometric | 0.5% |" in (tmp_path / "benchmark.md").read_text()
     with pytest.raises(SystemExit):
         bench.main(["--sections", "vecenv", "--vec-envs", "0", "--out", str(tmp_path)])
     with pytest.raises(SystemExit):

@@ -63,7 +63,7 @@ def test_one_iteration_on_a_local_ray_writes_run_json_metrics_and_a_checkpoint(m
     import torch
     from ray.rllib.core.rl_module.rl_module import RLModule
 
-    from kin_envs import aggregation_v1
+    from kin_envs import aggregation_v2
 
     res = mod.main([*TINY, "--env-runners", "1", "--num-cpus", "2", "--seed", "3", "--out", str(tmp_path)])
     assert not ray.is_initialized()  # the script shut down the Ray it started
@@ -78,7 +78,7 @@ def test_one_iteration_on_a_local_ray_writes_run_json_metrics_and_a_checkpoint(m
     assert rows[0]["episode_len_mean"] == 10  # episodes of max_cycles steps completed
     # the shared policy alone loads from its checkpoint and acts for every robot
     module = RLModule.from_checkpoint(run["module_checkpoint"])
-    env = aggregation_v1.parallel_env(**run["env_config"])
+    env = aggregation_v2.parallel_env(**run["env_config"])
     obs, _ = env.reset(seed=0)
     batch = torch.as_tensor(np.stack([obs[a] for a in env.agents]))
     out = module.forward_inference({"obs": batch})

@@ -64,7 +64,7 @@ def test_train_swarm_outputs(trained):
     _, swarm = trained
     assert (swarm / "model.zip").is_file() and list((swarm / "checkpoints").glob("*.zip"))
     r = json.loads((swarm / "run.json").read_text())
-    assert r["status"] == "done" and r["env_id"] == "aggregation_v1"
+    assert r["status"] == "done" and r["env_id"] == "aggregation_v2"
     assert r["env_kwargs"] == {"n_robots": 2, "obs_detections": "topk", "max_cycles": 16}
     assert r["timesteps"] >= 128
     lines = (swarm / "monitor.csv").read_text().splitlines()
@@ -88,7 +88,7 @@ def test_evaluate_single_and_swarm(trained, tmp_path):
 
     # the swarm, in a subprocess (the command line as a user runs it)
     out = tmp_path / "swarm"
-    run("evaluate_policies.py", "--env", "aggregation_v1", "--n-robots", "3", "--episodes", "2",
+    run("evaluate_policies.py", "--env", "aggregation_v2", "--n-robots", "3", "--episodes", "2",
         "--max-cycles", "12", "--metric-cycles", "4", "--model", f"shared={swarm / 'model.zip'}",
         "--out", str(out))
     res = json.loads((out / "results.json").read_text())["results"]

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import kin_envs  # noqa: F401  (registers the ids)
-from kin_envs import aggregation_v1
+from kin_envs import aggregation_v2
 
 from .helpers import assert_same
 
@@ -30,7 +30,7 @@ def _actions(space, n: int, seed: int) -> list:
 
 
 @pytest.mark.parametrize("how", sorted(COPIERS))
-@pytest.mark.parametrize("env_id", ["kin_envs/KinSeek-v1", "kin_envs/KinFollow-v1"])
+@pytest.mark.parametrize("env_id", ["kin_envs/KinSeek-v2", "kin_envs/KinFollow-v2"])
 def test_gym_env_copy_follows_the_same_trajectory(env_id, how):
     env = gym.make(env_id, noise_sigma=0.01, dropout_prob=0.02, obs_detections="topk")
     env.reset(seed=5)
@@ -46,7 +46,7 @@ def test_gym_env_copy_follows_the_same_trajectory(env_id, how):
 
 @pytest.mark.parametrize("how", sorted(COPIERS))
 def test_swarm_copy_follows_the_same_trajectory(how):
-    env = aggregation_v1.parallel_env(n_robots=12, max_cycles=200, noise_sigma=0.01)
+    env = aggregation_v2.parallel_env(n_robots=12, max_cycles=200, noise_sigma=0.01)
     env.reset(seed=2)
     rng = np.random.default_rng(0)
     for _ in range(15):

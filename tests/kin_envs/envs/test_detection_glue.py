@@ -76,7 +76,7 @@ def test_kin_seek_infos_are_fresh_every_step():
     pytest.importorskip("torch")
     import gymnasium as gym
 
-    env = gym.make("kin_envs/KinSeek-v1", detector="learned", noise_sigma=0.01, obs_detections="topk")
+    env = gym.make("kin_envs/KinSeek-v2", detector="learned", noise_sigma=0.01, obs_detections="topk")
     obs, info = env.reset(seed=3)
     kept = []
     rng = np.random.default_rng(0)
@@ -504,8 +504,8 @@ def test_envs_without_flat_detections_give_the_same_outputs(detector):
 
     from .test_swarm_step_equivalence import assert_same_ordered
 
-    lean = gym.make("kin_envs/KinSeek-v1", detector=detector, noise_sigma=0.01, max_steps=60)
-    full = gym.make("kin_envs/KinSeek-v1", detector=detector, noise_sigma=0.01, max_steps=60,
+    lean = gym.make("kin_envs/KinSeek-v2", detector=detector, noise_sigma=0.01, max_steps=60)
+    full = gym.make("kin_envs/KinSeek-v2", detector=detector, noise_sigma=0.01, max_steps=60,
                     render_mode="rgb_array")  # fmt: skip
     assert not lean.unwrapped._flat_dets and full.unwrapped._flat_dets
     rng = np.random.default_rng(2)

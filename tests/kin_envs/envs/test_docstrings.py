@@ -12,9 +12,9 @@ from kin_envs.envs import ENV_IDS, VECTOR_ENTRY_POINTS
 SECTIONS = ("Description", "Action Space", "Observation Space", "Rewards", "Starting State", "Episode End",
             "Arguments", "Version History")  # fmt: skip
 CURRENT = {
-    **{f"{k} (vector)": v for k, v in VECTOR_ENTRY_POINTS.items()},
-    **{k: v for k, v in ENV_IDS.items() if k.endswith("-v1")},
-    "aggregation_v1": "kin_envs.envs.aggregation:AggregationEnv",
+    **{f"{k} (vector)": v for k, v in VECTOR_ENTRY_POINTS.items() if k.endswith("-v2")},
+    **{k: v for k, v in ENV_IDS.items() if k.endswith("-v2")},
+    "aggregation_v2": "kin_envs.envs.aggregation:AggregationEnv",
 }
 
 
@@ -31,9 +31,20 @@ def test_current_envs_document_every_section(env_id):
     assert not missing, f"{env_id}: docstring lacks {missing}"
 
 
-@pytest.mark.parametrize("env_id", sorted(k for k in ENV_IDS if k.endswith("-v0")) + ["aggregation_v0"])
+OLD = {
+    **{k: v for k, v in ENV_IDS.items() if not k.endswith("-v2")},
+    **{f"{k} (vector)": v for k, v in VECTOR_ENTRY_POINTS.items() if not k.endswith("-v2")},
+    "aggregation_v1": "kin_envs.envs.aggregation:AggregationEnvV1",
+    "aggregation_v0": "kin_envs.envs.aggregation:AggregationEnvV0",
+}
+
+
+@pytest.mark.parametrize("env_id", sorted(OLD))
 def test_old_versions_point_to_the_current_spec(env_id):
-    entry = ENV_IDS.get(env_id, "kin_envs.envs.aggregation:AggregationEnvV0")
-    cls = _cls(entry)
-    parent = cls.__mro__[1]  # v0 is v1 with the v0 info layout: v1's docstring is the spec
-    assert parent.__name__ in (inspect.getdoc(cls) or "") and "v0" in (inspect.getdoc(parent) or "")
+    """v1 and v0 are subclasses of the current (v2) class, name it, and its Version History tells them apart."""
+    cls = _cls(OLD[env_id])
+    parent = cls.__mro__[1]
+    version = env_id.split()[0][-2:]
+    assert parent.__name__ in (inspect.getdoc(cls) or ""), env_id
+    assert f"* {version}:" in (inspect.getdoc(parent) or ""), env_id
+    assert parent in {_cls(v) for v in CURRENT.values()}, env_id

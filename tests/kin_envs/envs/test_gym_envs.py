@@ -20,7 +20,7 @@ from .helpers import assert_same
 register_envs()
 IDS = list(ENV_IDS)  # the v0 ids too, on purpose: every registered version passes the checks
 pytestmark = pytest.mark.filterwarnings("ignore:.*The environment kin_envs/.* is out of date")
-SEEK, FOLLOW = "kin_envs/KinSeek-v1", "kin_envs/KinFollow-v1"
+SEEK, FOLLOW = "kin_envs/KinSeek-v2", "kin_envs/KinFollow-v2"
 
 VARIANTS = [
     {},

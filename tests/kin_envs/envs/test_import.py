@@ -8,18 +8,18 @@ import sys
 CODE = """
 import sys
 import kin_envs
-import kin_envs.aggregation_v1
+import kin_envs.aggregation_v2
 from kin_envs.envs import register_envs
 register_envs()
 heavy = sorted(m for m in ("torch", "pygame") if m in sys.modules)
 assert not heavy, f"import kin_envs imported {heavy}"
 
 import gymnasium
-for env_id in ("kin_envs/KinSeek-v1", "kin_envs/KinFollow-v1"):
+for env_id in ("kin_envs/KinSeek-v2", "kin_envs/KinFollow-v2"):
     env = gymnasium.make(env_id)  # default detector="geometric"
     env.reset(seed=0)
     env.step(env.action_space.sample())
-par = kin_envs.aggregation_v1.parallel_env(n_robots=2)
+par = kin_envs.aggregation_v2.parallel_env(n_robots=2)
 par.reset(seed=0)
 heavy = sorted(m for m in ("torch", "pygame") if m in sys.modules)
 assert not heavy, f"making the envs imported {heavy}"

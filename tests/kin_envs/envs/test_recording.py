@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import kin_envs  # noqa: F401  (registers the ids)
-from kin_envs import aggregation_v1
+from kin_envs import aggregation_v2
 from kin_envs.envs.recording import VideoWriter, record_episode
 
 pytest.importorskip("pygame")
@@ -21,7 +21,7 @@ def _gif_frames(path) -> int:
 
 
 def test_gymnasium_env_to_gif_is_seeded(tmp_path):
-    env = gymnasium.make("kin_envs/KinSeek-v1", render_mode="rgb_array", render_size=96)
+    env = gymnasium.make("kin_envs/KinSeek-v2", render_mode="rgb_array", render_size=96)
     a = record_episode(env, tmp_path / "a.gif", seed=3, max_steps=6)
     record_episode(env, tmp_path / "b.gif", seed=3, max_steps=6)
     env.close()
@@ -31,7 +31,7 @@ def test_gymnasium_env_to_gif_is_seeded(tmp_path):
 
 
 def test_swarm_to_gif_with_a_policy(tmp_path):
-    env = aggregation_v1.parallel_env(n_robots=3, render_mode="rgb_array", render_size=96, max_cycles=4)
+    env = aggregation_v2.parallel_env(n_robots=3, render_mode="rgb_array", render_size=96, max_cycles=4)
     calls = []
 
     def spin(obs, infos):  # every frame differs (Pillow merges identical consecutive GIF frames)
@@ -46,7 +46,7 @@ def test_swarm_to_gif_with_a_policy(tmp_path):
 
 def test_mp4(tmp_path):
     pytest.importorskip("imageio_ffmpeg")
-    env = gymnasium.make("kin_envs/KinFollow-v1", render_mode="rgb_array", render_size=97)  # odd size
+    env = gymnasium.make("kin_envs/KinFollow-v2", render_mode="rgb_array", render_size=97)  # odd size
     r = record_episode(env, tmp_path / "follow.mp4", seed=1, max_steps=5, fps=5)
     env.close()
     data = (tmp_path / "follow.mp4").read_bytes()
@@ -55,7 +55,7 @@ def test_mp4(tmp_path):
 
 
 def test_bad_input(tmp_path):
-    env = gymnasium.make("kin_envs/KinSeek-v1")
+    env = gymnasium.make("kin_envs/KinSeek-v2")
     with pytest.raises(ValueError, match="render_mode='rgb_array'"):
         record_episode(env, tmp_path / "x.gif")
     env.close()

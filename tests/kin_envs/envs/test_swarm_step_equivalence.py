@@ -1,4 +1,4 @@
-"""aggregation_v1 / v0 steps: the compiled detection glue (sort, match and pad in one call), the per-agent
+"""aggregation_v2 / v0 steps: the compiled detection glue (sort, match and pad in one call), the per-agent
 info dicts from ``row_infos`` and the compiled kin counts give exactly the previous code's episodes
 (observations, rewards, ends, infos with their dtypes, shapes and key order), and every step hands out
 fresh arrays. The previous code is kept here as the oracle."""

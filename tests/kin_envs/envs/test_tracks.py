@@ -10,7 +10,7 @@ import kin_envs  # noqa: F401  (registers the ids)
 from detectors.tracking import TRACK_FIELDS
 from kin_envs.envs.info import unpad
 
-IDS = ["kin_envs/KinSeek-v1", "kin_envs/KinFollow-v1"]
+IDS = ["kin_envs/KinSeek-v2", "kin_envs/KinFollow-v2"]
 
 
 @pytest.mark.parametrize("env_id", IDS)
@@ -113,16 +113,16 @@ def test_native_vector_env_tracks_like_separate_envs_through_a_partial_reset():
 
 
 def test_swarm_env_tracks_every_agent_with_fixed_shape_info():
-    """aggregation_v1 with tracker=True: one batched tracker over all robots; every agent's
+    """aggregation_v2 with tracker=True: one batched tracker over all robots; every agent's
     info["kin_tracks"] keeps one shape on every step; seeded runs repeat; the PettingZoo API holds."""
     from pettingzoo.test import parallel_api_test
 
-    from kin_envs import aggregation_v1
+    from kin_envs import aggregation_v2
 
-    parallel_api_test(aggregation_v1.parallel_env(n_robots=6, tracker=True, max_cycles=30), num_cycles=30)
+    parallel_api_test(aggregation_v2.parallel_env(n_robots=6, tracker=True, max_cycles=30), num_cycles=30)
 
     def run(seed):
-        env = aggregation_v1.parallel_env(n_robots=8, tracker=True, max_tracks=6, noise_sigma=0.005,
+        env = aggregation_v2.parallel_env(n_robots=8, tracker=True, max_tracks=6, noise_sigma=0.005,
                                           max_cycles=40)  # fmt: skip
         _, infos = env.reset(seed=seed)
         rng = np.random.default_rng(seed)
@@ -145,14 +145,14 @@ def test_swarm_env_tracks_every_agent_with_fixed_shape_info():
     seen, a = run(5)
     assert seen > 0
     np.testing.assert_array_equal(a, run(5)[1])
-    env = aggregation_v1.parallel_env(n_robots=4, tracker=True, render_mode="rgb_array")
+    env = aggregation_v2.parallel_env(n_robots=4, tracker=True, render_mode="rgb_array")
     env.reset(seed=1)
     env.step({ag: np.zeros(2, np.float32) for ag in env.agents})
     assert env.render().shape == (512, 512, 3)  # the track overlay of render_agent
     with pytest.raises(ValueError, match="obs_tracks"):
-        aggregation_v1.parallel_env(tracker=True, obs_tracks=True)  # no detection channel to fill
+        aggregation_v2.parallel_env(tracker=True, obs_tracks=True)  # no detection channel to fill
     with pytest.raises(ValueError, match="needs a detector"):
-        aggregation_v1.parallel_env(tracker=True, detector=None)
+        aggregation_v2.parallel_env(tracker=True, detector=None)
 
 
 def _constant_model(path, logit: float = 5.0):
@@ -167,7 +167,7 @@ def _constant_model(path, logit: float = 5.0):
 
 
 def test_tracker_kin_model_option_selects_the_track_classifier(tmp_path):
-    """KinSeek-v1's tracker={"kin_model": ...}: "hand" is the hand-tuned fusion, "learned" (default) the
+    """KinSeek-v2's tracker={"kin_model": ...}: "hand" is the hand-tuned fusion, "learned" (default) the
     shipped classifier, a JSON path that model (its constant log-odds shows in info["kin_tracks"])."""
     path = _constant_model(tmp_path / "const.json")
     for opts, want in [(True, "learned"), ({"kin_model": "hand", "p_detect": 0.7}, "hand"),
@@ -200,23 +200,23 @@ def test_tracker_kin_model_option_selects_the_track_classifier(tmp_path):
     ({"kin_model": 3}, r"tracker\['kin_model'\] must be .* got 3"),
     ({"kin_model": "hand", "bogus": 1}, r"unknown key\(s\) \['bogus'\]"),
     ({"p_detect": 2.0}, "p_detect must be in"),
-    ({"feed": "all"}, r"tracker\['feed'\] must be one of \['accepted', 'permissive'\], got 'all'"),
+    ({"feed": "all"}, r"tracker\['feed'\] must be one of \['accepted', 'permissive', 'auto'\], got 'all'"),
 ])  # fmt: skip
 def test_bad_tracker_kin_model_or_key_raises_naming_it(tracker, match):
-    from kin_envs import aggregation_v1
+    from kin_envs import aggregation_v2
 
     with pytest.raises(ValueError, match=match):
         gym.make(IDS[0], tracker=tracker)
     with pytest.raises(ValueError, match=match):
-        aggregation_v1.parallel_env(n_robots=4, tracker=tracker)
+        aggregation_v2.parallel_env(n_robots=4, tracker=tracker)
 
 
 def test_swarm_env_tracker_kin_model_option(tmp_path):
-    """aggregation_v1 (PettingZoo): tracker={"kin_model": path} reaches the batched tracker: every agent's
+    """aggregation_v2 (PettingZoo): tracker={"kin_model": path} reaches the batched tracker: every agent's
     tracks carry the model's kin probability; "hand" selects the hand-tuned fusion."""
-    from kin_envs import aggregation_v1
+    from kin_envs import aggregation_v2
 
-    env = aggregation_v1.parallel_env(n_robots=6, tracker={"kin_model": _constant_model(tmp_path / "c.json")},
+    env = aggregation_v2.parallel_env(n_robots=6, tracker={"kin_model": _constant_model(tmp_path / "c.json")},
                                       noise_sigma=0.005)  # fmt: skip
     env.reset(seed=1)
     rng = np.random.default_rng(1)
@@ -227,7 +227,7 @@ def test_swarm_env_tracker_kin_model_option(tmp_path):
     probs = np.concatenate(probs)
     assert probs.size > 0
     np.testing.assert_allclose(probs, 1 / (1 + np.exp(-5.0)), rtol=1e-6)
-    assert aggregation_v1.parallel_env(n_robots=4, tracker={"kin_model": "hand"}).tracker.kin_model is None
+    assert aggregation_v2.parallel_env(n_robots=4, tracker={"kin_model": "hand"}).tracker.kin_model is None
 
 
 def _benchmark_feed(tracker, det, perm, scan, rows, delta, dt):
@@ -279,14 +279,14 @@ def test_permissive_feed_is_the_sequence_benchmarks_tracker(detector):
 
 
 def test_permissive_feed_in_the_swarm_and_the_native_vector_env():
-    """aggregation_v1 (all robots, one geometric call per step) and the native vector env with
+    """aggregation_v2 (all robots, one geometric call per step) and the native vector env with
     tracker={"feed": "permissive"}: the swarm's tracks are the benchmark feed's, its detections unchanged;
     the vector env's tracks those of K separate envs (across autoresets)."""
     from detectors.tracking import KinTracker
-    from kin_envs import aggregation_v1
+    from kin_envs import aggregation_v2
     from kin_envs.detection.benchmark import permissive
 
-    envs = [aggregation_v1.parallel_env(n_robots=8, tracker=t, noise_sigma=0.01, max_cycles=30)
+    envs = [aggregation_v2.parallel_env(n_robots=8, tracker=t, noise_sigma=0.01, max_cycles=30)
             for t in ({"feed": "permissive"}, True)]  # fmt: skip
     for e in envs:
         e.reset(seed=2)
@@ -326,18 +326,18 @@ def _expected_topk(info, top_k, range_max, threshold=0.5):
 
 
 def test_swarm_env_observes_its_tracks():
-    """aggregation_v1 with obs_tracks=True: every agent's detection channel holds its own confirmed kin
+    """aggregation_v2 with obs_tracks=True: every agent's detection channel holds its own confirmed kin
     tracks (rebuilt here from its info["kin_tracks"]), not its raw detections; the scan part is the same as
     without; the PettingZoo API holds and seeded runs repeat."""
     from pettingzoo.test import parallel_api_test
 
-    from kin_envs import aggregation_v1
+    from kin_envs import aggregation_v2
 
     kw = dict(n_robots=10, tracker=True, obs_detections="topk", obs_top_k=3, noise_sigma=0.005, max_cycles=40)
-    parallel_api_test(aggregation_v1.parallel_env(**kw, obs_tracks=True), num_cycles=20)
+    parallel_api_test(aggregation_v2.parallel_env(**kw, obs_tracks=True), num_cycles=20)
 
     def run(obs_tracks):
-        env = aggregation_v1.parallel_env(**kw, obs_tracks=obs_tracks)
+        env = aggregation_v2.parallel_env(**kw, obs_tracks=obs_tracks)
         obs, _ = env.reset(seed=9)
         rng = np.random.default_rng(9)
         seq = []
@@ -394,7 +394,7 @@ def test_housing_beams_are_the_beams_whose_rays_hit_the_housing():
 
 
 def test_mask_channel_of_track_observations_covers_the_kin():
-    """KinFollow-v1 with obs_detections="mask" and obs_tracks=True: the mask marks the beams whose rays meet
+    """KinFollow-v2 with obs_detections="mask" and obs_tracks=True: the mask marks the beams whose rays meet
     a housing at a reported kin track's centre (it was all zeros before: tracks have no segment beams);
     when that track sits on the kin, they are most of the beams that hit the kin's housing."""
     from kin_envs.core.lidar import HitKind

@@ -16,7 +16,7 @@ from kin_envs.envs import register_envs, unpad_detections
 from kin_envs.envs.vector import KinFollowVectorEnv, KinSeekVectorEnv
 
 register_envs()
-SEEK, FOLLOW = "kin_envs/KinSeek-v1", "kin_envs/KinFollow-v1"
+SEEK, FOLLOW = "kin_envs/KinSeek-v2", "kin_envs/KinFollow-v2"
 QUICK = {"n_distractors": 4, "max_steps": 25, "kin_like_cylinders": True}
 
 

@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 from gymnasium.utils.env_checker import data_equivalence
 
-from kin_envs import aggregation_v0, aggregation_v1
+from kin_envs import aggregation_v0, aggregation_v2
 from kin_envs.envs import register_envs, unpad_detections, unpad_kin_truth
 from kin_envs.envs.info import DETECTION_FIELDS, KIN_TRUTH_FIELDS, PAD_VALUES, pad_rows, unpad
 
 register_envs()
-V1 = ["kin_envs/KinSeek-v1", "kin_envs/KinFollow-v1"]
+V1 = ["kin_envs/KinSeek-v2", "kin_envs/KinFollow-v2"]
 # small and quick: short episodes so that 300 steps cross several autoresets
 SMALL = {"n_distractors": 4, "max_steps": 40, "kin_like_cylinders": True, "detector": "geometric"}
 
@@ -85,7 +85,7 @@ def test_one_row_fast_paths_match_the_general_ones():
 def test_info_has_one_shape_and_unpads_to_v0(env_id):
     """Same seed: v1's info without its empty slots is v0's info, and v1's shapes never change."""
     kw = {**SMALL, "obs_detections": "topk"}
-    new, old = gym.make(env_id, **kw), gym.make(env_id.replace("-v1", "-v0"), **kw)
+    new, old = gym.make(env_id, **kw), gym.make(env_id.replace("-v2", "-v0"), **kw)
     new.action_space.seed(1)
     ref = None
     out_new, out_old = new.reset(seed=4), old.reset(seed=4)
@@ -110,9 +110,9 @@ def test_info_has_one_shape_and_unpads_to_v0(env_id):
     assert seen > 0  # the detector found something, so non-empty slots were compared too
 
 
-def test_aggregation_v1_fixed_shapes_and_v0_equivalence():
+def test_aggregation_v2_fixed_shapes_and_v0_equivalence():
     kw = {"n_robots": 6, "max_cycles": 20, "max_kin_truth": 3, "max_detections": 4}
-    new, old = aggregation_v1.parallel_env(**kw), aggregation_v0.parallel_env(**kw)
+    new, old = aggregation_v2.parallel_env(**kw), aggregation_v0.parallel_env(**kw)
     obs, infos = new.reset(seed=2)
     _, infos0 = old.reset(seed=2)
     ref = shapes(infos["robot_0"])
@@ -169,7 +169,7 @@ def test_sb3_vec_envs_with_detector_through_autoresets(vec):
 
     cls = DummyVecEnv if vec == "dummy" else SubprocVecEnv
     # "module:id" makes gym.make import kin_envs in SubprocVecEnv's fresh worker processes
-    envs = make_vec_env("kin_envs:kin_envs/KinSeek-v1", n_envs=2, seed=0, vec_env_cls=cls, env_kwargs=SMALL)
+    envs = make_vec_env("kin_envs:kin_envs/KinSeek-v2", n_envs=2, seed=0, vec_env_cls=cls, env_kwargs=SMALL)
     envs.reset()
     ref, ends = None, 0
     rng = np.random.default_rng(0)
@@ -200,7 +200,7 @@ def test_rllib_two_envs_per_env_runner_with_detector(mode):
     try:
         config = (
             PPOConfig()
-            .environment("kin_envs/KinSeek-v1", env_config=SMALL)
+            .environment("kin_envs/KinSeek-v2", env_config=SMALL)
             .env_runners(num_env_runners=0, num_envs_per_env_runner=2,
                          gym_env_vectorize_mode=mode)
             .training(train_batch_size_per_learner=320, minibatch_size=160, num_epochs=1)
@@ -218,15 +218,15 @@ def test_rllib_two_envs_per_env_runner_with_detector(mode):
     assert runner["num_episodes_lifetime"] >= 2  # episodes of 40 steps ended inside the runner
 
 
-def test_aggregation_v1_passes_pettingzoo_api_tests():
+def test_aggregation_v2_passes_pettingzoo_api_tests():
     from pettingzoo.test import api_test, parallel_api_test
 
-    par = aggregation_v1.parallel_env(n_robots=4, max_cycles=30)
-    assert par.metadata["name"] == "aggregation_v1"
+    par = aggregation_v2.parallel_env(n_robots=4, max_cycles=30)
+    assert par.metadata["name"] == "aggregation_v2"
     parallel_api_test(par, num_cycles=40)
-    api_test(aggregation_v1.env(n_robots=4, max_cycles=30), num_cycles=40)
-    with pytest.raises(RuntimeError, match="aggregation_v1: call reset"):
-        aggregation_v1.parallel_env(n_robots=3).step({})
+    api_test(aggregation_v2.env(n_robots=4, max_cycles=30), num_cycles=40)
+    with pytest.raises(RuntimeError, match="aggregation_v2: call reset"):
+        aggregation_v2.parallel_env(n_robots=3).step({})
     with pytest.raises(RuntimeError, match="aggregation_v0: call reset"):
         aggregation_v0.parallel_env(n_robots=3).step({})
 
@@ -235,7 +235,7 @@ def test_kinseek_one_row_detect_rows_equals_the_general_path():
     pytest.importorskip("torch")
     from kin_envs.envs.common import detect_rows
 
-    env = gym.make("kin_envs/KinSeek-v1", detector="learned")
+    env = gym.make("kin_envs/KinSeek-v2", detector="learned")
     env.reset(seed=1)
     u, n_det = env.unwrapped, 0
     env.action_space.seed(1)

@@ -17,7 +17,7 @@ QUICK = {"n_distractors": 5, "max_steps": 6, "detector": None}
 
 
 def test_gc_state_restored_after_resets_and_autoresets():
-    env = gym.make_vec("kin_envs/KinSeek-v1", num_envs=3, vectorization_mode="vector_entry_point", **QUICK)
+    env = gym.make_vec("kin_envs/KinSeek-v2", num_envs=3, vectorization_mode="vector_entry_point", **QUICK)
     was = gc.isenabled()
     try:
         for enabled in (True, False):
@@ -48,8 +48,8 @@ def test_reset_bursts_match_sync(seed):
     """All K sub-envs truncating together (the burst) over several episodes, random seeds and actions,
     with the default distractor mix and lidar noise: the same as K separate envs, bit for bit."""
     kw = {"max_steps": 5, "detector": None, "noise_sigma": 0.01}
-    native = gym.make_vec("kin_envs/KinSeek-v1", num_envs=6, vectorization_mode="vector_entry_point", **kw)
-    sync = gym.make_vec("kin_envs/KinSeek-v1", num_envs=6, vectorization_mode="sync", **kw)
+    native = gym.make_vec("kin_envs/KinSeek-v2", num_envs=6, vectorization_mode="vector_entry_point", **kw)
+    sync = gym.make_vec("kin_envs/KinSeek-v2", num_envs=6, vectorization_mode="sync", **kw)
     assert data_equivalence(native.reset(seed=seed), sync.reset(seed=seed), exact=True)
     rng = np.random.default_rng(seed)
     for t in range(4 * 6 + 2):  # four bursts of six autoresets
