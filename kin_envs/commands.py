@@ -1,10 +1,11 @@
 """The ``kin-envs`` console script: kin detection on ROS bags, and simulated episodes recorded as bags.
 
-``kin-envs detect BAG --topic /scan [--detector geometric|learned|beam] [--odom /odom] [--track]
-[--out FILE.jsonl|.csv] [--markers OUT_BAG]`` runs a detector on every ``sensor_msgs/LaserScan`` of a ROS 1
-or ROS 2 bag and writes the detections per scan with their stamps (with ``--track``, also the multi-frame
-``detectors.KinTracker``'s tracks, fed with the detections and the odometry between scans) and beside them
-the run record ``FILE.run.json``;
+``kin-envs detect BAG --topic /scan [--detector geometric|learned|beam] [--odom /odom] [--track
+[--track-feed auto|accepted|permissive]] [--out FILE.jsonl|.csv] [--markers OUT_BAG]`` runs a detector on
+every ``sensor_msgs/LaserScan`` of a ROS 1 or ROS 2 bag and writes the detections per scan with their
+stamps (with ``--track``, also the multi-frame ``detectors.KinTracker``'s tracks, fed with the odometry
+between scans and the detector's permissive candidates (``--track-feed auto``, the geometric detector's
+default) or its detections) and beside them the run record ``FILE.run.json``;
 ``kin-envs record OUT --env ID`` records one env episode to a bag (:func:`kin_envs.ros.record_episode`).
 Run ``kin-envs COMMAND --help`` for the options. Also runnable as ``python -m kin_envs.commands``.
 """
@@ -91,8 +92,10 @@ def detect(args: argparse.Namespace) -> int:
     tracker = None
     if args.track:
         from detectors.tracking import KinTracker
+        from kin_envs.envs.tracks import make_feeder
 
-        tracker = _ScanTracker(KinTracker())
+        kt = KinTracker()
+        tracker = _ScanTracker(kt, make_feeder(args.track_feed, detector, kt.params.range_noise))
     truth = None
     if args.truth:
         if not args.odom:
@@ -168,7 +171,7 @@ def detect(args: argparse.Namespace) -> int:
         run = {
             "command": shlex.join(["kin-envs", *args.argv]),
             **{k: getattr(args, k) for k in ("bag", "topic", "detector", "checkpoint", "odom", "base_frame")},
-            **{k: getattr(args, k) for k in ("truth", "truth_gate", "track", "out", "markers")},
+            **{k: getattr(args, k) for k in ("truth", "truth_gate", "track", "track_feed", "out", "markers")},
             "scans": n_scans,
             "detections": n_dets,
             **({"within_truth_gate": n_true} if truth is not None else {}),
@@ -192,8 +195,9 @@ class _ScanTracker:
     the bag's poses (``--odom``), in the robot frame at the previous scan; the tracks are reported in the
     robot frame at the scan (``x, y``, ``vx, vy``) and in the odometry frame (``wx, wy``)."""
 
-    def __init__(self, tracker) -> None:
+    def __init__(self, tracker, feeder=None) -> None:
         self.tracker = tracker
+        self.feeder = feeder  # kin_envs.envs.tracks.PermissiveFeed, or None: the detections alone
         self.prev = None  # (stamp_ns, pose) of the last tracked scan
         self.origin = None  # the odometry pose at the first tracked scan (the tracker's frame origin)
 
@@ -213,7 +217,14 @@ class _ScanTracker:
             delta = np.array([c * dx + sn * dy, -sn * dx + c * dy, wrap_angle(pose[2] - th0)])
             dt = max((s.stamp_ns - t0) / 1e9, 1e-3)  # equal stamps: still a (tiny) step forward
         self.prev = (s.stamp_ns, pose)
-        self.tracker.update_from_result(result, s.ranges, s.angles, delta, dt)
+        if self.feeder is None:
+            self.tracker.update_from_result(result, s.ranges, s.angles, delta, dt)
+        else:  # the detector's permissive candidates (its own call on this scan), their points and the noise
+            _, (_, xy, scores, accepted, pts, own, noise) = self.feeder.detect(
+                s.ranges[None], s.angles, np.zeros(1, np.int64), np.zeros((1, 3)), range_max=s.range_max
+            )
+            obs = np.zeros(len(xy), np.int64)
+            self.tracker.update_batch(obs, xy, scores, delta[None], dt, pts, own, noise, accepted=accepted)
         thr = self.tracker.params.kin_threshold
         out = []
         ox, oy, oth = self.origin
@@ -391,6 +402,15 @@ def build_parser() -> argparse.ArgumentParser:
         help="also run the multi-frame detectors.KinTracker (needs --odom): each scan's tracks (id, x, y, "
         "vx, vy in the robot frame, wx, wy in the odometry frame, existence, kin_prob, is_kin) as 'tracks' "
         "in the JSON Lines output, or as rows with record=track in the CSV",
+    )
+    d.add_argument(
+        "--track-feed",
+        choices=("auto", "accepted", "permissive"),
+        default="auto",
+        help="what feeds the tracker: the detector's accepted detections, or its permissive candidates with "
+        "their scores and accepted flags (what the track classifier is fitted on); auto: permissive where it "
+        "costs no second detector call (the geometric detector), else accepted (README, 'What feeds the "
+        "tracker')",
     )
     d.add_argument("--quiet", action="store_true", help="no progress bar")
     d.set_defaults(func=detect)

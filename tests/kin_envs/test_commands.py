@@ -138,7 +138,8 @@ def test_detect_track_follows_the_detections_through_the_wheel_odometry(swarm_ba
     from detectors.tracking import KinTracker
 
     out = tmp_path / "t.jsonl"
-    argv = ["detect", str(swarm_bag), "--topic", "/robot_1/scan", "--odom", "/robot_1/odom", "--track"]
+    argv = ["detect", str(swarm_bag), "--topic", "/robot_1/scan", "--odom", "/robot_1/odom", "--track",
+            "--track-feed", "accepted"]  # fmt: skip
     assert main([*argv, "--out", str(out), "--quiet"]) == 0
     rows = [json.loads(line) for line in out.read_text().splitlines()]
     scans, poses = list(read_scans(swarm_bag, "/robot_1/scan")), read_poses(swarm_bag, "/robot_1/odom")
@@ -166,6 +167,43 @@ def test_detect_track_follows_the_detections_through_the_wheel_odometry(swarm_ba
     recs = list(csv.DictReader(csv_out.open()))
     assert {r["record"] for r in recs} == {"detection", "track"}
     assert sum(r["record"] == "track" for r in recs) == sum(len(r["tracks"]) for r in rows)
+
+
+def test_detect_track_feeds_the_permissive_candidates_by_default(swarm_bag, tmp_path):
+    """--track (--track-feed auto) with the geometric detector: the tracks are those of a KinTracker fed each
+    scan's permissive candidates (kin_envs.envs.tracks.PermissiveFeed, as the v2 envs' tracker=True) and the
+    same odometry increments; the run record names the feed; a bad feed is refused."""
+    from detectors.ros import read_poses, read_scans
+    from detectors.tracking import KinTracker
+    from kin_envs.envs.tracks import PermissiveFeed
+
+    out = tmp_path / "t.jsonl"
+    argv = ["detect", str(swarm_bag), "--topic", "/robot_1/scan", "--odom", "/robot_1/odom", "--track"]
+    assert main([*argv, "--out", str(out), "--quiet"]) == 0
+    rows = [json.loads(line) for line in out.read_text().splitlines()]
+    scans, poses = list(read_scans(swarm_bag, "/robot_1/scan")), read_poses(swarm_bag, "/robot_1/odom")
+    direct, prev = KinTracker(), None
+    feed = PermissiveFeed(GeometricKinDetector(), direct.params.range_noise)
+    for row, s in zip(rows, scans, strict=True):
+        p = poses.at(s.stamp_ns)
+        if prev is None:
+            delta, dt = np.zeros(3), 0.1
+        else:
+            c, si = np.cos(prev[1][2]), np.sin(prev[1][2])
+            dx, dy = p[0] - prev[1][0], p[1] - prev[1][1]
+            delta = np.array([c * dx + si * dy, -si * dx + c * dy, p[2] - prev[1][2]])
+            dt = (s.stamp_ns - prev[0]) / 1e9
+        prev = (s.stamp_ns, p)
+        one = np.zeros(1, np.int64)
+        _, (_, xy, sc, acc, pts, own, noise) = feed.detect(s.ranges[None], s.angles, one, np.zeros((1, 3)),
+                                                          range_max=s.range_max)  # fmt: skip
+        direct.update_batch(one.repeat(len(xy)), xy, sc, delta[None], dt, pts, own, noise, accepted=acc)
+        got = [(t["id"], t["kin_prob"]) for t in row["tracks"]]
+        assert got == [(t.id, t.kin_prob) for t in direct.tracks()]
+    assert sum(len(r["tracks"]) for r in rows) >= 1
+    assert json.loads((tmp_path / "t.jsonl.run.json").read_text())["track_feed"] == "auto"
+    with pytest.raises(SystemExit):
+        main([*argv, "--track-feed", "all", "--out", str(out), "--quiet"])
 
 
 def test_detect_beam_has_the_same_fields_and_matches_the_detector(swarm_bag, tmp_path):

@@ -41,7 +41,7 @@ OLD = {
 
 @pytest.mark.parametrize("env_id", sorted(OLD))
 def test_old_versions_point_to_the_current_spec(env_id):
-    """v1 and v0 are subclasses of the current (v2) class, name it, and its Version History tells them apart."""
+    """v1 and v0 subclass the current (v2) class, name it, and its Version History tells them apart."""
     cls = _cls(OLD[env_id])
     parent = cls.__mro__[1]
     version = env_id.split()[0][-2:]
