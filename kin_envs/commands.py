@@ -92,9 +92,10 @@ def detect(args: argparse.Namespace) -> int:
     tracker = None
     if args.track:
         from detectors.tracking import KinTracker
-        from kin_envs.envs.tracks import make_feeder
+        from kin_envs.envs.tracks import auto_kin_model, make_feeder
 
-        kt = KinTracker()
+        # the track classifier fitted on what feeds it, as the v2 envs' tracker=True
+        kt = KinTracker(kin_model=auto_kin_model(args.track_feed, detector))
         tracker = _ScanTracker(kt, make_feeder(args.track_feed, detector, kt.params.range_noise))
     truth = None
     if args.truth:

@@ -12,13 +12,16 @@ a given detector checkpoint; 2-5 minutes on 2 shared cores (recording, then the 
 Writes to ``--out``:
 
 * ``tracker_kin.json``: the model (load with ``KinTracker(kin_model=path)``); ``--ship`` also writes it to
-  the shipped ``detectors/checkpoints/tracker_kin_default.json`` (``KinTracker(kin_model="learned")``);
+  the shipped ``detectors/checkpoints/tracker_kin_default.json`` (``KinTracker(kin_model="learned")``), or
+  with ``--detector geometric`` to ``tracker_kin_geometric.json`` (``kin_model="geometric"``, the v2 envs'
+  choice for that detector's permissive feed);
 * ``fit.md``: the objective per operating point and set, and the hand-tuned fusion's for comparison;
 * ``run.json``: command, arguments, versions, timing.
 
 Re-run it whenever the detector checkpoint changes::
 
     python scripts/fit_track_classifier.py --ship
+    python scripts/fit_track_classifier.py --detector geometric --ship
 """
 
 from __future__ import annotations
@@ -87,10 +90,14 @@ def main(argv: list[str] | None = None) -> dict:
         torch.set_num_threads(args.torch_threads)
     from tqdm import tqdm
 
-    from detectors.tracking import DEFAULT_KIN_MODEL
+    from detectors.tracking import DEFAULT_KIN_MODEL, GEOMETRIC_KIN_MODEL
     from kin_envs.cli import detector_from_name
     from kin_envs.detection import sequences as S
 
+    shipped = {"learned": DEFAULT_KIN_MODEL, "geometric": GEOMETRIC_KIN_MODEL}
+    if args.ship and args.detector not in shipped:
+        p.error(f"--ship writes the shipped classifier of the learned or the geometric detector, got "
+                f"--detector {args.detector!r}")  # fmt: skip
     t0 = time.perf_counter()
     det = detector_from_name(args.detector, what="--detector")
     recorded = []
@@ -132,7 +139,7 @@ def main(argv: list[str] | None = None) -> dict:
         lines += ["", "Weights (standardised features): " + ", ".join(f"{n} {w:+.2f}" for n, w in pairs)]
     write_json(args.out / "tracker_kin.json", model.to_dict())
     if args.ship:
-        write_json(DEFAULT_KIN_MODEL, model.to_dict())
+        write_json(shipped[args.detector], model.to_dict())
     with atomic_write(args.out / "fit.md", "w") as f:
         f.write("\n".join(lines) + "\n")
     write_run_info(args.out, args, argv=argv, script=__file__, seed=args.first_seed,

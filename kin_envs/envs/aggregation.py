@@ -207,7 +207,8 @@ class AggregationEnv(ParallelEnv):
         where = cfg.env_id
         self.render_mode = check_render_mode(render_mode, self.metadata["render_modes"], where)
         self.detector = resolve_detector(cfg.detector, where)
-        self.tracker = cfg.make_tracker(n_observers=cfg.n_robots)  # every robot is an observer
+        # every robot is an observer
+        self.tracker = cfg.make_tracker(n_observers=cfg.n_robots, detector=self.detector)
         self._feeder = None  # the permissive feed: the detector call that also feeds the tracker
         if self.tracker is not None:
             from kin_envs.envs.tracks import make_feeder

@@ -50,7 +50,7 @@ class SingleRobotEnv(gym.Env):
         where = self.config.env_id
         self.render_mode = check_render_mode(render_mode, self.metadata["render_modes"], where)
         self.detector = resolve_detector(self.config.detector, where)
-        self.tracker = self.config.make_tracker()
+        self.tracker = self.config.make_tracker(detector=self.detector)
         self._feeder = None  # the permissive feed: the detector call that also feeds the tracker
         if self.tracker is not None:
             from kin_envs.envs.tracks import make_feeder

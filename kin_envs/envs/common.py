@@ -147,9 +147,12 @@ class CommonConfig:
         tracker: multi-frame kin tracking of the detections (:class:`detectors.KinTracker`, fed with
             the detector's operating-point detections and the robot's wheel odometry): ``None``/
             ``False`` (off), ``True`` (default parameters) or a dict of ``detectors.TrackerParams``
-            fields plus optionally ``"kin_model"``: the track classifier, ``"learned"`` (default, the
-            shipped one), ``"hand"`` (the hand-tuned fusion of the cues) or a path to a track-classifier
-            JSON (``scripts/fit_track_classifier.py``), and optionally ``"feed"``: ``"accepted"`` (the
+            fields plus optionally ``"kin_model"``: the track classifier, ``"learned"`` (the shipped one
+            fitted on the learned detector's permissive candidates; v1's default), ``"geometric"`` (the
+            shipped one fitted on the geometric detector's), ``"auto"`` (v2's default: ``"geometric"`` when
+            the tracker gets the geometric detector's permissive candidates, else ``"learned"``), ``"hand"``
+            (the hand-tuned fusion of the cues) or a path to a track-classifier JSON
+            (``scripts/fit_track_classifier.py``), and optionally ``"feed"``: ``"accepted"`` (the
             detector's operating-point detections, all flagged accepted), ``"permissive"`` (what the
             track classifier is fitted on and the sequence benchmark runs: every candidate of the detector at
             its permissive operating point with its score and accepted flag, and each scan's noise estimate;
@@ -236,13 +239,21 @@ class CommonConfig:
         if self.obs_tracks and (self.tracker is None or mode is None):
             raise ValueError(f"{w}: obs_tracks=True needs tracker=True and obs_detections ('topk' or 'mask')")
 
-    def make_tracker(self, n_observers: int = 1):
-        """The configured :class:`detectors.KinTracker` (imported lazily), or ``None``."""
+    def make_tracker(self, n_observers: int = 1, detector=None):
+        """The configured :class:`detectors.KinTracker` (imported lazily), or ``None``. ``detector``: the
+        env's resolved detector, which ``kin_model="auto"`` (v2's default) reads."""
         if self.tracker is None:
             return None
         from detectors.tracking import KinTracker
 
-        params, kin_model = _tracker_options(self.env_id, {} if self.tracker is True else self.tracker)
+        opts = {} if self.tracker is True else self.tracker
+        params, kin_model = _tracker_options(self.env_id, opts)
+        if "kin_model" not in opts and self.default_tracker_feed == "auto":
+            kin_model = "auto"  # v2: the classifier fitted on the feed the tracker gets
+        if isinstance(kin_model, str) and kin_model == "auto":
+            from kin_envs.envs.tracks import auto_kin_model
+
+            kin_model = auto_kin_model(self.tracker_feed, detector)
         return KinTracker(params, n_observers=n_observers, kin_model=kin_model)
 
     @property
@@ -259,7 +270,7 @@ class CommonConfig:
 
 
 #: the track classifiers ``tracker={"kin_model": ...}`` names (any other string is a model JSON path)
-TRACKER_KIN_MODELS = ("learned", "hand")
+TRACKER_KIN_MODELS = ("learned", "geometric", "hand", "auto")
 #: what ``tracker={"feed": ...}`` feeds the tracker (see :class:`CommonConfig`)
 TRACKER_FEEDS = ("accepted", "permissive", "auto")
 _TRACKER_KEYS = ("kin_model", "feed")

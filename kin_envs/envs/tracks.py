@@ -8,8 +8,8 @@ import numpy as np
 from kin_envs.core.world import Scan
 
 __all__ = [
-    "PermissiveFeed", "VectorTracker", "housing_beams", "make_feeder", "track_info", "track_rows",
-    "track_update",
+    "PermissiveFeed", "VectorTracker", "auto_kin_model", "housing_beams", "make_feeder", "track_info",
+    "track_rows", "track_update",
 ]
 
 
@@ -35,6 +35,14 @@ class _Given:
 
     def _detect_arrays_trusted(self, ranges, angles):
         return self.arrays
+
+
+def auto_kin_model(feed: str | None, detector) -> str:
+    """``tracker={"kin_model": "auto"}``: the shipped track classifier fitted on what the tracker gets:
+    ``"geometric"`` for the geometric detector's permissive candidates (``feed`` ``"permissive"`` or
+    ``"auto"``), ``"learned"`` otherwise."""
+    geometric = feed in ("permissive", "auto") and PermissiveFeed.one_call_for(detector)
+    return "geometric" if geometric else "learned"
 
 
 def make_feeder(feed: str | None, detector, range_noise: float):

@@ -111,7 +111,8 @@ class KinVectorEnv(VectorEnv):
         self._in_reset = False
         if self.config.tracker is not None:
             # one tracker over the K learners; each sub-env keeps its own for its reset frame (adopted)
-            self._tracks = VectorTracker(self.config.make_tracker(n_observers=self.num_envs))
+            shared = self.config.make_tracker(n_observers=self.num_envs, detector=self.detector)
+            self._tracks = VectorTracker(shared)
             for i, e in enumerate(self.envs):
                 e._track_rows = functools.partial(self._sub_track_rows, i)
                 e._feeder = first._feeder  # one permissive detector (a learned model loaded once)

@@ -170,9 +170,10 @@ def test_detect_track_follows_the_detections_through_the_wheel_odometry(swarm_ba
 
 
 def test_detect_track_feeds_the_permissive_candidates_by_default(swarm_bag, tmp_path):
-    """--track (--track-feed auto) with the geometric detector: the tracks are those of a KinTracker fed each
-    scan's permissive candidates (kin_envs.envs.tracks.PermissiveFeed, as the v2 envs' tracker=True) and the
-    same odometry increments; the run record names the feed; a bad feed is refused."""
+    """--track (--track-feed auto) with the geometric detector: the tracks are those of a KinTracker with the
+    geometric track classifier fed each scan's permissive candidates (kin_envs.envs.tracks.PermissiveFeed, as
+    the v2 envs' tracker=True) and the same odometry increments; the run record names the feed; a bad feed is
+    refused."""
     from detectors.ros import read_poses, read_scans
     from detectors.tracking import KinTracker
     from kin_envs.envs.tracks import PermissiveFeed
@@ -182,7 +183,7 @@ def test_detect_track_feeds_the_permissive_candidates_by_default(swarm_bag, tmp_
     assert main([*argv, "--out", str(out), "--quiet"]) == 0
     rows = [json.loads(line) for line in out.read_text().splitlines()]
     scans, poses = list(read_scans(swarm_bag, "/robot_1/scan")), read_poses(swarm_bag, "/robot_1/odom")
-    direct, prev = KinTracker(), None
+    direct, prev = KinTracker(kin_model="geometric"), None  # the classifier fitted on that feed
     feed = PermissiveFeed(GeometricKinDetector(), direct.params.range_noise)
     for row, s in zip(rows, scans, strict=True):
         p = poses.at(s.stamp_ns)

@@ -167,18 +167,23 @@ def _constant_model(path, logit: float = 5.0):
 
 
 def test_tracker_kin_model_option_selects_the_track_classifier(tmp_path):
-    """KinSeek-v2's tracker={"kin_model": ...}: "hand" is the hand-tuned fusion, "learned" (default) the
-    shipped classifier, a JSON path that model (its constant log-odds shows in info["kin_tracks"])."""
+    """KinSeek-v2's tracker={"kin_model": ...}: "hand" is the hand-tuned fusion, "learned" and "geometric" the
+    shipped classifiers, "auto" (default) the one fitted on the feed the tracker gets, a JSON path that model
+    (its constant log-odds shows in info["kin_tracks"])."""
+    from detectors.tracking import DEFAULT_KIN_MODEL, GEOMETRIC_KIN_MODEL, TrackKinModel
+
+    shipped = {"learned": DEFAULT_KIN_MODEL, "geometric": GEOMETRIC_KIN_MODEL}
     path = _constant_model(tmp_path / "const.json")
-    for opts, want in [(True, "learned"), ({"kin_model": "hand", "p_detect": 0.7}, "hand"),
-                       ({"kin_model": "learned"}, "learned"), ({"kin_model": path}, "const")]:  # fmt: skip
+    for opts, want in [(True, "geometric"), ({"kin_model": "hand", "p_detect": 0.7}, "hand"),
+                       ({"kin_model": "learned"}, "learned"), ({"kin_model": "geometric"}, "geometric"),
+                       ({"feed": "accepted"}, "learned"),
+                       ({"kin_model": "auto", "feed": "permissive"}, "geometric"),
+                       ({"kin_model": path}, "const")]:  # fmt: skip
         env = gym.make(IDS[0], tracker=opts, noise_sigma=0.005)
         tr = env.unwrapped.tracker
         assert (tr.kin_model is None) == (want == "hand")
-        if want == "learned":
-            from detectors.tracking import DEFAULT_KIN_MODEL, TrackKinModel
-
-            assert tr.kin_model.to_dict() == TrackKinModel.load(DEFAULT_KIN_MODEL).to_dict()
+        if want in shipped:
+            assert tr.kin_model.to_dict() == TrackKinModel.load(shipped[want]).to_dict(), opts
         if want == "hand":
             assert tr.params.p_detect == 0.7
         env.reset(seed=4)  # an episode whose learner sees the kin and obstacles in 30 random steps
@@ -196,7 +201,8 @@ def test_tracker_kin_model_option_selects_the_track_classifier(tmp_path):
 
 
 @pytest.mark.parametrize("tracker, match", [
-    ({"kin_model": "neural"}, r"tracker\['kin_model'\] must be one of \['learned', 'hand'\].*'neural'"),
+    ({"kin_model": "neural"},
+     r"tracker\['kin_model'\] must be one of \['learned', 'geometric', 'hand', 'auto'\].*'neural'"),
     ({"kin_model": 3}, r"tracker\['kin_model'\] must be .* got 3"),
     ({"kin_model": "hand", "bogus": 1}, r"unknown key\(s\) \['bogus'\]"),
     ({"p_detect": 2.0}, "p_detect must be in"),
@@ -251,7 +257,8 @@ def _benchmark_feed(tracker, det, perm, scan, rows, delta, dt):
 def test_permissive_feed_is_the_sequence_benchmarks_tracker(detector):
     """tracker={"feed": "permissive"}: info["kin_detections"] bitwise those of the default env, and the tracks
     bitwise those of a KinTracker fed as the sequence benchmark feeds it (permissive candidates, accepted
-    flags, the scan's noise estimate) — what the track classifier is fitted on."""
+    flags, the scan's noise estimate) — what the track classifier is fitted on (v2: the classifier fitted on
+    that detector's feed)."""
     from detectors.tracking import KinTracker
     from kin_envs.detection.benchmark import permissive
 
@@ -261,7 +268,8 @@ def test_permissive_feed_is_the_sequence_benchmarks_tracker(detector):
     b.reset(seed=4)
     u = a.unwrapped
     assert u._feeder.one_call == (detector == "geometric")
-    ref, perm = KinTracker(), permissive(u.detector)
+    ref = KinTracker(kin_model="geometric" if detector == "geometric" else "learned")
+    perm = permissive(u.detector)
     dt = u.world.config.control_dt
     _benchmark_feed(ref, u.detector, perm, u._last_scan, 1, np.zeros((1, 3)), dt)
     rng = np.random.default_rng(1)
@@ -291,7 +299,7 @@ def test_permissive_feed_in_the_swarm_and_the_native_vector_env():
     for e in envs:
         e.reset(seed=2)
     u = envs[0]
-    ref, perm = KinTracker(n_observers=8), permissive(u.detector)
+    ref, perm = KinTracker(n_observers=8, kin_model="geometric"), permissive(u.detector)
     dt = u.world.config.control_dt
     _benchmark_feed(ref, u.detector, perm, u._last_scan, 8, np.zeros((8, 3)), dt)
     rng = np.random.default_rng(2)
