@@ -30,7 +30,7 @@ def test_tiny_fit_writes_a_loadable_model(tmp_path):
 
 @pytest.mark.parametrize(
     "argv", [["--swarm-episodes", "0"], ["--noise", "5"], ["--frames", "1"], ["--l2", "-1"],
-            ["--outside-weight", "0"]]
+            ["--outside-weight", "0"], ["--detector", "beam", "--ship"]]
 )
 def test_bad_arguments(argv, tmp_path):
     mod = load_script("fit_track_classifier")
