@@ -681,7 +681,8 @@ def test_kin_model_json_round_trip_and_bad_files(tmp_path):
         KinTracker(kin_model=3)
     # a misspelt name is not read as a missing JSON only: the message lists the names
     for typo in ("hnad", tmp_path / "missing.json"):
-        with pytest.raises(ValueError, match=r"must be 'hand', 'learned', 'geometric', a model JSON path .*no such"):
+        names = r"must be 'hand', 'learned', 'geometric', a model JSON path .*no such file"
+        with pytest.raises(ValueError, match=names):
             KinTracker(kin_model=typo)
     # the shipped model loads and fits this tracker's features
     assert KinTracker(kin_model="learned").kin_model.info.get("threshold") is not None
