@@ -170,7 +170,188 @@ def report(results: list[dict], cost: dict | None = None) -> str:
                 f"{1e3 * cost['alt_cpu_per_frame']:.2f} ms = **{100 * cost['ratio_alt_cpu']:.0f} %** of the "
                 f"permissive detector, **{100 * cost['ratio_alt_shipped_cpu']:.0f} %** of the shipped one.",
             ]  # fmt: skip
+        if cost.get("env"):
+            lines += env_cost_lines(cost["env"])
     return "\n".join(lines) + "\n"
+
+
+#: what :func:`env_cost` times in each env: ``(label, module or class path, attribute)``; an attribute the
+#: code no longer has is skipped (the envs' entry points stay: ``track_update``, ``track_info``)
+_ENV_PROBES = {
+    "aggregation_v1": [("detector", "kin_envs.envs.aggregation", "detect_rows_padded"),
+                       ("detector", "kin_envs.envs.tracks.PermissiveFeed", "detect"),
+                       ("update", "kin_envs.envs.tracks", "track_update"),
+                       ("info", "kin_envs.envs.tracks", "track_info")],
+    "KinSeek-v1": [("detector", "kin_envs.envs.base", "detect_one_padded"),
+                   ("detector", "kin_envs.envs.tracks.PermissiveFeed", "detect"),
+                   ("update", "kin_envs.envs.tracks", "track_update"),
+                   ("info", "kin_envs.envs.tracks", "track_info")],
+    "vector": [("detector", "kin_envs.envs.vector", "detection_arrays"),
+               ("detector", "kin_envs.envs.vector", "match_pad_worlds"),
+               ("detector", "kin_envs.envs.tracks.PermissiveFeed", "detect"),
+               ("update", "kin_envs.envs.tracks.VectorTracker", "update"),
+               ("info", "kin_envs.envs.vector", "track_info")],
+}
+#: inside the update and the info (the same in every env)
+_PART_PROBES = [("segment_points", "detectors.tracking", "segment_points"),
+                ("update_batch", "detectors.tracking.KinTracker", "update_batch"),
+                ("update_kernel", "detectors.tracking", "_update_kernel"),
+                ("track_arrays", "detectors.tracking.KinTracker", "track_arrays")]
+
+
+def _resolve(path: str):
+    import importlib
+
+    try:
+        return importlib.import_module(path)
+    except ImportError:
+        mod, _, name = path.rpartition(".")
+        return getattr(importlib.import_module(mod), name)
+
+
+class _Probes:
+    """CPU-clock wrappers (``time.process_time_ns``) around named calls, installed on entry and removed on
+    exit: ``ns[label]`` sums each label's calls (a nested call of the same label counts once)."""
+
+    def __init__(self, probes) -> None:
+        self.probes, self.ns, self._saved, self.on = probes, {}, [], False
+
+    def __enter__(self):
+        for label, path, attr in self.probes:
+            owner = _resolve(path)
+            if attr not in vars(owner):
+                continue
+            f = vars(owner)[attr]
+            self.ns.setdefault(label, 0)
+            self._saved.append((owner, attr, f))
+            setattr(owner, attr, self._wrap(label, f))
+        return self
+
+    def _wrap(self, label, f):
+        clock, ns, depth = time.process_time_ns, self.ns, {label: 0}
+
+        def timed(*a, **k):
+            if not self.on or depth[label]:
+                return f(*a, **k)
+            depth[label] += 1
+            t = clock()
+            try:
+                return f(*a, **k)
+            finally:
+                ns[label] += clock() - t
+                depth[label] -= 1
+
+        return timed
+
+    def __exit__(self, *exc) -> None:
+        for owner, attr, f in reversed(self._saved):
+            setattr(owner, attr, f)
+
+
+def _stepper(name: str, env, seed: int):
+    """``env`` reset with ``seed``; a function that steps it with random actions (resetting at an end)."""
+    rng = np.random.default_rng(seed)
+    env.reset(seed=seed)
+    if name == "aggregation_v1":
+        spaces = [env.action_space(a) for a in env.possible_agents]
+        for s in spaces:
+            s.seed(int(rng.integers(1 << 31)))
+
+        def step():
+            env.step({a: s.sample() for a, s in zip(env.possible_agents, spaces, strict=True)})
+            if not env.agents:
+                env.reset(seed=int(rng.integers(1 << 31)))
+
+        return step
+    env.action_space.seed(seed)
+
+    def step():
+        _, _, term, trunc, _ = env.step(env.action_space.sample())
+        if name != "vector" and (term or trunc):  # (the vector env resets its sub-envs itself)
+            env.reset(seed=int(rng.integers(1 << 31)))
+
+    return step
+
+
+def env_cost(detector: str = "geometric", n_robots: int = 64, steps: int = 300, warm: int = 30,
+             seed: int = 0, noise: float = 0.01, feed: str = "accepted") -> dict:
+    """What the tracker costs as the envs pay it: per step (CPU clock, µs), the detector call, the tracker's
+    update (``track_update``) and its info (``track_info``, ``kin_tracks``), and inside them
+    ``segment_points``, ``KinTracker.update_batch``, its compiled ``_update_kernel`` and ``track_arrays``,
+    timed by ``time.process_time_ns`` wrappers around the calls the env makes (:data:`_ENV_PROBES`), over
+    ``steps`` steps after ``warm`` untimed ones (the first step's compile / start-up time apart), random
+    actions. Three envs: aggregation_v1 at ``n_robots`` robots, KinSeek-v1 (one observer) and the native
+    vector env of KinSeek-v1 at ``n_robots`` sub-envs; each with ``detector`` and
+    ``tracker={"feed": feed}``, range noise ``noise``."""  # fmt: skip
+    import gymnasium as gym
+
+    import kin_envs  # noqa: F401  (registers the ids)
+    from kin_envs import aggregation_v1
+
+    if steps < 1 or warm < 1:
+        raise ValueError(f"env_cost: steps and warm must be >= 1, got {steps!r} and {warm!r}")
+    tracker = {"feed": feed}
+    out = {"detector": detector, "feed": feed, "n_robots": int(n_robots), "steps": int(steps),
+           "warm": int(warm), "noise": float(noise), "envs": {}}  # fmt: skip
+    makers = {
+        "aggregation_v1": lambda: aggregation_v1.parallel_env(n_robots=n_robots, detector=detector,
+                                                              tracker=tracker, noise_sigma=noise),
+        "KinSeek-v1": lambda: gym.make("kin_envs/KinSeek-v1", detector=detector, tracker=tracker,
+                                       noise_sigma=noise),
+        "vector": lambda: gym.make_vec("kin_envs/KinSeek-v1", num_envs=n_robots, detector=detector,
+                                       tracker=tracker, noise_sigma=noise),
+    }  # fmt: skip
+    for name, make in makers.items():
+        with _Probes(_ENV_PROBES[name] + _PART_PROBES) as pr:
+            t0 = time.process_time()
+            env = make()
+            step = _stepper(name, env, seed)
+            step()
+            first = time.process_time() - t0
+            for _ in range(warm - 1):
+                step()
+            pr.on = True
+            t0 = time.process_time()
+            for _ in range(steps):
+                step()
+            total = time.process_time() - t0
+            pr.on = False
+            env.close()
+        us = {k: v / 1e3 / steps for k, v in pr.ns.items()}
+        det = us.get("detector", 0.0)
+        trk = us.get("update", 0.0) + us.get("info", 0.0)
+        out["envs"][name] = {"us_per_step": us, "step_us": 1e6 * total / steps, "first_step_s": first,
+                             "ratio": trk / det if det > 0 else math.nan}  # fmt: skip
+    return out
+
+
+def env_cost_lines(cost: dict) -> list[str]:
+    """:func:`env_cost` as a markdown table."""
+    envs = cost["envs"]
+    n = cost["n_robots"]
+    heads = {"aggregation_v1": f"aggregation_v1 ({n} robots)", "KinSeek-v1": "KinSeek-v1",
+             "vector": f"vector KinSeek-v1 (K = {n})"}  # fmt: skip
+    rows = [("detector call", "detector"), ("tracker update (`track_update`)", "update"),
+            ("… `segment_points`", "segment_points"), ("… `KinTracker.update_batch`", "update_batch"),
+            ("… … `_update_kernel` (compiled)", "update_kernel"), ("tracker info (`track_info`)", "info"),
+            ("… `track_arrays`", "track_arrays")]  # fmt: skip
+    lines = ["", f"## What the tracker costs in the envs ({cost['detector']} detector, {cost['feed']} feed)",
+             "", f"µs per step, CPU clock (`time.process_time_ns` around the env's calls), {cost['steps']} "
+             f"steps after {cost['warm']} (warm; the first step's compile / start-up apart), random actions, "
+             f"range noise {100 * cost['noise']:g} %:", "",
+             "| µs per step | " + " | ".join(heads[e] for e in envs) + " |",
+             "|---|" + "---:|" * len(envs)]  # fmt: skip
+    for title, key in rows:
+        vals = [envs[e]["us_per_step"].get(key) for e in envs]
+        if all(v is None for v in vals):
+            continue
+        lines.append(f"| {title} | " + " | ".join("–" if v is None else f"{v:,.0f}" for v in vals) + " |")
+    lines.append("| **tracker (update + info) / detector** | "
+                 + " | ".join(f"**{100 * envs[e]['ratio']:.0f} %**" for e in envs) + " |")  # fmt: skip
+    lines.append("| whole step | " + " | ".join(f"{envs[e]['step_us']:,.0f}" for e in envs) + " |")
+    lines.append("| first step (compile / start-up), s | "
+                 + " | ".join(f"{envs[e]['first_step_s']:.1f}" for e in envs) + " |")  # fmt: skip
+    return lines
 
 
 def plot_f1(results: list[dict], path: Path) -> None:
@@ -265,6 +446,12 @@ def main(argv: list[str] | None = None) -> list[dict]:
     p.add_argument("--cost-warm-fits", action="store_true",
                    help="also time a tracker whose per-frame fits start at the candidate's centre (2 steps) "
                         "in the same passes of the cost measurement")  # fmt: skip
+    p.add_argument("--cost-env-steps", type=int, default=300,
+                   help="steps of the in-env cost measurement (aggregation_v1 at --cost-robots robots, "
+                        "KinSeek-v1, its native vector env at --cost-robots sub-envs; --detector, "
+                        "tracker=True; 0: skip it)")  # fmt: skip
+    p.add_argument("--cost-env-feed", default="accepted", choices=["accepted", "permissive"],
+                   help="the tracker's feed in the in-env cost measurement")  # fmt: skip
     add_logging_args(p)
     args = p.parse_args(argv)
     setup_logging(args)
@@ -274,6 +461,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
         p.error(f"--episodes must be >= 1, got {args.episodes}")
     if args.cost_robots != 0 and args.cost_robots < 2:
         p.error(f"--cost-robots must be 0 (skip) or >= 2, got {args.cost_robots}")
+    if args.cost_env_steps < 0:
+        p.error(f"--cost-env-steps must be >= 0 (0: skip), got {args.cost_env_steps}")
     for nz in args.noise or []:
         if not 0 <= nz <= 0.05:
             p.error(f"--noise must be relative range noise in [0, 0.05] (0.01 = 1 %), got {nz}")
@@ -329,6 +518,9 @@ def main(argv: list[str] | None = None) -> list[dict]:
         alt = TrackerParams(frame_fit_iterations=2, frame_fit_warm_start=1) if args.cost_warm_fits else None
         cost = tracking_cost(detector, n_robots=args.cost_robots, tracker_params=tracker_params,
                              kin_model=args.kin_model, alt_params=alt)  # fmt: skip
+        if args.cost_env_steps:
+            cost["env"] = env_cost(args.detector, n_robots=args.cost_robots, steps=args.cost_env_steps,
+                                   warm=min(30, args.cost_env_steps), feed=args.cost_env_feed)  # fmt: skip
     with atomic_write(args.out / "results.md", "w") as f:
         f.write(report(results, cost))
     write_json(args.out / "results.json", {"results": results, "cost": cost}, default=float)

@@ -11,8 +11,8 @@ def test_one_episode_run(tmp_path):
     mod = load_script("benchmark_tracking")
     out = tmp_path / "seq"
     argv = ["--splits", "lookalike", "--episodes", "1", "--noise", "0.01", "--detector", "geometric"]
-    results = mod.main([*argv, "--baselines", "--cost-robots", "4", "--out", str(out),
-                        "--tracker-params", '{"birth_min_score": 0.2}'])  # fmt: skip
+    results = mod.main([*argv, "--baselines", "--cost-robots", "4", "--cost-env-steps", "2",
+                        "--out", str(out), "--tracker-params", '{"birth_min_score": 0.2}'])  # fmt: skip
     assert [r["split"] for r in results] == ["lookalike"]
     for name in ("results.md", "results.json", "f1_vs_frames.png", "tracks.gif", "run.json"):
         assert (out / name).stat().st_size > 0, name
@@ -21,6 +21,11 @@ def test_one_episode_run(tmp_path):
     md = (out / "results.md").read_text()
     assert "Frames since the kin came into view" in md and "Target window" in md
     assert "Tracking cost at 4 observers" in md
+    # the in-env measurement: aggregation_v1, KinSeek-v1 and its vector env, each a column
+    assert "What the tracker costs in the envs (geometric detector, accepted feed)" in md
+    assert "| aggregation_v1 (4 robots) | KinSeek-v1 | vector KinSeek-v1 (K = 4) |" in md
+    cost = json.loads((out / "results.json").read_text())["cost"]["env"]
+    assert set(cost["envs"]) == {"aggregation_v1", "KinSeek-v1", "vector"} and cost["steps"] == 2
     assert "target window, kin frames: both right" in md and "single scan only" in md
 
 
@@ -49,7 +54,27 @@ def test_tune_tracker_script(tmp_path):
         mod.main(["--swarm-episodes", "0", "--out", str(tmp_path / "x")])
 
 
-@pytest.mark.parametrize("argv", [["--episodes", "0"], ["--noise", "5"], ["--full", "--episodes", "2"],
+def test_env_cost_permissive_feed():
+    """The in-env cost, tiny, with the permissive feed: every env times its detector call (the feed's),
+    the tracker's update and info; the probes are removed afterwards."""
+    from detectors.tracking import KinTracker
+    from kin_envs.envs import tracks
+
+    mod = load_script("benchmark_tracking")
+    before = (tracks.track_update, tracks.track_info, KinTracker.update_batch)
+    cost = mod.env_cost("geometric", n_robots=3, steps=2, warm=1, feed="permissive")
+    assert (tracks.track_update, tracks.track_info, KinTracker.update_batch) == before
+    for name, e in cost["envs"].items():
+        us = e["us_per_step"]
+        assert us["detector"] > 0 and us["update"] > 0 and us["info"] > 0, name
+        assert e["ratio"] > 0 and e["step_us"] > 0, name
+    assert "permissive feed" in "\n".join(mod.env_cost_lines(cost))
+    with pytest.raises(ValueError, match="steps and warm"):
+        mod.env_cost(steps=0)
+
+
+@pytest.mark.parametrize("argv", [["--episodes", "0"], ["--cost-env-steps", "-1"], ["--noise", "5"],
+                                  ["--full", "--episodes", "2"],
                                   ["--tracker-params", '{"bogus": 1}'], ["--tracker-params", "{"],
                                   ["--tracker-params", '{"birth_min_score": 1.5}']])  # fmt: skip
 def test_bad_arguments(argv, tmp_path, capsys):
