@@ -862,6 +862,7 @@ class KinTracker:
         self._pending = None  # the decision's compiled part from the last update
         self._slots_max = -1  # max_tracks of the last track_arrays call (the update fills its slots then)
         self._pending_slots = None  # those slots, filled in this frame's update call
+        self._model_args = None  # (model, its arguments of _update_kernel), built once per model object
 
     @property
     def pose(self) -> np.ndarray:
@@ -972,34 +973,94 @@ class KinTracker:
         if n_alive + kept > self._alive.shape[0]:
             self._grow(n_alive + kept)
         poses = self.poses.copy()  # a new array per frame: earlier views of ``poses`` keep their values
-        # the kin decision runs in the same call when the last frame's outputs were read (as an env does every
-        # step), and then the padded slots too (as many as that read asked for; a network of more than one
-        # hidden layer only up to its first layer: track_arrays finishes it and fills the slots)
-        m = self.kin_model
-        dec = (self._kp_cache[0] is not None and self._kp_cache[0][0] == self._frame and m is not None
-               and TRACK_FEATURES == _KERNEL_FEATURES)  # fmt: skip
-        W, b, W2, b2, tail = _layers(m) if dec else (_NO_W, _NO_B, _NO_W, _NO_B, 0)
-        slots = self._slots_max if dec and tail else -1
+        dec, model_args, slots = self._decision_args()
         c_ = np.ascontiguousarray
         args = (c_(obs, np.int64), c_(xy), c_(scores), c_(accepted), c_(delta), float(dt), pts, c_(own),
                 points is not None, c_(noise), poses, self.odometer, self.time + dt, self._next_id, self._prm,
                 self._F, self._I, self._B, self._x, self._P, self._anchor, self._fit_c, self._pts,
-                self._pts_aux, dec, m.mean if dec else _NO_B, m.scale if dec else _NO_B, W, b, W2, b2, tail,
-                _log_min(m) if dec else 0.0, bool(dec and m.hit_only), slots)  # fmt: skip
-        status, next_id, rows, kp, sel, h, so = _update_kernel(*args)
-        if status == _BAD_SORT:  # points not grouped by candidate (segment_points gives them sorted)
+                self._pts_aux, dec, *model_args, slots)  # fmt: skip
+        res = _update_kernel(*args)
+        if res[0] == _BAD_SORT:  # points not grouped by candidate (segment_points gives them sorted)
             order = np.argsort(own, kind="stable")
             args = (*args[:6], np.ascontiguousarray(pts[order]), own[order], *args[8:])
-            status, next_id, rows, kp, sel, h, so = _update_kernel(*args)
-        if status:
-            raise ValueError(_update_error(status, N, k, delta, xy, scores, obs, noise, pts))
+            res = _update_kernel(*args)
+        if res[0]:
+            raise ValueError(_update_error(res[0], N, k, delta, xy, scores, obs, noise, pts))
+        self._updated(poses, dt, dec, slots, res)
+
+    def _decision_args(self) -> tuple[bool, tuple, int]:
+        """``(dec, model arguments, slots)`` of :func:`_update_kernel`: the kin decision runs in the update's
+        call when the last frame's outputs were read (as an env does every step), and then the padded slots
+        too (as many as that read asked for; a network of more than one hidden layer only up to its first
+        layer: track_arrays finishes it and fills the slots). The model's arguments are built once per model
+        object."""
+        m = self.kin_model
+        dec = (self._kp_cache[0] is not None and self._kp_cache[0][0] == self._frame and m is not None
+               and TRACK_FEATURES == _KERNEL_FEATURES)  # fmt: skip
+        if not dec:
+            return False, _NO_MODEL, -1
+        cached = self._model_args
+        if cached is None or cached[0] is not m:
+            W, b, W2, b2, tail = _layers(m)
+            args = (m.mean, m.scale, W, b, W2, b2, tail, _log_min(m), bool(m.hit_only))
+            cached = self._model_args = (m, args)
+        args = cached[1]
+        return True, args, self._slots_max if args[6] else -1
+
+    def _updated(self, poses, dt, dec, slots, res) -> None:
+        """The frame's bookkeeping after :func:`_update_kernel` returned ``res`` (status 0)."""
+        _, next_id, rows, kp, sel, h, so = res
         self.poses = poses
         self.time += dt
         self._next_id = int(next_id)
         self._frame += 1
         # the decision (or its first layer) and the slots, for track_arrays of this frame (this model, params)
-        self._pending = ((self._frame, m, self.params), (rows, kp, sel, h)) if dec else None
+        self._pending = ((self._frame, self.kin_model, self.params), (rows, kp, sel, h)) if dec else None
         self._pending_slots = (self._frame, slots, so) if slots >= 0 else None
+
+    def _update_segments_trusted(self, obs, rows, x, y, scores, accepted, odom_delta, dt: float, ranges,
+                                 angles, first, last, range_max: float, noise=None) -> None:
+        """:meth:`update_batch` for the envs, on their own arrays (trusted: the shapes and dtypes below, scan
+        rows and beams in range; the values are still checked, as :meth:`update_batch` checks them): the
+        candidates' points are each segment's beams ``first..last`` of scan row ``rows`` (wrapping), as
+        :func:`segment_points` gives them, computed in the update's compiled call (no ``(P, 2)`` array
+        between calls), and ``xy`` is ``x, y``. The same state and outputs as ``update_batch(obs, c_[x, y],
+        scores, odom_delta, dt, *segment_points(ranges, angles, rows, first, last, range_max), noise,
+        accepted)`` (``tests/detectors/test_tracking.py``).
+
+        ``obs``, ``rows``, ``first``, ``last``: (k,) int64; ``x``, ``y``, ``scores``: (k,) float64;
+        ``accepted``: (k,) bool, or ``None`` for all accepted (the detector's operating point); ``odom_delta``
+        (n_observers, 3) float64; ``ranges`` (B, n) float32 / float64 and ``angles`` (n,) float64, C order;
+        ``noise``: (n_observers,) float64 or ``None`` (``params.range_noise``)."""
+        if self._prm_of is not self.params:
+            self._prm, self._prm_of = _param_array(self.params), self.params
+            self._noise0 = np.full(self.n_observers, float(self.params.range_noise))
+        noise = self._noise0 if noise is None else noise
+        poses = self.poses.copy()
+        dec, model_args, slots = self._decision_args()
+        all_acc = accepted is None
+        acc = _NO_FLAGS if all_acc else accepted
+        res = _update_segments_kernel(
+            obs, rows, x, y, scores, acc, all_acc, odom_delta, float(dt), ranges, angles, first, last,
+            float(range_max), noise, poses, self.odometer, self.time + dt, self._next_id, self._prm, self._F,
+            self._I, self._B, self._x, self._P, self._anchor, self._fit_c, self._pts, self._pts_aux, dec,
+            *model_args, slots,
+        )  # fmt: skip
+        if res[0] == _NEED_ROOM:  # more rows than the arrays have: grown as update_batch grows them
+            self._grow(int(res[1]))
+            poses = self.poses.copy()
+            res = _update_segments_kernel(
+                obs, rows, x, y, scores, acc, all_acc, odom_delta, float(dt), ranges, angles, first, last,
+                float(range_max), noise, poses, self.odometer, self.time + dt, self._next_id, self._prm,
+                self._F, self._I, self._B, self._x, self._P, self._anchor, self._fit_c, self._pts,
+                self._pts_aux, dec, *model_args, slots,
+            )  # fmt: skip
+        if res[0]:  # a bad value: the public path raises its error (no state has changed)
+            pts, own = segment_points(ranges, angles, rows, first, last, range_max)
+            acc = np.ones(obs.shape[0], np.bool_) if all_acc else accepted
+            self.update_batch(obs, np.c_[x, y], scores, odom_delta, dt, pts, own, noise, acc)
+            raise AssertionError("KinTracker: the trusted update failed where update_batch did not")
+        self._updated(poses, dt, dec, slots, res)
 
     def update_from_result(self, result: DetectionResult, ranges, angles, odom_delta, dt: float) -> None:
         """:meth:`update` from a detector's :class:`DetectionResult` on scan ``(ranges, angles)``: each
@@ -1236,6 +1297,8 @@ def _log_min(m: TrackKinModel) -> float:
 
 
 _NO_W, _NO_B = np.zeros((0, 0)), np.zeros(0)
+#: :func:`_update_kernel`'s model arguments when the decision does not run in it
+_NO_MODEL = (_NO_B, _NO_B, _NO_W, _NO_B, _NO_W, _NO_B, 0, 0.0, False)
 
 
 def _layers(m: TrackKinModel) -> tuple:
@@ -2338,6 +2401,42 @@ def _update_kernel(obs, xy, scores, accepted, delta, dt, pts, owner, has_points,
     # row is; ``poses`` already the new poses)
     so = _slots_kernel(rows, kp, poses.shape[0], slots, tobs, tid, confirmed, x, poses, exist, seen, age)
     return status, next_id, rows, kp, sel, h, so
+
+
+_NEED_ROOM = 8  # _update_segments_kernel: the state's arrays need more rows (``next_id``: how many)
+
+
+@numba.njit(cache=True, nogil=True)
+def _update_segments_kernel(obs, rows, x, y, scores, accepted, all_accepted, delta, dt, ranges, angles,
+                            first, last, range_max, noise, poses, odometer, now, next_id, prm, F, I, B, xs, P,
+                            anchor, fit_c, buf, aux, dec, mean, scale, W, b, W2, b2, tail, log_min, hit_only,
+                            slots):  # fmt: skip
+    """:meth:`KinTracker._update_segments_trusted`: the candidates' ``xy`` and points (as ``np.c_[x, y]``
+    and :func:`_segment_points_kernel` give them), the room check of :meth:`KinTracker.update_batch`
+    (``_NEED_ROOM`` and the rows needed, before any state changes), then :func:`_update_kernel`."""
+    k = x.shape[0]
+    min_score = prm[30]
+    kept = k
+    if min_score > 0.0 and k:
+        kept = 0
+        for c in range(k):
+            kept += scores[c] >= min_score
+    n_alive = 0
+    for t in range(B.shape[1]):
+        n_alive += B[0, t]
+    if n_alive + kept > B.shape[1]:
+        return (_NEED_ROOM, n_alive + kept, np.empty(0, np.int64), np.zeros(0), np.empty(0, np.int64),
+                np.empty((0, 0)), (np.zeros((0, 0, 10), np.float32), np.zeros((0, 0), np.bool_),
+                                   np.zeros(0, np.int64)))  # fmt: skip
+    xy = np.empty((k, 2))
+    for c in range(k):
+        xy[c, 0], xy[c, 1] = x[c], y[c]
+    if all_accepted:
+        accepted = np.ones(k, np.bool_)
+    pts, owner = _segment_points_kernel(ranges, angles, rows, first, last, range_max)
+    return _update_kernel(obs, xy, scores, accepted, delta, dt, pts, owner, True, noise, poses, odometer, now,
+                          next_id, prm, F, I, B, xs, P, anchor, fit_c, buf, aux, dec, mean, scale, W, b, W2,
+                          b2, tail, log_min, hit_only, slots)  # fmt: skip
 
 
 @numba.njit(cache=True, nogil=True)

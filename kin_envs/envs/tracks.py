@@ -20,7 +20,7 @@ def track_update(tracker, scan: Scan, dets, odom_delta: np.ndarray, dt: float, f
     ``tracker={"feed": "permissive"}``, the candidates ``feed`` of :meth:`PermissiveFeed.detect`."""
     delta = np.asarray(odom_delta, np.float64).reshape(-1, 3)
     if feed is not None:
-        _feed_candidates(tracker, feed, None, delta, dt)
+        _feed_candidates(tracker, scan, feed, None, delta, dt)
         return
     row, cols = dets if dets is not None else (np.zeros(0, np.int64), None)
     _feed(tracker, scan, row, cols, row, delta, dt)
@@ -88,10 +88,11 @@ class PermissiveFeed:
     def detect(self, ranges, angles, observers, poses, robot_world=None, range_max: float = np.inf):
         """``(dets, feed)``: the shipped detections ``(row, cols)`` of
         :func:`kin_envs.envs.common.detect_rows` (trusted: the env's own scans) and the tracker's
-        candidates ``(row, xy, scores, accepted, points, owner, noise)`` (rows of ``ranges``)."""
+        candidates ``(row, x, y, scores, accepted, first_beam, last_beam, noise)`` (rows of ``ranges``; their
+        points are the segments' beams, computed in the tracker's update: :func:`_feed_candidates`).
+        ``range_max`` is not read here (the update takes the scan's)."""
         from detectors._kernels import ACCEPTED, SHAPE
         from detectors.features import scan_noise_of
-        from detectors.tracking import segment_points
         from kin_envs.envs.common import detect_rows
 
         n = angles.shape[0]
@@ -103,7 +104,7 @@ class PermissiveFeed:
             rc, bearing, f = b.seg_values["r_c"][idx], b.seg_values["theta_c"][idx], F[idx]
             row, first = b.seg_scan[idx], b.seg_first[idx]
             last = (first + b.seg_count[idx] - 1) % n
-            xy = np.c_[rc * np.cos(bearing), rc * np.sin(bearing)]
+            x, y = rc * np.cos(bearing), rc * np.sin(bearing)
             scores = self._f_perm / (self._f_perm + f)  # the permissive detector's score
             accepted = st[idx] == ACCEPTED
         else:
@@ -114,17 +115,16 @@ class PermissiveFeed:
             get = c.__getitem__ if isinstance(c, dict) else lambda k: getattr(c, k)
             row = np.asarray(get("scan"), np.int64)
             first, last = np.asarray(get("first_beam"), np.int64), np.asarray(get("last_beam"), np.int64)
-            xy = np.c_[get("x"), get("y")].astype(np.float64)
+            x, y = np.asarray(get("x"), np.float64), np.asarray(get("y"), np.float64)
             scores = np.asarray(get("score"), np.float64)
             # accepted: the shipped detector has the same segment (scan row, first and last beam)
             d_row, d_cols = dets
             key = lambda r, a, z: (r * n + a) * n + z  # noqa: E731
             accepted = np.isin(key(row, first, last), key(d_row, d_cols["first_beam"], d_cols["last_beam"]))
-        pts, own = segment_points(ranges, angles, row, first, last, range_max)
         est, count = scan_noise_of(ranges, angles)  # (the segmentation is not needed for it)
         est = np.where(count >= 5, est, np.nan)
         noise = np.where(np.isnan(est), self.range_noise, est)
-        return dets, (row, xy, scores, accepted, pts, own, noise)
+        return dets, (row, x, y, scores, accepted, first, last, noise)
 
 
 def track_info(tracker, max_tracks: int) -> tuple[dict[str, np.ndarray], np.ndarray]:
@@ -228,7 +228,7 @@ class VectorTracker:
         delta[observers] = odom_delta
         first = tr._next_id
         if feed is not None:
-            _feed_candidates(tr, feed, observers, delta, dt)
+            _feed_candidates(tr, scan, feed, observers, delta, dt)
         else:
             row, cols = dets if dets is not None else (np.zeros(0, np.int64), None)
             _feed(tr, scan, row, cols, observers[row], delta, dt)
@@ -254,25 +254,45 @@ class VectorTracker:
         return a
 
 
-def _feed_candidates(tracker, feed, observers, delta, dt) -> None:
-    """``feed`` (:meth:`PermissiveFeed.detect`) into ``tracker``; ``observers``: the observer of each scan
-    row (``None``: row ``r`` is observer ``r``; the others get no candidate and the default noise)."""
-    row, xy, scores, accepted, pts, own, noise = feed
+def _feed_candidates(tracker, scan: Scan, feed, observers, delta, dt) -> None:
+    """``feed`` (:meth:`PermissiveFeed.detect` on ``scan``) into ``tracker``; ``observers``: the observer of
+    each scan row (``None``: row ``r`` is observer ``r``; the others get no candidate and the default
+    noise)."""
+    row, x, y, scores, accepted, first, last, noise = feed
+    obs = row
     if observers is not None:
         full = np.full(tracker.n_observers, tracker.params.range_noise)
         full[observers] = noise
-        row, noise = observers[row], full
-    tracker.update_batch(row, xy, scores, delta, dt, pts, own, noise, accepted=accepted)
+        obs, noise = observers[row], full
+    _update(tracker, scan, obs, row, x, y, scores, accepted, first, last, delta, dt, noise)
 
 
 def _feed(tracker, scan: Scan, row, cols, obs, delta, dt) -> None:
-    from detectors.tracking import segment_points
+    if not row.size:
+        row = obs = first = last = _NO_INT
+        x = y = scores = _NO_FLOAT
+    else:
+        x, y, scores, first, last = cols["x"], cols["y"], cols["score"], cols["first_beam"], cols["last_beam"]
+    _update(tracker, scan, obs, row, x, y, scores, None, first, last, delta, dt, None)
 
-    xy, pts, own, scores = np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0, np.int64), np.zeros(0)
-    if row.size:
-        xy = np.c_[cols["x"], cols["y"]]
-        pts, own = segment_points(scan.ranges, scan.angles, row, cols["first_beam"], cols["last_beam"],
-                                  scan.range_max)  # fmt: skip
-        scores = cols["score"]
-    tracker.update_batch(np.asarray(obs, np.int64), xy, scores, delta, dt, pts, own,
-                         accepted=np.ones(row.size, bool))  # fmt: skip
+
+_NO_INT, _NO_FLOAT = np.zeros(0, np.int64), np.zeros(0)
+
+
+def _update(tracker, scan: Scan, obs, row, x, y, scores, accepted, first, last, delta, dt, noise) -> None:
+    """The tracker's frame on the env's own arrays (its trusted entry,
+    ``KinTracker._update_segments_trusted``: the candidates' points computed in the update's compiled call
+    from the scan's beams ``first..last`` of row ``row``): the state and outputs of ``update_batch(obs,
+    c_[x, y], scores, delta, dt, *segment_points(scan.ranges, scan.angles, row, first, last,
+    scan.range_max), noise, accepted)``, ``accepted=None`` all accepted (the operating point's
+    detections)."""
+    c_, i8, f8 = np.ascontiguousarray, np.int64, np.float64
+    ranges = scan.ranges
+    if ranges.dtype != np.float32:
+        ranges = c_(ranges, f8)
+    tracker._update_segments_trusted(
+        c_(obs, i8), c_(row, i8), c_(x, f8), c_(y, f8), c_(scores, f8),
+        None if accepted is None else c_(accepted, np.bool_), c_(delta, f8), dt, c_(ranges),
+        c_(scan.angles, f8), c_(first, i8), c_(last, i8), float(scan.range_max),
+        None if noise is None else c_(noise, f8),
+    )  # fmt: skip
