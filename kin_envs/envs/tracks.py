@@ -133,8 +133,10 @@ def track_info(tracker, max_tracks: int) -> tuple[dict[str, np.ndarray], np.ndar
     from detectors.tracking import TRACK_FIELDS
 
     a = tracker.track_arrays(max_tracks)
-    cols = {name: a["tracks"][:, :, j].astype(np.float64) for j, name in enumerate(TRACK_FIELDS)}
-    return cols, a["count"]
+    # one transposed copy (field-major, float64), each field a C-contiguous row of it: the values of a copy
+    # per field (``tracks[:, :, j].astype(float64)``) at half its cost
+    block = a["tracks"].transpose(2, 0, 1).astype(np.float64, order="C")
+    return dict(zip(TRACK_FIELDS, block, strict=True)), a["count"]
 
 
 def track_rows(tracker, max_tracks: int, angles=None) -> tuple[np.ndarray, dict[str, np.ndarray]]:
