@@ -1,0 +1,113 @@
+"""kin_envs.envs.tracks: the envs' tracker path on the tracker's trusted entry (points built in the update's
+compiled call) and the one-copy info columns give bitwise what the public path gives (``update_batch`` on
+``segment_points``, a copy per info field): every observation, reward and info, and the tracker's state."""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import kin_envs  # noqa: F401  (registers the ids)
+from detectors.tracking import TRACK_FIELDS, KinTracker, segment_points
+from kin_envs import aggregation_v1
+from kin_envs.envs import tracks
+
+
+def _public_update(tracker, scan, obs, row, x, y, scores, accepted, first, last, delta, dt, noise):
+    """The path the envs took before the trusted entry: segment_points, then update_batch."""
+    pts, own = segment_points(scan.ranges, scan.angles, row, first, last, scan.range_max)
+    acc = np.ones(len(obs), bool) if accepted is None else accepted
+    tracker.update_batch(np.asarray(obs, np.int64), np.c_[x, y], scores, delta, dt, pts, own, noise,
+                         accepted=acc)  # fmt: skip
+
+
+def _public_info(tracker, max_tracks):
+    a = tracker.track_arrays(max_tracks)
+    return {name: a["tracks"][:, :, j].astype(np.float64) for j, name in enumerate(TRACK_FIELDS)}, a["count"]
+
+
+def _tracker_state(env):
+    u = env.unwrapped
+    tr = u._tracks.tracker if getattr(u, "_tracks", None) is not None else u.tracker
+    return [getattr(tr, n) for n in ("_F", "_I", "_B", *KinTracker._FIELDS)] + [tr.poses, tr.odometer]
+
+
+def _assert_same(a, b, path="out"):
+    if isinstance(a, dict):
+        assert a.keys() == b.keys(), path
+        for k in a:
+            _assert_same(a[k], b[k], f"{path}/{k}")
+    elif isinstance(a, list | tuple):
+        assert len(a) == len(b), path
+        for i, (u, v) in enumerate(zip(a, b, strict=True)):
+            _assert_same(u, v, f"{path}[{i}]")
+    elif isinstance(a, np.ndarray):
+        assert a.dtype == b.dtype and a.shape == b.shape, path
+        assert a.tobytes() == b.tobytes(), path
+        assert a.flags.c_contiguous == b.flags.c_contiguous, path
+    else:
+        assert a == b or (a != a and b != b), (path, a, b)
+
+
+def _make(kind, detector, feed):
+    kw = {"detector": detector, "tracker": {"feed": feed}, "noise_sigma": 0.01}
+    if kind == "aggregation_v1":
+        return aggregation_v1.parallel_env(n_robots=10, max_cycles=25, obs_tracks=True, obs_detections="topk",
+                                           **kw)  # fmt: skip
+    # small, no noise: the kin comes into view and the geometric detector accepts it
+    kw.update(obs_tracks=True, obs_detections="topk", arena_size=2.5, noise_sigma=0.0)
+    if kind == "vector":
+        return gym.make_vec("kin_envs/KinSeek-v1", num_envs=4, **kw)
+    return gym.make(f"kin_envs/{kind}", **kw)
+
+
+def _run(kind, detector, feed, steps=36):
+    env = _make(kind, detector, feed)
+    rng = np.random.default_rng(4)
+    out = [env.reset(seed=11)]
+    for _ in range(steps):
+        if kind == "aggregation_v1":
+            res = env.step({a: rng.uniform(-1, 1, 2).astype(np.float32) for a in env.agents})
+            if not env.agents:
+                env.reset(seed=int(rng.integers(1000)))
+        else:
+            res = env.step(rng.uniform(-1, 1, env.action_space.shape).astype(np.float32))
+            if kind != "vector" and (res[2] or res[3]):
+                env.reset(seed=int(rng.integers(1000)))
+        out += [res, _tracker_state(env)]
+    env.close()
+    return out
+
+
+@pytest.mark.parametrize("kind", ["aggregation_v1", "KinSeek-v1", "KinFollow-v1", "vector"])
+@pytest.mark.parametrize("detector, feed", [("geometric", "accepted"), ("geometric", "permissive"),
+                                            ("learned", "accepted"), ("learned", "permissive")])  # fmt: skip
+def test_env_tracker_path_is_bitwise_the_public_path(kind, detector, feed, monkeypatch):
+    new = _run(kind, detector, feed)
+    assert any(np.count_nonzero(state[2][0]) for state in new[2::2])  # tracks to compare: some were alive
+    monkeypatch.setattr(tracks, "_update", _public_update)
+    monkeypatch.setattr(tracks, "track_info", _public_info)
+    if kind == "vector":
+        import kin_envs.envs.vector as vector
+
+        monkeypatch.setattr(vector, "track_info", _public_info)
+    old = _run(kind, detector, feed)
+    _assert_same(new, old)
+
+
+def test_track_info_is_a_copy_per_field():
+    """One transposed copy: each field a C-contiguous float64 array of the per-field copy's values, none
+    sharing memory with the tracker's arrays or with another field."""
+    env = aggregation_v1.parallel_env(n_robots=8, detector="geometric", tracker=True)
+    env.reset(seed=2)
+    for _ in range(12):
+        env.step({a: np.ones(2, np.float32) for a in env.agents})
+    tr = env.tracker
+    cols, count = tracks.track_info(tr, 4)
+    ref, ref_count = _public_info(tr, 4)
+    _assert_same((cols, count), (ref, ref_count))
+    assert list(cols) == list(TRACK_FIELDS)
+    for name, c in cols.items():
+        assert c.flags.c_contiguous and c.dtype == np.float64 and c.shape == (8, 4), name
+        assert not np.shares_memory(c, tr.track_arrays(4)["tracks"])
+    cols["x"][:] = 123.0  # writing one field leaves the others
+    assert not np.any(cols["y"] == 123.0)
