@@ -354,7 +354,9 @@ class KinVectorEnv(VectorEnv):
             deltas = np.stack([self.envs[i].world.odometry_delta[LEARNER] for i in on])
             self._tracks.update(stacked, dets, on_a, deltas, self.envs[on[0]].world.config.control_dt, feed)
             cols, count = track_info(self._tracks, self.config.max_tracks)
-            kin["kin_tracks"] = ({f: c[on_a] for f, c in cols.items()}, count[on_a])
+            # every sub-env stepped (``on`` is then 0..K-1): track_info's fresh columns as they are
+            kin["kin_tracks"] = ((cols, count) if len(on) == self.num_envs
+                                 else ({f: c[on_a] for f, c in cols.items()}, count[on_a]))  # fmt: skip
             if self.config.obs_tracks:
                 t_row, t_c = track_rows(self._tracks, self.config.max_tracks, angles)
                 pos = np.full(self.num_envs, -1, np.int64)
