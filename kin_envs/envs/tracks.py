@@ -3,6 +3,7 @@ observers), and read its tracks back as fixed-shape info or as detection rows (`
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 from kin_envs.core.world import Scan
@@ -206,7 +207,7 @@ class VectorTracker:
         self._lid = np.zeros(0, np.int64)
 
     def _record(self, obs: np.ndarray, gid: np.ndarray, lid: np.ndarray) -> None:
-        self._gid, self._lid = np.r_[self._gid, gid], np.r_[self._lid, lid]
+        self._gid, self._lid = np.concatenate((self._gid, gid)), np.concatenate((self._lid, lid))
         alive = int(np.count_nonzero(self.tracker._alive))
         if self._gid.size > 4 * max(alive, 64):  # forget dead tracks' ids
             keep = np.isin(self._gid, self.tracker._id[self.tracker._alive])
@@ -235,16 +236,7 @@ class VectorTracker:
             row, cols = dets if dets is not None else (np.zeros(0, np.int64), None)
             _feed(tr, scan, row, cols, observers[row], delta, dt)
         if tr._next_id > first:  # births: own ids per observer, in birth (= shared id) order
-            rows = np.flatnonzero(tr._alive & (tr._id >= first))
-            rows = rows[np.argsort(tr._id[rows], kind="stable")]
-            o = tr._obs[rows]
-            order = np.argsort(o, kind="stable")
-            o_s = o[order]
-            start = np.searchsorted(o_s, o_s)  # first index of each observer's group
-            lid = np.empty(rows.size, np.int64)
-            lid[order] = self._next_local[o_s] + np.arange(rows.size) - start
-            np.add.at(self._next_local, o, 1)
-            self._record(o, tr._id[rows], lid)
+            self._record(*_births(tr._alive, tr._id, tr._obs, first, self._next_local))
 
     def track_arrays(self, max_tracks: int) -> dict[str, np.ndarray]:
         """:meth:`detectors.KinTracker.track_arrays` with each sub-env's own track ids."""
@@ -254,6 +246,29 @@ class VectorTracker:
             g = a["tracks"][..., 0][m].astype(np.int64)
             a["tracks"][..., 0][m] = self._lid[np.searchsorted(self._gid, g)]
         return a
+
+
+@numba.njit(cache=True, nogil=True)
+def _births(alive, tid, tobs, first, next_local):
+    """The tracks born this frame (alive, shared id >= ``first``) in shared id order: ``(observer, shared
+    id, own id)``, each observer's own ids counted on from ``next_local`` (updated in place) in that order."""
+    n = 0
+    for t in range(alive.shape[0]):
+        n += alive[t] and tid[t] >= first
+    rows = np.empty(n, np.int64)
+    n = 0
+    for t in range(alive.shape[0]):
+        if alive[t] and tid[t] >= first:
+            rows[n] = t
+            n += 1
+    rows = rows[np.argsort(tid[rows])]  # (ids are distinct: any sort is the stable one)
+    o, gid, lid = np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64)
+    for j in range(n):
+        t = rows[j]
+        o[j], gid[j] = tobs[t], tid[t]
+        lid[j] = next_local[o[j]]
+        next_local[o[j]] += 1
+    return o, gid, lid
 
 
 def _feed_candidates(tracker, scan: Scan, feed, observers, delta, dt) -> None:

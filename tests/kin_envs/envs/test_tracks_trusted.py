@@ -111,3 +111,33 @@ def test_track_info_is_a_copy_per_field():
         assert not np.shares_memory(c, tr.track_arrays(4)["tracks"])
     cols["x"][:] = 123.0  # writing one field leaves the others
     assert not np.any(cols["y"] == 123.0)
+
+
+def _births_numpy(alive, tid, tobs, first, next_local):
+    """The vector tracker's birth numbering as numpy did it before the compiled ``_births``."""
+    rows = np.flatnonzero(alive & (tid >= first))
+    rows = rows[np.argsort(tid[rows], kind="stable")]
+    o = tobs[rows]
+    order = np.argsort(o, kind="stable")
+    o_s = o[order]
+    start = np.searchsorted(o_s, o_s)
+    lid = np.empty(rows.size, np.int64)
+    lid[order] = next_local[o_s] + np.arange(rows.size) - start
+    np.add.at(next_local, o, 1)
+    return o, tid[rows], lid
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_vector_births_are_the_numpy_numbering(seed):
+    rng = np.random.default_rng(seed)
+    cap, k = int(rng.integers(1, 300)), int(rng.integers(1, 20))
+    alive = rng.random(cap) < 0.6
+    tid = rng.permutation(cap * 2)[:cap].astype(np.int64)  # distinct ids, in any row order
+    tobs = rng.integers(0, k, cap).astype(np.int64)
+    first = int(rng.integers(0, cap * 2))
+    nl_a = rng.integers(0, 50, k).astype(np.int64)
+    nl_b = nl_a.copy()
+    got = tracks._births(alive, tid, tobs, first, nl_a)
+    want = _births_numpy(alive, tid, tobs, first, nl_b)
+    _assert_same(list(got), list(want))
+    _assert_same(nl_a, nl_b)
