@@ -178,11 +178,11 @@ def report(results: list[dict], cost: dict | None = None) -> str:
 #: what :func:`env_cost` times in each env: ``(label, module or class path, attribute)``; an attribute the
 #: code no longer has is skipped (the envs' entry points stay: ``track_update``, ``track_info``)
 _ENV_PROBES = {
-    "aggregation_v1": [("detector", "kin_envs.envs.aggregation", "detect_rows_padded"),
+    "aggregation_v2": [("detector", "kin_envs.envs.aggregation", "detect_rows_padded"),
                        ("detector", "kin_envs.envs.tracks.PermissiveFeed", "detect"),
                        ("update", "kin_envs.envs.tracks", "track_update"),
                        ("info", "kin_envs.envs.tracks", "track_info")],
-    "KinSeek-v1": [("detector", "kin_envs.envs.base", "detect_one_padded"),
+    "KinSeek-v2": [("detector", "kin_envs.envs.base", "detect_one_padded"),
                    ("detector", "kin_envs.envs.tracks.PermissiveFeed", "detect"),
                    ("update", "kin_envs.envs.tracks", "track_update"),
                    ("info", "kin_envs.envs.tracks", "track_info")],
@@ -254,7 +254,7 @@ def _stepper(name: str, env, seed: int):
     """``env`` reset with ``seed``; a function that steps it with random actions (resetting at an end)."""
     rng = np.random.default_rng(seed)
     env.reset(seed=seed)
-    if name == "aggregation_v1":
+    if name == "aggregation_v2":
         spaces = [env.action_space(a) for a in env.possible_agents]
         for s in spaces:
             s.seed(int(rng.integers(1 << 31)))
@@ -276,32 +276,32 @@ def _stepper(name: str, env, seed: int):
 
 
 def env_cost(detector: str = "geometric", n_robots: int = 64, steps: int = 300, warm: int = 30,
-             seed: int = 0, noise: float = 0.01, feed: str = "accepted") -> dict:
+             seed: int = 0, noise: float = 0.01, feed: str | None = None) -> dict:
     """What the tracker costs as the envs pay it: per step (CPU clock, µs), the detector call, the tracker's
     update (``track_update``) and its info (``track_info``, ``kin_tracks``), and inside them
     ``segment_points``, ``KinTracker.update_batch`` or the envs' trusted entry
     (``_update_segments_trusted``), its compiled call and ``track_arrays``,
     timed by ``time.process_time_ns`` wrappers around the calls the env makes (:data:`_ENV_PROBES`), over
     ``steps`` steps after ``warm`` untimed ones (the first step's compile / start-up time apart), random
-    actions. Three envs: aggregation_v1 at ``n_robots`` robots, KinSeek-v1 (one observer) and the native
-    vector env of KinSeek-v1 at ``n_robots`` sub-envs; each with ``detector`` and
-    ``tracker={"feed": feed}``, range noise ``noise``."""  # fmt: skip
+    actions. Three envs: aggregation_v2 at ``n_robots`` robots, KinSeek-v2 (one observer) and the native
+    vector env of KinSeek-v2 at ``n_robots`` sub-envs; each with ``detector`` and ``tracker=True``
+    (``feed``: ``tracker={"feed": feed}``; None: the envs' default, ``"auto"``), range noise ``noise``."""
     import gymnasium as gym
 
     import kin_envs  # noqa: F401  (registers the ids)
-    from kin_envs import aggregation_v1
+    from kin_envs import aggregation_v2
 
     if steps < 1 or warm < 1:
         raise ValueError(f"env_cost: steps and warm must be >= 1, got {steps!r} and {warm!r}")
-    tracker = {"feed": feed}
-    out = {"detector": detector, "feed": feed, "n_robots": int(n_robots), "steps": int(steps),
-           "warm": int(warm), "noise": float(noise), "envs": {}}  # fmt: skip
+    tracker = True if feed is None else {"feed": feed}
+    out = {"detector": detector, "feed": feed or "default (auto)", "n_robots": int(n_robots),
+           "steps": int(steps), "warm": int(warm), "noise": float(noise), "envs": {}}  # fmt: skip
     makers = {
-        "aggregation_v1": lambda: aggregation_v1.parallel_env(n_robots=n_robots, detector=detector,
+        "aggregation_v2": lambda: aggregation_v2.parallel_env(n_robots=n_robots, detector=detector,
                                                               tracker=tracker, noise_sigma=noise),
-        "KinSeek-v1": lambda: gym.make("kin_envs/KinSeek-v1", detector=detector, tracker=tracker,
+        "KinSeek-v2": lambda: gym.make("kin_envs/KinSeek-v2", detector=detector, tracker=tracker,
                                        noise_sigma=noise),
-        "vector": lambda: gym.make_vec("kin_envs/KinSeek-v1", num_envs=n_robots, detector=detector,
+        "vector": lambda: gym.make_vec("kin_envs/KinSeek-v2", num_envs=n_robots, detector=detector,
                                        tracker=tracker, noise_sigma=noise),
     }  # fmt: skip
     for name, make in makers.items():
@@ -334,8 +334,8 @@ def env_cost_lines(cost: dict) -> list[str]:
     """:func:`env_cost` as a markdown table."""
     envs = cost["envs"]
     n = cost["n_robots"]
-    heads = {"aggregation_v1": f"aggregation_v1 ({n} robots)", "KinSeek-v1": "KinSeek-v1",
-             "vector": f"vector KinSeek-v1 (K = {n})"}  # fmt: skip
+    heads = {"aggregation_v2": f"aggregation_v2 ({n} robots)", "KinSeek-v2": "KinSeek-v2",
+             "vector": f"vector KinSeek-v2 (K = {n})"}  # fmt: skip
     rows = [("detector call", "detector"), ("tracker update (`track_update`)", "update"),
             ("… `segment_points`", "segment_points"),
             ("… `KinTracker.update_batch` / the envs' entry (`_update_segments_trusted`)", "update_batch"),
@@ -453,11 +453,11 @@ def main(argv: list[str] | None = None) -> list[dict]:
                    help="also time a tracker whose per-frame fits start at the candidate's centre (2 steps) "
                         "in the same passes of the cost measurement")  # fmt: skip
     p.add_argument("--cost-env-steps", type=int, default=300,
-                   help="steps of the in-env cost measurement (aggregation_v1 at --cost-robots robots, "
-                        "KinSeek-v1, its native vector env at --cost-robots sub-envs; --detector, "
+                   help="steps of the in-env cost measurement (aggregation_v2 at --cost-robots robots, "
+                        "KinSeek-v2, its native vector env at --cost-robots sub-envs; --detector, "
                         "tracker=True; 0: skip it)")  # fmt: skip
-    p.add_argument("--cost-env-feed", default="accepted", choices=["accepted", "permissive"],
-                   help="the tracker's feed in the in-env cost measurement")  # fmt: skip
+    p.add_argument("--cost-env-feed", default=None, choices=["auto", "accepted", "permissive"],
+                   help="the tracker's feed in the in-env cost measurement (default: the envs' own, auto)")
     add_logging_args(p)
     args = p.parse_args(argv)
     setup_logging(args)

@@ -21,11 +21,11 @@ def test_one_episode_run(tmp_path):
     md = (out / "results.md").read_text()
     assert "Frames since the kin came into view" in md and "Target window" in md
     assert "Tracking cost at 4 observers" in md
-    # the in-env measurement: aggregation_v1, KinSeek-v1 and its vector env, each a column
-    assert "What the tracker costs in the envs (geometric detector, accepted feed)" in md
-    assert "| aggregation_v1 (4 robots) | KinSeek-v1 | vector KinSeek-v1 (K = 4) |" in md
+    # the in-env measurement: aggregation_v2, KinSeek-v2 and its vector env, each a column
+    assert "What the tracker costs in the envs (geometric detector, default (auto) feed)" in md
+    assert "| aggregation_v2 (4 robots) | KinSeek-v2 | vector KinSeek-v2 (K = 4) |" in md
     cost = json.loads((out / "results.json").read_text())["cost"]["env"]
-    assert set(cost["envs"]) == {"aggregation_v1", "KinSeek-v1", "vector"} and cost["steps"] == 2
+    assert set(cost["envs"]) == {"aggregation_v2", "KinSeek-v2", "vector"} and cost["steps"] == 2
     assert "target window, kin frames: both right" in md and "single scan only" in md
 
 
@@ -54,21 +54,21 @@ def test_tune_tracker_script(tmp_path):
         mod.main(["--swarm-episodes", "0", "--out", str(tmp_path / "x")])
 
 
-def test_env_cost_permissive_feed():
-    """The in-env cost, tiny, with the permissive feed: every env times its detector call (the feed's),
+def test_env_cost_accepted_feed():
+    """The in-env cost, tiny, with the accepted feed: every env times its detector call (the feed's),
     the tracker's update and info; the probes are removed afterwards."""
     from detectors.tracking import KinTracker
     from kin_envs.envs import tracks
 
     mod = load_script("benchmark_tracking")
     before = (tracks.track_update, tracks.track_info, KinTracker.update_batch)
-    cost = mod.env_cost("geometric", n_robots=3, steps=2, warm=1, feed="permissive")
+    cost = mod.env_cost("geometric", n_robots=3, steps=2, warm=1, feed="accepted")
     assert (tracks.track_update, tracks.track_info, KinTracker.update_batch) == before
     for name, e in cost["envs"].items():
         us = e["us_per_step"]
         assert us["detector"] > 0 and us["update"] > 0 and us["info"] > 0, name
         assert e["ratio"] > 0 and e["step_us"] > 0, name
-    assert "permissive feed" in "\n".join(mod.env_cost_lines(cost))
+    assert "accepted feed" in "\n".join(mod.env_cost_lines(cost))
     with pytest.raises(ValueError, match="steps and warm"):
         mod.env_cost(steps=0)
 

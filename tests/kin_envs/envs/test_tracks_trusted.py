@@ -8,7 +8,7 @@ import pytest
 
 import kin_envs  # noqa: F401  (registers the ids)
 from detectors.tracking import TRACK_FIELDS, KinTracker, segment_points
-from kin_envs import aggregation_v1
+from kin_envs import aggregation_v2
 from kin_envs.envs import tracks
 
 
@@ -50,13 +50,13 @@ def _assert_same(a, b, path="out"):
 
 def _make(kind, detector, feed):
     kw = {"detector": detector, "tracker": {"feed": feed}, "noise_sigma": 0.01}
-    if kind == "aggregation_v1":
-        return aggregation_v1.parallel_env(n_robots=10, max_cycles=25, obs_tracks=True, obs_detections="topk",
+    if kind == "aggregation_v2":
+        return aggregation_v2.parallel_env(n_robots=10, max_cycles=25, obs_tracks=True, obs_detections="topk",
                                            **kw)  # fmt: skip
     # small, no noise: the kin comes into view and the geometric detector accepts it
     kw.update(obs_tracks=True, obs_detections="topk", arena_size=2.5, noise_sigma=0.0)
     if kind == "vector":
-        return gym.make_vec("kin_envs/KinSeek-v1", num_envs=4, **kw)
+        return gym.make_vec("kin_envs/KinSeek-v2", num_envs=4, **kw)
     return gym.make(f"kin_envs/{kind}", **kw)
 
 
@@ -65,7 +65,7 @@ def _run(kind, detector, feed, steps=36):
     rng = np.random.default_rng(4)
     out = [env.reset(seed=11)]
     for _ in range(steps):
-        if kind == "aggregation_v1":
+        if kind == "aggregation_v2":
             res = env.step({a: rng.uniform(-1, 1, 2).astype(np.float32) for a in env.agents})
             if not env.agents:
                 env.reset(seed=int(rng.integers(1000)))
@@ -78,9 +78,10 @@ def _run(kind, detector, feed, steps=36):
     return out
 
 
-@pytest.mark.parametrize("kind", ["aggregation_v1", "KinSeek-v1", "KinFollow-v1", "vector"])
+@pytest.mark.parametrize("kind", ["aggregation_v2", "KinSeek-v2", "KinFollow-v2", "vector"])
 @pytest.mark.parametrize("detector, feed", [("geometric", "accepted"), ("geometric", "permissive"),
-                                            ("learned", "accepted"), ("learned", "permissive")])  # fmt: skip
+                                            ("geometric", "auto"), ("learned", "accepted"),
+                                            ("learned", "permissive"), ("learned", "auto")])  # fmt: skip
 def test_env_tracker_path_is_bitwise_the_public_path(kind, detector, feed, monkeypatch):
     new = _run(kind, detector, feed)
     assert any(np.count_nonzero(state[2][0]) for state in new[2::2])  # tracks to compare: some were alive
@@ -97,7 +98,7 @@ def test_env_tracker_path_is_bitwise_the_public_path(kind, detector, feed, monke
 def test_track_info_is_a_copy_per_field():
     """One transposed copy: each field a C-contiguous float64 array of the per-field copy's values, none
     sharing memory with the tracker's arrays or with another field."""
-    env = aggregation_v1.parallel_env(n_robots=8, detector="geometric", tracker=True)
+    env = aggregation_v2.parallel_env(n_robots=8, detector="geometric", tracker=True)
     env.reset(seed=2)
     for _ in range(12):
         env.step({a: np.ones(2, np.float32) for a in env.agents})
