@@ -221,11 +221,17 @@ class _ScanTracker:
         if self.feeder is None:
             self.tracker.update_from_result(result, s.ranges, s.angles, delta, dt)
         else:  # the detector's permissive candidates (its own call on this scan), their points and the noise
-            _, (_, xy, scores, accepted, pts, own, noise) = self.feeder.detect(
-                s.ranges[None], s.angles, np.zeros(1, np.int64), np.zeros((1, 3)), range_max=s.range_max
+            from detectors.tracking import segment_points
+
+            ranges = s.ranges[None]
+            _, (row, x, y, scores, accepted, first, last, noise) = self.feeder.detect(
+                ranges, s.angles, np.zeros(1, np.int64), np.zeros((1, 3)), range_max=s.range_max
             )
-            obs = np.zeros(len(xy), np.int64)
-            self.tracker.update_batch(obs, xy, scores, delta[None], dt, pts, own, noise, accepted=accepted)
+            # a recording's scans: the public, checked path (the envs' own scans take the trusted one)
+            pts, own = segment_points(ranges, s.angles, row, first, last, s.range_max)
+            obs = np.zeros(len(x), np.int64)
+            self.tracker.update_batch(obs, np.c_[x, y], scores, delta[None], dt, pts, own, noise,
+                                      accepted=accepted)  # fmt: skip
         thr = self.tracker.params.kin_threshold
         out = []
         ox, oy, oth = self.origin

@@ -175,7 +175,7 @@ def test_detect_track_feeds_the_permissive_candidates_by_default(swarm_bag, tmp_
     the v2 envs' tracker=True) and the same odometry increments; the run record names the feed; a bad feed is
     refused."""
     from detectors.ros import read_poses, read_scans
-    from detectors.tracking import KinTracker
+    from detectors.tracking import KinTracker, segment_points
     from kin_envs.envs.tracks import PermissiveFeed
 
     out = tmp_path / "t.jsonl"
@@ -196,9 +196,11 @@ def test_detect_track_feeds_the_permissive_candidates_by_default(swarm_bag, tmp_
             dt = (s.stamp_ns - prev[0]) / 1e9
         prev = (s.stamp_ns, p)
         one = np.zeros(1, np.int64)
-        _, (_, xy, sc, acc, pts, own, noise) = feed.detect(s.ranges[None], s.angles, one, np.zeros((1, 3)),
-                                                          range_max=s.range_max)  # fmt: skip
-        direct.update_batch(one.repeat(len(xy)), xy, sc, delta[None], dt, pts, own, noise, accepted=acc)
+        _, (r, x, y, sc, acc, first, last, noise) = feed.detect(s.ranges[None], s.angles, one,
+                                                                np.zeros((1, 3)), range_max=s.range_max)
+        pts, own = segment_points(s.ranges[None], s.angles, r, first, last, s.range_max)
+        direct.update_batch(one.repeat(len(x)), np.c_[x, y], sc, delta[None], dt, pts, own, noise,
+                            accepted=acc)  # fmt: skip
         got = [(t["id"], t["kin_prob"]) for t in row["tracks"]]
         assert got == [(t.id, t.kin_prob) for t in direct.tracks()]
     assert sum(len(r["tracks"]) for r in rows) >= 1
