@@ -441,9 +441,11 @@ def main(argv: list[str] | None = None) -> list[dict]:
     p.add_argument("--out", type=Path, default=Path("outputs/benchmark_tracking"), help="output directory")
     p.add_argument("--no-gif", action="store_true", help="skip the animation")
     p.add_argument("--torch-threads", type=int, default=1, help="torch threads (learned detector)")
-    p.add_argument("--kin-model", default="learned",
-                   help="the tracker's kin decision: learned (the shipped track classifier), hand (the "
-                        "hand-tuned fusion) or a model JSON path")  # fmt: skip
+    p.add_argument("--kin-model", default="auto",
+                   help="the tracker's kin decision: auto (the shipped track classifier fitted on "
+                        "--detector's permissive candidates: geometric for the geometric detector, else "
+                        "learned), learned, geometric, hand (the hand-tuned fusion) or a model JSON "
+                        "path")  # fmt: skip
     p.add_argument("--tracker-params", default=None,
                    help="TrackerParams fields as JSON for the tracker of every part, e.g. "
                         "'{\"birth_min_score\": 0.6}' (default: the shipped defaults)")  # fmt: skip
@@ -476,7 +478,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
         check_output_dir(args.out)
         from detectors.tracking import KinTracker
 
-        KinTracker(kin_model=args.kin_model)  # a bad --kin-model fails before the episodes
+        if args.kin_model != "auto":
+            KinTracker(kin_model=args.kin_model)  # a bad --kin-model fails before the episodes
         tracker_params = None
         if args.tracker_params is not None:
             from detectors.tracking import TrackerParams
@@ -495,6 +498,10 @@ def main(argv: list[str] | None = None) -> list[dict]:
 
         torch.set_num_threads(args.torch_threads)
     detector = detector_from_name(args.detector)
+    if args.kin_model == "auto":  # the classifier fitted on this detector's permissive candidates
+        from kin_envs.envs.tracks import auto_kin_model
+
+        args.kin_model = auto_kin_model("permissive", detector)
     baselines = {n: detector_from_name(n, what="--baselines") for n in args.baselines if n != args.detector}
     # CLEAR MOT needs the tracking extra: without it, the rest of the benchmark (not a traceback at the end
     # of the first split, minutes into `make run`'s step 3 after an install without that extra)
