@@ -130,6 +130,23 @@ def test_detect_learned_runs(swarm_bag, tmp_path):
     assert len(out.read_text().splitlines()) == 5
 
 
+def _odometry_steps(scans, poses):
+    """Each scan with the odometry increment since the previous one (robot frame there) and the time step,
+    as `kin-envs detect --track` computes them (the first scan: zero, 0.1 s)."""
+    prev = None
+    for s in scans:
+        p = poses.at(s.stamp_ns)
+        if prev is None:
+            delta, dt = np.zeros(3), 0.1
+        else:
+            c, si = np.cos(prev[1][2]), np.sin(prev[1][2])
+            dx, dy = p[0] - prev[1][0], p[1] - prev[1][1]
+            delta = np.array([c * dx + si * dy, -si * dx + c * dy, p[2] - prev[1][2]])
+            dt = (s.stamp_ns - prev[0]) / 1e9
+        prev = (s.stamp_ns, p)
+        yield s, delta, dt
+
+
 def test_detect_track_follows_the_detections_through_the_wheel_odometry(swarm_bag, tmp_path):
     """--track: every scan carries the KinTracker's tracks, fed with the bag's wheel odometry; they are
     the tracks of a KinTracker run directly on the same scans and odometry increments, and each sits on
@@ -143,17 +160,8 @@ def test_detect_track_follows_the_detections_through_the_wheel_odometry(swarm_ba
     assert main([*argv, "--out", str(out), "--quiet"]) == 0
     rows = [json.loads(line) for line in out.read_text().splitlines()]
     scans, poses = list(read_scans(swarm_bag, "/robot_1/scan")), read_poses(swarm_bag, "/robot_1/odom")
-    direct, det, prev = KinTracker(), GeometricKinDetector(), None
-    for row, s in zip(rows, scans, strict=True):
-        p = poses.at(s.stamp_ns)
-        if prev is None:
-            delta, dt = np.zeros(3), 0.1
-        else:
-            c, si = np.cos(prev[1][2]), np.sin(prev[1][2])
-            dx, dy = p[0] - prev[1][0], p[1] - prev[1][1]
-            delta = [c * dx + si * dy, -si * dx + c * dy, p[2] - prev[1][2]]
-            dt = (s.stamp_ns - prev[0]) / 1e9
-        prev = (s.stamp_ns, p)
+    direct, det = KinTracker(), GeometricKinDetector()
+    for row, (s, delta, dt) in zip(rows, _odometry_steps(scans, poses), strict=True):
         direct.update_from_result(det.detect(s.ranges, s.angles), s.ranges, s.angles, delta, dt)
         assert [t["id"] for t in row["tracks"]] == [t.id for t in direct.tracks()]
         for t in row["tracks"]:
@@ -183,18 +191,9 @@ def test_detect_track_feeds_the_permissive_candidates_by_default(swarm_bag, tmp_
     assert main([*argv, "--out", str(out), "--quiet"]) == 0
     rows = [json.loads(line) for line in out.read_text().splitlines()]
     scans, poses = list(read_scans(swarm_bag, "/robot_1/scan")), read_poses(swarm_bag, "/robot_1/odom")
-    direct, prev = KinTracker(kin_model="geometric"), None  # the classifier fitted on that feed
+    direct = KinTracker(kin_model="geometric")  # the classifier fitted on that feed
     feed = PermissiveFeed(GeometricKinDetector(), direct.params.range_noise)
-    for row, s in zip(rows, scans, strict=True):
-        p = poses.at(s.stamp_ns)
-        if prev is None:
-            delta, dt = np.zeros(3), 0.1
-        else:
-            c, si = np.cos(prev[1][2]), np.sin(prev[1][2])
-            dx, dy = p[0] - prev[1][0], p[1] - prev[1][1]
-            delta = np.array([c * dx + si * dy, -si * dx + c * dy, p[2] - prev[1][2]])
-            dt = (s.stamp_ns - prev[0]) / 1e9
-        prev = (s.stamp_ns, p)
+    for row, (s, delta, dt) in zip(rows, _odometry_steps(scans, poses), strict=True):
         one = np.zeros(1, np.int64)
         _, (r, x, y, sc, acc, first, last, noise) = feed.detect(s.ranges[None], s.angles, one,
                                                                 np.zeros((1, 3)), range_max=s.range_max)
