@@ -1040,21 +1040,19 @@ class KinTracker:
         dec, model_args, slots = self._decision_args()
         all_acc = accepted is None
         acc = _NO_FLAGS if all_acc else accepted
-        res = _update_segments_kernel(
-            obs, rows, x, y, scores, acc, all_acc, odom_delta, float(dt), ranges, angles, first, last,
-            float(range_max), noise, poses, self.odometer, self.time + dt, self._next_id, self._prm, self._F,
-            self._I, self._B, self._x, self._P, self._anchor, self._fit_c, self._pts, self._pts_aux, dec,
-            *model_args, slots,
-        )  # fmt: skip
-        if res[0] == _NEED_ROOM:  # more rows than the arrays have: grown as update_batch grows them
-            self._grow(int(res[1]))
-            poses = self.poses.copy()
-            res = _update_segments_kernel(
+
+        def run():  # (reads the state arrays anew: _grow replaces them)
+            return _update_segments_kernel(
                 obs, rows, x, y, scores, acc, all_acc, odom_delta, float(dt), ranges, angles, first, last,
                 float(range_max), noise, poses, self.odometer, self.time + dt, self._next_id, self._prm,
                 self._F, self._I, self._B, self._x, self._P, self._anchor, self._fit_c, self._pts,
                 self._pts_aux, dec, *model_args, slots,
             )  # fmt: skip
+
+        res = run()
+        if res[0] == _NEED_ROOM:  # more rows than the arrays have: grown as update_batch grows them
+            self._grow(int(res[1]))
+            res = run()
         if res[0]:  # a bad value: the public path raises its error (no state has changed)
             pts, own = segment_points(ranges, angles, rows, first, last, range_max)
             acc = np.ones(obs.shape[0], np.bool_) if all_acc else accepted
@@ -1318,9 +1316,9 @@ def _kin_model(kin_model) -> TrackKinModel | None:
     if isinstance(kin_model, str) and kin_model == "hand":
         return None
     if isinstance(kin_model, str) and kin_model == "learned":
-        return _default_kin_model()
+        return _shipped_kin_model()
     if isinstance(kin_model, str) and kin_model == "geometric":
-        return _default_kin_model(GEOMETRIC_KIN_MODEL)
+        return _shipped_kin_model(GEOMETRIC_KIN_MODEL)
     expected = "'hand', 'learned', 'geometric', a model JSON path or a TrackKinModel"
     if isinstance(kin_model, str | Path):
         if not Path(kin_model).is_file():  # a misspelt name reads as a path: say what else it could be
@@ -1333,7 +1331,7 @@ def _kin_model(kin_model) -> TrackKinModel | None:
 _SHIPPED_MODELS: dict = {}
 
 
-def _default_kin_model(path: Path = DEFAULT_KIN_MODEL) -> TrackKinModel:
+def _shipped_kin_model(path: Path = DEFAULT_KIN_MODEL) -> TrackKinModel:
     """A shipped track classifier, loaded once per process (every env's tracker shares it; never mutated)."""
     if path not in _SHIPPED_MODELS:
         _SHIPPED_MODELS[path] = TrackKinModel.load(path)
