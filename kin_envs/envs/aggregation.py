@@ -356,7 +356,8 @@ class AggregationEnv(ParallelEnv):
         if cfg.obs_tracks:  # every agent's detection channel from its own confirmed kin tracks
             from kin_envs.envs.tracks import track_rows
 
-            frame = self._obs.frame(scan.ranges, track_rows(self.tracker, cfg.max_tracks, scan.angles))
+            angles = scan.angles if cfg.obs_detections == "mask" else None  # (only the mask reads beams)
+            frame = self._obs.frame(scan.ranges, track_rows(self.tracker, cfg.max_tracks, angles))
         else:
             frame = self._obs.frame(scan.ranges, dets)
         if self.padded_info:

@@ -206,7 +206,9 @@ class SingleRobotEnv(gym.Env):
         """The tracker's confirmed kin tracks as detection rows (for ``obs_tracks``)."""
         from kin_envs.envs.tracks import track_rows
 
-        return track_rows(self.tracker, self.config.max_tracks, self.world.scene.lidar.angles)
+        # the beams a track covers only where the observation's mask channel reads them
+        angles = self.world.scene.lidar.angles if self.config.obs_detections == "mask" else None
+        return track_rows(self.tracker, self.config.max_tracks, angles)
 
     def _sense(self, scan: Scan, dets) -> np.ndarray:
         """Phase 2: remember the scan and detections; the learner's observation frame ``(1, d)``."""

@@ -38,20 +38,23 @@ class _Given:
         return self.arrays
 
 
+def _is_permissive(feed: str | None, detector) -> bool:
+    """Whether ``tracker["feed"]`` gives the tracker ``detector``'s permissive candidates: ``"permissive"``,
+    or ``"auto"`` where they cost no second detector call (:meth:`PermissiveFeed.one_call_for`)."""
+    return feed == "permissive" or (feed == "auto" and PermissiveFeed.one_call_for(detector))
+
+
 def auto_kin_model(feed: str | None, detector) -> str:
     """``tracker={"kin_model": "auto"}``: the shipped track classifier fitted on what the tracker gets:
-    ``"geometric"`` for the geometric detector's permissive candidates (``feed`` ``"permissive"`` or
-    ``"auto"``), ``"learned"`` otherwise."""
-    geometric = feed in ("permissive", "auto") and PermissiveFeed.one_call_for(detector)
+    ``"geometric"`` for the geometric detector's permissive candidates, ``"learned"`` otherwise."""
+    geometric = _is_permissive(feed, detector) and PermissiveFeed.one_call_for(detector)
     return "geometric" if geometric else "learned"
 
 
 def make_feeder(feed: str | None, detector, range_noise: float):
-    """The env's :class:`PermissiveFeed` for ``tracker["feed"]`` (``"permissive"``; ``"auto"`` when it costs
-    no second detector call: :meth:`PermissiveFeed.one_call_for`), or ``None`` (the accepted detections)."""
-    if feed == "permissive" or (feed == "auto" and PermissiveFeed.one_call_for(detector)):
-        return PermissiveFeed(detector, range_noise)
-    return None
+    """The env's :class:`PermissiveFeed` for ``tracker["feed"]`` (``"permissive"``, or ``"auto"`` where it
+    costs no second detector call), or ``None`` (the accepted detections)."""
+    return PermissiveFeed(detector, range_noise) if _is_permissive(feed, detector) else None
 
 
 class PermissiveFeed:
@@ -175,9 +178,9 @@ def housing_beams(angles, bearing, rng, r: float) -> tuple[np.ndarray, np.ndarra
     nearest beam when none is."""
     angles = np.asarray(angles, np.float64).reshape(-1)
     n = angles.shape[0]
-    step = float(np.arctan2(np.sin(angles[1] - angles[0]), np.cos(angles[1] - angles[0]))) if n > 1 else 1.0
-    off = angles - (angles[0] + step * np.arange(n))
-    if n < 2 or step == 0 or not np.allclose(np.arctan2(np.sin(off), np.cos(off)), 0.0, atol=1e-9):
+    steps = (np.diff(angles) + np.pi) % (2 * np.pi) - np.pi  # consecutive steps, wrapped to [-pi, pi)
+    step = float(steps[0]) if n > 1 else 0.0
+    if step == 0 or np.abs(steps - step).max() > 1e-9:
         raise ValueError(f"housing_beams: angles must be >= 2 evenly spaced beam directions, got {angles!r}")
     d = np.arctan2(np.sin(bearing - angles[0]), np.cos(bearing - angles[0])) / step  # centre, in beams
     half = np.arcsin(np.minimum(1.0, r / np.maximum(rng, r))) / abs(step)
