@@ -15,6 +15,17 @@ to ``--out``. Analysis, not a hot path: on 2 shared cores at load ~6, the defaul
 episodes take ~20 min (one centre), ``--per-frame`` ~30 min; ``--range-only`` is ~2x faster::
 
     python scripts/track_shape_oracle.py --per-frame
+
+``--ceiling``: the per-frame F1 an *oracle tracker* could reach on the sequence benchmark's target window
+(kin in view >= 10 frames, 0.3-2 m; ``kin_envs.detection.shape_oracle.ceiling_records`` / ``f1_ceiling``):
+every kin that has moved 2 cm found, every wall and large obstacle rejected, still kin and 7 cm look-alikes
+decided by the shape LLR summed over every frame so far (a centre per frame, true headings), with the
+F1-best threshold per distance bin. No detector and no tracker run; ~1.5 min per swarm episode, seconds per
+lookalike one. With ``--compare`` (a ``benchmark_tracking.py`` ``results.json``) it prints the tracker's
+and the single scan's F1 on the same window beside it::
+
+    python scripts/track_shape_oracle.py --ceiling --benchmark-seeds --noise 0 0.005 0.01 \
+        --compare outputs/benchmark_tracking/results.json
 """
 
 from __future__ import annotations
@@ -61,7 +72,8 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--lookalike-episodes", type=int, default=24,
                    help="lookalike episodes (with --benchmark-seeds: the reduced benchmark's 12)")
     p.add_argument("--first-seed", type=int, default=1000, help="first training seed (not a reserved one)")
-    p.add_argument("--noise", type=float, default=0.01, help="relative lidar range noise (0.01 = 1 %%)")
+    p.add_argument("--noise", type=float, nargs="+", default=[0.01],
+                   help="relative lidar range noise (0.01 = 1 %%); several only with --ceiling")
     p.add_argument("--frames", type=int, nargs="+", default=[10, 20],
                    help="score each object once it has been in view this many frames")  # fmt: skip
     p.add_argument("--still", type=float, default=0.02, help="a kin is still if it moved less than this, m")
@@ -74,6 +86,10 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--benchmark-seeds", action="store_true",
                    help="run the benchmark's reduced episodes (reserved seeds) instead: report the bound "
                         "once, never choose a cue on them")  # fmt: skip
+    p.add_argument("--ceiling", action="store_true",
+                   help="the oracle tracker's per-frame F1 on the target window instead of the ROC tables")
+    p.add_argument("--compare", type=Path, default=None,
+                   help="with --ceiling: a benchmark_tracking.py results.json to print beside the ceiling")
     p.add_argument("--out", type=Path, default=Path("outputs/track_shape_oracle"), help="output directory")
     p.add_argument("--torch-threads", type=int, default=1, help="torch threads (learned detector)")
     add_logging_args(p)
@@ -83,14 +99,22 @@ def main(argv: list[str] | None = None) -> dict:
         p.error("--swarm-episodes and --lookalike-episodes must be >= 0")
     if any(f < 2 for f in args.frames):
         p.error(f"--frames must be >= 2, got {args.frames}")
-    if not 0 < args.noise <= 0.05:
-        p.error(f"--noise must be relative range noise in (0, 0.05] (0.01 = 1 %), got {args.noise}")
+    if args.ceiling:
+        if not all(0 <= v <= 0.05 for v in args.noise):
+            p.error(f"--noise must be relative range noise in [0, 0.05] (0.01 = 1 %), got {args.noise}")
+    elif len(args.noise) != 1 or not 0 < args.noise[0] <= 0.05:
+        p.error(f"--noise must be one relative range noise in (0, 0.05] (0.01 = 1 %), got {args.noise}")
+    if args.compare is not None and not (args.ceiling and args.compare.is_file()):
+        p.error(f"--compare needs --ceiling and an existing results.json, got {args.compare}")
     if not args.still > 0:
         p.error(f"--still must be > 0 m, got {args.still}")
     try:
         check_output_dir(args.out)
     except ValueError as e:
         p.error(str(e))
+    if args.ceiling:
+        return ceiling(args, argv)
+    args.noise = args.noise[0]
     if args.detector == "learned":
         import torch
 
@@ -128,6 +152,80 @@ def main(argv: list[str] | None = None) -> dict:
                    seconds=time.perf_counter() - t0)  # fmt: skip
     print("\n".join(lines))
     return {"samples": samples, "lines": lines}
+
+
+def _window(result: dict) -> dict:
+    from kin_envs.detection.sequences import target_window
+
+    return target_window(result)
+
+
+def ceiling_tables(results: dict, compare: list | None = None) -> list[str]:
+    """Markdown: per split and noise, the oracle tracker's F1 (P / R) on the target window, per distance
+    bin, without shape evidence, the rows it counts, 7 cm prisms rejected after 20 frames; and, from a
+    benchmark run's ``results`` (``compare``), the tracker's and the single scan's F1 on the same window."""
+    from kin_envs.detection.benchmark import DISTANCE_EDGES
+
+    bench = {}
+    for r in compare or []:
+        w = _window(r)
+        bench[(r["split"], round(float(r["noise"]), 6))] = w
+    lines = ["| split | noise | ceiling F1 (P / R) | 0.3-1 m | 1-2 m | no shape cue | kin rows: moving / "
+             "still | look-alike rows | prisms rejected >= 20 frames | tracker F1 (0.3-1 / 1-2 m) | "
+             "single scan |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+    for (split, noise), c in sorted(results.items()):
+        bins = {f"{DISTANCE_EDGES[b]:g}-{DISTANCE_EDGES[b + 1]:g}": v for b, v in c["by_distance"].items()}
+        pr = [v for k, v in c["rejected"].items() if k.startswith("prism")]
+        prism = (sum(v[0] * v[1] for v in pr) / sum(v[1] for v in pr), sum(v[1] for v in pr)) if pr else None
+        b = bench.get((split, round(noise, 6)))
+        trk = (f"{_f(b['tracker']['all']['f1'])} ({_f(b['tracker']['0.3-1']['f1'])} / "
+               f"{_f(b['tracker']['1-2']['f1'])})" if b else "–")  # fmt: skip
+        single = _f(b["single"]["all"]["f1"]) if b and "single" in b else "–"
+        lines.append(
+            f"| {split} | {100 * noise:g} % | **{_f(c['f1'])}** ({_f(c['precision'])} / {_f(c['recall'])}) | "
+            f"{_f(bins.get('0.3-1', {}).get('f1'))} | {_f(bins.get('1-2', {}).get('f1'))} | "
+            f"{_f(c['f1_no_shape'])} | {c['moving_kin_rows']} / {c['still_kin_rows']} | "
+            f"{c['lookalike_rows']} | "
+            f"{'–' if prism is None else f'{100 * prism[0]:.0f} % of {prism[1]}'} | {trk} | {single} |"
+        )
+    return lines
+
+
+def ceiling(args, argv) -> dict:
+    """``--ceiling``: the oracle tracker's per-frame F1 per split and noise (see the module docstring)."""
+    import json
+
+    from kin_envs.detection import sequences as S
+    from kin_envs.detection.shape_oracle import ceiling_records, f1_ceiling
+
+    t0 = time.perf_counter()
+    compare = json.loads(args.compare.read_text())["results"] if args.compare else None
+    results, records = {}, {}
+    for split, n in (("swarm", args.swarm_episodes), ("lookalike", args.lookalike_episodes)):
+        if not n:
+            continue
+        spec = S.SEQUENCE_SPLITS[split] if args.benchmark_seeds else S.training_split(split, args.first_seed)
+        for noise in args.noise:
+            rows = ceiling_records(spec, None if args.benchmark_seeds else n, noise, still=args.still,
+                                   progress=True, benchmark_seeds=args.benchmark_seeds)  # fmt: skip
+            results[(split, float(noise))] = f1_ceiling(rows)
+            records[f"{split} {noise:g}"] = rows
+    seeds = "benchmark seeds (reduced)" if args.benchmark_seeds else f"training seeds from {args.first_seed}"
+    lines = [f"# The oracle tracker's per-frame F1 on the target window ({seeds})", "",
+             "Kin in view >= 10 frames at 0.3-2 m (the sequence benchmark's window and ground truth). A kin "
+             f"that moved >= {args.still:g} m since the observer first saw it is always found; walls and "
+             "large obstacles always rejected; still kin and 7 cm look-alikes decided by the shape LLR over "
+             "every frame so far (centre per frame, true headings), the F1-best threshold per distance bin.",
+             "", *ceiling_tables(results, compare)]  # fmt: skip
+    out = {f"{k[0]} {k[1]:g}": v for k, v in results.items()}
+    write_json(args.out / "ceiling.json", {"ceiling": out, "records": records})
+    with atomic_write(args.out / "ceiling.md", "w") as f:
+        f.write("\n".join(lines) + "\n")
+    write_run_info(args.out, args, argv=argv, script=__file__, seed=args.first_seed,
+                   seconds=time.perf_counter() - t0)  # fmt: skip
+    print("\n".join(lines))
+    return {"ceiling": out, "lines": lines}
 
 
 if __name__ == "__main__":

@@ -25,6 +25,8 @@ import math
 
 import numpy as np
 
+from detectors.metrics import prf1
+
 HOUSING_R = 0.035  # m (the scene's value is passed in where a world is at hand)
 
 
@@ -251,6 +253,31 @@ def roc_summary(pos, neg) -> dict:
     return _roc(pos, neg)
 
 
+def _episode_family(world, step_deg: float):
+    """The look-alike family of one episode's world (the generic outlines plus its own non-wall obstacles
+    at their true orientation), which obstacles are kin-sized and which are same-radius cylinders."""
+    from ..core.scenes import Cylinder, Wall
+    from . import sequences as S
+
+    r_h = world.scene.robot.housing_radius
+    obst = world.scene.obstacles
+    extra_p, extra_r = [], []
+    for ob in obst:
+        kind, geom = ob.footprint()
+        if isinstance(ob, Wall):
+            continue
+        if kind == "circle":
+            extra_r.append(geom[2])
+        elif len(geom) <= 6 and np.ptp(geom, axis=0).max() < 0.2:
+            extra_p.append(geom - np.asarray(ob.center))
+    family = lookalike_family(extra_p, extra_r, r_h, step_deg)
+    # kin-sized objects only (walls and large obstacles are no look-alikes of a 7 cm housing)
+    small = np.array([_kin_sized(o, Wall) for o in obst], bool).reshape(-1)
+    same_r = np.array([isinstance(o, Cylinder) and abs(o.radius - r_h) <= S.SAME_RADIUS_TOL
+                       for o in obst], bool).reshape(-1)  # fmt: skip
+    return family, small, same_r
+
+
 def oracle_samples(recorded, frames=(10, 20), distance=(0.3, 2.0), still: float = 0.02, true_poses=False,
                    kin_model="learned", step_deg: float = 10.0, angle_sigma: float = 5e-4,
                    per_frame: bool = False, progress: bool = False,
@@ -267,7 +294,6 @@ def oracle_samples(recorded, frames=(10, 20), distance=(0.3, 2.0), still: float 
     from detectors.tracking import KinTracker
 
     from ..core.lidar import HitKind
-    from ..core.scenes import Cylinder, Wall
     from . import sequences as S
     from .benchmark import GATE
 
@@ -287,20 +313,7 @@ def oracle_samples(recorded, frames=(10, 20), distance=(0.3, 2.0), still: float 
         w = ep.world
         r_h = w.scene.robot.housing_radius
         obst = w.scene.obstacles
-        extra_p, extra_r = [], []
-        for ob in obst:
-            kind, geom = ob.footprint()
-            if isinstance(ob, Wall):
-                continue
-            if kind == "circle":
-                extra_r.append(geom[2])
-            elif len(geom) <= 6 and np.ptp(geom, axis=0).max() < 0.2:
-                extra_p.append(geom - np.asarray(ob.center))
-        family = lookalike_family(extra_p, extra_r, r_h, step_deg)
-        # kin-sized objects only (walls and large obstacles are no look-alikes of a 7 cm housing)
-        small = np.array([_kin_sized(o, Wall) for o in obst], bool)
-        same_r = np.array([isinstance(o, Cylinder) and abs(o.radius - r_h) <= S.SAME_RADIUS_TOL
-                           for o in obst], bool)  # fmt: skip
+        family, small, same_r = _episode_family(w, step_deg)
         tracker = KinTracker(n_observers=n_obs, kin_model=kin_model)
         odo = np.zeros((n_obs, 3))
         # per (observer, ("r"|"o", index)): list of (origins, dirs, ranges) per frame in view, first pos
@@ -384,3 +397,205 @@ def oracle_samples(recorded, frames=(10, 20), distance=(0.3, 2.0), still: float 
                                     "chi2_lookalike": -2.0 * res["ll_lookalike"],
                                     "track_prob": p, "mean_logit": mean_logit})  # fmt: skip
     return out
+
+
+# --------------------------------------------------------------------------- the per-frame F1 ceiling
+
+
+def ceiling_records(spec, n_episodes: int | None = None, noise: float = 0.01, still: float = 0.02,
+                    min_age: int = 10, distance=(0.3, 2.0), step_deg: float = 10.0,
+                    angle_sigma: float = 5e-4, progress: bool = False,
+                    benchmark_seeds: bool = False) -> list[dict]:
+    """What an oracle tracker would decide, frame by frame, on the sequence benchmark's target window.
+
+    Re-runs the episodes of ``spec`` (a ``sequences.SequenceSpec``; the reduced count unless
+    ``n_episodes``) and returns one row per observer, frame and object that the benchmark's per-frame
+    F1 counts in its window: a kin with >= ``MIN_BEAMS`` beams, or a kin-sized non-wall obstacle (7 cm
+    prisms, boxes, cylinders of other radii; same-radius cylinders are "don't care" there) with >= 2
+    beams, in view (its current run of frames with >= 1 beam, as the benchmark counts it) for
+    >= ``min_age`` frames, at ``distance`` (m) from the observer. Each row says whether the object is a
+    kin, whether it is *still* (a kin that has not moved ``still`` m from where this observer first saw
+    it; obstacles always) and its shape LLR (:func:`shape_llr`'s statistic with a centre per frame and
+    true headings, summed over **every** frame so far in which it had >= 2 beams: the evidence a tracker
+    that never loses it could have). :func:`f1_ceiling` turns the rows into the best per-frame F1.
+
+    The oracle is generous everywhere it can be: true association, true headings, the noise model, every
+    outline of the episode in its family, a kin that moved is always found, anything larger than a
+    housing and every wall always rejected. ``benchmark_seeds`` accepts the reserved episodes (for
+    reporting the bound once, never for choosing anything)."""
+    from ..core.lidar import HitKind
+    from . import sequences as S
+    from .benchmark import DISTANCE_EDGES, MIN_BEAMS
+
+    if not (spec.training or benchmark_seeds):
+        raise ValueError(f"ceiling_records: split {spec.name!r} uses the benchmark's reserved seeds; pass "
+                         "benchmark_seeds=True to report the bound on them (never to choose)")  # fmt: skip
+    if not (isinstance(min_age, int) and min_age >= 1):
+        raise ValueError(f"ceiling_records: min_age must be an integer >= 1, got {min_age!r}")
+    if not still > 0:
+        raise ValueError(f"ceiling_records: still must be > 0 m, got {still!r}")
+    n = spec.reduced_episodes if n_episodes is None else int(n_episodes)
+    seeds = list(spec.seeds(n))
+    it = seeds
+    if progress:
+        from kin_envs.cli import progress as _bar
+
+        it = _bar(seeds, desc=f"ceiling {spec.name} noise {100 * noise:g} %", leave=False)
+    lo, hi = float(distance[0]), float(distance[1])
+    out = []
+    for seed in it:
+        ep = S.episode(spec, seed, noise)
+        w = ep.world
+        r_h = w.scene.robot.housing_radius
+        family, small, same_r = _episode_family(w, step_deg)
+        n_obs, n_rob, n_ob = len(ep.observers), w.n_robots, w.n_obstacles
+        age = np.zeros((n_obs, n_rob + n_ob), np.int64)  # visibility ages (>= 1 valid beam)
+        first = np.full((n_obs, n_rob, 2), np.nan)  # where each observer first saw each kin
+        moved = np.zeros((n_obs, n_rob))  # the farthest it has been from there since
+        data: dict = {}  # (row, object) -> [(frame, o, u, r, no, nu)] frames with >= 2 beams
+        want: dict = {}  # (row, object) -> [(frame, distance, age, kin, still)] rows in the window
+        for frame in range(spec.run.frames):
+            if frame:
+                ep.step(frame)
+            scan = ep.scan()
+            for row in range(n_obs):
+                kind, index = scan.hit_kind[row], scan.hit_index[row]
+                valid = scan.ranges[row] < scan.range_max
+                robot = valid & (kind == HitKind.ROBOT)
+                other = valid & (kind != HitKind.ROBOT) & (kind != HitKind.NONE) & (index >= 0)
+                obj = np.where(robot, index, np.where(other, n_rob + index, -1))  # one id space
+                ids, counts = np.unique(obj[obj >= 0], return_counts=True)
+                vis = np.zeros(n_rob + n_ob, bool)
+                vis[ids] = True
+                age[row] = np.where(vis, age[row] + 1, 0)
+                x0, y0, th = scan.poses[row]
+                seen = ids[ids < n_rob]
+                new = seen[np.isnan(first[row, seen, 0])]
+                first[row, new] = w.poses[new, :2]
+                far = np.hypot(*(w.poses[seen, :2] - first[row, seen]).T)
+                moved[row, seen] = np.maximum(moved[row, seen], far)
+                ang = scan.angles + th
+                for j, cnt in zip(ids.tolist(), counts.tolist(), strict=True):
+                    is_kin = j < n_rob
+                    if cnt < (MIN_BEAMS if is_kin else 2) or (not is_kin and (same_r[j - n_rob]
+                                                                             or not small[j - n_rob])):
+                        continue
+                    is_still = not is_kin or moved[row, j] < still
+                    if not is_still:
+                        continue  # the oracle finds a kin that moved; its rows come below, no evidence needed
+                    b = obj == j
+                    r = scan.ranges[row][b].astype(float)
+                    nb = (np.roll(b, 1) | np.roll(b, -1)) & ~b
+                    nb &= ~valid | (scan.ranges[row] > r.max() + 0.05)
+                    o = np.array([[x0, y0]])
+                    u, nu = np.c_[np.cos(ang[b]), np.sin(ang[b])], np.c_[np.cos(ang[nb]), np.sin(ang[nb])]
+                    data.setdefault((row, j), []).append(
+                        (frame, np.repeat(o, len(u), 0), u, r, np.repeat(o, len(nu), 0), nu))
+                # the window's rows: kin (>= MIN_BEAMS) and kin-sized look-alikes (>= 2 beams)
+                for j, cnt in zip(ids.tolist(), counts.tolist(), strict=True):
+                    is_kin = j < n_rob
+                    if age[row, j] < min_age or cnt < (MIN_BEAMS if is_kin else 2):
+                        continue
+                    if not is_kin and (same_r[j - n_rob] or not small[j - n_rob]):
+                        continue
+                    cxy = w.poses[j, :2] if is_kin else np.asarray(w.scene.obstacles[j - n_rob].center)
+                    dist = float(np.hypot(cxy[0] - x0, cxy[1] - y0))
+                    if not (lo <= dist < hi):
+                        continue
+                    is_still = not is_kin or moved[row, j] < still
+                    want.setdefault((row, j), []).append((frame, dist, int(age[row, j]), is_kin, is_still))
+        obst = w.scene.obstacles
+        for (row, j), rows in want.items():
+            frames_needed = {f for f, *_rest in rows if _rest[-1]}  # still rows need the evidence
+            llr_at = {}
+            if frames_needed:
+                last = max(frames_needed)
+                llc, lla = 0.0, 0.0
+                for f, o, u, r, no, nu in data.get((row, j), []):
+                    if f > last:
+                        break
+                    sig = np.maximum(noise * r, 1e-4)
+                    c, a, _ = _hyp_ll(o, u, r, sig, (no, nu, angle_sigma), family, r_h)
+                    llc, lla = llc + c, lla + a
+                    llr_at[f] = llc - float(np.max(lla))
+            label = "kin" if j < n_rob else (obst[j - n_rob].kind + (
+                f"{obst[j - n_rob].sides}" if obst[j - n_rob].kind == "prism" else ""))  # fmt: skip
+            for f, dist, a, is_kin, is_still in rows:
+                out.append({"split": spec.name, "seed": seed, "observer": row, "frame": f, "object": label,
+                            "kin": is_kin, "still": is_still, "distance": dist, "age": a,
+                            "distance_bin": _bin_of(dist, DISTANCE_EDGES),
+                            "llr": llr_at.get(f, math.inf) if is_still else math.inf})  # fmt: skip
+    return out
+
+
+def _bin_of(value: float, edges) -> int:
+    return int(np.searchsorted(edges, value, side="right")) - 1
+
+
+def f1_ceiling(records, by=("distance_bin",), iterations: int = 50, lookalike_age: int = 20) -> dict:
+    """The best per-frame F1 on :func:`ceiling_records`' rows: a kin that moved is always found; a still
+    kin or look-alike is reported when its shape LLR reaches a threshold, one per value of the ``by``
+    fields (a prior of its own per context; ``()``: one threshold), chosen to maximise F1 over all rows
+    (Dinkelbach: at the optimum F*, each context reports where (2 - F*) per kin kept outweighs F* per
+    look-alike kept). Returns ``f1``, ``precision``, ``recall``, the counts, the thresholds, ``by_distance``
+    (the same decisions' P / R / F1 per distance bin), ``rejected`` (look-alikes in view >= ``lookalike_age``
+    frames not reported, by kind: ``(share, rows)``) and ``f1_no_shape`` (still objects all reported or all
+    dropped per context: motion and context without any shape evidence)."""
+    rows = list(records)
+    moving = sum(1 for r in rows if r["kin"] and not r["still"])
+    groups: dict = {}
+    for r in rows:
+        if r["still"]:
+            groups.setdefault(tuple(r[k] for k in by), []).append((r["llr"], r["kin"]))
+    n_pos = moving + sum(1 for g in groups.values() for _v, k in g if k)
+    prepared = {}
+    for key, g in groups.items():  # per context: TP and FP when reporting every row above each cut
+        v = np.array([x for x, _k in g], float)
+        k = np.array([kk for _x, kk in g], bool)
+        order = np.argsort(-v, kind="mergesort")
+        v, k = v[order], k[order]
+        cut = np.r_[np.flatnonzero(np.diff(v) != 0) + 1, len(v)]  # report the first `cut` rows (ties kept)
+        prepared[key] = (np.r_[0, np.cumsum(k)[cut - 1]], np.r_[0, np.cumsum(~k)[cut - 1]],
+                         np.r_[np.inf, v[cut - 1]])  # thresholds: report rows with llr >= thr  # fmt: skip
+
+    def solve(options):
+        f, best = 0.0, None
+        for _ in range(iterations):
+            pick = {}
+            for key, (tp, fp, _t) in prepared.items():
+                i = options(len(tp))
+                pick[key] = int(i[np.argmax((2 - f) * tp[i] - f * fp[i])])
+            tp_ = moving + sum(int(prepared[key][0][i]) for key, i in pick.items())
+            fp_ = sum(int(prepared[key][1][i]) for key, i in pick.items())
+            f_new = 2 * tp_ / (tp_ + fp_ + n_pos) if n_pos else math.nan
+            if best is not None and not f_new > f + 1e-12:
+                break
+            f, best = f_new, pick
+        return f, best
+
+    f, pick = solve(np.arange)
+    f0, _ = solve(lambda n: np.array([0, n - 1]))  # all or nothing per context
+    thr = {key: float(prepared[key][2][i]) for key, i in pick.items()}
+
+    def reported(r):
+        return (r["kin"] and not r["still"]) or r["llr"] >= thr[tuple(r[k] for k in by)]
+
+    def counts(sel):
+        tp = sum(1 for r in sel if r["kin"] and reported(r))
+        fp = sum(1 for r in sel if not r["kin"] and reported(r))
+        fn = sum(1 for r in sel if r["kin"] and not reported(r))
+        p, rc, f1 = prf1(tp, fp, fn)
+        return {"tp": tp, "fp": fp, "fn": fn, "precision": p, "recall": rc, "f1": f1}
+
+    rej: dict = {}
+    for r in rows:
+        if not r["kin"] and r["age"] >= lookalike_age:
+            c = rej.setdefault(r["object"], [0, 0])
+            c[0] += 1
+            c[1] += int(not reported(r))
+    return {**counts(rows), "kin_rows": n_pos, "moving_kin_rows": moving, "still_kin_rows": n_pos - moving,
+            "lookalike_rows": sum(1 for r in rows if not r["kin"]),
+            "by_distance": {int(b): counts([r for r in rows if r["distance_bin"] == b])
+                            for b in sorted({r["distance_bin"] for r in rows})},
+            "rejected": {k: (c[1] / c[0], c[0]) for k, c in sorted(rej.items())},
+            "thresholds": {str(k): v for k, v in thr.items()}, "f1_no_shape": f0}  # fmt: skip

@@ -17,9 +17,28 @@ def test_tables_rank_the_statistics_per_split_and_frames():
 
 
 @pytest.mark.parametrize(
-    "argv", [["--frames", "1"], ["--noise", "0"], ["--still", "0"], ["--swarm-episodes", "-1"]]
+    "argv",
+    [["--frames", "1"], ["--noise", "0"], ["--still", "0"], ["--swarm-episodes", "-1"],
+     ["--noise", "0.01", "0.005"], ["--ceiling", "--noise", "0.1"], ["--compare", "results.json"],
+     ["--ceiling", "--compare", "missing.json"]],
 )
 def test_bad_arguments_exit(argv, tmp_path):
     mod = load_script("track_shape_oracle")
     with pytest.raises(SystemExit):
         mod.main([*argv, "--out", str(tmp_path / "o")])
+
+
+def test_ceiling_tables_put_the_benchmark_beside_the_ceiling():
+    mod = load_script("track_shape_oracle")
+    c = {"f1": 0.9, "precision": 0.95, "recall": 0.85, "f1_no_shape": 0.8, "moving_kin_rows": 10,
+         "still_kin_rows": 5, "lookalike_rows": 7, "rejected": {"prism5": (0.5, 4), "prism3": (1.0, 4)},
+         "by_distance": {1: {"f1": 0.95}, 2: {"f1": 0.85}}}  # fmt: skip
+    cell = {"tp": 8, "fp": 1, "fn": 1}
+    bench = [{"split": "swarm", "noise": 0.01, "by_age_distance": {"tracker": {"3,1": cell, "3,2": cell},
+                                                                   "single": {"3,1": cell}}}]  # fmt: skip
+    lines = mod.ceiling_tables({("swarm", 0.01): c}, bench)
+    assert len(lines) == 3
+    assert lines[2].startswith("| swarm | 1 % | **0.90** (0.95 / 0.85) | 0.95 | 0.85 | 0.80 | 10 / 5 | 7 | "
+                               "75 % of 8 |")
+    assert lines[2].endswith("| 0.89 (0.89 / 0.89) | 0.89 |")
+    assert mod.ceiling_tables({("lookalike", 0.0): c})[2].endswith("| – | – |")

@@ -1,5 +1,6 @@
 """kin_envs.detection.shape_oracle: the still-object shape bound on hand-made returns, its ROC figures,
-and a tiny training-seed run (refusing the benchmark's seeds)."""
+a tiny training-seed run (refusing the benchmark's seeds), and the oracle tracker's F1 ceiling (against
+a brute-force search and the sequence benchmark's own window counts)."""
 
 import dataclasses
 
@@ -12,6 +13,8 @@ from kin_envs.detection.shape_oracle import (
     _ray_circle,
     _ray_polygon,
     _regular,
+    ceiling_records,
+    f1_ceiling,
     lookalike_family,
     oracle_samples,
     roc_summary,
@@ -87,3 +90,76 @@ def test_the_silhouette_carries_what_the_noisy_ranges_do_not():
     with_silhouette = shape_llr(o, u, r, 0.01, family, neighbours=nb, frame=f)["llr"]
     ranges_only = shape_llr(o, u, r, 0.01, family, neighbours=nb, frame=f, angle_sigma=0.0)["llr"]
     assert with_silhouette < -20 < ranges_only
+
+
+def _brute_f1(rows, contexts):
+    """Best F1 by trying every threshold (each row's LLR, or report none) in every context."""
+    import itertools
+
+    keys = sorted({r["ctx"] for r in rows})
+    options = [[np.inf, *sorted({r["llr"] for r in rows if r["still"] and r["ctx"] == k})] for k in keys]
+    best = 0.0
+    for thr in itertools.product(*options) if contexts else ([t] * len(keys) for t in
+                                                               sorted({np.inf, *(r["llr"] for r in rows)})):
+        t = dict(zip(keys, thr, strict=True))
+        rep = [(r["kin"] and not r["still"]) or r["llr"] >= t[r["ctx"]] for r in rows]
+        tp = sum(1 for r, x in zip(rows, rep, strict=True) if r["kin"] and x)
+        fp = sum(1 for r, x in zip(rows, rep, strict=True) if not r["kin"] and x)
+        fn = sum(1 for r, x in zip(rows, rep, strict=True) if r["kin"] and not x)
+        best = max(best, 2 * tp / (2 * tp + fp + fn))
+    return best
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_f1_ceiling_finds_the_best_thresholds(seed):
+    rng = np.random.default_rng(seed)
+    rows = []
+    for _ in range(int(rng.integers(8, 18))):
+        kin = bool(rng.random() < 0.6)
+        still = not kin or bool(rng.random() < 0.5)
+        llr = float(np.round(rng.normal(1.0 if kin else -1.0, 1.5), 1)) if still else np.inf
+        rows.append({"kin": kin, "still": still, "llr": llr, "ctx": int(rng.integers(2)), "distance_bin": 1,
+                     "age": 25, "object": "kin" if kin else "prism5"})  # fmt: skip
+    both = f1_ceiling(rows, by=("ctx",))
+    one = f1_ceiling(rows, by=())
+    assert both["f1"] == pytest.approx(_brute_f1(rows, True))
+    assert one["f1"] == pytest.approx(_brute_f1(rows, False))
+    assert one["f1"] <= both["f1"] + 1e-12 and both["f1_no_shape"] <= both["f1"] + 1e-12
+    assert both["tp"] + both["fn"] == both["kin_rows"] == sum(r["kin"] for r in rows)
+    assert both["f1"] == pytest.approx(2 * both["tp"] / (2 * both["tp"] + both["fp"] + both["fn"]))
+
+
+def test_f1_ceiling_on_a_known_case():
+    """3 moving kin (always found), still kin at LLR 2 and -1, look-alikes at 1, 0.5 and -3: reporting
+    LLR >= 2 gives TP 4, FP 0, FN 1 (F1 8/9); >= 1: 4 / 1 / 1 (0.8); >= -1: 5 / 2 / 0 (0.83); all: 5 / 3 / 0
+    (0.77), none: 3 / 0 / 2 (0.75). The prism seen for 25 frames is rejected at the best threshold."""
+    rows = [{"kin": True, "still": False, "llr": np.inf, "distance_bin": 1, "age": 12, "object": "kin"}] * 3
+    rows += [{"kin": True, "still": True, "llr": v, "distance_bin": 1, "age": 12, "object": "kin"}
+             for v in (2.0, -1.0)]  # fmt: skip
+    rows += [{"kin": False, "still": True, "llr": v, "distance_bin": 1, "age": a, "object": k}
+             for v, a, k in ((1.0, 25, "prism5"), (0.5, 12, "box"), (-3.0, 12, "box"))]  # fmt: skip
+    c = f1_ceiling(rows)
+    assert c["f1"] == pytest.approx(8 / 9) and (c["tp"], c["fp"], c["fn"]) == (4, 0, 1)
+    assert c["rejected"] == {"prism5": (1.0, 1)} and c["f1_no_shape"] == pytest.approx(10 / 13)
+    assert c["by_distance"][1]["f1"] == pytest.approx(8 / 9) and c["moving_kin_rows"] == 3
+    assert c["thresholds"] == {"(1,)": 2.0}
+
+
+def test_ceiling_records_count_the_benchmarks_window():
+    """The oracle's kin rows are exactly the kin frames the sequence benchmark counts in its target window
+    (tracker TP + FN), on the same training episode; moving kin carry no shape evidence, still objects do."""
+    spec = S.training_split("lookalike", 81)
+    spec = dataclasses.replace(spec, run=dataclasses.replace(spec.run, frames=16))
+    rows = ceiling_records(spec, 2, 0.01, step_deg=30.0)
+    rec = S.record_sequences(GeometricKinDetector(reports=False), spec, 2, 0.01)
+    window = S.target_window(S.evaluate_sequences(rec, mot=False, kin_model="hand"))["tracker"]["all"]
+    kin = [r for r in rows if r["kin"]]
+    assert kin and len(kin) == window["tp"] + window["fn"]
+    assert all(r["age"] >= 10 and 0.3 <= r["distance"] < 2.0 for r in rows)
+    assert all(np.isinf(r["llr"]) for r in kin if not r["still"])
+    assert all(np.isfinite(r["llr"]) for r in rows if r["still"])
+    assert f1_ceiling(rows)["kin_rows"] == len(kin)
+    with pytest.raises(ValueError, match="reserved"):
+        ceiling_records(S.SEQUENCE_SPLITS["lookalike"], 1)
+    with pytest.raises(ValueError, match="min_age"):
+        ceiling_records(spec, 1, min_age=0)
