@@ -417,7 +417,9 @@ def ceiling_records(spec, n_episodes: int | None = None, noise: float = 0.01, st
     kin, whether it is *still* (a kin that has not moved ``still`` m from where this observer first saw
     it; obstacles always) and its shape LLR (:func:`shape_llr`'s statistic with a centre per frame and
     true headings, summed over **every** frame so far in which it had >= 2 beams: the evidence a tracker
-    that never loses it could have). :func:`f1_ceiling` turns the rows into the best per-frame F1.
+    that never loses it could have). :func:`f1_ceiling` turns the rows into the best per-frame F1. Rows
+    with ``dont_care`` are same-radius cylinders at ``distance`` once every kin the observer has seen moved
+    ``sequences.MOVED`` m (the benchmark's same-radius rejection frames; any age), for that figure only.
 
     The oracle is generous everywhere it can be: true association, true headings, the noise model, every
     outline of the episode in its family, a kin that moved is always found, anything larger than a
@@ -452,6 +454,8 @@ def ceiling_records(spec, n_episodes: int | None = None, noise: float = 0.01, st
         age = np.zeros((n_obs, n_rob + n_ob), np.int64)  # visibility ages (>= 1 valid beam)
         first = np.full((n_obs, n_rob, 2), np.nan)  # where each observer first saw each kin
         moved = np.zeros((n_obs, n_rob))  # the farthest it has been from there since
+        start = w.poses[:, :2].copy()  # the benchmark's "moved" for same-radius rejection: from here
+        seen_kin = [set() for _ in range(n_obs)]
         data: dict = {}  # (row, object) -> [(frame, o, u, r, no, nu)] frames with >= 2 beams
         want: dict = {}  # (row, object) -> [(frame, distance, age, kin, still)] rows in the window
         for frame in range(spec.run.frames):
@@ -477,8 +481,7 @@ def ceiling_records(spec, n_episodes: int | None = None, noise: float = 0.01, st
                 ang = scan.angles + th
                 for j, cnt in zip(ids.tolist(), counts.tolist(), strict=True):
                     is_kin = j < n_rob
-                    if cnt < (MIN_BEAMS if is_kin else 2) or (not is_kin and (same_r[j - n_rob]
-                                                                             or not small[j - n_rob])):
+                    if cnt < (MIN_BEAMS if is_kin else 2) or (not is_kin and not small[j - n_rob]):
                         continue
                     is_still = not is_kin or moved[row, j] < still
                     if not is_still:
@@ -491,12 +494,20 @@ def ceiling_records(spec, n_episodes: int | None = None, noise: float = 0.01, st
                     u, nu = np.c_[np.cos(ang[b]), np.sin(ang[b])], np.c_[np.cos(ang[nb]), np.sin(ang[nb])]
                     data.setdefault((row, j), []).append(
                         (frame, np.repeat(o, len(u), 0), u, r, np.repeat(o, len(nu), 0), nu))
-                # the window's rows: kin (>= MIN_BEAMS) and kin-sized look-alikes (>= 2 beams)
+                seen_kin[row].update(seen[counts[ids < n_rob] >= MIN_BEAMS].tolist())
+                sk = np.fromiter(seen_kin[row], np.int64)
+                gone = np.hypot(*(w.poses[sk, :2] - start[sk]).T)
+                all_moved = len(sk) > 0 and bool(np.all(gone >= S.MOVED))
+                # the window's rows: kin (>= MIN_BEAMS) and kin-sized look-alikes (>= 2 beams); same-radius
+                # cylinders ("don't care" for F1) in view once every kin seen so far moved S.MOVED m
                 for j, cnt in zip(ids.tolist(), counts.tolist(), strict=True):
                     is_kin = j < n_rob
-                    if age[row, j] < min_age or cnt < (MIN_BEAMS if is_kin else 2):
+                    sr = not is_kin and bool(same_r[j - n_rob])
+                    if sr and not all_moved:
                         continue
-                    if not is_kin and (same_r[j - n_rob] or not small[j - n_rob]):
+                    if not sr and (age[row, j] < min_age or cnt < (MIN_BEAMS if is_kin else 2)):
+                        continue
+                    if not is_kin and not small[j - n_rob]:
                         continue
                     cxy = w.poses[j, :2] if is_kin else np.asarray(w.scene.obstacles[j - n_rob].center)
                     dist = float(np.hypot(cxy[0] - x0, cxy[1] - y0))
@@ -518,13 +529,15 @@ def ceiling_records(spec, n_episodes: int | None = None, noise: float = 0.01, st
                     c, a, _ = _hyp_ll(o, u, r, sig, (no, nu, angle_sigma), family, r_h)
                     llc, lla = llc + c, lla + a
                     llr_at[f] = llc - float(np.max(lla))
-            label = "kin" if j < n_rob else (obst[j - n_rob].kind + (
+            sr = j >= n_rob and bool(same_r[j - n_rob])
+            label = "kin" if j < n_rob else "same-radius" if sr else (obst[j - n_rob].kind + (
                 f"{obst[j - n_rob].sides}" if obst[j - n_rob].kind == "prism" else ""))  # fmt: skip
             for f, dist, a, is_kin, is_still in rows:
                 out.append({"split": spec.name, "seed": seed, "observer": row, "frame": f, "object": label,
-                            "kin": is_kin, "still": is_still, "distance": dist, "age": a,
+                            "kin": is_kin, "still": is_still, "distance": dist, "age": a, "dont_care": sr,
                             "distance_bin": _bin_of(dist, DISTANCE_EDGES),
-                            "llr": llr_at.get(f, math.inf) if is_still else math.inf})  # fmt: skip
+                            # no evidence this frame (one beam): nothing to report
+                            "llr": llr_at.get(f, -math.inf) if is_still else math.inf})  # fmt: skip
     return out
 
 
@@ -537,11 +550,13 @@ def f1_ceiling(records, by=("distance_bin",), iterations: int = 50, lookalike_ag
     kin or look-alike is reported when its shape LLR reaches a threshold, one per value of the ``by``
     fields (a prior of its own per context; ``()``: one threshold), chosen to maximise F1 over all rows
     (Dinkelbach: at the optimum F*, each context reports where (2 - F*) per kin kept outweighs F* per
-    look-alike kept). Returns ``f1``, ``precision``, ``recall``, the counts, the thresholds, ``by_distance``
-    (the same decisions' P / R / F1 per distance bin), ``rejected`` (look-alikes in view >= ``lookalike_age``
-    frames not reported, by kind: ``(share, rows)``) and ``f1_no_shape`` (still objects all reported or all
-    dropped per context: motion and context without any shape evidence)."""
-    rows = list(records)
+    look-alike kept; ``dont_care`` rows left out). Returns ``f1``, ``precision``, ``recall``, the counts,
+    the thresholds, ``by_distance`` (the same decisions' P / R / F1 per distance bin), ``rejected``
+    (look-alikes in view >= ``lookalike_age`` frames not reported, by kind: ``(share, rows)``),
+    ``same_radius_rejected`` (the ``dont_care`` rows not reported: ``(share, rows)``) and ``f1_no_shape``
+    (still objects all reported or all dropped per context: motion and context without shape evidence)."""
+    all_rows = list(records)
+    rows = [r for r in all_rows if not r.get("dont_care", False)]
     moving = sum(1 for r in rows if r["kin"] and not r["still"])
     groups: dict = {}
     for r in rows:
@@ -578,7 +593,7 @@ def f1_ceiling(records, by=("distance_bin",), iterations: int = 50, lookalike_ag
     thr = {key: float(prepared[key][2][i]) for key, i in pick.items()}
 
     def reported(r):
-        return (r["kin"] and not r["still"]) or r["llr"] >= thr[tuple(r[k] for k in by)]
+        return (r["kin"] and not r["still"]) or r["llr"] >= thr.get(tuple(r[k] for k in by), math.inf)
 
     def counts(sel):
         tp = sum(1 for r in sel if r["kin"] and reported(r))
@@ -593,9 +608,11 @@ def f1_ceiling(records, by=("distance_bin",), iterations: int = 50, lookalike_ag
             c = rej.setdefault(r["object"], [0, 0])
             c[0] += 1
             c[1] += int(not reported(r))
+    sr = [not reported(r) for r in all_rows if r.get("dont_care", False)]
     return {**counts(rows), "kin_rows": n_pos, "moving_kin_rows": moving, "still_kin_rows": n_pos - moving,
             "lookalike_rows": sum(1 for r in rows if not r["kin"]),
             "by_distance": {int(b): counts([r for r in rows if r["distance_bin"] == b])
                             for b in sorted({r["distance_bin"] for r in rows})},
             "rejected": {k: (c[1] / c[0], c[0]) for k, c in sorted(rej.items())},
+            "same_radius_rejected": (float(np.mean(sr)) if sr else math.nan, len(sr)),
             "thresholds": {str(k): v for k, v in thr.items()}, "f1_no_shape": f0}  # fmt: skip

@@ -145,20 +145,29 @@ def test_f1_ceiling_on_a_known_case():
     assert c["thresholds"] == {"(1,)": 2.0}
 
 
-def test_ceiling_records_count_the_benchmarks_window():
+def test_ceiling_records_count_the_benchmarks_window(monkeypatch):
     """The oracle's kin rows are exactly the kin frames the sequence benchmark counts in its target window
-    (tracker TP + FN), on the same training episode; moving kin carry no shape evidence, still objects do."""
+    (tracker TP + FN), and its same-radius rows the frames the benchmark checks for same-radius rejection,
+    on the same training episodes; moving kin carry no shape evidence, still objects do."""
+    monkeypatch.setattr(S, "MOVED", 0.02)  # "every kin seen has moved": reached within these short episodes
     spec = S.training_split("lookalike", 81)
-    spec = dataclasses.replace(spec, run=dataclasses.replace(spec.run, frames=16))
-    rows = ceiling_records(spec, 2, 0.01, step_deg=30.0)
+    spec = dataclasses.replace(spec, run=dataclasses.replace(spec.run, frames=20))
     rec = S.record_sequences(GeometricKinDetector(reports=False), spec, 2, 0.01)
-    window = S.target_window(S.evaluate_sequences(rec, mot=False, kin_model="hand"))["tracker"]["all"]
-    kin = [r for r in rows if r["kin"]]
-    assert kin and len(kin) == window["tp"] + window["fn"]
-    assert all(r["age"] >= 10 and 0.3 <= r["distance"] < 2.0 for r in rows)
-    assert all(np.isinf(r["llr"]) for r in kin if not r["still"])
-    assert all(np.isfinite(r["llr"]) for r in rows if r["still"])
-    assert f1_ceiling(rows)["kin_rows"] == len(kin)
+    res = S.evaluate_sequences(rec, mot=False, kin_model="hand")
+    for distance in ((0.3, 2.0), (0.0, 5.0)):
+        rows = ceiling_records(spec, 2, 0.01, step_deg=30.0, distance=distance)
+        window = S.target_window(res, distance=distance)["tracker"]["all"]
+        kin = [r for r in rows if r["kin"]]
+        assert kin and len(kin) == window["tp"] + window["fn"]
+        assert all(r["age"] >= 10 for r in rows if not r["dont_care"])
+        assert all(distance[0] <= r["distance"] < distance[1] for r in rows)
+        assert all(np.isinf(r["llr"]) and r["llr"] > 0 for r in kin if not r["still"])
+        assert all(np.isfinite(r["llr"]) for r in rows if r["still"] and not r["dont_care"])
+        c = f1_ceiling(rows)
+        assert c["kin_rows"] == len(kin) and c["lookalike_rows"] == sum(
+            1 for r in rows if not r["kin"] and not r["dont_care"])
+    # every distance: the same frames as the benchmark's same-radius check
+    assert c["same_radius_rejected"][1] == res["same_radius_rejected"]["tracker"][1] > 0
     with pytest.raises(ValueError, match="reserved"):
         ceiling_records(S.SEQUENCE_SPLITS["lookalike"], 1)
     with pytest.raises(ValueError, match="min_age"):
