@@ -513,7 +513,7 @@ def ceiling_records(spec, n_episodes: int | None = None, noise: float = 0.01, st
                     dist = float(np.hypot(cxy[0] - x0, cxy[1] - y0))
                     if not (lo <= dist < hi):
                         continue
-                    is_still = not is_kin or moved[row, j] < still
+                    is_still = not is_kin or bool(moved[row, j] < still)
                     want.setdefault((row, j), []).append((frame, dist, int(age[row, j]), is_kin, is_still))
         obst = w.scene.obstacles
         for (row, j), rows in want.items():

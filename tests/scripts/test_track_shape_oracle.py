@@ -44,3 +44,18 @@ def test_ceiling_tables_put_the_benchmark_beside_the_ceiling():
                                "75 % of 8 | 25 % of 4 |")
     assert lines[2].endswith("| 0.89 (0.89 / 0.89) | 0.89 | 90 % / 50 % of 8 |")
     assert mod.ceiling_tables({("lookalike", 0.0): c})[2].endswith("| – | – | – |")
+
+
+def test_ceiling_run_writes_its_table(tmp_path):
+    """One short training lookalike episode end to end: the table, the rows and the run record."""
+    import json
+
+    mod = load_script("track_shape_oracle")
+    out = mod.main(["--ceiling", "--swarm-episodes", "0", "--lookalike-episodes", "1", "--first-seed", "90",
+                    "--noise", "0", "0.01", "--out", str(tmp_path / "o"), "--quiet"])  # fmt: skip
+    assert set(out["ceiling"]) == {"lookalike 0", "lookalike 0.01"}
+    assert all(0 <= c["f1"] <= 1 and c["f1_no_shape"] <= c["f1"] + 1e-12 for c in out["ceiling"].values())
+    saved = json.loads((tmp_path / "o" / "ceiling.json").read_text())
+    assert set(saved["records"]) == {"lookalike 0", "lookalike 0.01"}
+    assert (tmp_path / "o" / "ceiling.md").read_text().count("| lookalike |") == 2
+    assert json.loads((tmp_path / "o" / "run.json").read_text())["args"]["ceiling"] is True
