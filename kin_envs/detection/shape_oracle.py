@@ -404,7 +404,7 @@ def oracle_samples(recorded, frames=(10, 20), distance=(0.3, 2.0), still: float 
 
 def ceiling_records(spec, n_episodes: int | None = None, noise: float = 0.01, still: float = 0.02,
                     min_age: int = 10, distance=(0.3, 2.0), step_deg: float = 10.0,
-                    angle_sigma: float = 5e-4, progress: bool = False,
+                    angle_sigma: float = 5e-4, centre: str = "frame", progress: bool = False,
                     benchmark_seeds: bool = False) -> list[dict]:
     """What an oracle tracker would decide, frame by frame, on the sequence benchmark's target window.
 
@@ -436,6 +436,8 @@ def ceiling_records(spec, n_episodes: int | None = None, noise: float = 0.01, st
         raise ValueError(f"ceiling_records: min_age must be an integer >= 1, got {min_age!r}")
     if not still > 0:
         raise ValueError(f"ceiling_records: still must be > 0 m, got {still!r}")
+    if centre not in ("frame", "one"):
+        raise ValueError(f"ceiling_records: centre must be 'frame' or 'one', got {centre!r}")
     n = spec.reduced_episodes if n_episodes is None else int(n_episodes)
     seeds = list(spec.seeds(n))
     it = seeds
@@ -519,7 +521,7 @@ def ceiling_records(spec, n_episodes: int | None = None, noise: float = 0.01, st
         for (row, j), rows in want.items():
             frames_needed = {f for f, *_rest in rows if _rest[-1]}  # still rows need the evidence
             llr_at = {}
-            if frames_needed:
+            if frames_needed and centre == "frame":
                 last = max(frames_needed)
                 llc, lla = 0.0, 0.0
                 for f, o, u, r, no, nu in data.get((row, j), []):
@@ -529,6 +531,9 @@ def ceiling_records(spec, n_episodes: int | None = None, noise: float = 0.01, st
                     c, a, _ = _hyp_ll(o, u, r, sig, (no, nu, angle_sigma), family, r_h)
                     llc, lla = llc + c, lla + a
                     llr_at[f] = llc - float(np.max(lla))
+            elif frames_needed:
+                llr_at = _one_centre_llrs(data.get((row, j), []), max(frames_needed), noise, angle_sigma,
+                                          family, r_h)  # fmt: skip
             sr = j >= n_rob and bool(same_r[j - n_rob])
             label = "kin" if j < n_rob else "same-radius" if sr else (obst[j - n_rob].kind + (
                 f"{obst[j - n_rob].sides}" if obst[j - n_rob].kind == "prism" else ""))  # fmt: skip
@@ -538,6 +543,36 @@ def ceiling_records(spec, n_episodes: int | None = None, noise: float = 0.01, st
                             "distance_bin": _bin_of(dist, DISTANCE_EDGES),
                             # no evidence this frame (one beam): nothing to report
                             "llr": llr_at.get(f, -math.inf) if is_still else math.inf})  # fmt: skip
+    return out
+
+
+def _one_centre_llrs(frames, last: int, noise: float, angle_sigma: float, family, housing_radius: float,
+                     iterations: int = 4) -> dict:
+    """``{frame: LLR}`` with one centre per hypothesis over every frame so far (a still object seen from
+    true poses): each frame refits all the returns and silhouettes so far, warm-started from the previous
+    frame's centres (the first frame from the points, as :func:`_hyp_ll`, with its full iterations)."""
+    polys, radii = family
+    parts = [("circle", np.array([housing_radius]), housing_radius), ("polygon", polys, housing_radius),
+             ("circle", np.asarray(radii, float), float(np.mean(radii)) if len(radii) else 0.0)]
+    parts = [(kind, geom, rad) for kind, geom, rad in parts if len(geom)]  # the circle is always first
+    out, acc, warm = {}, [[] for _ in range(5)], None
+    for f, *arrays in frames:
+        if f > last:
+            break
+        for a, x in zip(acc, arrays, strict=True):
+            a.append(x)
+        o, u, r, no, nu = (np.concatenate(a) for a in acc)
+        sig = np.maximum(noise * r, 1e-4)
+        it = iterations
+        if warm is None:  # the points' mean pushed away from the sensor by each part's radius
+            p = o + u * r[:, None]
+            back = (p - o) / np.linalg.norm(p - o, axis=1, keepdims=True)
+            warm = [np.repeat((p + back * rad).mean(0)[None], len(geom), 0) for _k, geom, rad in parts]
+            it = 12
+        fits = [_fit(o, u, r, sig, (kind, geom), c0, it, (no, nu, angle_sigma))
+                for (kind, geom, _r), c0 in zip(parts, warm, strict=True)]  # fmt: skip
+        warm = [c for c, _ll in fits]
+        out[f] = float(fits[0][1][0]) - float(np.max(np.concatenate([ll for _c, ll in fits[1:]])))
     return out
 
 

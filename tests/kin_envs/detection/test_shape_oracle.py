@@ -172,3 +172,21 @@ def test_ceiling_records_count_the_benchmarks_window(monkeypatch):
         ceiling_records(S.SEQUENCE_SPLITS["lookalike"], 1)
     with pytest.raises(ValueError, match="min_age"):
         ceiling_records(spec, 1, min_age=0)
+    with pytest.raises(ValueError, match="centre must be"):
+        ceiling_records(spec, 1, centre="both")
+
+
+def test_one_centre_ceiling_scores_the_same_rows():
+    """``centre="one"`` (one centre over all frames so far) scores exactly the rows the per-frame variant
+    does; on a still 7 cm look-alike that has been in view a while both call it a look-alike."""
+    spec = S.training_split("lookalike", 90)
+    spec = dataclasses.replace(spec, run=dataclasses.replace(spec.run, frames=14))
+    per_frame = ceiling_records(spec, 1, 0.005, step_deg=30.0, min_age=8)
+    one = ceiling_records(spec, 1, 0.005, step_deg=30.0, min_age=8, centre="one")
+    key = [(r["observer"], r["frame"], r["object"], r["kin"], r["still"], r["distance"]) for r in per_frame]
+    assert key and key == [(r["observer"], r["frame"], r["object"], r["kin"], r["still"], r["distance"])
+                           for r in one]  # fmt: skip
+    assert all(np.isfinite(r["llr"]) for r in one if r["still"])
+    prisms = [(a["llr"], b["llr"]) for a, b in zip(per_frame, one, strict=True)
+              if a["object"].startswith("prism")]  # fmt: skip
+    assert prisms and all(x < 0 and y < 0 for x, y in prisms)
