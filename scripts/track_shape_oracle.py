@@ -163,19 +163,21 @@ def _window(result: dict) -> dict:
 
 
 def ceiling_tables(results: dict, compare: list | None = None) -> list[str]:
-    """Markdown: per split and noise, the oracle tracker's F1 (P / R) on the target window, per distance
-    bin, without shape evidence, the rows it counts, 7 cm prisms rejected after 20 frames, same-radius
-    cylinders rejected once every kin seen moved (at 0.3-2 m); and, from a benchmark run's ``results``
-    (``compare``), the tracker's and the single scan's F1 on the same window and its rejection figures."""
+    """Markdown: per split and noise, the oracle tracker's F1 (its interval, P / R) on the target window,
+    per distance bin, without shape evidence, the rows it counts, 7 cm prisms rejected after 20 frames,
+    same-radius cylinders rejected once every kin seen moved (at 0.3-2 m); and, from a benchmark run's
+    ``results`` (``compare``), the tracker's and the single scan's F1 on the same window and its rejection
+    figures."""
     from kin_envs.detection.benchmark import DISTANCE_EDGES
 
     bench = {}
     for r in compare or []:
         w = {**_window(r), "_result": r}
         bench[(r["split"], round(float(r["noise"]), 6))] = w
-    lines = ["| split | noise | ceiling F1 (P / R) | 0.3-1 m | 1-2 m | no shape cue | kin rows: moving / "
-             "still | look-alike rows | prisms rejected >= 20 frames | same-radius rejected | tracker F1 "
-             "(0.3-1 / 1-2 m) | single scan | tracker: prisms / same-radius rejected |",
+    lines = ["| split | noise | ceiling F1 [95 % interval over episodes] (P / R) | 0.3-1 m | 1-2 m | "
+             "no shape cue | kin rows: moving / still | look-alike rows | prisms rejected >= 20 frames | "
+             "same-radius rejected | tracker F1 (0.3-1 / 1-2 m) | single scan | tracker: prisms / "
+             "same-radius rejected |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
     for (split, noise), c in sorted(results.items()):
         bins = {f"{DISTANCE_EDGES[b]:g}-{DISTANCE_EDGES[b + 1]:g}": v for b, v in c["by_distance"].items()}
@@ -194,7 +196,8 @@ def ceiling_tables(results: dict, compare: list | None = None) -> list[str]:
             rej = (f"{'–' if not tp else f'{100 * tp[0][0]:.0f} %'} / "
                    f"{'–' if not tsr or not tsr[1] else f'{100 * tsr[0]:.0f} % of {tsr[1]}'}")  # fmt: skip
         lines.append(
-            f"| {split} | {100 * noise:g} % | **{_f(c['f1'])}** ({_f(c['precision'])} / {_f(c['recall'])}) | "
+            f"| {split} | {100 * noise:g} % | **{_f(c['f1'])}** [{_f(c['f1_ci'][0])}, {_f(c['f1_ci'][1])}] "
+            f"({_f(c['precision'])} / {_f(c['recall'])}) | "
             f"{_f(bins.get('0.3-1', {}).get('f1'))} | {_f(bins.get('1-2', {}).get('f1'))} | "
             f"{_f(c['f1_no_shape'])} | {c['moving_kin_rows']} / {c['still_kin_rows']} | "
             f"{c['lookalike_rows']} | "

@@ -588,8 +588,10 @@ def f1_ceiling(records, by=("distance_bin",), iterations: int = 50, lookalike_ag
     look-alike kept; ``dont_care`` rows left out). Returns ``f1``, ``precision``, ``recall``, the counts,
     the thresholds, ``by_distance`` (the same decisions' P / R / F1 per distance bin), ``rejected``
     (look-alikes in view >= ``lookalike_age`` frames not reported, by kind: ``(share, rows)``),
-    ``same_radius_rejected`` (the ``dont_care`` rows not reported: ``(share, rows)``) and ``f1_no_shape``
-    (still objects all reported or all dropped per context: motion and context without shape evidence)."""
+    ``same_radius_rejected`` (the ``dont_care`` rows not reported: ``(share, rows)``), ``f1_no_shape``
+    (still objects all reported or all dropped per context: motion and context without shape evidence) and
+    ``f1_ci``, a 95 % percentile bootstrap interval over episodes (rows' ``seed``) at the chosen
+    thresholds (NaN with fewer than two episodes)."""
     all_rows = list(records)
     rows = [r for r in all_rows if not r.get("dont_care", False)]
     moving = sum(1 for r in rows if r["kin"] and not r["still"])
@@ -644,7 +646,19 @@ def f1_ceiling(records, by=("distance_bin",), iterations: int = 50, lookalike_ag
             c[0] += 1
             c[1] += int(not reported(r))
     sr = [not reported(r) for r in all_rows if r.get("dont_care", False)]
-    return {**counts(rows), "kin_rows": n_pos, "moving_kin_rows": moving, "still_kin_rows": n_pos - moving,
+    # 95 % percentile bootstrap over episodes of F1 = sum 2 TP / sum (2 TP + FP + FN), at these thresholds
+    from .benchmark import _ratio_ci
+
+    per_ep: dict = {}
+    for r in rows:
+        c = per_ep.setdefault(r.get("seed", 0), [0, 0])
+        rep = reported(r)
+        c[0] += 2 * int(r["kin"] and rep)
+        c[1] += 2 * int(r["kin"] and rep) + int(not r["kin"] and rep) + int(r["kin"] and not rep)
+    num, den = (np.array([c[i] for c in per_ep.values()], float) for i in (0, 1))
+    ci = _ratio_ci(num, den, 2000, np.random.default_rng(0))
+    return {**counts(rows), "f1_ci": ci, "kin_rows": n_pos, "moving_kin_rows": moving,
+            "still_kin_rows": n_pos - moving,
             "lookalike_rows": sum(1 for r in rows if not r["kin"]),
             "by_distance": {int(b): counts([r for r in rows if r["distance_bin"] == b])
                             for b in sorted({r["distance_bin"] for r in rows})},

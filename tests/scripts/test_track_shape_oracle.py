@@ -30,8 +30,9 @@ def test_bad_arguments_exit(argv, tmp_path):
 
 def test_ceiling_tables_put_the_benchmark_beside_the_ceiling():
     mod = load_script("track_shape_oracle")
-    c = {"f1": 0.9, "precision": 0.95, "recall": 0.85, "f1_no_shape": 0.8, "moving_kin_rows": 10,
-         "still_kin_rows": 5, "lookalike_rows": 7, "rejected": {"prism5": (0.5, 4), "prism3": (1.0, 4)},
+    c = {"f1": 0.9, "f1_ci": (0.8, 0.95), "precision": 0.95, "recall": 0.85, "f1_no_shape": 0.8,
+         "moving_kin_rows": 10, "still_kin_rows": 5, "lookalike_rows": 7,
+         "rejected": {"prism5": (0.5, 4), "prism3": (1.0, 4)},
          "by_distance": {1: {"f1": 0.95}, 2: {"f1": 0.85}}, "same_radius_rejected": (0.25, 4)}  # fmt: skip
     cell = {"tp": 8, "fp": 1, "fn": 1}
     bench = [{"split": "swarm", "noise": 0.01, "by_age_distance": {"tracker": {"3,1": cell, "3,2": cell},
@@ -40,8 +41,8 @@ def test_ceiling_tables_put_the_benchmark_beside_the_ceiling():
               "same_radius_rejected": {"tracker": (0.5, 8)}}]  # fmt: skip
     lines = mod.ceiling_tables({("swarm", 0.01): c}, bench)
     assert len(lines) == 3
-    assert lines[2].startswith("| swarm | 1 % | **0.90** (0.95 / 0.85) | 0.95 | 0.85 | 0.80 | 10 / 5 | 7 | "
-                               "75 % of 8 | 25 % of 4 |")
+    assert lines[2].startswith("| swarm | 1 % | **0.90** [0.80, 0.95] (0.95 / 0.85) | 0.95 | 0.85 | 0.80 | "
+                               "10 / 5 | 7 | 75 % of 8 | 25 % of 4 |")
     assert lines[2].endswith("| 0.89 (0.89 / 0.89) | 0.89 | 90 % / 50 % of 8 |")
     assert mod.ceiling_tables({("lookalike", 0.0): c})[2].endswith("| – | – | – |")
 

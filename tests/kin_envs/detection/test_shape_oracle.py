@@ -127,6 +127,7 @@ def test_f1_ceiling_finds_the_best_thresholds(seed):
     assert one["f1"] <= both["f1"] + 1e-12 and both["f1_no_shape"] <= both["f1"] + 1e-12
     assert both["tp"] + both["fn"] == both["kin_rows"] == sum(r["kin"] for r in rows)
     assert both["f1"] == pytest.approx(2 * both["tp"] / (2 * both["tp"] + both["fp"] + both["fn"]))
+    assert np.isnan(both["f1_ci"][0])  # one episode: no interval
 
 
 def test_f1_ceiling_on_a_known_case():
@@ -164,6 +165,8 @@ def test_ceiling_records_count_the_benchmarks_window(monkeypatch):
         assert all(np.isinf(r["llr"]) and r["llr"] > 0 for r in kin if not r["still"])
         assert all(np.isfinite(r["llr"]) for r in rows if r["still"] and not r["dont_care"])
         c = f1_ceiling(rows)
+        lo, hi = c["f1_ci"]  # NaN when every resample gives the same F1
+        assert (np.isnan(lo) and np.isnan(hi)) or 0 <= lo <= hi <= 1
         assert c["kin_rows"] == len(kin) and c["lookalike_rows"] == sum(
             1 for r in rows if not r["kin"] and not r["dont_care"])
     # every distance: the same frames as the benchmark's same-radius check
