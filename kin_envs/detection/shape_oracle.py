@@ -417,7 +417,8 @@ def ceiling_records(spec, n_episodes: int | None = None, noise: float = 0.01, st
     kin, whether it is *still* (a kin that has not moved ``still`` m from where this observer first saw
     it; obstacles always) and its shape LLR (:func:`shape_llr`'s statistic with a centre per frame and
     true headings, summed over **every** frame so far in which it had >= 2 beams: the evidence a tracker
-    that never loses it could have). :func:`f1_ceiling` turns the rows into the best per-frame F1. Rows
+    that never loses it could have), and ``id`` (the robot's or the obstacle's index) to group them by
+    object. :func:`f1_ceiling` turns the rows into the best per-frame F1. Rows
     with ``dont_care`` are same-radius cylinders at ``distance`` once every kin the observer has seen moved
     ``sequences.MOVED`` m (the benchmark's same-radius rejection frames; any age), for that figure only.
 
@@ -539,6 +540,7 @@ def ceiling_records(spec, n_episodes: int | None = None, noise: float = 0.01, st
                 f"{obst[j - n_rob].sides}" if obst[j - n_rob].kind == "prism" else ""))  # fmt: skip
             for f, dist, a, is_kin, is_still in rows:
                 out.append({"split": spec.name, "seed": seed, "observer": row, "frame": f, "object": label,
+                            "id": int(j) if j < n_rob else int(j - n_rob),  # robot / obstacle index
                             "kin": is_kin, "still": is_still, "distance": dist, "age": a, "dont_care": sr,
                             "distance_bin": _bin_of(dist, DISTANCE_EDGES),
                             # no evidence this frame (one beam): nothing to report
