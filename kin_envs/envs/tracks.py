@@ -136,7 +136,11 @@ def track_info(tracker, max_tracks: int) -> tuple[dict[str, np.ndarray], np.ndar
     padded slots (:data:`detectors.tracking.TRACK_FIELDS`, robot frame; empty slots 0)."""
     from detectors.tracking import TRACK_FIELDS
 
-    a = tracker.track_arrays(max_tracks)
+    own = getattr(tracker, "_track_block", None)
+    if own is not None:  # a KinTracker: the block filled in its update's compiled call (the same values)
+        block, count = own(max_tracks)
+        return dict(zip(TRACK_FIELDS, block, strict=True)), count
+    a = tracker.track_arrays(max_tracks)  # (a VectorTracker: its own ids)
     # one transposed copy (field-major, float64), each field a C-contiguous row of it: the values of a copy
     # per field (``tracks[:, :, j].astype(float64)``) at half its cost
     block = a["tracks"].transpose(2, 0, 1).astype(np.float64, order="C")
@@ -305,14 +309,15 @@ def _update(tracker, scan: Scan, obs, row, x, y, scores, accepted, first, last, 
     from the scan's beams ``first..last`` of row ``row``): the state and outputs of ``update_batch(obs,
     c_[x, y], scores, delta, dt, *segment_points(scan.ranges, scan.angles, row, first, last,
     scan.range_max), noise, accepted)``, ``accepted=None`` all accepted (the operating point's
-    detections)."""
-    c_, i8, f8 = np.ascontiguousarray, np.int64, np.float64
-    ranges = scan.ranges
+    detections). The candidates' arrays are passed as the env built them (C-contiguous int64 / float64 /
+    bool: :func:`kin_envs.envs.common.detect_rows`, :meth:`PermissiveFeed.detect`; any other layout would
+    still give the same values, in a kernel compiled for it); the scan's as the world gives them."""
+    ranges, angles = scan.ranges, scan.angles
     if ranges.dtype != np.float32:
-        ranges = c_(ranges, f8)
-    tracker._update_segments_trusted(
-        c_(obs, i8), c_(row, i8), c_(x, f8), c_(y, f8), c_(scores, f8),
-        None if accepted is None else c_(accepted, np.bool_), c_(delta, f8), dt, c_(ranges),
-        c_(scan.angles, f8), c_(first, i8), c_(last, i8), float(scan.range_max),
-        None if noise is None else c_(noise, f8),
-    )  # fmt: skip
+        ranges = np.ascontiguousarray(ranges, np.float64)
+    elif not ranges.flags.c_contiguous:
+        ranges = np.ascontiguousarray(ranges)
+    if angles.dtype != np.float64 or not angles.flags.c_contiguous:
+        angles = np.ascontiguousarray(angles, np.float64)
+    tracker._update_segments_trusted(obs, row, x, y, scores, accepted, delta, dt, ranges, angles, first, last,
+                                     float(scan.range_max), noise)  # fmt: skip
