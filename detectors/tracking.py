@@ -862,6 +862,7 @@ class KinTracker:
         self._pending = None  # the decision's compiled part from the last update
         self._slots_max = -1  # max_tracks of the last track_arrays call (the update fills its slots then)
         self._slots_block = False  # that read was the envs' info block (_track_block)
+        self._slots_frame = -1  # the frame of that read (the first read of a frame sets both)
         self._pending_slots = None  # those slots, filled in this frame's update call
         self._model_args = None  # (model, its arguments of _update_kernel), built once per model object
 
@@ -1281,7 +1282,8 @@ class KinTracker:
         fresh = (key is None or key[0] != self._frame or key[1] is not self.kin_model
                  or key[2] is not self.params)  # fmt: skip
         ps, self._pending_slots = self._pending_slots, None
-        self._slots_max, self._slots_block = max_tracks, block
+        if self._slots_frame != self._frame:  # the next update fills the slots the first read asked for
+            self._slots_max, self._slots_block, self._slots_frame = max_tracks, block, self._frame
         if fresh:
             pend = self._pending
             cached = self._decide()

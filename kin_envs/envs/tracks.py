@@ -28,14 +28,14 @@ def track_update(tracker, scan: Scan, dets, odom_delta: np.ndarray, dt: float, f
 
 
 class _Given:
-    """A detector stand-in whose trusted array call returns a result already computed (so that
+    """A detector stand-in whose trusted table call returns a result already computed (so that
     :func:`kin_envs.envs.common.detect_rows` builds the shipped detections from it, unchanged)."""
 
-    def __init__(self, arrays) -> None:
-        self.arrays = arrays
+    def __init__(self, table) -> None:
+        self.table = table
 
-    def _detect_arrays_trusted(self, ranges, angles):
-        return self.arrays
+    def _detect_table_trusted(self, ranges, angles):
+        return self.table
 
 
 def _is_permissive(feed: str | None, detector) -> bool:
@@ -95,22 +95,20 @@ class PermissiveFeed:
         candidates ``(row, x, y, scores, accepted, first_beam, last_beam, noise)`` (rows of ``ranges``; their
         points are the segments' beams, computed in the tracker's update: :func:`_feed_candidates`).
         ``range_max`` is not read here (the update takes the scan's)."""
-        from detectors._kernels import ACCEPTED, SHAPE
         from detectors.features import scan_noise_of
         from kin_envs.envs.common import detect_rows
 
         n = angles.shape[0]
         if self.one_call:
-            b = self.detector._detect_arrays_trusted(ranges, angles)
-            dets = detect_rows(_Given(b), ranges, angles, observers, poses, robot_world, trusted=True)
-            st, F = b.seg_stage, b.seg_values["F"]
-            idx = np.flatnonzero(((st == ACCEPTED) | (st == SHAPE)) & (F < self._f_perm))
-            rc, bearing, f = b.seg_values["r_c"][idx], b.seg_values["theta_c"][idx], F[idx]
-            row, first = b.seg_scan[idx], b.seg_first[idx]
-            last = (first + b.seg_count[idx] - 1) % n
+            # the shipped detections' table and the segments whose fit reached F < the permissive threshold
+            # (stage ACCEPTED or SHAPE), from one compiled call: the values of _detect_arrays_trusted's
+            # segment arrays at those segments (the accepted ones its detections)
+            table, (row, first, count, f, rc, bearing, accepted) = self.detector._detect_table_feed_trusted(
+                ranges, angles, self._f_perm)
+            dets = detect_rows(_Given(table), ranges, angles, observers, poses, robot_world, trusted=True)
+            last = (first + count - 1) % n
             x, y = rc * np.cos(bearing), rc * np.sin(bearing)
             scores = self._f_perm / (self._f_perm + f)  # the permissive detector's score
-            accepted = st[idx] == ACCEPTED
         else:
             dets = detect_rows(self.detector, ranges, angles, observers, poses, robot_world, trusted=True)
             p = self.permissive
