@@ -89,12 +89,31 @@ class PermissiveFeed:
 
         return type(detector) is GeometricKinDetector and detector.params.F_threshold < PERMISSIVE_F_THRESHOLD
 
+    def detect_padded(self, ranges, angles, observers, poses, slots: int, hits=None,
+                      range_max: float = np.inf):
+        """``(dets, padded, feed)``: :meth:`detect` (one world) and the shipped detections' padded info
+        columns ``padded`` = ``pad_rows(*dets, len(ranges), slots)`` (:func:`kin_envs.envs.info.pad_rows`),
+        the same values; for the shipped geometric detector matched and padded in one compiled call with
+        the flat rows (:func:`kin_envs.envs.common.detect_rows_padded`; ``hits``: the scan's ``(hit_kind,
+        hit_index)``, as it takes them)."""
+        if self.one_call:
+            return self._detect(ranges, angles, observers, poses, None, slots, hits)
+        from kin_envs.envs.info import pad_rows
+
+        dets, feed = self._detect(ranges, angles, observers, poses, None)
+        return dets, pad_rows(*dets, ranges.shape[0], slots), feed
+
     def detect(self, ranges, angles, observers, poses, robot_world=None, range_max: float = np.inf):
         """``(dets, feed)``: the shipped detections ``(row, cols)`` of
         :func:`kin_envs.envs.common.detect_rows` (trusted: the env's own scans) and the tracker's
         candidates ``(row, x, y, scores, accepted, first_beam, last_beam, noise)`` (rows of ``ranges``; their
         points are the segments' beams, computed in the tracker's update: :func:`_feed_candidates`).
         ``range_max`` is not read here (the update takes the scan's)."""
+        return self._detect(ranges, angles, observers, poses, robot_world)
+
+    def _detect(self, ranges, angles, observers, poses, robot_world, slots=None, hits=None):
+        """:meth:`detect`'s ``(dets, feed)``; with ``slots`` (the one-call detector, one world)
+        :meth:`detect_padded`'s ``(dets, padded, feed)``."""
         from detectors.features import scan_noise_of
         from kin_envs.envs.common import detect_rows
 
@@ -105,7 +124,13 @@ class PermissiveFeed:
             # segment arrays at those segments (the accepted ones its detections)
             table, (row, first, count, f, rc, bearing, accepted) = self.detector._detect_table_feed_trusted(
                 ranges, angles, self._f_perm)
-            dets = detect_rows(_Given(table), ranges, angles, observers, poses, robot_world, trusted=True)
+            if slots is None:
+                dets = detect_rows(_Given(table), ranges, angles, observers, poses, robot_world, trusted=True)
+            else:
+                from kin_envs.envs.common import detect_rows_padded
+
+                dets, padded = detect_rows_padded(_Given(table), ranges, angles, observers, poses, slots,
+                                                  trusted=True, hits=hits)  # fmt: skip
             last = (first + count - 1) % n
             x, y = rc * np.cos(bearing), rc * np.sin(bearing)
             scores = self._f_perm / (self._f_perm + f)  # the permissive detector's score
@@ -115,10 +140,11 @@ class PermissiveFeed:
             fast = getattr(p, "_detect_arrays_trusted", None) or p.detect_arrays
             c = fast(ranges, angles)
             get = c.__getitem__ if isinstance(c, dict) else lambda k: getattr(c, k)
-            row = np.asarray(get("scan"), np.int64)
-            first, last = np.asarray(get("first_beam"), np.int64), np.asarray(get("last_beam"), np.int64)
-            x, y = np.asarray(get("x"), np.float64), np.asarray(get("y"), np.float64)
-            scores = np.asarray(get("score"), np.float64)
+            c_ = np.ascontiguousarray  # (the tracker's trusted entry takes them as they are)
+            row = c_(get("scan"), np.int64)
+            first, last = c_(get("first_beam"), np.int64), c_(get("last_beam"), np.int64)
+            x, y = c_(get("x"), np.float64), c_(get("y"), np.float64)
+            scores = c_(get("score"), np.float64)
             # accepted: the shipped detector has the same segment (scan row, first and last beam)
             d_row, d_cols = dets
             key = lambda r, a, z: (r * n + a) * n + z  # noqa: E731
@@ -126,7 +152,8 @@ class PermissiveFeed:
         est, count = scan_noise_of(ranges, angles)  # (the segmentation is not needed for it)
         est = np.where(count >= 5, est, np.nan)
         noise = np.where(np.isnan(est), self.range_noise, est)
-        return dets, (row, x, y, scores, accepted, first, last, noise)
+        feed = (row, x, y, scores, accepted, first, last, noise)
+        return (dets, feed) if slots is None else (dets, padded, feed)
 
 
 def track_info(tracker, max_tracks: int) -> tuple[dict[str, np.ndarray], np.ndarray]:

@@ -10,6 +10,7 @@ import kin_envs  # noqa: F401  (registers the ids)
 from detectors.tracking import TRACK_FIELDS, KinTracker, segment_points
 from kin_envs import aggregation_v2
 from kin_envs.envs import tracks
+from kin_envs.envs.info import pad_rows
 
 
 def _public_update(tracker, scan, obs, row, x, y, scores, accepted, first, last, delta, dt, noise):
@@ -175,7 +176,8 @@ def test_permissive_feed_is_the_detector_arrays_feed(kind, monkeypatch):
     """The geometric detector's one-call permissive feed (``_detect_table_feed_trusted``: the shipped
     detections' table and the segments whose fit reached the permissive threshold from one compiled call) is
     bitwise the feed built from its ``BatchDetections`` of every segment: the shipped detections and every
-    candidate array (noisy swarm and vector env scans, with SHAPE-stage candidates among them)."""
+    candidate array (noisy swarm and vector env scans, with SHAPE-stage candidates among them); the swarm's
+    ``detect_padded`` gives ``pad_rows`` of those detections too."""
     seen = {"calls": 0, "shape": 0, "accepted": 0}
     detect = tracks.PermissiveFeed.detect
 
@@ -188,7 +190,19 @@ def test_permissive_feed_is_the_detector_arrays_feed(kind, monkeypatch):
         seen["accepted"] += int(np.count_nonzero(acc))
         return out
 
+    detect_padded = tracks.PermissiveFeed.detect_padded
+
+    def checked_padded(self, ranges, angles, observers, poses, slots, hits=None, range_max=np.inf):
+        dets, padded, feed = detect_padded(self, ranges, angles, observers, poses, slots, hits, range_max)
+        ref_dets, ref_feed = _feed_from_segments(self, ranges, angles, observers, poses, None)
+        _assert_same((dets, padded, feed), (ref_dets, pad_rows(*ref_dets, len(ranges), slots), ref_feed))
+        seen["calls"] += 1
+        seen["shape"] += int(np.count_nonzero(~feed[4]))
+        seen["accepted"] += int(np.count_nonzero(feed[4]))
+        return dets, padded, feed
+
     monkeypatch.setattr(tracks.PermissiveFeed, "detect", checked)
+    monkeypatch.setattr(tracks.PermissiveFeed, "detect_padded", checked_padded)
     if kind == "vector":
         env = gym.make_vec("kin_envs/KinSeek-v2", num_envs=4, detector="geometric", tracker=True,
                            noise_sigma=0.01, arena_size=2.5)  # fmt: skip
