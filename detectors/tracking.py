@@ -980,7 +980,7 @@ class KinTracker:
         args = (c_(obs, np.int64), c_(xy), c_(scores), c_(accepted), c_(delta), float(dt), pts, c_(own),
                 points is not None, c_(noise), poses, self.odometer, self.time + dt, self._next_id, self._prm,
                 self._F, self._I, self._B, self._x, self._P, self._anchor, self._fit_c, self._pts,
-                self._pts_aux, dec, *model_args, slots, self._slots_block)  # fmt: skip
+                self._pts_aux, dec, model_args, slots, self._slots_block)  # fmt: skip
         res = _update_kernel(*args)
         if res[0] == _BAD_SORT:  # points not grouped by candidate (segment_points gives them sorted)
             order = np.argsort(own, kind="stable")
@@ -1004,10 +1004,9 @@ class KinTracker:
         cached = self._model_args
         if cached is None or cached[0] is not m:
             W, b, W2, b2, tail = _layers(m)
-            args = (m.mean, m.scale, W, b, W2, b2, tail, _log_min(m), bool(m.hit_only))
-            cached = self._model_args = (m, args)
-        args = cached[1]
-        return True, args, self._slots_max if args[6] else -1
+            cached = self._model_args = (m, _model_array(m.mean, m.scale, W, b, W2, b2, tail, _log_min(m),
+                                                         m.hit_only), tail)  # fmt: skip
+        return True, cached[1], self._slots_max if cached[2] else -1
 
     def _updated(self, poses, dt, dec, slots, res) -> None:
         """The frame's bookkeeping after :func:`_update_kernel` returned ``res`` (status 0)."""
@@ -1048,7 +1047,7 @@ class KinTracker:
                 obs, rows, x, y, scores, acc, all_acc, odom_delta, dt, ranges, angles, first, last, range_max,
                 noise, poses, self.odometer, self.time + dt, self._next_id, self._prm, self._F, self._I,
                 self._B, self._x, self._P, self._anchor, self._fit_c, self._pts, self._pts_aux, dec,
-                *model_args, slots, block,
+                model_args, slots, block,
             )  # fmt: skip
             if res[0] != _NEED_ROOM:
                 break
@@ -1310,8 +1309,41 @@ def _log_min(m: TrackKinModel) -> float:
 
 
 _NO_W, _NO_B = np.zeros((0, 0)), np.zeros(0)
-#: :func:`_update_kernel`'s model arguments when the decision does not run in it
-_NO_MODEL = (_NO_B, _NO_B, _NO_W, _NO_B, _NO_W, _NO_B, 0, 0.0, False)
+
+
+def _model_array(mean, scale, W, b, W2, b2, tail, log_min, hit_only) -> np.ndarray:
+    """:func:`_decide_kernel`'s model arguments as one float64 array (:func:`_model_views` reads them back,
+    the same values: one argument of :func:`_update_kernel` instead of nine)."""
+    arrs = [np.asarray(a, np.float64) for a in (mean, scale, W, b, W2, b2)]
+    head = [float(arrs[0].size), float(arrs[1].size), *map(float, arrs[2].shape), float(arrs[3].size),
+            *map(float, arrs[4].shape), float(arrs[5].size), float(tail), float(log_min),
+            float(bool(hit_only))]  # fmt: skip
+    return np.concatenate([np.array(head), *(a.ravel() for a in arrs)])
+
+
+#: :func:`_update_kernel`'s model argument when the decision does not run in it
+_NO_MODEL = _model_array(_NO_B, _NO_B, _NO_W, _NO_B, _NO_W, _NO_B, 0, 0.0, False)
+
+
+@numba.njit(cache=True, nogil=True)
+def _model_views(model):
+    """:func:`_model_array`'s ``(mean, scale, W, b, W2, b2, tail, log_min, hit_only)``, views of ``model``."""
+    n_mean, n_scale, w0, w1, n_b = int(model[0]), int(model[1]), int(model[2]), int(model[3]), int(model[4])
+    v0, v1, n_b2 = int(model[5]), int(model[6]), int(model[7])
+    tail, log_min, hit_only = int(model[8]), model[9], model[10] != 0.0
+    o = 11
+    mean = model[o : o + n_mean]
+    o += n_mean
+    scale = model[o : o + n_scale]
+    o += n_scale
+    W = model[o : o + w0 * w1].reshape(w0, w1)
+    o += w0 * w1
+    b = model[o : o + n_b]
+    o += n_b
+    W2 = model[o : o + v0 * v1].reshape(v0, v1)
+    o += v0 * v1
+    b2 = model[o : o + n_b2]
+    return mean, scale, W, b, W2, b2, tail, log_min, hit_only
 
 
 def _layers(m: TrackKinModel) -> tuple:
@@ -2368,11 +2400,12 @@ def _update_error(status, N, k, delta, xy, scores, obs, noise, pts) -> str:
 
 @numba.njit(cache=True, nogil=True)
 def _update_kernel(obs, xy, scores, accepted, delta, dt, pts, owner, has_points, noise, poses, odometer, now,
-                   next_id, prm, F, I, B, x, P, anchor, fit_c, buf, aux, dec, mean, scale, W, b, W2, b2, tail,
-                   log_min, hit_only, slots, block):  # fmt: skip
+                   next_id, prm, F, I, B, x, P, anchor, fit_c, buf, aux, dec, model, slots,
+                   block):  # fmt: skip
     """One frame of every observer (:meth:`KinTracker.update_batch`) on the packed state (:data:`_F_COLS`,
     :data:`_I_COLS`, :data:`_B_COLS`): :func:`_update_frame`, then (``dec``) the kin decision's compiled
-    part (:func:`_decide_kernel`, the model's layers ``mean, scale, W, b, W2, b2, tail``) and (``slots`` >= 0)
+    part (:func:`_decide_kernel`, the model's layers ``mean, scale, W, b, W2, b2, tail`` packed in ``model``:
+    :func:`_model_array`) and (``slots`` >= 0)
     :meth:`KinTracker.track_arrays`' padded slots (:func:`_slots_kernel`, ``slots`` of them per observer;
     ``block``: as the envs' info block, :meth:`KinTracker._track_block`). Returns ``(status, next_id, rows,
     kp, sel, h, (tracks, mask, count, blk))`` (the decision's arrays empty unless ``dec``, the slots unless
@@ -2405,6 +2438,7 @@ def _update_kernel(obs, xy, scores, accepted, delta, dt, pts, owner, has_points,
     if status or not dec:
         return (status, next_id, np.empty(0, np.int64), np.zeros(0), np.empty(0, np.int64), np.empty((0, 0)),
                 no_slots)  # fmt: skip
+    mean, scale, W, b, W2, b2, tail, log_min, hit_only = _model_views(model)
     rows, kp, sel, h = _decide_kernel(
         poses.shape[0], alive, confirmed, tobs, seen, x, P, anchor, anchor_var, anchor_odo, anchor_rng,
         odometer, hit, f_lgsum, f_lgsq, f_lgmax, f_lglast, f_accsum, f_acclast, f_beams, f_rng, moved, exist,
@@ -2425,8 +2459,7 @@ _NEED_ROOM = 8  # _update_segments_kernel: the state's arrays need more rows (``
 @numba.njit(cache=True, nogil=True)
 def _update_segments_kernel(obs, rows, x, y, scores, accepted, all_accepted, delta, dt, ranges, angles,
                             first, last, range_max, noise, poses, odometer, now, next_id, prm, F, I, B, xs, P,
-                            anchor, fit_c, buf, aux, dec, mean, scale, W, b, W2, b2, tail, log_min, hit_only,
-                            slots, block):  # fmt: skip
+                            anchor, fit_c, buf, aux, dec, model, slots, block):  # fmt: skip
     """:meth:`KinTracker._update_segments_trusted`: the candidates' ``xy`` and points (as ``np.c_[x, y]``
     and :func:`_segment_points_kernel` give them), the room check of :meth:`KinTracker.update_batch`
     (``_NEED_ROOM`` and the rows needed, before any state changes), then :func:`_update_kernel`."""
@@ -2451,8 +2484,8 @@ def _update_segments_kernel(obs, rows, x, y, scores, accepted, all_accepted, del
         accepted = np.ones(k, np.bool_)
     pts, owner = _segment_points_kernel(ranges, angles, rows, first, last, range_max)
     return _update_kernel(obs, xy, scores, accepted, delta, dt, pts, owner, True, noise, poses, odometer, now,
-                          next_id, prm, F, I, B, xs, P, anchor, fit_c, buf, aux, dec, mean, scale, W, b, W2,
-                          b2, tail, log_min, hit_only, slots, block)  # fmt: skip
+                          next_id, prm, F, I, B, xs, P, anchor, fit_c, buf, aux, dec, model, slots,
+                          block)  # fmt: skip
 
 
 @numba.njit(cache=True, nogil=True)
@@ -2852,7 +2885,7 @@ def _slots_kernel(rows, kp, n_obs, max_tracks, tobs, tid, confirmed, x, poses, e
         fill[o] += 1
     if block:
         out, mask = np.zeros((0, 0, 10), np.float32), np.zeros((0, 0), np.bool_)
-        blk = np.zeros((10, n_obs, max_tracks))
+        blk = np.empty((10, n_obs, max_tracks))  # (each slot written once: its values or the padding 0)
     else:
         out, mask = np.zeros((n_obs, max_tracks, 10), np.float32), np.zeros((n_obs, max_tracks), np.bool_)
         blk = np.zeros((0, 0, 0))
@@ -2914,6 +2947,8 @@ def _slots_kernel(rows, kp, n_obs, max_tracks, tobs, tid, confirmed, x, poses, e
                 blk[7, o, r] = np.float32(float(seen[t]))
                 blk[8, o, r] = 1.0 if confirmed[t] else 0.0
                 blk[9, o, r] = np.float32(float(age[t]))
+            for j in range(10):
+                blk[j, o, m:] = 0.0
             count[o] = m
             continue
         for r in range(m):
