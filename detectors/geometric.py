@@ -930,13 +930,13 @@ class GeometricKinDetector(KinDetector):
     def _detect_table_feed_trusted(self, ranges, angles, F_keep: float) -> tuple[tuple, tuple]:
         """:meth:`_detect_table_trusted` (same input contract) and, from the same compiled call, every segment
         whose circle fit reached ``F`` < ``F_keep`` (>= ``F_threshold``; stage ``ACCEPTED`` or ``SHAPE``),
-        in segment order: ``((row, table), (scan row, first beam, beam count, F, r_c, theta_c, accepted))``,
-        the values of :meth:`_detect_arrays_trusted`'s ``seg_*`` arrays and ``seg_values`` at those segments
-        bit for bit (the envs' permissive feed: :class:`kin_envs.envs.tracks.PermissiveFeed`, without a
-        :class:`~detectors.base.BatchDetections` of every segment)."""
+        in segment order: ``((row, table), (scan row, first beam, beam count, F, r_c, theta_c, accepted),
+        d)``, the values of :meth:`_detect_arrays_trusted`'s ``seg_*`` arrays and ``seg_values`` at those
+        segments bit for bit (the envs' permissive feed: :class:`kin_envs.envs.tracks.PermissiveFeed`, without
+        a :class:`~detectors.base.BatchDetections` of every segment); ``d`` the preprocessed scans (B, n)."""
         rb, a = self._check_batch(ranges, angles, True)
         p = self.params
-        row, table, rc, bearing, feed = _detect_table_feed(
+        row, table, rc, bearing, feed, d = _detect_table_feed(
             np.ascontiguousarray(rb), np.ascontiguousarray(a), float(p.d_max), float(p.d_th), self._circular,
             p.noise_filter, self._sweep, float(p.r), float(p.F_threshold), p.shape_metric == "mean",
             p.occlusion_unbounded, p.min_points, p.lm_max_iter, _LM_XTOL, _LM_LAMBDA0, _LM_LAMBDA_MAX,
@@ -945,7 +945,7 @@ class GeometricKinDetector(KinDetector):
         if row.shape[0]:
             np.multiply(rc, np.cos(bearing), out=table[:, 2])
             np.multiply(rc, np.sin(bearing), out=table[:, 3])
-        return (row, table), feed
+        return (row, table), feed, d
 
     def _stages(self, ranges, angles, trusted: bool):
         """Segments and stages of every segment: ``(ranges, angles, segments (scan, first, count, prev, next,
@@ -1115,7 +1115,7 @@ def _detect_table_feed(rb, a, d_max, d_th, circular, noise_filter, sweep, r, F_t
             f_row[k], f_first[k], f_count[k] = scan[i], first[i], count[i]
             f_F[k], f_rc[k], f_theta[k], f_acc[k] = F[i], r_c[i], theta_c[i], accepted[i]
             k += 1
-    return row, table, rc, bearing, (f_row, f_first, f_count, f_F, f_rc, f_theta, f_acc)
+    return row, table, rc, bearing, (f_row, f_first, f_count, f_F, f_rc, f_theta, f_acc), d
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)

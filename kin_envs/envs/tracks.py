@@ -78,6 +78,12 @@ class PermissiveFeed:
         self.range_noise = float(range_noise)
         self.one_call = self.one_call_for(detector)
         self._f_perm = float(PERMISSIVE_F_THRESHOLD)
+        # the scan noise read from the detector's own preprocessed rows: the same rows scan_noise_of makes
+        # (the same d_max, no spike filter)
+        from detectors.features import FeatureConfig
+
+        dp = getattr(detector, "params", None)
+        self._noise_on_d = self.one_call and not dp.noise_filter and float(dp.d_max) == FeatureConfig().d_max
         self.permissive = None if self.one_call else permissive(detector)
 
     @staticmethod
@@ -122,8 +128,8 @@ class PermissiveFeed:
             # the shipped detections' table and the segments whose fit reached F < the permissive threshold
             # (stage ACCEPTED or SHAPE), from one compiled call: the values of _detect_arrays_trusted's
             # segment arrays at those segments (the accepted ones its detections)
-            table, (row, first, count, f, rc, bearing, accepted) = self.detector._detect_table_feed_trusted(
-                ranges, angles, self._f_perm)
+            fused = self.detector._detect_table_feed_trusted(ranges, angles, self._f_perm)
+            table, (row, first, count, f, rc, bearing, accepted), d = fused
             if slots is None:
                 dets = detect_rows(_Given(table), ranges, angles, observers, poses, robot_world, trusted=True)
             else:
@@ -149,7 +155,12 @@ class PermissiveFeed:
             d_row, d_cols = dets
             key = lambda r, a, z: (r * n + a) * n + z  # noqa: E731
             accepted = np.isin(key(row, first, last), key(d_row, d_cols["first_beam"], d_cols["last_beam"]))
-        est, count = scan_noise_of(ranges, angles)  # (the segmentation is not needed for it)
+        if self.one_call and self._noise_on_d:
+            from detectors.features import _scan_noise_of_d
+
+            est, count = _scan_noise_of_d(d, self.detector._circular)  # (its _check_batch: these angles)
+        else:
+            est, count = scan_noise_of(ranges, angles)  # (the segmentation is not needed for it)
         est = np.where(count >= 5, est, np.nan)
         noise = np.where(np.isnan(est), self.range_noise, est)
         feed = (row, x, y, scores, accepted, first, last, noise)
