@@ -173,10 +173,10 @@ def track_info(tracker, max_tracks: int) -> tuple[dict[str, np.ndarray], np.ndar
     from detectors.tracking import TRACK_FIELDS
 
     own = getattr(tracker, "_track_block", None)
-    if own is not None:  # a KinTracker: the block filled in its update's compiled call (the same values)
+    if own is not None:  # a KinTracker (or VectorTracker): the block filled in the update's compiled call
         block, count = own(max_tracks)
         return dict(zip(TRACK_FIELDS, block, strict=True)), count
-    a = tracker.track_arrays(max_tracks)  # (a VectorTracker: its own ids)
+    a = tracker.track_arrays(max_tracks)  # (any other tracker)
     # one transposed copy (field-major, float64), each field a C-contiguous row of it: the values of a copy
     # per field (``tracks[:, :, j].astype(float64)``) at half its cost
     block = a["tracks"].transpose(2, 0, 1).astype(np.float64, order="C")
@@ -280,6 +280,17 @@ class VectorTracker:
             _feed(tr, scan, row, cols, observers[row], delta, dt)
         if tr._next_id > first:  # births: own ids per observer, in birth (= shared id) order
             self._record(*_births(tr._alive, tr._id, tr._obs, first, self._next_local))
+
+    def _track_block(self, max_tracks: int) -> tuple[np.ndarray, np.ndarray]:
+        """``KinTracker._track_block`` (:func:`track_info`'s block) with each sub-env's own track ids: the
+        values of :meth:`track_arrays`' ``tracks`` transposed to float64, as :func:`track_info` made them."""
+        block, count = self.tracker._track_block(max_tracks)
+        if count.any():
+            m = np.arange(block.shape[2]) < count[:, None]  # the filled slots (track_arrays' mask)
+            ids = block[0]
+            g = ids[m].astype(np.int64)
+            ids[m] = self._lid[np.searchsorted(self._gid, g)].astype(np.float32)  # (as the float32 slots)
+        return block, count
 
     def track_arrays(self, max_tracks: int) -> dict[str, np.ndarray]:
         """:meth:`detectors.KinTracker.track_arrays` with each sub-env's own track ids."""
