@@ -385,6 +385,20 @@ def accepted_segments(d, ang, sweep, scan, first, count, prev, nxt, prev_nearer,
     fewer than ``min_points`` beams is rejected before any arithmetic (its stage, DIAMETER or
     TOO_FEW_POINTS, is a rejection either way), the next-beam half-width only when the first passes and the
     points only for a fit: ~40-60 % of the segments of a swarm's or KinSeek's scans have 1-2 beams."""
+    fitted_segments(d, ang, sweep, scan, first, count, prev, nxt, prev_nearer, next_nearer, r, F_threshold,
+                    F_threshold, mean_metric, occlusion_unbounded, min_points, max_iter, xtol, lam0, lam_max,
+                    accepted, accepted, F, r_c, theta_c)  # fmt: skip
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def fitted_segments(d, ang, sweep, scan, first, count, prev, nxt, prev_nearer, next_nearer, r, F_threshold,
+                    F_keep, mean_metric, occlusion_unbounded, min_points, max_iter, xtol, lam0, lam_max,
+                    accepted, kept, F, r_c, theta_c):  # fmt: skip
+    """:func:`accepted_segments`, which also keeps (``kept``) the segments whose fit reached ``F`` <
+    ``F_keep`` (>= ``F_threshold``: stage ``ACCEPTED`` or ``SHAPE`` with that ``F``; the envs' permissive
+    feed, ``kin_envs.envs.tracks.PermissiveFeed``), their ``F``, ``r_c``, ``theta_c`` those of
+    :func:`geometric_segments` bit for bit. ``kept`` may be ``accepted`` itself (``F_keep`` =
+    ``F_threshold``)."""
     n_beams = ang.shape[0]
     cos_a = np.cos(ang)
     sin_a = np.sin(ang)
@@ -393,6 +407,7 @@ def accepted_segments(d, ang, sweep, scan, first, count, prev, nxt, prev_nearer,
     diameter = 2.0 * r
     for i in range(scan.shape[0]):
         accepted[i] = False
+        kept[i] = False
         n = count[i]
         if n < min_points:
             continue
@@ -434,8 +449,9 @@ def accepted_segments(d, ang, sweep, scan, first, count, prev, nxt, prev_nearer,
             j = j + 1 if j < n_beams - 1 else 0
         rc, tc, sabs = lm_fit(px, py, n, r, dc, am, max_iter, xtol, lam0, lam_max)  # eq. 7 start
         err = sabs / n if mean_metric else sabs
-        if err < F_threshold:
-            accepted[i] = True
+        if err < F_keep:
+            accepted[i] = err < F_threshold
+            kept[i] = True
             F[i] = err
             r_c[i] = rc
             theta_c[i] = wrap(tc)

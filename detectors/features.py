@@ -1151,6 +1151,18 @@ def scan_noise_of(ranges, angles, config: FeatureConfig | None = None) -> tuple[
     return out, count
 
 
+def _scan_noise_of_d(d: np.ndarray, circular: bool, config: FeatureConfig | None = None):
+    """:func:`scan_noise_of` on rows ``d`` already preprocessed as it preprocesses them (``config``'s
+    ``d_max``, no spike filter; e.g. the geometric detector's own rows when its ``d_max`` is the same and its
+    ``noise_filter`` off: :meth:`detectors.geometric.GeometricKinDetector._detect_table_feed_trusted`),
+    ``circular`` the beams' :func:`~detectors.geometric.is_circular_sweep`: the same values."""
+    c = config or FeatureConfig()
+    out = np.empty(d.shape[0])
+    count = np.empty(d.shape[0], dtype=np.int64)
+    _scan_noise_kernel(d, float(c.d_th), float(c.d_max), bool(circular), out, count)
+    return out, count
+
+
 def segment_features(
     batch: SegmentBatch, config: FeatureConfig | None = None, which: np.ndarray | None = None
 ) -> SegmentFeatures:

@@ -927,6 +927,26 @@ class GeometricKinDetector(KinDetector):
             np.multiply(rc, np.sin(bearing), out=table[:, 3])
         return row, table
 
+    def _detect_table_feed_trusted(self, ranges, angles, F_keep: float) -> tuple[tuple, tuple]:
+        """:meth:`_detect_table_trusted` (same input contract) and, from the same compiled call, every segment
+        whose circle fit reached ``F`` < ``F_keep`` (>= ``F_threshold``; stage ``ACCEPTED`` or ``SHAPE``),
+        in segment order: ``((row, table), (scan row, first beam, beam count, F, r_c, theta_c, accepted),
+        d)``, the values of :meth:`_detect_arrays_trusted`'s ``seg_*`` arrays and ``seg_values`` at those
+        segments bit for bit (the envs' permissive feed: :class:`kin_envs.envs.tracks.PermissiveFeed`, without
+        a :class:`~detectors.base.BatchDetections` of every segment); ``d`` the preprocessed scans (B, n)."""
+        rb, a = self._check_batch(ranges, angles, True)
+        p = self.params
+        row, table, rc, bearing, feed, d = _detect_table_feed(
+            np.ascontiguousarray(rb), np.ascontiguousarray(a), float(p.d_max), float(p.d_th), self._circular,
+            p.noise_filter, self._sweep, float(p.r), float(p.F_threshold), p.shape_metric == "mean",
+            p.occlusion_unbounded, p.min_points, p.lm_max_iter, _LM_XTOL, _LM_LAMBDA0, _LM_LAMBDA_MAX,
+            float(F_keep),
+        )  # fmt: skip
+        if row.shape[0]:
+            np.multiply(rc, np.cos(bearing), out=table[:, 2])
+            np.multiply(rc, np.sin(bearing), out=table[:, 3])
+        return (row, table), feed, d
+
     def _stages(self, ranges, angles, trusted: bool):
         """Segments and stages of every segment: ``(ranges, angles, segments (scan, first, count, prev, next,
         prev_nearer, next_nearer), stage (S,), values {d_cest, omega_min, omega_max, F, r_c, theta_c})``."""
@@ -1061,6 +1081,41 @@ def _detect_table(rb, a, d_max, d_th, circular, noise_filter, sweep, r, F_thresh
         occlusion_unbounded, min_points, lm_max_iter, xtol, lam0, lam_max, accepted, F, r_c, theta_c,
     )  # fmt: skip
     return _accepted_table(accepted, scan, first, count, r_c, theta_c, F, F_threshold, a.shape[0])
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def _detect_table_feed(rb, a, d_max, d_th, circular, noise_filter, sweep, r, F_threshold, mean_metric,
+                       occlusion_unbounded, min_points, lm_max_iter, xtol, lam0, lam_max,
+                       F_keep):  # fmt: skip
+    """:func:`_detect_table` and the segments whose fit reached ``F < F_keep``
+    (:meth:`GeometricKinDetector._detect_table_feed_trusted`), in one call."""
+    d = np.empty(rb.shape)
+    _k.preprocess_rows(rb, d_max, d_th, circular, noise_filter, d)
+    scan, first, count, prev, nxt, p_near, n_near = _k._segment_views(d, d_th, d_max, circular)
+    S = scan.shape[0]
+    accepted = np.empty(S, dtype=np.bool_)
+    kept = np.empty(S, dtype=np.bool_)
+    F = np.empty(S)
+    r_c = np.empty(S)
+    theta_c = np.empty(S)
+    _k.fitted_segments(
+        d, a, sweep, scan, first, count, prev, nxt, p_near, n_near, r, F_threshold, F_keep, mean_metric,
+        occlusion_unbounded, min_points, lm_max_iter, xtol, lam0, lam_max, accepted, kept, F, r_c, theta_c,
+    )  # fmt: skip
+    row, table, rc, bearing = _accepted_table(accepted, scan, first, count, r_c, theta_c, F, F_threshold,
+                                              a.shape[0])  # fmt: skip
+    m = 0
+    for i in range(S):
+        m += kept[i]
+    f_row, f_first, f_count = np.empty(m, np.int64), np.empty(m, np.int64), np.empty(m, np.int64)
+    f_F, f_rc, f_theta, f_acc = np.empty(m), np.empty(m), np.empty(m), np.empty(m, np.bool_)
+    k = 0
+    for i in range(S):
+        if kept[i]:
+            f_row[k], f_first[k], f_count[k] = scan[i], first[i], count[i]
+            f_F[k], f_rc[k], f_theta[k], f_acc[k] = F[i], r_c[i], theta_c[i], accepted[i]
+            k += 1
+    return row, table, rc, bearing, (f_row, f_first, f_count, f_F, f_rc, f_theta, f_acc), d
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)

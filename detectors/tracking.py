@@ -861,6 +861,8 @@ class KinTracker:
         self._kp_cache = (None, None)
         self._pending = None  # the decision's compiled part from the last update
         self._slots_max = -1  # max_tracks of the last track_arrays call (the update fills its slots then)
+        self._slots_block = False  # that read was the envs' info block (_track_block)
+        self._slots_frame = -1  # the frame of that read (the first read of a frame sets both)
         self._pending_slots = None  # those slots, filled in this frame's update call
         self._model_args = None  # (model, its arguments of _update_kernel), built once per model object
 
@@ -978,7 +980,7 @@ class KinTracker:
         args = (c_(obs, np.int64), c_(xy), c_(scores), c_(accepted), c_(delta), float(dt), pts, c_(own),
                 points is not None, c_(noise), poses, self.odometer, self.time + dt, self._next_id, self._prm,
                 self._F, self._I, self._B, self._x, self._P, self._anchor, self._fit_c, self._pts,
-                self._pts_aux, dec, *model_args, slots)  # fmt: skip
+                self._pts_aux, dec, model_args, slots, self._slots_block)  # fmt: skip
         res = _update_kernel(*args)
         if res[0] == _BAD_SORT:  # points not grouped by candidate (segment_points gives them sorted)
             order = np.argsort(own, kind="stable")
@@ -1002,10 +1004,9 @@ class KinTracker:
         cached = self._model_args
         if cached is None or cached[0] is not m:
             W, b, W2, b2, tail = _layers(m)
-            args = (m.mean, m.scale, W, b, W2, b2, tail, _log_min(m), bool(m.hit_only))
-            cached = self._model_args = (m, args)
-        args = cached[1]
-        return True, args, self._slots_max if args[6] else -1
+            cached = self._model_args = (m, _model_array(m.mean, m.scale, W, b, W2, b2, tail, _log_min(m),
+                                                         m.hit_only), tail)  # fmt: skip
+        return True, cached[1], self._slots_max if cached[2] else -1
 
     def _updated(self, poses, dt, dec, slots, res) -> None:
         """The frame's bookkeeping after :func:`_update_kernel` returned ``res`` (status 0)."""
@@ -1016,7 +1017,7 @@ class KinTracker:
         self._frame += 1
         # the decision (or its first layer) and the slots, for track_arrays of this frame (this model, params)
         self._pending = ((self._frame, self.kin_model, self.params), (rows, kp, sel, h)) if dec else None
-        self._pending_slots = (self._frame, slots, so) if slots >= 0 else None
+        self._pending_slots = (self._frame, slots, self._slots_block, so) if slots >= 0 else None
 
     def _update_segments_trusted(self, obs, rows, x, y, scores, accepted, odom_delta, dt: float, ranges,
                                  angles, first, last, range_max: float, noise=None) -> None:
@@ -1040,19 +1041,17 @@ class KinTracker:
         dec, model_args, slots = self._decision_args()
         all_acc = accepted is None
         acc = _NO_FLAGS if all_acc else accepted
-
-        def run():  # (reads the state arrays anew: _grow replaces them)
-            return _update_segments_kernel(
-                obs, rows, x, y, scores, acc, all_acc, odom_delta, float(dt), ranges, angles, first, last,
-                float(range_max), noise, poses, self.odometer, self.time + dt, self._next_id, self._prm,
-                self._F, self._I, self._B, self._x, self._P, self._anchor, self._fit_c, self._pts,
-                self._pts_aux, dec, *model_args, slots,
+        block, dt, range_max = self._slots_block, float(dt), float(range_max)
+        while True:  # (reads the state arrays anew: _grow replaces them)
+            res = _update_segments_kernel(
+                obs, rows, x, y, scores, acc, all_acc, odom_delta, dt, ranges, angles, first, last, range_max,
+                noise, poses, self.odometer, self.time + dt, self._next_id, self._prm, self._F, self._I,
+                self._B, self._x, self._P, self._anchor, self._fit_c, self._pts, self._pts_aux, dec,
+                model_args, slots, block,
             )  # fmt: skip
-
-        res = run()
-        if res[0] == _NEED_ROOM:  # more rows than the arrays have: grown as update_batch grows them
-            self._grow(int(res[1]))
-            res = run()
+            if res[0] != _NEED_ROOM:
+                break
+            self._grow(int(res[1]))  # more rows than the arrays have: grown as update_batch grows them
         if res[0]:  # a bad value: the public path raises its error (no state has changed)
             pts, own = segment_points(ranges, angles, rows, first, last, range_max)
             acc = np.ones(obs.shape[0], np.bool_) if all_acc else accepted
@@ -1261,27 +1260,42 @@ class KinTracker:
         tracks come first, then by kin probability, when there are more than ``max_tracks``."""
         if isinstance(max_tracks, bool) or not isinstance(max_tracks, int | np.integer) or max_tracks < 0:
             raise ValueError(f"KinTracker.track_arrays: max_tracks must be an int >= 0, got {max_tracks!r}")
+        out, mask, count, _ = self._read_slots(int(max_tracks), False)
+        return {"tracks": out, "mask": mask, "count": count}
+
+    def _track_block(self, max_tracks: int) -> tuple[np.ndarray, np.ndarray]:
+        """The envs' info (:func:`kin_envs.envs.tracks.track_info`): ``(block, count)``, ``block`` (fields,
+        n_observers, max_tracks) float64 the values of ``track_arrays(max_tracks)["tracks"].transpose(2, 0,
+        1).astype(float64)`` (``count`` its count) bit for bit, with the same effect on the tracker; each
+        field a C-contiguous row. Filled in the update's compiled call when the frame before was read so."""
+        if isinstance(max_tracks, bool) or not isinstance(max_tracks, int | np.integer) or max_tracks < 0:
+            raise ValueError(f"KinTracker.track_arrays: max_tracks must be an int >= 0, got {max_tracks!r}")
+        _, _, count, block = self._read_slots(int(max_tracks), True)
+        return block, count
+
+    def _read_slots(self, max_tracks: int, block: bool) -> tuple:
+        """:func:`_slots_kernel`'s ``(tracks, mask, count, blk)`` of this frame (``block``: the info's)."""
         # the kin decision of this frame's tracks, once per frame (an env reads it for the info and again for
         # the observation's track channel)
         key, cached = self._kp_cache
         fresh = (key is None or key[0] != self._frame or key[1] is not self.kin_model
                  or key[2] is not self.params)  # fmt: skip
         ps, self._pending_slots = self._pending_slots, None
-        self._slots_max = int(max_tracks)
+        if self._slots_frame != self._frame:  # the next update fills the slots the first read asked for
+            self._slots_max, self._slots_block, self._slots_frame = max_tracks, block, self._frame
         if fresh:
             pend = self._pending
             cached = self._decide()
             self._kp_cache = ((self._frame, self.kin_model, self.params), cached)
-            # the slots the update's call filled: the first read of this frame, as many slots, the decision
-            # that call made (each later read builds its own arrays: a caller may write into them)
-            if ps is not None and ps[0] == self._frame and ps[1] == max_tracks and pend is not None \
-                    and pend[0][1] is self.kin_model and pend[0][2] is self.params:
-                return {"tracks": ps[2][0], "mask": ps[2][1], "count": ps[2][2]}
+            # the slots the update's call filled: the first read of this frame, as many slots in the same
+            # form, the decision that call made (each later read builds its own arrays: a caller may write
+            # into them)
+            if ps is not None and ps[0] == self._frame and ps[1] == max_tracks and ps[2] == block \
+                    and pend is not None and pend[0][1] is self.kin_model and pend[0][2] is self.params:
+                return ps[3]
         rows, kp = cached
-        out, mask, count = _slots_kernel(rows, kp, self.n_observers, int(max_tracks), self._obs, self._id,
-                                         self._confirmed, self._x, self.poses, self._exist, self._seen,
-                                         self._age)  # fmt: skip
-        return {"tracks": out, "mask": mask, "count": count}
+        return _slots_kernel(rows, kp, self.n_observers, max_tracks, self._obs, self._id, self._confirmed,
+                             self._x, self.poses, self._exist, self._seen, self._age, block)  # fmt: skip
 
 for _pack, _cols in (("_F", _F_COLS), ("_I", _I_COLS), ("_B", _B_COLS)):
     for _i, _name in enumerate(_cols):
@@ -1295,8 +1309,41 @@ def _log_min(m: TrackKinModel) -> float:
 
 
 _NO_W, _NO_B = np.zeros((0, 0)), np.zeros(0)
-#: :func:`_update_kernel`'s model arguments when the decision does not run in it
-_NO_MODEL = (_NO_B, _NO_B, _NO_W, _NO_B, _NO_W, _NO_B, 0, 0.0, False)
+
+
+def _model_array(mean, scale, W, b, W2, b2, tail, log_min, hit_only) -> np.ndarray:
+    """:func:`_decide_kernel`'s model arguments as one float64 array (:func:`_model_views` reads them back,
+    the same values: one argument of :func:`_update_kernel` instead of nine)."""
+    arrs = [np.asarray(a, np.float64) for a in (mean, scale, W, b, W2, b2)]
+    head = [float(arrs[0].size), float(arrs[1].size), *map(float, arrs[2].shape), float(arrs[3].size),
+            *map(float, arrs[4].shape), float(arrs[5].size), float(tail), float(log_min),
+            float(bool(hit_only))]  # fmt: skip
+    return np.concatenate([np.array(head), *(a.ravel() for a in arrs)])
+
+
+#: :func:`_update_kernel`'s model argument when the decision does not run in it
+_NO_MODEL = _model_array(_NO_B, _NO_B, _NO_W, _NO_B, _NO_W, _NO_B, 0, 0.0, False)
+
+
+@numba.njit(cache=True, nogil=True)
+def _model_views(model):
+    """:func:`_model_array`'s ``(mean, scale, W, b, W2, b2, tail, log_min, hit_only)``, views of ``model``."""
+    n_mean, n_scale, w0, w1, n_b = int(model[0]), int(model[1]), int(model[2]), int(model[3]), int(model[4])
+    v0, v1, n_b2 = int(model[5]), int(model[6]), int(model[7])
+    tail, log_min, hit_only = int(model[8]), model[9], model[10] != 0.0
+    o = 11
+    mean = model[o : o + n_mean]
+    o += n_mean
+    scale = model[o : o + n_scale]
+    o += n_scale
+    W = model[o : o + w0 * w1].reshape(w0, w1)
+    o += w0 * w1
+    b = model[o : o + n_b]
+    o += n_b
+    W2 = model[o : o + v0 * v1].reshape(v0, v1)
+    o += v0 * v1
+    b2 = model[o : o + n_b2]
+    return mean, scale, W, b, W2, b2, tail, log_min, hit_only
 
 
 def _layers(m: TrackKinModel) -> tuple:
@@ -2353,14 +2400,16 @@ def _update_error(status, N, k, delta, xy, scores, obs, noise, pts) -> str:
 
 @numba.njit(cache=True, nogil=True)
 def _update_kernel(obs, xy, scores, accepted, delta, dt, pts, owner, has_points, noise, poses, odometer, now,
-                   next_id, prm, F, I, B, x, P, anchor, fit_c, buf, aux, dec, mean, scale, W, b, W2, b2, tail,
-                   log_min, hit_only, slots):  # fmt: skip
+                   next_id, prm, F, I, B, x, P, anchor, fit_c, buf, aux, dec, model, slots,
+                   block):  # fmt: skip
     """One frame of every observer (:meth:`KinTracker.update_batch`) on the packed state (:data:`_F_COLS`,
     :data:`_I_COLS`, :data:`_B_COLS`): :func:`_update_frame`, then (``dec``) the kin decision's compiled
-    part (:func:`_decide_kernel`, the model's layers ``mean, scale, W, b, W2, b2, tail``) and (``slots`` >= 0)
-    :meth:`KinTracker.track_arrays`' padded slots (:func:`_slots_kernel`, ``slots`` of them per observer).
-    Returns ``(status, next_id, rows, kp, sel, h, (tracks, mask, count))`` (the decision's arrays empty unless
-    ``dec``, the slots unless ``slots >= 0``)."""
+    part (:func:`_decide_kernel`, the model's layers ``mean, scale, W, b, W2, b2, tail`` packed in ``model``:
+    :func:`_model_array`) and (``slots`` >= 0)
+    :meth:`KinTracker.track_arrays`' padded slots (:func:`_slots_kernel`, ``slots`` of them per observer;
+    ``block``: as the envs' info block, :meth:`KinTracker._track_block`). Returns ``(status, next_id, rows,
+    kp, sel, h, (tracks, mask, count, blk))`` (the decision's arrays empty unless ``dec``, the slots unless
+    ``slots >= 0``)."""
     # the frame's steps see the rows below n only: the rows from the last live one up are free, and births
     # (one per candidate at most) take the first free rows, so every row this frame reads or writes is below
     # n (a swarm's arrays have about twice its tracks: their loops over every row would mostly skip)
@@ -2384,10 +2433,12 @@ def _update_kernel(obs, xy, scores, accepted, delta, dt, pts, owner, has_points,
     )  # fmt: skip
     if not status:
         B[3][n:] = False  # "updated this frame" is cleared on every row (a row adopt() freed may hold it)
-    no_slots = (np.zeros((0, 0, 10), np.float32), np.zeros((0, 0), np.bool_), np.zeros(0, np.int64))
+    no_slots = (np.zeros((0, 0, 10), np.float32), np.zeros((0, 0), np.bool_), np.zeros(0, np.int64),
+                np.zeros((0, 0, 0)))
     if status or not dec:
         return (status, next_id, np.empty(0, np.int64), np.zeros(0), np.empty(0, np.int64), np.empty((0, 0)),
                 no_slots)  # fmt: skip
+    mean, scale, W, b, W2, b2, tail, log_min, hit_only = _model_views(model)
     rows, kp, sel, h = _decide_kernel(
         poses.shape[0], alive, confirmed, tobs, seen, x, P, anchor, anchor_var, anchor_odo, anchor_rng,
         odometer, hit, f_lgsum, f_lgsq, f_lgmax, f_lglast, f_accsum, f_acclast, f_beams, f_rng, moved, exist,
@@ -2397,7 +2448,8 @@ def _update_kernel(obs, xy, scores, accepted, delta, dt, pts, owner, has_points,
         return status, next_id, rows, kp, sel, h, no_slots
     # track_arrays' slots while this frame's rows are in cache (_slots_kernel on the rows below n: every live
     # row is; ``poses`` already the new poses)
-    so = _slots_kernel(rows, kp, poses.shape[0], slots, tobs, tid, confirmed, x, poses, exist, seen, age)
+    so = _slots_kernel(rows, kp, poses.shape[0], slots, tobs, tid, confirmed, x, poses, exist, seen, age,
+                       block)
     return status, next_id, rows, kp, sel, h, so
 
 
@@ -2407,8 +2459,7 @@ _NEED_ROOM = 8  # _update_segments_kernel: the state's arrays need more rows (``
 @numba.njit(cache=True, nogil=True)
 def _update_segments_kernel(obs, rows, x, y, scores, accepted, all_accepted, delta, dt, ranges, angles,
                             first, last, range_max, noise, poses, odometer, now, next_id, prm, F, I, B, xs, P,
-                            anchor, fit_c, buf, aux, dec, mean, scale, W, b, W2, b2, tail, log_min, hit_only,
-                            slots):  # fmt: skip
+                            anchor, fit_c, buf, aux, dec, model, slots, block):  # fmt: skip
     """:meth:`KinTracker._update_segments_trusted`: the candidates' ``xy`` and points (as ``np.c_[x, y]``
     and :func:`_segment_points_kernel` give them), the room check of :meth:`KinTracker.update_batch`
     (``_NEED_ROOM`` and the rows needed, before any state changes), then :func:`_update_kernel`."""
@@ -2425,7 +2476,7 @@ def _update_segments_kernel(obs, rows, x, y, scores, accepted, all_accepted, del
     if n_alive + kept > B.shape[1]:
         return (_NEED_ROOM, n_alive + kept, np.empty(0, np.int64), np.zeros(0), np.empty(0, np.int64),
                 np.empty((0, 0)), (np.zeros((0, 0, 10), np.float32), np.zeros((0, 0), np.bool_),
-                                   np.zeros(0, np.int64)))  # fmt: skip
+                                   np.zeros(0, np.int64), np.zeros((0, 0, 0))))  # fmt: skip
     xy = np.empty((k, 2))
     for c in range(k):
         xy[c, 0], xy[c, 1] = x[c], y[c]
@@ -2433,8 +2484,8 @@ def _update_segments_kernel(obs, rows, x, y, scores, accepted, all_accepted, del
         accepted = np.ones(k, np.bool_)
     pts, owner = _segment_points_kernel(ranges, angles, rows, first, last, range_max)
     return _update_kernel(obs, xy, scores, accepted, delta, dt, pts, owner, True, noise, poses, odometer, now,
-                          next_id, prm, F, I, B, xs, P, anchor, fit_c, buf, aux, dec, mean, scale, W, b, W2,
-                          b2, tail, log_min, hit_only, slots)  # fmt: skip
+                          next_id, prm, F, I, B, xs, P, anchor, fit_c, buf, aux, dec, model, slots,
+                          block)  # fmt: skip
 
 
 @numba.njit(cache=True, nogil=True)
@@ -2813,10 +2864,13 @@ _NAN_KEY = np.iinfo(np.int64).max
 
 
 @numba.njit(cache=True, nogil=True)
-def _slots_kernel(rows, kp, n_obs, max_tracks, tobs, tid, confirmed, x, poses, exist, seen, age):
+def _slots_kernel(rows, kp, n_obs, max_tracks, tobs, tid, confirmed, x, poses, exist, seen, age, block):
     """:meth:`KinTracker.track_arrays`' padded slots: each observer's tracks ``rows`` (kin probability
     ``kp``) ordered confirmed first, then by kin probability, then by id, the first ``max_tracks`` in its
-    current robot frame (columns :data:`TRACK_FIELDS`)."""
+    current robot frame (columns :data:`TRACK_FIELDS`). Returns ``(tracks, mask, count, blk)``; with
+    ``block`` the envs' info block instead of ``tracks`` and ``mask`` (those then empty): ``blk`` (fields,
+    n_obs, max_tracks) float64, each value the float32 slot's (``tracks.transpose(2, 0, 1).astype(float64)``
+    bit for bit: :meth:`KinTracker._track_block`)."""
     n = rows.shape[0]
     cnt = np.zeros(n_obs + 1, np.int64)  # group by observer (counting sort)
     for i in range(n):
@@ -2829,8 +2883,12 @@ def _slots_kernel(rows, kp, n_obs, max_tracks, tobs, tid, confirmed, x, poses, e
         o = tobs[rows[i]]
         order[fill[o]] = i
         fill[o] += 1
-    out = np.zeros((n_obs, max_tracks, 10), np.float32)
-    mask = np.zeros((n_obs, max_tracks), np.bool_)
+    if block:
+        out, mask = np.zeros((0, 0, 10), np.float32), np.zeros((0, 0), np.bool_)
+        blk = np.empty((10, n_obs, max_tracks))  # (each slot written once: its values or the padding 0)
+    else:
+        out, mask = np.zeros((n_obs, max_tracks, 10), np.float32), np.zeros((n_obs, max_tracks), np.bool_)
+        blk = np.zeros((0, 0, 0))
     count = np.zeros(n_obs, np.int64)
     key, ids = np.empty(n), np.empty(n, np.int64)
     for i in range(n):
@@ -2872,6 +2930,27 @@ def _slots_kernel(rows, kp, n_obs, max_tracks, tobs, tid, confirmed, x, poses, e
         g = slot[a:e]
         c, s = math.cos(poses[o, 2]), math.sin(poses[o, 2])
         m = min(g.shape[0], max_tracks)
+        if block:
+            for r in range(m):
+                i = g[r]
+                t = rows[i]
+                d0, d1 = x[t, 0] - poses[o, 0], x[t, 1] - poses[o, 1]
+                v0, v1 = x[t, 2], x[t, 3]
+                # each value rounded to the float32 slot's, then widened (exact)
+                blk[0, o, r] = np.float32(float(tid[t]))
+                blk[1, o, r] = np.float32(c * d0 + s * d1)
+                blk[2, o, r] = np.float32(-s * d0 + c * d1)
+                blk[3, o, r] = np.float32(c * v0 + s * v1)
+                blk[4, o, r] = np.float32(-s * v0 + c * v1)
+                blk[5, o, r] = np.float32(exist[t])
+                blk[6, o, r] = np.float32(kp[i])
+                blk[7, o, r] = np.float32(float(seen[t]))
+                blk[8, o, r] = 1.0 if confirmed[t] else 0.0
+                blk[9, o, r] = np.float32(float(age[t]))
+            for j in range(10):
+                blk[j, o, m:] = 0.0
+            count[o] = m
+            continue
         for r in range(m):
             i = g[r]
             t = rows[i]
@@ -2889,4 +2968,4 @@ def _slots_kernel(rows, kp, n_obs, max_tracks, tobs, tid, confirmed, x, poses, e
             out[o, r, 9] = float(age[t])
             mask[o, r] = True
         count[o] = m
-    return out, mask, count
+    return out, mask, count, blk

@@ -180,6 +180,8 @@ def report(results: list[dict], cost: dict | None = None) -> str:
 _ENV_PROBES = {
     "aggregation_v2": [("detector", "kin_envs.envs.aggregation", "detect_rows_padded"),
                        ("detector", "kin_envs.envs.tracks.PermissiveFeed", "detect"),
+                       ("detector", "kin_envs.envs.tracks.PermissiveFeed", "detect_padded"),  # (+ padding)
+                       ("detector", "kin_envs.envs.aggregation", "pad_rows"),  # (a detector without it)
                        ("update", "kin_envs.envs.tracks", "track_update"),
                        ("info", "kin_envs.envs.tracks", "track_info")],
     "KinSeek-v2": [("detector", "kin_envs.envs.base", "detect_one_padded"),
@@ -198,7 +200,8 @@ _PART_PROBES = [("segment_points", "detectors.tracking", "segment_points"),
                 ("update_batch", "detectors.tracking.KinTracker", "_update_segments_trusted"),  # the envs'
                 ("update_kernel", "detectors.tracking", "_update_kernel"),
                 ("update_kernel", "detectors.tracking", "_update_segments_kernel"),
-                ("track_arrays", "detectors.tracking.KinTracker", "track_arrays")]  # fmt: skip
+                ("track_arrays", "detectors.tracking.KinTracker", "track_arrays"),
+                ("track_arrays", "detectors.tracking.KinTracker", "_track_block")]  # fmt: skip
 
 
 def _resolve(path: str):

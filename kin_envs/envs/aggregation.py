@@ -331,7 +331,13 @@ class AggregationEnv(ParallelEnv):
         # scan has just written them, before the detector's call)
         truth = kin_truth_padded(scan, poses, cfg.max_kin_truth) if self.padded_info else None
         dets = feed = padded = None
-        if self._feeder is not None:
+        if self._feeder is not None and self.padded_info:
+            # the shipped detections matched and padded with the tracker's candidates (pad_rows' values)
+            dets, padded, feed = self._feeder.detect_padded(
+                scan.ranges, scan.angles, scan.robots, poses, cfg.max_detections,
+                hits=(scan.hit_kind, scan.hit_index), range_max=scan.range_max,
+            )  # fmt: skip
+        elif self._feeder is not None:
             dets, feed = self._feeder.detect(scan.ranges, scan.angles, scan.robots, poses,
                                              range_max=scan.range_max)  # fmt: skip
         elif self.detector is not None and self.padded_info:

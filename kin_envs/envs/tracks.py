@@ -28,14 +28,14 @@ def track_update(tracker, scan: Scan, dets, odom_delta: np.ndarray, dt: float, f
 
 
 class _Given:
-    """A detector stand-in whose trusted array call returns a result already computed (so that
+    """A detector stand-in whose trusted table call returns a result already computed (so that
     :func:`kin_envs.envs.common.detect_rows` builds the shipped detections from it, unchanged)."""
 
-    def __init__(self, arrays) -> None:
-        self.arrays = arrays
+    def __init__(self, table) -> None:
+        self.table = table
 
-    def _detect_arrays_trusted(self, ranges, angles):
-        return self.arrays
+    def _detect_table_trusted(self, ranges, angles):
+        return self.table
 
 
 def _is_permissive(feed: str | None, detector) -> bool:
@@ -78,6 +78,12 @@ class PermissiveFeed:
         self.range_noise = float(range_noise)
         self.one_call = self.one_call_for(detector)
         self._f_perm = float(PERMISSIVE_F_THRESHOLD)
+        # the scan noise read from the detector's own preprocessed rows: the same rows scan_noise_of makes
+        # (the same d_max, no spike filter)
+        from detectors.features import FeatureConfig
+
+        dp = getattr(detector, "params", None)
+        self._noise_on_d = self.one_call and not dp.noise_filter and float(dp.d_max) == FeatureConfig().d_max
         self.permissive = None if self.one_call else permissive(detector)
 
     @staticmethod
@@ -89,46 +95,76 @@ class PermissiveFeed:
 
         return type(detector) is GeometricKinDetector and detector.params.F_threshold < PERMISSIVE_F_THRESHOLD
 
+    def detect_padded(self, ranges, angles, observers, poses, slots: int, hits=None,
+                      range_max: float = np.inf):
+        """``(dets, padded, feed)``: :meth:`detect` (one world) and the shipped detections' padded info
+        columns ``padded`` = ``pad_rows(*dets, len(ranges), slots)`` (:func:`kin_envs.envs.info.pad_rows`),
+        the same values; for the shipped geometric detector matched and padded in one compiled call with
+        the flat rows (:func:`kin_envs.envs.common.detect_rows_padded`; ``hits``: the scan's ``(hit_kind,
+        hit_index)``, as it takes them)."""
+        if self.one_call:
+            return self._detect(ranges, angles, observers, poses, None, slots, hits)
+        from kin_envs.envs.info import pad_rows
+
+        dets, feed = self._detect(ranges, angles, observers, poses, None)
+        return dets, pad_rows(*dets, ranges.shape[0], slots), feed
+
     def detect(self, ranges, angles, observers, poses, robot_world=None, range_max: float = np.inf):
         """``(dets, feed)``: the shipped detections ``(row, cols)`` of
         :func:`kin_envs.envs.common.detect_rows` (trusted: the env's own scans) and the tracker's
         candidates ``(row, x, y, scores, accepted, first_beam, last_beam, noise)`` (rows of ``ranges``; their
         points are the segments' beams, computed in the tracker's update: :func:`_feed_candidates`).
         ``range_max`` is not read here (the update takes the scan's)."""
-        from detectors._kernels import ACCEPTED, SHAPE
+        return self._detect(ranges, angles, observers, poses, robot_world)
+
+    def _detect(self, ranges, angles, observers, poses, robot_world, slots=None, hits=None):
+        """:meth:`detect`'s ``(dets, feed)``; with ``slots`` (the one-call detector, one world)
+        :meth:`detect_padded`'s ``(dets, padded, feed)``."""
         from detectors.features import scan_noise_of
         from kin_envs.envs.common import detect_rows
 
         n = angles.shape[0]
         if self.one_call:
-            b = self.detector._detect_arrays_trusted(ranges, angles)
-            dets = detect_rows(_Given(b), ranges, angles, observers, poses, robot_world, trusted=True)
-            st, F = b.seg_stage, b.seg_values["F"]
-            idx = np.flatnonzero(((st == ACCEPTED) | (st == SHAPE)) & (F < self._f_perm))
-            rc, bearing, f = b.seg_values["r_c"][idx], b.seg_values["theta_c"][idx], F[idx]
-            row, first = b.seg_scan[idx], b.seg_first[idx]
-            last = (first + b.seg_count[idx] - 1) % n
+            # the shipped detections' table and the segments whose fit reached F < the permissive threshold
+            # (stage ACCEPTED or SHAPE), from one compiled call: the values of _detect_arrays_trusted's
+            # segment arrays at those segments (the accepted ones its detections)
+            fused = self.detector._detect_table_feed_trusted(ranges, angles, self._f_perm)
+            table, (row, first, count, f, rc, bearing, accepted), d = fused
+            if slots is None:
+                dets = detect_rows(_Given(table), ranges, angles, observers, poses, robot_world, trusted=True)
+            else:
+                from kin_envs.envs.common import detect_rows_padded
+
+                dets, padded = detect_rows_padded(_Given(table), ranges, angles, observers, poses, slots,
+                                                  trusted=True, hits=hits)  # fmt: skip
+            last = (first + count - 1) % n
             x, y = rc * np.cos(bearing), rc * np.sin(bearing)
             scores = self._f_perm / (self._f_perm + f)  # the permissive detector's score
-            accepted = st[idx] == ACCEPTED
         else:
             dets = detect_rows(self.detector, ranges, angles, observers, poses, robot_world, trusted=True)
             p = self.permissive
             fast = getattr(p, "_detect_arrays_trusted", None) or p.detect_arrays
             c = fast(ranges, angles)
             get = c.__getitem__ if isinstance(c, dict) else lambda k: getattr(c, k)
-            row = np.asarray(get("scan"), np.int64)
-            first, last = np.asarray(get("first_beam"), np.int64), np.asarray(get("last_beam"), np.int64)
-            x, y = np.asarray(get("x"), np.float64), np.asarray(get("y"), np.float64)
-            scores = np.asarray(get("score"), np.float64)
+            c_ = np.ascontiguousarray  # (the tracker's trusted entry takes them as they are)
+            row = c_(get("scan"), np.int64)
+            first, last = c_(get("first_beam"), np.int64), c_(get("last_beam"), np.int64)
+            x, y = c_(get("x"), np.float64), c_(get("y"), np.float64)
+            scores = c_(get("score"), np.float64)
             # accepted: the shipped detector has the same segment (scan row, first and last beam)
             d_row, d_cols = dets
             key = lambda r, a, z: (r * n + a) * n + z  # noqa: E731
             accepted = np.isin(key(row, first, last), key(d_row, d_cols["first_beam"], d_cols["last_beam"]))
-        est, count = scan_noise_of(ranges, angles)  # (the segmentation is not needed for it)
+        if self.one_call and self._noise_on_d:
+            from detectors.features import _scan_noise_of_d
+
+            est, count = _scan_noise_of_d(d, self.detector._circular)  # (its _check_batch: these angles)
+        else:
+            est, count = scan_noise_of(ranges, angles)  # (the segmentation is not needed for it)
         est = np.where(count >= 5, est, np.nan)
         noise = np.where(np.isnan(est), self.range_noise, est)
-        return dets, (row, x, y, scores, accepted, first, last, noise)
+        feed = (row, x, y, scores, accepted, first, last, noise)
+        return (dets, feed) if slots is None else (dets, padded, feed)
 
 
 def track_info(tracker, max_tracks: int) -> tuple[dict[str, np.ndarray], np.ndarray]:
@@ -136,7 +172,11 @@ def track_info(tracker, max_tracks: int) -> tuple[dict[str, np.ndarray], np.ndar
     padded slots (:data:`detectors.tracking.TRACK_FIELDS`, robot frame; empty slots 0)."""
     from detectors.tracking import TRACK_FIELDS
 
-    a = tracker.track_arrays(max_tracks)
+    own = getattr(tracker, "_track_block", None)
+    if own is not None:  # a KinTracker (or VectorTracker): the block filled in the update's compiled call
+        block, count = own(max_tracks)
+        return dict(zip(TRACK_FIELDS, block, strict=True)), count
+    a = tracker.track_arrays(max_tracks)  # (any other tracker)
     # one transposed copy (field-major, float64), each field a C-contiguous row of it: the values of a copy
     # per field (``tracks[:, :, j].astype(float64)``) at half its cost
     block = a["tracks"].transpose(2, 0, 1).astype(np.float64, order="C")
@@ -241,6 +281,17 @@ class VectorTracker:
         if tr._next_id > first:  # births: own ids per observer, in birth (= shared id) order
             self._record(*_births(tr._alive, tr._id, tr._obs, first, self._next_local))
 
+    def _track_block(self, max_tracks: int) -> tuple[np.ndarray, np.ndarray]:
+        """``KinTracker._track_block`` (:func:`track_info`'s block) with each sub-env's own track ids: the
+        values of :meth:`track_arrays`' ``tracks`` transposed to float64, as :func:`track_info` made them."""
+        block, count = self.tracker._track_block(max_tracks)
+        if count.any():
+            m = np.arange(block.shape[2]) < count[:, None]  # the filled slots (track_arrays' mask)
+            ids = block[0]
+            g = ids[m].astype(np.int64)
+            ids[m] = self._lid[np.searchsorted(self._gid, g)].astype(np.float32)  # (as the float32 slots)
+        return block, count
+
     def track_arrays(self, max_tracks: int) -> dict[str, np.ndarray]:
         """:meth:`detectors.KinTracker.track_arrays` with each sub-env's own track ids."""
         a = self.tracker.track_arrays(max_tracks)
@@ -305,14 +356,15 @@ def _update(tracker, scan: Scan, obs, row, x, y, scores, accepted, first, last, 
     from the scan's beams ``first..last`` of row ``row``): the state and outputs of ``update_batch(obs,
     c_[x, y], scores, delta, dt, *segment_points(scan.ranges, scan.angles, row, first, last,
     scan.range_max), noise, accepted)``, ``accepted=None`` all accepted (the operating point's
-    detections)."""
-    c_, i8, f8 = np.ascontiguousarray, np.int64, np.float64
-    ranges = scan.ranges
+    detections). The candidates' arrays are passed as the env built them (C-contiguous int64 / float64 /
+    bool: :func:`kin_envs.envs.common.detect_rows`, :meth:`PermissiveFeed.detect`; any other layout would
+    still give the same values, in a kernel compiled for it); the scan's as the world gives them."""
+    ranges, angles = scan.ranges, scan.angles
     if ranges.dtype != np.float32:
-        ranges = c_(ranges, f8)
-    tracker._update_segments_trusted(
-        c_(obs, i8), c_(row, i8), c_(x, f8), c_(y, f8), c_(scores, f8),
-        None if accepted is None else c_(accepted, np.bool_), c_(delta, f8), dt, c_(ranges),
-        c_(scan.angles, f8), c_(first, i8), c_(last, i8), float(scan.range_max),
-        None if noise is None else c_(noise, f8),
-    )  # fmt: skip
+        ranges = np.ascontiguousarray(ranges, np.float64)
+    elif not ranges.flags.c_contiguous:
+        ranges = np.ascontiguousarray(ranges)
+    if angles.dtype != np.float64 or not angles.flags.c_contiguous:
+        angles = np.ascontiguousarray(angles, np.float64)
+    tracker._update_segments_trusted(obs, row, x, y, scores, accepted, delta, dt, ranges, angles, first, last,
+                                     float(scan.range_max), noise)  # fmt: skip

@@ -1135,3 +1135,36 @@ def test_slots_filled_in_the_update_call_equal_track_arrays_own():
             assert all(np.array_equal(a[k], c[k]) for k in ("tracks", "mask", "count"))
         assert a["tracks"].shape == (3, n, len(TRACK_FIELDS))
     assert fused == len(frames) - 2  # every frame but the first and the one whose slot count changed
+
+
+def test_track_block_is_the_slots_transposed_and_filled_in_the_update():
+    """The envs' info block (``_track_block``, read every frame as an env reads it): filled in the update's
+    compiled call from the second frame on, bitwise ``track_arrays(n)["tracks"].transpose(2, 0, 1)
+    .astype(float64)`` of a tracker read through ``track_arrays`` (same state, same later reads), each field a
+    C-contiguous row; a ``track_arrays`` read of the same frame afterwards gives that tracker's arrays, a
+    different slot count or a hand-tuned tracker (no decision in the update) builds the block afresh."""
+    for kin_model in ("learned", "hand"):
+        frames = list(_crowded_frames(5, n_obs=3, n_frames=14))
+        tr, ref = (KinTracker(n_observers=3, kin_model=kin_model) for _ in range(2))
+        fused = 0
+        for f, (obs, xy, sc, delta, pts, own) in enumerate(frames):
+            for t in (tr, ref):
+                t.update_batch(obs, xy, sc, delta, DT, pts, own, accepted=sc > 0.5)
+            n = 4 if f < 9 else 6
+            fused += tr._pending_slots is not None and tr._pending_slots[1:3] == (n, True)
+            block, count = tr._track_block(n)
+            a = ref.track_arrays(n)
+            want = a["tracks"].transpose(2, 0, 1).astype(np.float64, order="C")
+            assert block.dtype == np.float64 and block.flags.c_contiguous and block.shape == (10, 3, n)
+            assert block.tobytes() == want.tobytes() and count.tobytes() == a["count"].tobytes()
+            if f % 3 == 2:  # a second read of the frame: the same arrays as the reference tracker's
+                b = tr.track_arrays(n)
+                assert all(np.array_equal(b[k], ref.track_arrays(n)[k]) for k in ("tracks", "mask", "count"))
+            assert all(tr.kin_prob(o).tobytes() == ref.kin_prob(o).tobytes() for o in range(3))
+        for name in ("_F", "_I", "_B", *KinTracker._FIELDS):
+            assert np.asarray(getattr(tr, name)).tobytes() == np.asarray(getattr(ref, name)).tobytes(), name
+        # every frame but the first and the one whose slot count changed (the first read of a frame sets the
+        # form the next update fills: a track_arrays read after the block changes nothing)
+        assert fused == (len(frames) - 2 if kin_model == "learned" else 0)
+    with pytest.raises(ValueError, match="max_tracks must be an int >= 0"):
+        tr._track_block(-1)

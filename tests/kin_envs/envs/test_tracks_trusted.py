@@ -10,6 +10,7 @@ import kin_envs  # noqa: F401  (registers the ids)
 from detectors.tracking import TRACK_FIELDS, KinTracker, segment_points
 from kin_envs import aggregation_v2
 from kin_envs.envs import tracks
+from kin_envs.envs.info import pad_rows
 
 
 def _public_update(tracker, scan, obs, row, x, y, scores, accepted, first, last, delta, dt, noise):
@@ -142,3 +143,78 @@ def test_vector_births_are_the_numpy_numbering(seed):
     want = _births_numpy(alive, tid, tobs, first, nl_b)
     _assert_same(list(got), list(want))
     _assert_same(nl_a, nl_b)
+
+
+def _feed_from_segments(feed, ranges, angles, observers, poses, robot_world):
+    """The permissive feed as it was built before the fused call: the shipped detections from the detector's
+    ``BatchDetections`` (``_detect_arrays_trusted``), the candidates from its per-segment arrays."""
+    from detectors._kernels import ACCEPTED, SHAPE
+    from detectors.features import scan_noise_of
+    from kin_envs.envs.common import detect_rows
+
+    class Given:
+        def _detect_arrays_trusted(self, ranges, angles):
+            return b
+
+    n = angles.shape[0]
+    b = feed.detector._detect_arrays_trusted(ranges, angles)
+    dets = detect_rows(Given(), ranges, angles, observers, poses, robot_world, trusted=True)
+    st, F = b.seg_stage, b.seg_values["F"]
+    idx = np.flatnonzero(((st == ACCEPTED) | (st == SHAPE)) & (F < feed._f_perm))
+    rc, bearing, f = b.seg_values["r_c"][idx], b.seg_values["theta_c"][idx], F[idx]
+    row, first = b.seg_scan[idx], b.seg_first[idx]
+    last = (first + b.seg_count[idx] - 1) % n
+    est, count = scan_noise_of(ranges, angles)
+    est = np.where(count >= 5, est, np.nan)
+    noise = np.where(np.isnan(est), feed.range_noise, est)
+    return dets, (row, rc * np.cos(bearing), rc * np.sin(bearing), feed._f_perm / (feed._f_perm + f),
+                  st[idx] == ACCEPTED, first, last, noise)  # fmt: skip
+
+
+@pytest.mark.parametrize("kind", ["aggregation_v2", "vector"])
+def test_permissive_feed_is_the_detector_arrays_feed(kind, monkeypatch):
+    """The geometric detector's one-call permissive feed (``_detect_table_feed_trusted``: the shipped
+    detections' table and the segments whose fit reached the permissive threshold from one compiled call) is
+    bitwise the feed built from its ``BatchDetections`` of every segment: the shipped detections and every
+    candidate array (noisy swarm and vector env scans, with SHAPE-stage candidates among them); the swarm's
+    ``detect_padded`` gives ``pad_rows`` of those detections too."""
+    seen = {"calls": 0, "shape": 0, "accepted": 0}
+    detect = tracks.PermissiveFeed.detect
+
+    def checked(self, ranges, angles, observers, poses, robot_world=None, range_max=np.inf):
+        out = detect(self, ranges, angles, observers, poses, robot_world, range_max)
+        _assert_same(out, _feed_from_segments(self, ranges, angles, observers, poses, robot_world))
+        acc = out[1][4]
+        seen["calls"] += 1
+        seen["shape"] += int(np.count_nonzero(~acc))
+        seen["accepted"] += int(np.count_nonzero(acc))
+        return out
+
+    detect_padded = tracks.PermissiveFeed.detect_padded
+
+    def checked_padded(self, ranges, angles, observers, poses, slots, hits=None, range_max=np.inf):
+        dets, padded, feed = detect_padded(self, ranges, angles, observers, poses, slots, hits, range_max)
+        ref_dets, ref_feed = _feed_from_segments(self, ranges, angles, observers, poses, None)
+        _assert_same((dets, padded, feed), (ref_dets, pad_rows(*ref_dets, len(ranges), slots), ref_feed))
+        seen["calls"] += 1
+        seen["shape"] += int(np.count_nonzero(~feed[4]))
+        seen["accepted"] += int(np.count_nonzero(feed[4]))
+        return dets, padded, feed
+
+    monkeypatch.setattr(tracks.PermissiveFeed, "detect", checked)
+    monkeypatch.setattr(tracks.PermissiveFeed, "detect_padded", checked_padded)
+    if kind == "vector":
+        env = gym.make_vec("kin_envs/KinSeek-v2", num_envs=4, detector="geometric", tracker=True,
+                           noise_sigma=0.01, arena_size=2.5)  # fmt: skip
+        env.reset(seed=5)
+        rng = np.random.default_rng(1)
+        for _ in range(20):
+            env.step(rng.uniform(-1, 1, env.action_space.shape).astype(np.float32))
+    else:
+        env = aggregation_v2.parallel_env(n_robots=12, detector="geometric", tracker=True, noise_sigma=0.005)
+        env.reset(seed=5)
+        rng = np.random.default_rng(1)
+        for _ in range(20):
+            env.step({a: rng.uniform(-1, 1, 2).astype(np.float32) for a in env.agents})
+    env.close()
+    assert seen["calls"] >= 20 and seen["shape"] > 0 and seen["accepted"] > 0, seen
