@@ -147,13 +147,18 @@ def main(argv: list[str] | None = None) -> dict:
              "Objects in view >= 2 beams for the given frames, at 0.3-2 m, still (kin moved < "
              f"{args.still:g} m); same-radius cylinders left out.", "",
              *tables(samples, args.frames)]  # fmt: skip
-    write_json(args.out / "samples.json", samples)
-    with atomic_write(args.out / "oracle.md", "w") as f:
-        f.write("\n".join(lines) + "\n")
+    _save(args, argv, t0, ("samples.json", samples), ("oracle.md", lines))
+    return {"samples": samples, "lines": lines}
+
+
+def _save(args, argv, t0: float, data: tuple[str, object], table: tuple[str, list[str]]) -> None:
+    """Write the data (JSON) and the table (markdown) atomically, then the run record; print the table."""
+    write_json(args.out / data[0], data[1])
+    with atomic_write(args.out / table[0], "w") as f:
+        f.write("\n".join(table[1]) + "\n")
     write_run_info(args.out, args, argv=argv, script=__file__, seed=args.first_seed,
                    seconds=time.perf_counter() - t0)  # fmt: skip
-    print("\n".join(lines))
-    return {"samples": samples, "lines": lines}
+    print("\n".join(table[1]))
 
 
 def _window(result: dict) -> dict:
@@ -236,12 +241,7 @@ def ceiling(args, argv) -> dict:
              "centre per frame, true headings") + "), the F1-best threshold per distance bin.",
              "", *ceiling_tables(results, compare)]  # fmt: skip
     out = {f"{k[0]} {k[1]:g}": v for k, v in results.items()}
-    write_json(args.out / "ceiling.json", {"ceiling": out, "records": records})
-    with atomic_write(args.out / "ceiling.md", "w") as f:
-        f.write("\n".join(lines) + "\n")
-    write_run_info(args.out, args, argv=argv, script=__file__, seed=args.first_seed,
-                   seconds=time.perf_counter() - t0)  # fmt: skip
-    print("\n".join(lines))
+    _save(args, argv, t0, ("ceiling.json", {"ceiling": out, "records": records}), ("ceiling.md", lines))
     return {"ceiling": out, "lines": lines}
 
 
