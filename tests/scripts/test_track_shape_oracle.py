@@ -20,7 +20,7 @@ def test_tables_rank_the_statistics_per_split_and_frames():
     "argv",
     [["--frames", "1"], ["--noise", "0"], ["--still", "0"], ["--swarm-episodes", "-1"],
      ["--noise", "0.01", "0.005"], ["--ceiling", "--noise", "0.1"], ["--compare", "results.json"],
-     ["--ceiling", "--compare", "missing.json"]],
+     ["--ceiling", "--compare", "missing.json"], ["--ceiling", "--full"], ["--full", "--benchmark-seeds"]],
 )
 def test_bad_arguments_exit(argv, tmp_path):
     mod = load_script("track_shape_oracle")
