@@ -253,6 +253,19 @@ def roc_summary(pos, neg) -> dict:
     return _roc(pos, neg)
 
 
+def _returns(ranges, valid, ang, pose, beams, own) -> tuple:
+    """One frame's evidence on one object: ``(origins, directions, ranges)`` of its ``beams`` (a mask over
+    one scan row) and ``(origins, directions)`` of the beams beside them that saw past it (no return, or a
+    return 5 cm farther than its farthest; never one of ``own``, the object's beams): its silhouette. Beam
+    directions ``ang`` and the sensor at ``pose`` in one common frame."""
+    r = ranges[beams].astype(float)
+    nb = (np.roll(beams, 1) | np.roll(beams, -1)) & ~own
+    nb &= ~valid | (ranges > r.max() + 0.05)
+    o = np.asarray(pose, float)[None, :2]
+    return (np.repeat(o, len(r), 0), np.c_[np.cos(ang[beams]), np.sin(ang[beams])], r,
+            np.repeat(o, int(nb.sum()), 0), np.c_[np.cos(ang[nb]), np.sin(ang[nb])])  # fmt: skip
+
+
 def _episode_family(world, step_deg: float):
     """The look-alike family of one episode's world (the generic outlines plus its own non-wall obstacles
     at their true orientation), which obstacles are kin-sized and which are same-radius cylinders."""
@@ -349,17 +362,11 @@ def oracle_samples(recorded, frames=(10, 20), distance=(0.3, 2.0), still: float 
                         true_xy = w.poses[j, :2] if key_kind == "r" else np.asarray(obst[j].center)
                         a = acc.setdefault(key, {"o": [], "u": [], "r": [], "no": [], "nu": [], "f": [],
                                                  "nf": [], "start": true_xy.copy()})  # fmt: skip
-                        u = np.c_[np.cos(ang[b]), np.sin(ang[b])]
-                        a["o"].append(np.repeat(pose[None, :2], b.sum(), 0))
-                        a["u"].append(u)
-                        a["r"].append(scan.ranges[row][b].astype(float))
-                        # the beams beside it that saw past it (no return, or farther): its silhouette
-                        nb = (np.roll(b, 1) | np.roll(b, -1)) & ~(sel & (index == j))
-                        nb &= ~valid | (scan.ranges[row] > a["r"][-1].max() + 0.05)
-                        a["no"].append(np.repeat(pose[None, :2], nb.sum(), 0))
-                        a["nu"].append(np.c_[np.cos(ang[nb]), np.sin(ang[nb])])
-                        a["f"].append(np.full(int(b.sum()), frame))
-                        a["nf"].append(np.full(int(nb.sum()), frame))
+                        got = _returns(scan.ranges[row], valid, ang, pose, b, sel & (index == j))
+                        for name, v in zip(("o", "u", "r", "no", "nu"), got, strict=True):
+                            a[name].append(v)
+                        a["f"].append(np.full(len(got[2]), frame))
+                        a["nf"].append(np.full(len(got[3]), frame))
                         n_in = len(a["r"])
                         if n_in not in frames or (key, n_in) in done:
                             continue
@@ -490,13 +497,8 @@ def ceiling_records(spec, n_episodes: int | None = None, noise: float = 0.01, st
                     if not is_still:
                         continue  # the oracle finds a kin that moved; its rows come below, no evidence needed
                     b = obj == j
-                    r = scan.ranges[row][b].astype(float)
-                    nb = (np.roll(b, 1) | np.roll(b, -1)) & ~b
-                    nb &= ~valid | (scan.ranges[row] > r.max() + 0.05)
-                    o = np.array([[x0, y0]])
-                    u, nu = np.c_[np.cos(ang[b]), np.sin(ang[b])], np.c_[np.cos(ang[nb]), np.sin(ang[nb])]
-                    data.setdefault((row, j), []).append(
-                        (frame, np.repeat(o, len(u), 0), u, r, np.repeat(o, len(nu), 0), nu))
+                    got = _returns(scan.ranges[row], valid, ang, scan.poses[row], b, b)
+                    data.setdefault((row, j), []).append((frame, *got))
                 seen_kin[row].update(seen[counts[ids < n_rob] >= MIN_BEAMS].tolist())
                 sk = np.fromiter(seen_kin[row], np.int64)
                 gone = np.hypot(*(w.poses[sk, :2] - start[sk]).T)

@@ -177,6 +177,8 @@ def test_ceiling_records_count_the_benchmarks_window(monkeypatch):
         ceiling_records(spec, 1, min_age=0)
     with pytest.raises(ValueError, match="centre must be"):
         ceiling_records(spec, 1, centre="both")
+    with pytest.raises(ValueError, match="still must be > 0"):
+        ceiling_records(spec, 1, still=0.0)
 
 
 def test_one_centre_ceiling_scores_the_same_rows():
