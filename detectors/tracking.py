@@ -1258,8 +1258,7 @@ class KinTracker:
         zero-padded (columns :data:`TRACK_FIELDS`; positions and velocities in each observer's current robot
         frame), ``mask`` (n_observers, max_tracks) bool and ``count`` (n_observers,). Per observer, confirmed
         tracks come first, then by kin probability, when there are more than ``max_tracks``."""
-        if isinstance(max_tracks, bool) or not isinstance(max_tracks, int | np.integer) or max_tracks < 0:
-            raise ValueError(f"KinTracker.track_arrays: max_tracks must be an int >= 0, got {max_tracks!r}")
+        _check_max_tracks(max_tracks)
         out, mask, count, _ = self._read_slots(int(max_tracks), False)
         return {"tracks": out, "mask": mask, "count": count}
 
@@ -1268,8 +1267,7 @@ class KinTracker:
         n_observers, max_tracks) float64 the values of ``track_arrays(max_tracks)["tracks"].transpose(2, 0,
         1).astype(float64)`` (``count`` its count) bit for bit, with the same effect on the tracker; each
         field a C-contiguous row. Filled in the update's compiled call when the frame before was read so."""
-        if isinstance(max_tracks, bool) or not isinstance(max_tracks, int | np.integer) or max_tracks < 0:
-            raise ValueError(f"KinTracker.track_arrays: max_tracks must be an int >= 0, got {max_tracks!r}")
+        _check_max_tracks(max_tracks)
         _, _, count, block = self._read_slots(int(max_tracks), True)
         return block, count
 
@@ -1301,6 +1299,11 @@ for _pack, _cols in (("_F", _F_COLS), ("_I", _I_COLS), ("_B", _B_COLS)):
     for _i, _name in enumerate(_cols):
         setattr(KinTracker, _name, _column(_pack, _i, _name))
 assert set(KinTracker._FIELDS) == {*_F_COLS, *_I_COLS, *_B_COLS, *_ARRAYS}
+
+
+def _check_max_tracks(max_tracks) -> None:
+    if isinstance(max_tracks, bool) or not isinstance(max_tracks, int | np.integer) or max_tracks < 0:
+        raise ValueError(f"KinTracker.track_arrays: max_tracks must be an int >= 0, got {max_tracks!r}")
 
 
 def _log_min(m: TrackKinModel) -> float:
@@ -2433,11 +2436,8 @@ def _update_kernel(obs, xy, scores, accepted, delta, dt, pts, owner, has_points,
     )  # fmt: skip
     if not status:
         B[3][n:] = False  # "updated this frame" is cleared on every row (a row adopt() freed may hold it)
-    no_slots = (np.zeros((0, 0, 10), np.float32), np.zeros((0, 0), np.bool_), np.zeros(0, np.int64),
-                np.zeros((0, 0, 0)))
     if status or not dec:
-        return (status, next_id, np.empty(0, np.int64), np.zeros(0), np.empty(0, np.int64), np.empty((0, 0)),
-                no_slots)  # fmt: skip
+        return _no_decision(status, next_id)
     mean, scale, W, b, W2, b2, tail, log_min, hit_only = _model_views(model)
     rows, kp, sel, h = _decide_kernel(
         poses.shape[0], alive, confirmed, tobs, seen, x, P, anchor, anchor_var, anchor_odo, anchor_rng,
@@ -2445,7 +2445,7 @@ def _update_kernel(obs, xy, scores, accepted, delta, dt, pts, owner, has_points,
         res_chi2, res_dof, prm[21], prm[22], mean, scale, W, b, W2, b2, tail, log_min, hit_only,
     )  # fmt: skip
     if slots < 0:
-        return status, next_id, rows, kp, sel, h, no_slots
+        return status, next_id, rows, kp, sel, h, _no_slots()
     # track_arrays' slots while this frame's rows are in cache (_slots_kernel on the rows below n: every live
     # row is; ``poses`` already the new poses)
     so = _slots_kernel(rows, kp, poses.shape[0], slots, tobs, tid, confirmed, x, poses, exist, seen, age,
@@ -2454,6 +2454,20 @@ def _update_kernel(obs, xy, scores, accepted, delta, dt, pts, owner, has_points,
 
 
 _NEED_ROOM = 8  # _update_segments_kernel: the state's arrays need more rows (``next_id``: how many)
+
+
+@numba.njit(cache=True, nogil=True)
+def _no_slots():
+    """:func:`_slots_kernel`'s outputs when it does not run: ``(tracks, mask, count, blk)``, all empty."""
+    return (np.zeros((0, 0, 10), np.float32), np.zeros((0, 0), np.bool_), np.zeros(0, np.int64),
+            np.zeros((0, 0, 0)))
+
+
+@numba.njit(cache=True, nogil=True)
+def _no_decision(status, next_id):
+    """:func:`_update_kernel`'s outputs when no decision ran (``status``, ``next_id`` as given)."""
+    return (status, next_id, np.empty(0, np.int64), np.zeros(0), np.empty(0, np.int64), np.empty((0, 0)),
+            _no_slots())
 
 
 @numba.njit(cache=True, nogil=True)
@@ -2474,9 +2488,7 @@ def _update_segments_kernel(obs, rows, x, y, scores, accepted, all_accepted, del
     for t in range(B.shape[1]):
         n_alive += B[0, t]
     if n_alive + kept > B.shape[1]:
-        return (_NEED_ROOM, n_alive + kept, np.empty(0, np.int64), np.zeros(0), np.empty(0, np.int64),
-                np.empty((0, 0)), (np.zeros((0, 0, 10), np.float32), np.zeros((0, 0), np.bool_),
-                                   np.zeros(0, np.int64), np.zeros((0, 0, 0))))  # fmt: skip
+        return _no_decision(_NEED_ROOM, n_alive + kept)
     xy = np.empty((k, 2))
     for c in range(k):
         xy[c, 0], xy[c, 1] = x[c], y[c]
@@ -2930,42 +2942,22 @@ def _slots_kernel(rows, kp, n_obs, max_tracks, tobs, tid, confirmed, x, poses, e
         g = slot[a:e]
         c, s = math.cos(poses[o, 2]), math.sin(poses[o, 2])
         m = min(g.shape[0], max_tracks)
-        if block:
-            for r in range(m):
-                i = g[r]
-                t = rows[i]
-                d0, d1 = x[t, 0] - poses[o, 0], x[t, 1] - poses[o, 1]
-                v0, v1 = x[t, 2], x[t, 3]
-                # each value rounded to the float32 slot's, then widened (exact)
-                blk[0, o, r] = np.float32(float(tid[t]))
-                blk[1, o, r] = np.float32(c * d0 + s * d1)
-                blk[2, o, r] = np.float32(-s * d0 + c * d1)
-                blk[3, o, r] = np.float32(c * v0 + s * v1)
-                blk[4, o, r] = np.float32(-s * v0 + c * v1)
-                blk[5, o, r] = np.float32(exist[t])
-                blk[6, o, r] = np.float32(kp[i])
-                blk[7, o, r] = np.float32(float(seen[t]))
-                blk[8, o, r] = 1.0 if confirmed[t] else 0.0
-                blk[9, o, r] = np.float32(float(age[t]))
-            for j in range(10):
-                blk[j, o, m:] = 0.0
-            count[o] = m
-            continue
         for r in range(m):
             i = g[r]
             t = rows[i]
             d0, d1 = x[t, 0] - poses[o, 0], x[t, 1] - poses[o, 1]
             v0, v1 = x[t, 2], x[t, 3]
-            out[o, r, 0] = float(tid[t])
-            out[o, r, 1] = c * d0 + s * d1
-            out[o, r, 2] = -s * d0 + c * d1
-            out[o, r, 3] = c * v0 + s * v1
-            out[o, r, 4] = -s * v0 + c * v1
-            out[o, r, 5] = exist[t]
-            out[o, r, 6] = kp[i]
-            out[o, r, 7] = float(seen[t])
-            out[o, r, 8] = 1.0 if confirmed[t] else 0.0
-            out[o, r, 9] = float(age[t])
-            mask[o, r] = True
+            vals = (float(tid[t]), c * d0 + s * d1, -s * d0 + c * d1, c * v0 + s * v1, -s * v0 + c * v1,
+                    exist[t], kp[i], float(seen[t]), 1.0 if confirmed[t] else 0.0, float(age[t]))
+            if block:  # each value rounded to the float32 slot's, then widened (exact)
+                for j in range(10):
+                    blk[j, o, r] = np.float32(vals[j])
+            else:
+                for j in range(10):
+                    out[o, r, j] = vals[j]
+                mask[o, r] = True
+        if block:
+            for j in range(10):
+                blk[j, o, m:] = 0.0
         count[o] = m
     return out, mask, count, blk
