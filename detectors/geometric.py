@@ -913,19 +913,19 @@ class GeometricKinDetector(KinDetector):
         without a :class:`~detectors.base.BatchDetections` and the ~25 numpy calls that build it and stack
         it back into a table. The same values (``x``, ``y``: numpy's ``cos`` / ``sin`` of the same contiguous
         bearings, times the same ranges); fresh arrays on every call."""
-        rb, a = self._check_batch(ranges, angles, True)
-        p = self.params
         # the stages of _stages and the gather in one compiled call (for one scan, the ~12 allocations and
         # four calls from Python cost about as much as the scan's detection, measured)
-        row, table, rc, bearing = _detect_table(
-            np.ascontiguousarray(rb), np.ascontiguousarray(a), float(p.d_max), float(p.d_th), self._circular,
-            p.noise_filter, self._sweep, float(p.r), float(p.F_threshold), p.shape_metric == "mean",
-            p.occlusion_unbounded, p.min_points, p.lm_max_iter, _LM_XTOL, _LM_LAMBDA0, _LM_LAMBDA_MAX,
-        )  # fmt: skip
-        if row.shape[0]:
-            np.multiply(rc, np.cos(bearing), out=table[:, 2])
-            np.multiply(rc, np.sin(bearing), out=table[:, 3])
-        return row, table
+        row, table, rc, bearing = _detect_table(*self._table_args(ranges, angles))
+        return _table_xy(row, table, rc, bearing)
+
+    def _table_args(self, ranges, angles) -> tuple:
+        """The compiled table calls' arguments: the checked scans and this detector's parameters."""
+        rb, a = self._check_batch(ranges, angles, True)
+        p = self.params
+        return (np.ascontiguousarray(rb), np.ascontiguousarray(a), float(p.d_max), float(p.d_th),
+                self._circular, p.noise_filter, self._sweep, float(p.r), float(p.F_threshold),
+                p.shape_metric == "mean", p.occlusion_unbounded, p.min_points, p.lm_max_iter, _LM_XTOL,
+                _LM_LAMBDA0, _LM_LAMBDA_MAX)  # fmt: skip
 
     def _detect_table_feed_trusted(self, ranges, angles, F_keep: float) -> tuple[tuple, tuple]:
         """:meth:`_detect_table_trusted` (same input contract) and, from the same compiled call, every segment
@@ -934,18 +934,9 @@ class GeometricKinDetector(KinDetector):
         d)``, the values of :meth:`_detect_arrays_trusted`'s ``seg_*`` arrays and ``seg_values`` at those
         segments bit for bit (the envs' permissive feed: :class:`kin_envs.envs.tracks.PermissiveFeed`, without
         a :class:`~detectors.base.BatchDetections` of every segment); ``d`` the preprocessed scans (B, n)."""
-        rb, a = self._check_batch(ranges, angles, True)
-        p = self.params
-        row, table, rc, bearing, feed, d = _detect_table_feed(
-            np.ascontiguousarray(rb), np.ascontiguousarray(a), float(p.d_max), float(p.d_th), self._circular,
-            p.noise_filter, self._sweep, float(p.r), float(p.F_threshold), p.shape_metric == "mean",
-            p.occlusion_unbounded, p.min_points, p.lm_max_iter, _LM_XTOL, _LM_LAMBDA0, _LM_LAMBDA_MAX,
-            float(F_keep),
-        )  # fmt: skip
-        if row.shape[0]:
-            np.multiply(rc, np.cos(bearing), out=table[:, 2])
-            np.multiply(rc, np.sin(bearing), out=table[:, 3])
-        return (row, table), feed, d
+        args = (*self._table_args(ranges, angles), float(F_keep))
+        row, table, rc, bearing, feed, d = _detect_table_feed(*args)
+        return _table_xy(row, table, rc, bearing), feed, d
 
     def _stages(self, ranges, angles, trusted: bool):
         """Segments and stages of every segment: ``(ranges, angles, segments (scan, first, count, prev, next,
@@ -1062,15 +1053,31 @@ class GeometricKinDetector(KinDetector):
         return self.results(self.detect_arrays(ranges, angles))
 
 
+def _table_xy(row, table, rc, bearing) -> tuple[np.ndarray, np.ndarray]:
+    """``(row, table)`` with the table's ``x, y`` columns filled: numpy's ``cos`` / ``sin`` of the contiguous
+    bearings times the ranges (the values :meth:`GeometricKinDetector._detect_arrays_trusted` gives)."""
+    if row.shape[0]:
+        np.multiply(rc, np.cos(bearing), out=table[:, 2])
+        np.multiply(rc, np.sin(bearing), out=table[:, 3])
+    return row, table
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def _segmented(rb, d_max, d_th, circular, noise_filter):
+    """The preprocessed scans ``d`` and their segments (:func:`detectors._kernels._segment_views`)."""
+    d = np.empty(rb.shape)
+    _k.preprocess_rows(rb, d_max, d_th, circular, noise_filter, d)
+    scan, first, count, prev, nxt, p_near, n_near = _k._segment_views(d, d_th, d_max, circular)
+    return d, scan, first, count, prev, nxt, p_near, n_near
+
+
 @numba.njit(cache=True, error_model="numpy", nogil=True)
 def _detect_table(rb, a, d_max, d_th, circular, noise_filter, sweep, r, F_threshold, mean_metric,
                   occlusion_unbounded, min_points, lm_max_iter, xtol, lam0, lam_max):  # fmt: skip
     """:meth:`GeometricKinDetector._stages` (the same compiled stages on the same arguments, the shape
     stage only for the segments that can be accepted: :func:`detectors._kernels.accepted_segments`) then
     :func:`_accepted_table`, in one call."""
-    d = np.empty(rb.shape)
-    _k.preprocess_rows(rb, d_max, d_th, circular, noise_filter, d)
-    scan, first, count, prev, nxt, p_near, n_near = _k._segment_views(d, d_th, d_max, circular)
+    d, scan, first, count, prev, nxt, p_near, n_near = _segmented(rb, d_max, d_th, circular, noise_filter)
     S = scan.shape[0]
     accepted = np.empty(S, dtype=np.bool_)
     F = np.empty(S)
@@ -1089,9 +1096,7 @@ def _detect_table_feed(rb, a, d_max, d_th, circular, noise_filter, sweep, r, F_t
                        F_keep):  # fmt: skip
     """:func:`_detect_table` and the segments whose fit reached ``F < F_keep``
     (:meth:`GeometricKinDetector._detect_table_feed_trusted`), in one call."""
-    d = np.empty(rb.shape)
-    _k.preprocess_rows(rb, d_max, d_th, circular, noise_filter, d)
-    scan, first, count, prev, nxt, p_near, n_near = _k._segment_views(d, d_th, d_max, circular)
+    d, scan, first, count, prev, nxt, p_near, n_near = _segmented(rb, d_max, d_th, circular, noise_filter)
     S = scan.shape[0]
     accepted = np.empty(S, dtype=np.bool_)
     kept = np.empty(S, dtype=np.bool_)

@@ -362,8 +362,8 @@ class AggregationEnv(ParallelEnv):
         if cfg.obs_tracks:  # every agent's detection channel from its own confirmed kin tracks
             from kin_envs.envs.tracks import track_rows
 
-            angles = scan.angles if cfg.obs_detections == "mask" else None  # (only the mask reads beams)
-            frame = self._obs.frame(scan.ranges, track_rows(self.tracker, cfg.max_tracks, angles))
+            rows = track_rows(self.tracker, cfg.max_tracks, cfg.track_angles(scan.angles))
+            frame = self._obs.frame(scan.ranges, rows)
         else:
             frame = self._obs.frame(scan.ranges, dets)
         if self.padded_info:

@@ -206,8 +206,7 @@ class SingleRobotEnv(gym.Env):
         """The tracker's confirmed kin tracks as detection rows (for ``obs_tracks``)."""
         from kin_envs.envs.tracks import track_rows
 
-        # the beams a track covers only where the observation's mask channel reads them
-        angles = self.world.scene.lidar.angles if self.config.obs_detections == "mask" else None
+        angles = self.config.track_angles(self.world.scene.lidar.angles)
         return track_rows(self.tracker, self.config.max_tracks, angles)
 
     def _sense(self, scan: Scan, dets) -> np.ndarray:

@@ -239,6 +239,12 @@ class CommonConfig:
         if self.obs_tracks and (self.tracker is None or mode is None):
             raise ValueError(f"{w}: obs_tracks=True needs tracker=True and obs_detections ('topk' or 'mask')")
 
+    def track_angles(self, angles):
+        """``angles`` (the lidar's beams) where the observation reads a track's beams (the mask channel: a
+        track marks the beams that would meet its housing), else ``None``: ``kin_envs.envs.tracks.track_rows``
+        then skips working them out."""
+        return angles if self.obs_detections == "mask" else None
+
     def make_tracker(self, n_observers: int = 1, detector=None):
         """The configured :class:`detectors.KinTracker` (imported lazily), or ``None``. ``detector``: the
         env's resolved detector, which ``kin_model="auto"`` (v2's default) reads."""

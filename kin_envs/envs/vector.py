@@ -185,9 +185,8 @@ class KinVectorEnv(VectorEnv):
         rendering): its own tracker during its reset, the shared one's observer ``i`` otherwise."""
         if self._in_reset:
             return SingleRobotEnv._track_rows(self.envs[i])
-        mask = self.config.obs_detections == "mask"  # (only the mask channel reads a track's beams)
-        row, cols = track_rows(self._tracks, self.config.max_tracks,
-                               self.envs[i].world.scene.lidar.angles if mask else None)  # fmt: skip
+        angles = self.config.track_angles(self.envs[i].world.scene.lidar.angles)
+        row, cols = track_rows(self._tracks, self.config.max_tracks, angles)
         sel = row == i
         return np.zeros(int(sel.sum()), np.int64), {f: c[sel] for f, c in cols.items()}
 
@@ -360,8 +359,8 @@ class KinVectorEnv(VectorEnv):
             kin["kin_tracks"] = ((cols, count) if len(on) == self.num_envs
                                  else ({f: c[on_a] for f, c in cols.items()}, count[on_a]))  # fmt: skip
             if self.config.obs_tracks:
-                mask = self.config.obs_detections == "mask"  # (only the mask channel reads a track's beams)
-                t_row, t_c = track_rows(self._tracks, self.config.max_tracks, angles if mask else None)
+                t_angles = self.config.track_angles(angles)
+                t_row, t_c = track_rows(self._tracks, self.config.max_tracks, t_angles)
                 pos = np.full(self.num_envs, -1, np.int64)
                 pos[on_a] = np.arange(on_a.size)
                 keep = pos[t_row] >= 0
